@@ -1,0 +1,1 @@
+"""Aircraft: trajectories, clocks, IMU, positioning estimators, process entry."""

@@ -1,0 +1,2 @@
+"""The larns command line and tooling: fleet, recorder, replay, report, benchmarks, scenarios."""
+__version__ = "0.1.0"

@@ -1,0 +1,54 @@
+"""`larns` command line: one entry point, subcommands registered by their own modules.
+
+Each module listed in ``COMMANDS`` exposes ``register(subparsers)`` which adds its parser and
+sets ``func`` (called with the parsed args, returns an exit code). Registration must stay cheap:
+heavy imports (zenoh, matplotlib, scipy) happen inside the command functions, so ``--help``
+is instant.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from . import __version__
+
+# (module, one-line purpose) in the order shown by --help
+COMMANDS: list[str] = [
+    "larns.bench",
+]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="larns",
+        description=(
+            "LARNS - emulator of a Local Autonomous Radio Navigation System. Ground stations "
+            "survey their own coordinate frame by two-way ranging over Eclipse Zenoh; an aircraft "
+            "positions itself from their broadcasts; everything is recorded to MCAP."
+        ),
+        epilog="Run `larns COMMAND --help` for the options of a command. Docs: docs/architecture.md",
+    )
+    p.add_argument("--version", action="version", version=f"larns {__version__}")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+    for mod in COMMANDS:
+        importlib.import_module(mod).register(sub)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    func = getattr(args, "func", None)
+    if func is None:
+        parser.print_help()
+        return 2
+    try:
+        return int(func(args) or 0)
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

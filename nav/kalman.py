@@ -1,0 +1,100 @@
+"""Kalman filter steps shared by stations and aircraft (vectorized over leading axes).
+
+Gains are formed with Cholesky solves of the innovation covariance, never with an explicit
+inverse; covariances are symmetrized after every update.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+import scipy.linalg as sla
+
+from .ut import SigmaParams, unscented_transform
+
+
+def symmetrize(P: np.ndarray) -> np.ndarray:
+    """``(P + P^T) / 2`` over the last two axes."""
+    return 0.5 * (P + np.swapaxes(P, -1, -2))
+
+
+def chol_solve(S: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Solve ``S X = B`` for symmetric positive definite ``S`` (..., m, m), ``B`` (..., m, k)."""
+    if S.ndim == 2 and B.ndim == 2:
+        return sla.cho_solve(sla.cho_factor(S, lower=True, check_finite=False), B, check_finite=False)
+    L = np.linalg.cholesky(S)
+    Y = np.linalg.solve(L, B)
+    return np.linalg.solve(np.swapaxes(L, -1, -2), Y)
+
+
+def gain(Pxz: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """Kalman gain ``K = Pxz S^-1`` (seed 000 eq. 12) via ``S K^T = Pxz^T``; (..., n, m)."""
+    return np.swapaxes(chol_solve(S, np.swapaxes(Pxz, -1, -2)), -1, -2)
+
+
+def update(
+    x: np.ndarray, P: np.ndarray, nu: np.ndarray, S: np.ndarray, Pxz: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Generic update (seed 000 eq. 13): ``x + K nu``, ``P - K S K^T``.
+
+    Parameters
+    ----------
+    x : (..., n); P : (..., n, n); nu : (..., m) innovation; S : (..., m, m); Pxz : (..., n, m).
+    """
+    K = gain(Pxz, S)
+    x_new = x + np.einsum("...ij,...j->...i", K, nu)
+    P_new = P - K @ S @ np.swapaxes(K, -1, -2)
+    return x_new, symmetrize(P_new)
+
+
+def kf_predict(x, P, F, Q):
+    """Linear prediction ``F x``, ``F P F^T + Q``; F (..., n, n)."""
+    x_new = np.einsum("...ij,...j->...i", F, x)
+    return x_new, symmetrize(F @ P @ np.swapaxes(F, -1, -2) + Q)
+
+
+def kf_update(x, P, z, H, R):
+    """Linear update in Joseph form; H (..., m, n), R (..., m, m). Returns x, P, nu, S."""
+    nu = z - np.einsum("...ij,...j->...i", H, x)
+    Ht = np.swapaxes(H, -1, -2)
+    S = symmetrize(H @ P @ Ht + R)
+    K = gain(P @ Ht, S)
+    x_new = x + np.einsum("...ij,...j->...i", K, nu)
+    IKH = np.eye(x.shape[-1]) - K @ H
+    P_new = IKH @ P @ np.swapaxes(IKH, -1, -2) + K @ R @ np.swapaxes(K, -1, -2)
+    return x_new, symmetrize(P_new), nu, S
+
+
+def ekf_update(x, P, z, h: Callable, H: np.ndarray, R):
+    """EKF update with measurement function ``h(x) -> (..., m)`` and its Jacobian ``H`` at ``x``."""
+    nu = z - h(x)
+    Ht = np.swapaxes(H, -1, -2)
+    S = symmetrize(H @ P @ Ht + R)
+    x_new, P_new = update(x, P, nu, S, P @ Ht)
+    return x_new, P_new, nu, S
+
+
+def ukf_predict(x, P, f: Callable, Q, params: SigmaParams):
+    """Unscented prediction through ``f`` (vectorized over sigma points); returns x, P."""
+    ut = unscented_transform(f, x, P, params)
+    return ut.mean, symmetrize(ut.cov + Q)
+
+
+def ukf_update(x, P, z, h: Callable, R, params: SigmaParams):
+    """Unscented update (seed 000 eqs. 10-13). Returns x, P, nu, S."""
+    ut = unscented_transform(h, x, P, params)
+    S = symmetrize(ut.cov + R)
+    nu = z - ut.mean
+    x_new, P_new = update(x, P, nu, S, ut.cross)
+    return x_new, P_new, nu, S
+
+
+def nis(nu: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """Normalized innovation squared ``nu^T S^-1 nu``; (...,)."""
+    return np.einsum("...i,...i->...", nu, chol_solve(S, nu[..., None])[..., 0])
+
+
+def nees(err: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """Normalized estimation error squared ``e^T P^-1 e``; (...,)."""
+    return nis(err, P)

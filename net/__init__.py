@@ -1,0 +1,1 @@
+"""Networking: Zenoh bus, message schemas (msgpack, validated), channel emulation."""

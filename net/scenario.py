@@ -1,0 +1,240 @@
+"""Scenario files (TOML): the emulated world - true station positions, TDMA timing, channel
+parameters, initial-fix accuracy, network faults and the aircraft.
+
+A scenario is data for the emulator shell. Estimators never see it (only the parts a real station
+would know: its id, the TDMA plan, its nominal ranging accuracy and its coarse initial fix).
+
+Format (see docs/scenarios.md for the full reference)::
+
+    name = "seed000"
+    description = "..."
+    seed = 1                      # RNG seed of everything random in the world
+
+    [frame]
+    z_ref = 4                     # station id fixing the sign of +Z
+
+    [layout]                      # either a random layout ...
+    kind = "random"
+    n = 10
+    area_m = [2000.0, 2000.0, 80.0]
+    min_separation_m = 100.0
+    # ... or explicit stations:
+    # [[stations]]
+    # id = 1
+    # pos_m = [0.0, 0.0, 0.0]     # physical coordinates; converted to the network frame
+
+    [tdma]
+    cycle_s = 1.0
+    slot_s = 0.01
+
+    [channel]
+    sigma_d_m = 0.5               # two-way range noise (1 sigma)
+    nlos_prob = 0.0
+    nlos_bias_m = 0.0             # mean of the exponential positive NLOS bias
+    loss_prob = 0.0
+    clock_offset_s = 0.0          # sigma of per-station clock offsets
+    clock_drift_ppm = 0.0         # sigma of per-station clock drifts
+    turnaround_s = 0.001          # responder's fixed turnaround
+
+    [net]                         # injected network faults (wire, not air)
+    delay_s = 0.0
+    jitter_s = 0.0
+    loss_prob = 0.0
+    dup_prob = 0.0
+
+    [init]
+    sigma0_m = 10.0               # coarse external fix, per coordinate; 0 -> no fix (trilaterate)
+
+    [survey]
+    estimator = "dmap"
+    ranges_per_update = 3         # seed-ukf: l
+"""
+
+from __future__ import annotations
+
+import importlib.resources
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from nav.geometry import to_network_frame
+
+
+@dataclass(frozen=True)
+class ChannelParams:
+    sigma_d_m: float = 0.5
+    nlos_prob: float = 0.0
+    nlos_bias_m: float = 0.0
+    loss_prob: float = 0.0
+    clock_offset_s: float = 0.0
+    clock_drift_ppm: float = 0.0
+    turnaround_s: float = 0.001
+
+
+@dataclass(frozen=True)
+class NetFaults:
+    delay_s: float = 0.0
+    jitter_s: float = 0.0
+    loss_prob: float = 0.0
+    dup_prob: float = 0.0
+
+
+@dataclass(frozen=True)
+class Tdma:
+    cycle_s: float = 1.0
+    slot_s: float = 0.01
+
+    @property
+    def slots_per_cycle(self) -> int:
+        return int(round(self.cycle_s / self.slot_s))
+
+
+@dataclass
+class Scenario:
+    """A loaded scenario. ``pos_m`` is (n, 3) in the network frame, rows ordered like ``ids``."""
+
+    name: str
+    description: str
+    seed: int
+    ids: list[int]
+    pos_m: np.ndarray
+    z_ref: int
+    tdma: Tdma
+    channel: ChannelParams
+    net: NetFaults
+    sigma0_m: float
+    estimator: str
+    ranges_per_update: int
+    join_ids: list[int] = field(default_factory=list)  # stations that start later with --join
+    aircraft: dict[str, Any] = field(default_factory=dict)
+    raw: dict[str, Any] = field(default_factory=dict)
+
+    def index(self, station_id: int) -> int:
+        return self.ids.index(station_id)
+
+    def true_pos(self, station_id: int) -> np.ndarray:
+        return self.pos_m[self.index(station_id)]
+
+    @property
+    def initial_ids(self) -> list[int]:
+        return [i for i in self.ids if i not in self.join_ids]
+
+
+def random_layout(
+    rng: np.random.Generator, n: int, area_m: tuple[float, float, float], min_separation_m: float = 100.0
+) -> np.ndarray:
+    """Uniform random physical positions (n, 3) in a box, with a minimum horizontal separation."""
+    pts: list[np.ndarray] = []
+    for _ in range(100_000):
+        p = rng.uniform(0.0, 1.0, 3) * np.asarray(area_m, dtype=float)
+        if all(np.hypot(*(p[:2] - q[:2])) >= min_separation_m for q in pts):
+            pts.append(p)
+            if len(pts) == n:
+                return np.array(pts)
+    raise ValueError("could not place stations with that separation; lower min_separation_m")
+
+
+def order_for_frame(pos_m: np.ndarray) -> np.ndarray:
+    """Reorder random physical positions so the frame stations make a well-conditioned frame.
+
+    Station 1: nearest the centroid's corner (the first point); station 2: the farthest point from 1;
+    station 3: the point farthest from the line 1-2; station 4: the point highest above the plane of
+    1-2-3 (so +Z points up). Returns an index permutation.
+    """
+    n = len(pos_m)
+    idx = list(range(n))
+    i1 = 0
+    i2 = max((i for i in idx if i != i1), key=lambda i: np.linalg.norm(pos_m[i] - pos_m[i1]))
+    ex = (pos_m[i2] - pos_m[i1]) / np.linalg.norm(pos_m[i2] - pos_m[i1])
+
+    def off_line(i: int) -> float:
+        v = pos_m[i] - pos_m[i1]
+        return float(np.linalg.norm(v - ex * (v @ ex)))
+
+    i3 = max((i for i in idx if i not in (i1, i2)), key=off_line)
+    order = [i1, i2, i3]
+    rest = [i for i in idx if i not in order]
+    if rest:
+        nrm = np.cross(pos_m[i2] - pos_m[i1], pos_m[i3] - pos_m[i1])
+        nrm = nrm / np.linalg.norm(nrm) * (1.0 if nrm[2] >= 0 else -1.0)  # upward normal
+        i4 = max(rest, key=lambda i: float((pos_m[i] - pos_m[i1]) @ nrm))
+        order.append(i4)
+        order += [i for i in rest if i != i4]
+    return np.array(order)
+
+
+def resolve(name_or_path: str | Path) -> Path:
+    """A scenario path: an existing file, or the name of a packaged scenario (``seed000``)."""
+    p = Path(name_or_path)
+    if p.suffix == ".toml" and p.exists():
+        return p
+    if p.exists() and p.is_file():
+        return p
+    pkg = importlib.resources.files("larns") / "scenarios" / f"{name_or_path}.toml"
+    if pkg.is_file():
+        return Path(str(pkg))
+    raise FileNotFoundError(f"no scenario file or packaged scenario named {name_or_path!r}")
+
+
+def load(name_or_path: str | Path, **overrides: Any) -> Scenario:
+    """Load a scenario by name or path. ``overrides`` replace top-level keys of sections,
+    e.g. ``load("seed000", channel={"sigma_d_m": 1.5}, layout={"n": 12}, seed=7)``."""
+    with open(resolve(name_or_path), "rb") as f:
+        raw = tomllib.load(f)
+    for k, v in overrides.items():
+        if isinstance(v, dict):
+            raw.setdefault(k, {}).update(v)
+        else:
+            raw[k] = v
+    return from_dict(raw)
+
+
+def from_dict(raw: dict[str, Any]) -> Scenario:
+    seed = int(raw.get("seed", 0))
+    frame = raw.get("frame", {})
+    z_ref = int(frame.get("z_ref", 4))
+    if "stations" in raw:
+        st = raw["stations"]
+        ids = [int(s["id"]) for s in st]
+        phys = np.array([[float(v) for v in s["pos_m"]] for s in st])
+        join_ids = [int(s["id"]) for s in st if s.get("join", False)]
+    else:
+        lay = raw.get("layout", {})
+        n = int(lay.get("n", 10))
+        rng = np.random.default_rng(seed)
+        phys = random_layout(rng, n, tuple(lay.get("area_m", (2000.0, 2000.0, 80.0))),
+                             float(lay.get("min_separation_m", 100.0)))
+        phys = phys[order_for_frame(phys)]
+        ids = list(range(1, n + 1))
+        join_ids = [int(i) for i in lay.get("join_ids", [])]
+    if len(set(ids)) != len(ids) or min(ids) < 1:
+        raise ValueError("station ids must be unique positive integers")
+    order = np.argsort(ids)
+    ids = [ids[i] for i in order]
+    phys = phys[order]
+    if ids[:3] != [1, 2, 3]:
+        raise ValueError("stations 1, 2 and 3 must exist: they define the network frame")
+    zi = ids.index(z_ref) if z_ref in ids else 3
+    pos, _, _ = to_network_frame(phys, z_ref=zi)
+    init = raw.get("init", {})
+    survey = raw.get("survey", {})
+    return Scenario(
+        name=str(raw.get("name", "unnamed")),
+        description=str(raw.get("description", "")),
+        seed=seed,
+        ids=ids,
+        pos_m=pos,
+        z_ref=z_ref,
+        tdma=Tdma(**raw.get("tdma", {})),
+        channel=ChannelParams(**raw.get("channel", {})),
+        net=NetFaults(**raw.get("net", {})),
+        sigma0_m=float(init.get("sigma0_m", 10.0)),
+        estimator=str(survey.get("estimator", "dmap")),
+        ranges_per_update=int(survey.get("ranges_per_update", 3)),
+        join_ids=join_ids,
+        aircraft=dict(raw.get("aircraft", {})),
+        raw=raw,
+    )

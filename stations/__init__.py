@@ -1,0 +1,1 @@
+"""Ground station: TDMA schedule, ranging protocol, self-survey estimators, process entry."""
