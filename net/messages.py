@@ -1,0 +1,360 @@
+"""Wire messages: one schema module for every kind in ``docs/protocol.md``.
+
+The envelope on the bus is one msgpack map ``{"v": 1, "msg": {...}, "phy": {...}}``. ``msg`` is
+what the station core / aircraft estimator sees; ``phy`` (optional) is the emulated physical layer
+(sender's true position and true transmit time) that the receiving channel layer consumes and
+strips.
+
+``encode(msg, phy)`` -> bytes (numpy arrays and scalars become plain lists / numbers) and
+``decode(data)`` -> ``(msg, phy)``. ``decode`` validates strictly and raises a single exception
+type, :class:`MessageError`, on anything malformed: size, msgpack syntax, envelope shape, version,
+unknown kind, missing or unknown fields, wrong types, wrong shapes (3 / 3x3), non-finite numbers,
+ids out of range, over-long lists and strings. Receivers count and drop (:class:`DropCounter`).
+
+Key expressions (``key_for``) follow the table in ``docs/protocol.md``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import re
+import time
+from collections import Counter
+from typing import Any, Callable
+
+import msgpack
+import numpy as np
+
+VERSION = 1
+MAX_PAYLOAD_BYTES = 64 * 1024
+MAX_ID = 65535
+MAX_LIST = 1024          # members, ranges
+MAX_STR = 64
+MAX_ABS = 1e12           # any number on the wire (metres, seconds, m^2) stays below this
+MAX_SEQ = 2**63 - 1
+STATES = ("frame", "joining", "surveying")
+NAME_RE = re.compile(r"^[A-Za-z0-9_\-]{1,32}$")
+
+KEY_PREFIX = "larns"
+
+
+class MessageError(ValueError):
+    """A payload that is not a valid LARNS envelope. ``reason`` is a short machine-friendly tag."""
+
+    def __init__(self, reason: str, detail: str = ""):
+        super().__init__(f"{reason}: {detail}" if detail else reason)
+        self.reason = reason
+
+
+# --------------------------------------------------------------------------- field validators
+# Each validator returns the normalized value or raises MessageError.
+
+def _num(v: Any, name: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise MessageError("type", f"{name} must be a number, got {type(v).__name__}")
+    f = float(v)
+    if not math.isfinite(f) or abs(f) > MAX_ABS:
+        raise MessageError("value", f"{name} not finite or out of range")
+    return f
+
+
+def _nonneg(v: Any, name: str) -> float:
+    f = _num(v, name)
+    if f < 0.0:
+        raise MessageError("value", f"{name} must be >= 0")
+    return f
+
+
+def _int(lo: int, hi: int) -> Callable[[Any, str], int]:
+    def check(v: Any, name: str) -> int:
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise MessageError("type", f"{name} must be an int, got {type(v).__name__}")
+        if not lo <= v <= hi:
+            raise MessageError("range", f"{name}={v} outside [{lo}, {hi}]")
+        return v
+    return check
+
+
+_station_id = _int(1, MAX_ID)
+_count = _int(0, MAX_SEQ)
+_slot = _int(0, MAX_ID)
+
+
+def _name(v: Any, name: str) -> str:
+    if not isinstance(v, str) or not NAME_RE.match(v):
+        raise MessageError("type", f"{name} must match {NAME_RE.pattern}")
+    return v
+
+
+def _text(v: Any, name: str) -> str:
+    if not isinstance(v, str) or len(v) > MAX_STR:
+        raise MessageError("type", f"{name} must be a string of <= {MAX_STR} chars")
+    return v
+
+
+def _state(v: Any, name: str) -> str:
+    if v not in STATES:
+        raise MessageError("value", f"{name} must be one of {STATES}")
+    return v
+
+
+def _vec3(v: Any, name: str) -> list[float]:
+    if not isinstance(v, (list, tuple)) or len(v) != 3:
+        raise MessageError("shape", f"{name} must be a list of 3 numbers")
+    return [_num(x, name) for x in v]
+
+
+def _mat33(v: Any, name: str) -> list[list[float]]:
+    if not isinstance(v, (list, tuple)) or len(v) != 3:
+        raise MessageError("shape", f"{name} must be 3x3")
+    return [_vec3(r, name) for r in v]
+
+
+def _cov33(v: Any, name: str) -> list[list[float]]:
+    m = _mat33(v, name)
+    for i in range(3):
+        if m[i][i] < 0.0:
+            raise MessageError("value", f"{name} has a negative variance")
+    return m
+
+
+def _ranges(v: Any, name: str) -> list[list[Any]]:
+    if not isinstance(v, (list, tuple)) or len(v) > MAX_LIST:
+        raise MessageError("shape", f"{name} must be a list of <= {MAX_LIST} entries")
+    out = []
+    for r in v:
+        if not isinstance(r, (list, tuple)) or len(r) != 3:
+            raise MessageError("shape", f"{name} entries must be [peer, range_m, t_s]")
+        out.append([_station_id(r[0], name), _nonneg(r[1], name), _num(r[2], name)])
+    return out
+
+
+def _members(v: Any, name: str) -> list[int]:
+    if not isinstance(v, (list, tuple)) or len(v) > MAX_LIST:
+        raise MessageError("shape", f"{name} must be a list of <= {MAX_LIST} ids")
+    return [_station_id(x, name) for x in v]
+
+
+def _extra(v: Any, name: str) -> dict[str, float]:
+    if not isinstance(v, dict) or len(v) > 32:
+        raise MessageError("shape", f"{name} must be a map of <= 32 numbers")
+    return {_text(k, name): _num(x, name) for k, x in v.items()}
+
+
+# kind -> (required fields, optional fields); common fields added below
+_COMMON_STATION = {"src": _station_id, "seq": _count, "stamp_s": _num}
+_COMMON_AIRCRAFT = {"src": _name, "seq": _count, "stamp_s": _num}
+
+SCHEMAS: dict[str, tuple[dict[str, Callable], dict[str, Callable]]] = {
+    "range_req": ({**_COMMON_STATION, "dst": _station_id, "cycle": _count, "slot": _slot,
+                   "t_tx_s": _num}, {}),
+    "range_rsp": ({**_COMMON_STATION, "dst": _station_id, "req_seq": _count,
+                   "turnaround_s": _num, "pos_m": _vec3, "cov_m2": _cov33, "n_updates": _count,
+                   "state": _state}, {}),
+    "nav": ({**_COMMON_STATION, "cycle": _count, "slot": _slot, "t_tx_s": _num, "pos_m": _vec3,
+             "cov_m2": _cov33, "n_updates": _count, "state": _state, "ranges": _ranges,
+             "members": _members}, {}),
+    "estimate": ({**_COMMON_STATION, "t_s": _num, "pos_m": _vec3, "cov_m2": _cov33,
+                  "n_updates": _count, "estimator": _text, "state": _state},
+                 {"slot": _slot, "cycle": _count, "dropped": _count}),
+    "truth": ({**_COMMON_STATION, "t_s": _num, "pos_m": _vec3}, {}),
+    "ac_estimate": ({**_COMMON_AIRCRAFT, "t_s": _num, "pos_m": _vec3, "cov_m2": _cov33,
+                     "algo": _name},
+                    {"vel_m_s": _vec3, "vel_cov": _cov33, "n_updates": _count, "extra": _extra}),
+    "ac_truth": ({**_COMMON_AIRCRAFT, "t_s": _num, "pos_m": _vec3},
+                 {"vel_m_s": _vec3, "extra": _extra}),
+}
+KINDS = tuple(SCHEMAS)
+PHY_SCHEMA: dict[str, Callable] = {"pos_m": _vec3, "t_true_s": _num}
+
+
+def validate_msg(msg: Any) -> dict[str, Any]:
+    """Validate one ``msg`` map; returns a normalized copy (plain lists and floats)."""
+    if not isinstance(msg, dict):
+        raise MessageError("envelope", "msg must be a map")
+    kind = msg.get("kind")
+    if not isinstance(kind, str) or kind not in SCHEMAS:
+        raise MessageError("kind", f"unknown kind {str(kind)[:32]!r}")
+    req, opt = SCHEMAS[kind]
+    out: dict[str, Any] = {"kind": kind}
+    for k, v in msg.items():
+        if k == "kind":
+            continue
+        check = req.get(k) or opt.get(k)
+        if check is None:
+            raise MessageError("field", f"{kind}: unknown field {str(k)[:32]!r}")
+        out[k] = check(v, k)
+    missing = [k for k in req if k not in out]
+    if missing:
+        raise MessageError("field", f"{kind}: missing {missing}")
+    return out
+
+
+def validate_phy(phy: Any) -> dict[str, Any]:
+    if not isinstance(phy, dict) or set(phy) != set(PHY_SCHEMA):
+        raise MessageError("phy", f"phy must be a map with exactly {sorted(PHY_SCHEMA)}")
+    return {k: PHY_SCHEMA[k](v, f"phy.{k}") for k, v in phy.items()}
+
+
+# --------------------------------------------------------------------------- encode / decode
+
+def _plain(o: Any) -> Any:
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, np.generic):
+        return o.item()
+    raise TypeError(f"cannot encode {type(o).__name__}")
+
+
+def to_plain(o: Any) -> Any:
+    """Recursively convert numpy arrays / scalars (and tuples) into msgpack-native values."""
+    if isinstance(o, dict):
+        return {k: to_plain(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [to_plain(v) for v in o]
+    if isinstance(o, (np.ndarray, np.generic)):
+        return _plain(o)
+    return o
+
+
+def encode(msg: dict[str, Any], phy: dict[str, Any] | None = None, validate: bool = True) -> bytes:
+    """Envelope ``msg`` (+ optional ``phy``) as msgpack bytes. Validates by default so a bug in a
+    sender fails loudly at the source instead of being dropped silently at every receiver."""
+    m = to_plain(msg)
+    p = to_plain(phy) if phy is not None else None
+    if validate:
+        m = validate_msg(m)
+        if p is not None:
+            p = validate_phy(p)
+    env: dict[str, Any] = {"v": VERSION, "msg": m}
+    if p is not None:
+        env["phy"] = p
+    data = msgpack.packb(env, use_bin_type=True)
+    if len(data) > MAX_PAYLOAD_BYTES:
+        raise MessageError("size", f"{len(data)} bytes > {MAX_PAYLOAD_BYTES}")
+    return data
+
+
+def decode(data: bytes | bytearray | memoryview) -> tuple[dict[str, Any], dict[str, Any] | None]:
+    """Parse and validate one envelope. Returns ``(msg, phy)``, ``phy`` None when absent."""
+    if not isinstance(data, (bytes, bytearray, memoryview)):
+        raise MessageError("type", "payload must be bytes")
+    if len(data) > MAX_PAYLOAD_BYTES:
+        raise MessageError("size", f"{len(data)} bytes > {MAX_PAYLOAD_BYTES}")
+    try:
+        env = msgpack.unpackb(
+            bytes(data), raw=False, strict_map_key=True, use_list=True,
+            max_str_len=MAX_PAYLOAD_BYTES, max_bin_len=0, max_array_len=MAX_LIST * 4,
+            max_map_len=64, max_ext_len=0,
+        )
+    except Exception as e:  # msgpack raises several types (ExtraData, ValueError, StackError...)
+        raise MessageError("msgpack", type(e).__name__) from None
+    if not isinstance(env, dict):
+        raise MessageError("envelope", "not a map")
+    v = env.get("v")
+    if isinstance(v, bool) or v != VERSION:
+        raise MessageError("version", f"unsupported version {str(v)[:16]}")
+    extra = set(env) - {"v", "msg", "phy"}
+    if extra:
+        raise MessageError("envelope", "unknown envelope keys")
+    msg = validate_msg(env.get("msg"))
+    phy = validate_phy(env["phy"]) if env.get("phy") is not None else None
+    return msg, phy
+
+
+def peek_stamp(data: bytes) -> float | None:
+    """The sender's ``stamp_s`` from raw bytes without full validation (for the recorder)."""
+    try:
+        env = msgpack.unpackb(data, raw=False, strict_map_key=False, max_bin_len=0, max_ext_len=0)
+        s = env["msg"]["stamp_s"]
+        if isinstance(s, (int, float)) and not isinstance(s, bool) and math.isfinite(s):
+            return float(s)
+    except Exception:
+        pass
+    return None
+
+
+# --------------------------------------------------------------------------- key expressions
+
+def station_key(station_id: int, *rest: str | int) -> str:
+    return "/".join([KEY_PREFIX, "station", str(int(station_id)), *map(str, rest)])
+
+
+def aircraft_key(name: str, *rest: str) -> str:
+    return "/".join([KEY_PREFIX, "aircraft", name, *rest])
+
+
+def alive_key(role: str, name: str | int) -> str:
+    return f"{KEY_PREFIX}/alive/{role}/{name}"
+
+
+def key_for(msg: dict[str, Any]) -> str:
+    """The key expression a message is published on (``docs/protocol.md``)."""
+    kind = msg["kind"]
+    src = msg["src"]
+    if kind == "range_req":
+        return station_key(src, "range", "req", msg["dst"])
+    if kind == "range_rsp":
+        return station_key(src, "range", "rsp", msg["dst"])
+    if kind in ("nav", "estimate", "truth"):
+        return station_key(src, kind)
+    if kind == "ac_estimate":
+        return aircraft_key(src, "estimate", msg["algo"])
+    if kind == "ac_truth":
+        return aircraft_key(src, "truth")
+    raise MessageError("kind", f"no key for kind {kind!r}")
+
+
+def parse_key(key: str) -> tuple[str, str | int, list[str]] | None:
+    """``larns/station/7/range/req/3`` -> ``("station", 7, ["range", "req", "3"])``; None if foreign."""
+    parts = str(key).split("/")
+    if len(parts) < 3 or parts[0] != KEY_PREFIX:
+        return None
+    role, name = parts[1], parts[2]
+    if role == "station":
+        try:
+            return role, int(name), parts[3:]
+        except ValueError:
+            return None
+    return role, name, parts[3:]
+
+
+# --------------------------------------------------------------------------- drop counter
+
+class DropCounter:
+    """Counts rejected payloads by reason and logs at most one summary line per ``interval_s``.
+
+    ``clock`` is injectable (defaults to ``time.monotonic``) so tests need no sleeping.
+    """
+
+    def __init__(self, name: str = "larns", interval_s: float = 5.0,
+                 logger: logging.Logger | None = None, clock: Callable[[], float] = time.monotonic):
+        self.name = name
+        self.interval_s = float(interval_s)
+        self.log = logger or logging.getLogger("larns.net")
+        self.clock = clock
+        self.by_reason: Counter[str] = Counter()
+        self.total = 0
+        self._last_log = -math.inf
+        self._since_log = 0
+        self.lines_logged = 0
+
+    def drop(self, reason: str, detail: str = "") -> None:
+        self.total += 1
+        self._since_log += 1
+        self.by_reason[reason] += 1
+        now = self.clock()
+        if now - self._last_log >= self.interval_s:
+            self.log.warning("%s: dropped %d malformed message(s) (total %d, by reason %s); last: %s",
+                             self.name, self._since_log, self.total, dict(self.by_reason),
+                             detail[:200])
+            self._last_log = now
+            self._since_log = 0
+            self.lines_logged += 1
+
+    def drop_error(self, err: MessageError) -> None:
+        self.drop(err.reason, str(err))
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"total": self.total, "by_reason": dict(self.by_reason)}
