@@ -17,6 +17,7 @@ from . import __version__
 # (module, one-line purpose) in the order shown by --help
 COMMANDS: list[str] = [
     "larns.bench",
+    "larns.record",
 ]
 
 

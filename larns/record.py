@@ -1,0 +1,182 @@
+"""`larns record -o run.mcap`: passive Zenoh observer writing every `larns/**` sample to MCAP.
+
+One MCAP channel per key expression, ``message_encoding`` "msgpack", the exact wire bytes
+(lossless, replayable). ``log_time`` is the receive time (ns since the Unix epoch);
+``publish_time`` is the sender's stamp (``msg.stamp_s`` converted with the fleet epoch and speed:
+``epoch + stamp_s / speed``), or the receive time when the payload has no readable stamp.
+The file's metadata record ``larns`` holds the scenario name, epoch and speed.
+
+The file is flushed (chunk finished) every ``--flush`` seconds, so a SIGKILLed recording loses at
+most that much. SIGINT / SIGTERM finish the file cleanly (summary + index).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import queue
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+
+log = logging.getLogger("larns.record")
+
+MESSAGE_ENCODING = "msgpack"
+
+
+class McapSink:
+    """Writes wire samples into an MCAP file: one channel per key. Not thread-safe (one writer)."""
+
+    def __init__(self, path: str | Path, metadata: dict[str, str] | None = None,
+                 epoch_unix_s: float | None = None, speed: float = 1.0):
+        from mcap.writer import CompressionType, Writer
+
+        from net.messages import peek_stamp
+
+        self._peek = peek_stamp
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._f = open(self.path, "wb")
+        self.writer = Writer(self._f, compression=CompressionType.ZSTD, chunk_size=256 * 1024)
+        self.writer.start(profile="", library="larns-record")
+        self.channels: dict[str, int] = {}
+        self.seq: dict[str, int] = {}
+        self.count = 0
+        self.bytes = 0
+        self.epoch_unix_s = epoch_unix_s
+        self.speed = float(speed)
+        md = {"recorder": "larns record", "message_encoding": MESSAGE_ENCODING,
+              "speed": repr(self.speed)}
+        if epoch_unix_s is not None:
+            md["epoch_unix_s"] = repr(float(epoch_unix_s))
+        md.update({k: str(v) for k, v in (metadata or {}).items()})
+        self.writer.add_metadata("larns", md)
+        self.finished = False
+
+    def write(self, key: str, data: bytes, recv_ns: int) -> None:
+        ch = self.channels.get(key)
+        if ch is None:
+            ch = self.writer.register_channel(topic=key, message_encoding=MESSAGE_ENCODING,
+                                              schema_id=0, metadata={"source": "zenoh"})
+            self.channels[key] = ch
+            self.seq[key] = 0
+        pub_ns = recv_ns
+        if self.epoch_unix_s is not None:
+            stamp = self._peek(data)
+            if stamp is not None:
+                t = self.epoch_unix_s + stamp / self.speed
+                if 0.0 < t < 4e9:
+                    pub_ns = int(round(t * 1e9))
+        self.writer.add_message(channel_id=ch, log_time=recv_ns, data=data, publish_time=pub_ns,
+                                sequence=self.seq[key])
+        self.seq[key] += 1
+        self.count += 1
+        self.bytes += len(data)
+
+    def flush(self) -> None:
+        self.writer.flush()
+
+    def finish(self) -> None:
+        if self.finished:
+            return
+        self.finished = True
+        self.writer.finish()
+        self._f.close()
+
+
+def run_recorder(out: str, bus_kw: dict, keyexpr: str = "larns/**", duration_s: float | None = None,
+                 flush_s: float = 2.0, metadata: dict[str, str] | None = None,
+                 epoch_unix_s: float | None = None, speed: float = 1.0,
+                 quiet: bool = False) -> dict:
+    from net.bus import Bus
+
+    stop = threading.Event()
+
+    def on_signal(signum, frame):  # noqa: ARG001
+        stop.set()
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+
+    q: queue.SimpleQueue = queue.SimpleQueue()
+    sink = McapSink(out, metadata=metadata, epoch_unix_s=epoch_unix_s, speed=speed)
+    bus = Bus(**bus_kw)
+    bus.subscribe(keyexpr, lambda k, d: q.put((time.time_ns(), k, d)))
+    bus.declare_token("larns/alive/recorder/" + str(int(time.time() * 1e3) % 10**9))
+    if not quiet:
+        print(f"[record] writing {keyexpr} to {out} (Ctrl-C to stop)", file=sys.stderr, flush=True)
+    t_end = time.monotonic() + duration_s if duration_s else float("inf")
+    next_flush = time.monotonic() + flush_s
+    try:
+        while not stop.is_set() and time.monotonic() < t_end:
+            try:
+                item = q.get(timeout=0.1)
+            except queue.Empty:
+                item = None
+            while item is not None:
+                sink.write(item[1], item[2], item[0])
+                try:
+                    item = q.get_nowait()
+                except queue.Empty:
+                    item = None
+            if time.monotonic() >= next_flush:
+                sink.flush()
+                next_flush = time.monotonic() + flush_s
+    finally:
+        bus.close()
+        while True:  # whatever arrived before the session closed
+            try:
+                r, k, d = q.get_nowait()
+            except queue.Empty:
+                break
+            sink.write(k, d, r)
+        sink.finish()
+    stats = {"file": out, "messages": sink.count, "bytes": sink.bytes, "channels": len(sink.channels)}
+    if not quiet:
+        print(f"[record] finished {out}: {sink.count} messages on {len(sink.channels)} channels",
+              file=sys.stderr, flush=True)
+    return stats
+
+
+def cmd_record(args: argparse.Namespace) -> int:
+    from net.bus import bus_kwargs
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    md = {}
+    for kv in args.meta or []:
+        k, _, v = kv.partition("=")
+        md[k] = v
+    if args.scenario:
+        md["scenario"] = args.scenario
+    stats = run_recorder(args.output, bus_kwargs(args), keyexpr=args.keyexpr,
+                         duration_s=args.duration, flush_s=args.flush, metadata=md,
+                         epoch_unix_s=args.epoch, speed=args.speed, quiet=args.quiet)
+    if args.json:
+        print(json.dumps(stats))
+    return 0
+
+
+def register(sub) -> None:
+    from net.bus import add_bus_args
+
+    p = sub.add_parser(
+        "record", help="record all LARNS traffic on Zenoh to an MCAP file",
+        description="Passive observer: subscribes to larns/** and writes the exact wire bytes to "
+                    "MCAP (one channel per key, message_encoding msgpack). log_time = receive "
+                    "time, publish_time = sender stamp. SIGINT/SIGTERM finish the file.")
+    p.add_argument("-o", "--output", required=True, help="output .mcap file")
+    p.add_argument("--keyexpr", default="larns/**", help="key expression to record (default larns/**)")
+    p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    p.add_argument("--flush", type=float, default=2.0, help="finish a chunk every N seconds (default 2)")
+    p.add_argument("--scenario", default=None, help="scenario name stored as metadata")
+    p.add_argument("--epoch", type=float, default=None,
+                   help="fleet epoch (Unix s): converts message stamps to publish_time")
+    p.add_argument("--speed", type=float, default=1.0, help="fleet speed factor (for publish_time)")
+    p.add_argument("--meta", action="append", metavar="KEY=VALUE", help="extra metadata (repeatable)")
+    p.add_argument("--json", action="store_true", help="print statistics as JSON at the end")
+    p.add_argument("-q", "--quiet", action="store_true")
+    add_bus_args(p)
+    p.set_defaults(func=cmd_record)

@@ -1,0 +1,209 @@
+"""Zenoh bus: peer mode, no router, explicit endpoints, gossip scouting.
+
+Topology. Zenoh >= 1.9 peers do not relay for each other, so every process needs a direct link to
+every other one. Each process listens on its own endpoint and connects to a few **seed** endpoints;
+gossip scouting (on) tells every peer about the others' locators and they link up directly (full
+mesh). Multicast scouting is **off** by default (tests and containers never rely on it); shared
+memory is off. ``--zenoh-config FILE`` (or the ``ZENOH_CONFIG`` environment variable) passes a
+complete Zenoh JSON5 configuration through instead, for multi-host deployments; ``--listen`` /
+``--connect`` given explicitly still override its endpoints.
+
+Open sessions only in freshly spawned processes: a Zenoh runtime inherited through ``fork()``
+hangs. Use ``subprocess`` or ``multiprocessing.get_context("spawn")``.
+
+The bus speaks bytes: ``publish(key, data)``, ``subscribe(keyexpr, callback(key, data))``.
+Callbacks run on Zenoh's threads; hand the bytes over to your own thread (a queue) if the work is
+not trivially thread-safe.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import socket
+import threading
+from typing import Callable, Iterable, Sequence
+
+log = logging.getLogger("larns.bus")
+
+DEFAULT_LISTEN = "tcp/127.0.0.1:0"
+
+
+def add_bus_args(p: argparse.ArgumentParser) -> None:
+    """The Zenoh options shared by every networked command."""
+    g = p.add_argument_group("Zenoh")
+    g.add_argument("--listen", action="append", default=None, metavar="ENDPOINT",
+                   help=f"endpoint to listen on (repeatable; default {DEFAULT_LISTEN})")
+    g.add_argument("--connect", action="append", default=None, metavar="ENDPOINT",
+                   help="seed endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable); "
+                        "gossip then links every peer to every other")
+    g.add_argument("--zenoh-config", default=None, metavar="FILE",
+                   help="full Zenoh JSON5 config (multi-host, TLS, routers); "
+                        "default: $ZENOH_CONFIG if set")
+    g.add_argument("--multicast", action="store_true",
+                   help="enable multicast scouting (off by default)")
+
+
+def bus_kwargs(args: argparse.Namespace) -> dict:
+    return {"listen": args.listen or (), "connect": args.connect or (),
+            "config_file": args.zenoh_config, "multicast": bool(getattr(args, "multicast", False))}
+
+
+def bus_argv(listen: Iterable[str] = (), connect: Iterable[str] = (),
+             config_file: str | None = None) -> list[str]:
+    """Command-line flags reproducing a bus setup (for launchers)."""
+    out: list[str] = []
+    for e in listen:
+        out += ["--listen", e]
+    for e in connect:
+        out += ["--connect", e]
+    if config_file:
+        out += ["--zenoh-config", config_file]
+    return out
+
+
+def free_tcp_ports(n: int, host: str = "127.0.0.1") -> list[int]:
+    """``n`` distinct currently free TCP ports (bound and released; tiny race accepted)."""
+    socks, ports = [], []
+    try:
+        for _ in range(n):
+            s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+            s.bind((host, 0))
+            socks.append(s)
+            ports.append(s.getsockname()[1])
+    finally:
+        for s in socks:
+            s.close()
+    return ports
+
+
+def make_config(listen: Sequence[str] = (), connect: Sequence[str] = (),
+                config_file: str | None = None, multicast: bool = False):
+    """Build a ``zenoh.Config``: a pass-through file, or our peer defaults, plus endpoints."""
+    import zenoh
+
+    config_file = config_file or os.environ.get("ZENOH_CONFIG") or None
+    if config_file:
+        conf = zenoh.Config.from_file(config_file)
+        if listen:
+            conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
+        if connect:
+            conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+        return conf
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("listen/endpoints", json.dumps(list(listen) or [DEFAULT_LISTEN]))
+    conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    conf.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast)))
+    conf.insert_json5("scouting/gossip/enabled", "true")
+    conf.insert_json5("scouting/gossip/multihop", "true")
+    conf.insert_json5("scouting/gossip/autoconnect", '{"router": [], "peer": ["router", "peer"]}')
+    conf.insert_json5("transport/shared_memory/enabled", "false")
+    # keep retrying seeds that are not up yet (processes start in any order)
+    conf.insert_json5("connect/timeout_ms", '{"router": -1, "peer": -1, "client": 0}')
+    conf.insert_json5("connect/exit_on_failure", '{"router": false, "peer": false, "client": true}')
+    return conf
+
+
+class Bus:
+    """One Zenoh session with cached publishers, byte-level subscribe and liveliness."""
+
+    def __init__(self, listen: Sequence[str] = (), connect: Sequence[str] = (),
+                 config_file: str | None = None, multicast: bool = False, express: bool = True):
+        import zenoh
+
+        self._z = zenoh
+        self.session = zenoh.open(make_config(listen, connect, config_file, multicast))
+        self._pubs: dict[str, object] = {}
+        self._subs: list[object] = []
+        self._tokens: list[object] = []
+        self._lock = threading.Lock()
+        self._express = express
+        self.closed = False
+
+    # ------------------------------------------------------------------ publish
+    def publish(self, key: str, data: bytes) -> None:
+        pub = self._pubs.get(key)
+        if pub is None:
+            with self._lock:
+                pub = self._pubs.get(key)
+                if pub is None:
+                    pub = self.session.declare_publisher(
+                        key, express=self._express,
+                        congestion_control=self._z.CongestionControl.DROP,
+                        priority=self._z.Priority.REAL_TIME if "/range/" in key
+                        else self._z.Priority.DATA)
+                    self._pubs[key] = pub
+        pub.put(data)
+
+    # ------------------------------------------------------------------ subscribe
+    def subscribe(self, keyexpr: str, callback: Callable[[str, bytes], None]) -> object:
+        """``callback(key, payload_bytes)`` for every sample on ``keyexpr`` (runs on a Zenoh thread).
+        Exceptions in the callback are logged, never propagated into Zenoh."""
+
+        def on_sample(sample) -> None:
+            try:
+                callback(str(sample.key_expr), sample.payload.to_bytes())
+            except Exception:  # a subscriber bug must not kill the Zenoh thread
+                log.exception("subscriber callback failed on %s", sample.key_expr)
+
+        sub = self.session.declare_subscriber(keyexpr, on_sample)
+        self._subs.append(sub)
+        return sub
+
+    # ------------------------------------------------------------------ liveliness
+    def declare_token(self, key: str) -> object:
+        tok = self.session.liveliness().declare_token(key)
+        self._tokens.append(tok)
+        return tok
+
+    def subscribe_liveliness(self, keyexpr: str, callback: Callable[[str, bool], None],
+                             history: bool = True) -> object:
+        """``callback(key, alive)``: True when a token appears, False when it goes away."""
+        put = self._z.SampleKind.PUT
+
+        def on_sample(sample) -> None:
+            try:
+                callback(str(sample.key_expr), sample.kind == put)
+            except Exception:
+                log.exception("liveliness callback failed")
+
+        sub = self.session.liveliness().declare_subscriber(keyexpr, on_sample, history=history)
+        self._subs.append(sub)
+        return sub
+
+    def alive(self, keyexpr: str, timeout_s: float = 1.0) -> list[str]:
+        """Keys of liveliness tokens currently present under ``keyexpr``."""
+        out = []
+        for reply in self.session.liveliness().get(keyexpr, timeout=timeout_s):
+            ok = getattr(reply, "ok", None)
+            if ok is not None:
+                out.append(str(ok.key_expr))
+        return out
+
+    def peers(self) -> list[str]:
+        """Zenoh ids of the peers this session has a direct link to."""
+        return [str(z) for z in self.session.info.peers_zid()]
+
+    # ------------------------------------------------------------------ lifecycle
+    def close(self) -> None:
+        if self.closed:
+            return
+        self.closed = True
+        for t in self._tokens:
+            try:
+                t.undeclare()
+            except Exception:
+                pass
+        try:
+            self.session.close()
+        except Exception:
+            pass
+
+    def __enter__(self) -> "Bus":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
