@@ -151,7 +151,7 @@ SCHEMAS: dict[str, tuple[dict[str, Callable], dict[str, Callable]]] = {
                    "t_tx_s": _num}, {}),
     "range_rsp": ({**_COMMON_STATION, "dst": _station_id, "req_seq": _count,
                    "turnaround_s": _num, "pos_m": _vec3, "cov_m2": _cov33, "n_updates": _count,
-                   "state": _state}, {}),
+                   "state": _state}, {"t_tx_s": _num}),
     "nav": ({**_COMMON_STATION, "cycle": _count, "slot": _slot, "t_tx_s": _num, "pos_m": _vec3,
              "cov_m2": _cov33, "n_updates": _count, "state": _state, "ranges": _ranges,
              "members": _members}, {}),
