@@ -1,0 +1,258 @@
+"""`larns bench net` and `larns bench scale`: the networked emulator's timing budget.
+
+bench net
+    Request/response round trip between two station-like processes over Zenoh on loopback (peer
+    mode, explicit endpoints): the initiator publishes an encoded ``range_req`` (with its physical
+    part), the responder decodes and validates it, builds and encodes a ``range_rsp`` and publishes
+    it; the initiator decodes the answer. Round trip = wall time from publish to decoded answer.
+    Goal: p99 well inside a 10 ms TDMA slot.
+
+bench scale
+    Runs N real station processes (``larns station``) in real time (speed 1) for a while and counts
+    missed slots (a slot whose request went out after the slot had ended), late / lost replies,
+    CPU and memory per process. Increases N until a run misses slots; reports the largest N with
+    zero missed slots.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+# --------------------------------------------------------------------------- bench net workers
+
+def _responder(listen: str, connect: list[str], duration_s: float) -> None:
+    import queue
+
+    from net import messages as M
+    from net.bus import Bus
+
+    bus = Bus(listen=[listen], connect=connect)
+    q: queue.SimpleQueue = queue.SimpleQueue()
+    bus.subscribe("larns/station/*/range/req/2", lambda k, d: q.put(d))
+    bus.declare_token("larns/alive/station/2")
+    seq = 0
+    t_end = time.monotonic() + duration_s
+    while time.monotonic() < t_end:
+        try:
+            data = q.get(timeout=0.2)
+        except queue.Empty:
+            continue
+        msg, phy = M.decode(data)
+        seq += 1
+        rsp = {"kind": "range_rsp", "src": 2, "seq": seq, "stamp_s": msg["t_tx_s"] + 0.001,
+               "dst": msg["src"], "req_seq": msg["seq"], "turnaround_s": 0.001,
+               "t_tx_s": msg["t_tx_s"] + 0.001, "pos_m": [100.0, 0.0, 0.0],
+               "cov_m2": np.eye(3), "n_updates": seq, "state": "surveying"}
+        out = M.encode(rsp, {"pos_m": [100.0, 0.0, 0.0], "t_true_s": phy["t_true_s"] + 0.001})
+        bus.publish(M.key_for(rsp), out)
+    bus.close()
+
+
+def _initiator(listen: str, connect: list[str], n: int, period_s: float, warmup: int) -> dict:
+    import threading
+
+    from net import messages as M
+    from net.bus import Bus
+
+    bus = Bus(listen=[listen], connect=connect)
+    got = threading.Event()
+    box: list = [None]
+
+    def on_rsp(k: str, d: bytes) -> None:
+        t = time.perf_counter_ns()
+        msg, _ = M.decode(d)
+        box[0] = (msg["req_seq"], t)
+        got.set()
+
+    bus.subscribe("larns/station/*/range/rsp/1", on_rsp)
+    t0 = time.time()
+    while not bus.alive("larns/alive/station/2", 0.5) and time.time() - t0 < 20:
+        time.sleep(0.05)
+    time.sleep(0.3)
+    rtts, lost = [], 0
+    next_t = time.perf_counter()
+    for i in range(1, n + warmup + 1):
+        next_t += period_s
+        got.clear()
+        req = {"kind": "range_req", "src": 1, "seq": i, "stamp_s": float(i), "dst": 2,
+               "cycle": i, "slot": 0, "t_tx_s": float(i)}
+        t_send = time.perf_counter_ns()
+        bus.publish(M.key_for(req), M.encode(req, {"pos_m": [0.0, 0.0, 0.0], "t_true_s": float(i)}))
+        ok = got.wait(0.1)
+        if ok and box[0] is not None and box[0][0] == i:
+            if i > warmup:
+                rtts.append((box[0][1] - t_send) / 1e6)
+        elif i > warmup:
+            lost += 1
+        delay = next_t - time.perf_counter()
+        if delay > 0:
+            time.sleep(delay)
+    bus.close()
+    return {"rtt_ms": rtts, "lost": lost}
+
+
+def run_bench_net(n: int = 2000, period_s: float = 0.005, warmup: int = 50) -> dict:
+    from net.bus import free_tcp_ports
+
+    p1, p2 = free_tcp_ports(2)
+    e1, e2 = f"tcp/127.0.0.1:{p1}", f"tcp/127.0.0.1:{p2}"
+    dur = 30 + (n + warmup) * (period_s + 0.002)
+    resp = subprocess.Popen([sys.executable, "-m", "larns.bench_net", "_responder", e2, e1, str(dur)])
+    try:
+        out = subprocess.run([sys.executable, "-m", "larns.bench_net", "_initiator", e1, e2, str(n),
+                              str(period_s), str(warmup)], capture_output=True, text=True,
+                             timeout=dur + 30)
+        if out.returncode != 0:
+            raise RuntimeError(out.stderr[-2000:])
+        res = json.loads(out.stdout.strip().splitlines()[-1])
+    finally:
+        resp.terminate()
+        try:
+            resp.wait(10)
+        except subprocess.TimeoutExpired:
+            resp.kill()
+    r = np.asarray(res["rtt_ms"], float)
+    stats = {"n": int(r.size), "lost": int(res["lost"]), "period_ms": period_s * 1e3}
+    if r.size:
+        stats.update({"p50_ms": float(np.percentile(r, 50)), "p90_ms": float(np.percentile(r, 90)),
+                      "p99_ms": float(np.percentile(r, 99)), "max_ms": float(r.max()),
+                      "mean_ms": float(r.mean())})
+    return stats
+
+
+def cmd_bench_net(args: argparse.Namespace) -> int:
+    s = run_bench_net(args.n, args.period_ms / 1e3)
+    print("larns bench net: range_req -> range_rsp round trip, 2 processes, Zenoh peer on loopback")
+    print(f"{'samples':>8} {'lost':>5} {'p50 ms':>8} {'p90 ms':>8} {'p99 ms':>8} {'max ms':>8}")
+    print(f"{s['n']:>8} {s['lost']:>5} {s.get('p50_ms', float('nan')):>8.3f} "
+          f"{s.get('p90_ms', float('nan')):>8.3f} {s.get('p99_ms', float('nan')):>8.3f} "
+          f"{s.get('max_ms', float('nan')):>8.3f}")
+    goal = s.get("p99_ms", 1e9) < 10.0
+    print(f"goal p99 < 10 ms slot: {'PASS' if goal else 'FAIL'}")
+    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.json).write_text(json.dumps(s, indent=2))
+    print(f"wrote {args.json}")
+    return 0
+
+
+# --------------------------------------------------------------------------- bench scale
+
+def _proc_stats(pid: int) -> tuple[float, int]:
+    """(cpu seconds user+sys, rss bytes) of a live process from /proc."""
+    with open(f"/proc/{pid}/stat") as f:
+        parts = f.read().rsplit(")", 1)[1].split()
+    tick = os.sysconf("SC_CLK_TCK")
+    cpu = (int(parts[11]) + int(parts[12])) / tick
+    rss = int(parts[21]) * os.sysconf("SC_PAGE_SIZE")
+    return cpu, rss
+
+
+def run_scale_once(n: int, duration_s: float, warmup_s: float = 4.0, quiet: bool = False) -> dict:
+    """N station processes at speed 1 for ``duration_s`` (fleet time after warm-up)."""
+    from net.bus import free_tcp_ports
+
+    ports = free_tcp_ports(n)
+    seeds = [f"tcp/127.0.0.1:{p}" for p in ports[:2]]
+    start = time.time()
+    epoch = start + warmup_s + 0.02 * n
+    procs = []
+    for k in range(n):
+        sid = k + 1
+        cmd = [sys.executable, "-m", "stations", "--id", str(sid), "--scenario", "seed000",
+               "--n-stations", str(n), "--epoch", repr(epoch), "--duration", str(duration_s),
+               "--listen", f"tcp/127.0.0.1:{ports[k]}", "--quiet", "--report-json"]
+        for s in seeds:
+            if s != f"tcp/127.0.0.1:{ports[k]}":
+                cmd += ["--connect", s]
+        procs.append(subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True))
+    # CPU measured over the steady part only
+    time.sleep(max(0.0, epoch + 2.0 - time.time()))
+    c0 = {p.pid: _proc_stats(p.pid)[0] for p in procs if p.poll() is None}
+    t_c0 = time.time()
+    time.sleep(max(0.0, epoch + duration_s - 1.0 - time.time()))
+    cpu_rss = {p.pid: _proc_stats(p.pid) for p in procs if p.poll() is None}
+    t_c1 = time.time()
+    reports = []
+    for p in procs:
+        out, _ = p.communicate(timeout=duration_s + 60)
+        lines = [ln for ln in (out or "").splitlines() if ln.startswith("{")]
+        reports.append(json.loads(lines[-1]) if lines else None)
+    ok = [r for r in reports if r]
+    cpu = [(cpu_rss[pid][0] - c0[pid]) / (t_c1 - t_c0) for pid in cpu_rss if pid in c0]
+    rss = [cpu_rss[pid][1] for pid in cpu_rss]
+    res = {
+        "n": n, "duration_s": duration_s, "reported": len(ok),
+        "missed_slots": int(sum(r["missed_slots"] for r in ok)),
+        "slots": int(sum(r["slots"] for r in ok)),
+        "late_replies": int(sum(r["late"] for r in ok)),
+        "requests": int(sum(r["counters"].get("requests", 0) for r in ok)),
+        "responses": int(sum(r["counters"].get("responses", 0) for r in ok)),
+        "max_lateness_ms": float(max((r["max_lateness_ms"] for r in ok), default=float("nan"))),
+        "cpu_per_proc_pct": float(np.mean(cpu) * 100) if cpu else float("nan"),
+        "cpu_total_pct": float(np.sum(cpu) * 100) if cpu else float("nan"),
+        "rss_per_proc_mb": float(np.mean(rss) / 2**20) if rss else float("nan"),
+    }
+    res["ok"] = bool(res["reported"] == n and res["missed_slots"] == 0)
+    if not quiet:
+        print(f"  N={n:3d} missed={res['missed_slots']:5d}/{res['slots']:6d} "
+              f"replies {res['responses']}/{res['requests']} late={res['late_replies']} "
+              f"max_lateness={res['max_lateness_ms']:.2f} ms cpu/proc={res['cpu_per_proc_pct']:.1f}% "
+              f"rss/proc={res['rss_per_proc_mb']:.0f} MB -> {'OK' if res['ok'] else 'MISSED'}",
+              flush=True)
+    return res
+
+
+def cmd_bench_scale(args: argparse.Namespace) -> int:
+    ns = [int(x) for x in args.n.split(",")] if args.n else [10, 20, 30, 40, 50, 60, 70, 80]
+    print(f"larns bench scale: N station processes, real time, {args.duration:.0f} s each")
+    runs, best = [], 0
+    for n in ns:
+        r = run_scale_once(n, args.duration)
+        runs.append(r)
+        if r["ok"]:
+            best = max(best, n)
+        elif not args.keep_going:
+            break
+    print(f"{'N':>4} {'missed':>7} {'slots':>7} {'late':>6} {'cpu/proc %':>10} {'cpu total %':>11} {'rss/proc MB':>11}")
+    for r in runs:
+        print(f"{r['n']:>4} {r['missed_slots']:>7} {r['slots']:>7} {r['late_replies']:>6} "
+              f"{r['cpu_per_proc_pct']:>10.1f} {r['cpu_total_pct']:>11.1f} {r['rss_per_proc_mb']:>11.1f}")
+    print(f"largest N with zero missed slots: {best} (goal >= 50)")
+    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.json).write_text(json.dumps({"best_n": best, "runs": runs}, indent=2))
+    print(f"wrote {args.json}")
+    return 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser("net", help="Zenoh request/response round trip between two processes (p50/p99)",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--n", type=int, default=2000, help="round trips to measure (default 2000)")
+    p.add_argument("--period-ms", type=float, default=5.0, help="one exchange every N ms (default 5)")
+    p.add_argument("--json", default="runs/bench_net.json", help="JSON output")
+    p.set_defaults(func=cmd_bench_net)
+    s = sub.add_parser("scale", help="largest N of real-time station processes with zero missed slots",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    s.add_argument("--n", default=None, help="comma-separated N values (default 10,20,...,80)")
+    s.add_argument("--duration", type=float, default=60.0, help="seconds per N (default 60)")
+    s.add_argument("--keep-going", action="store_true", help="try every N even after a failure")
+    s.add_argument("--json", default="runs/bench_scale.json", help="JSON output")
+    s.set_defaults(func=cmd_bench_scale)
+
+
+if __name__ == "__main__":
+    role = sys.argv[1]
+    if role == "_responder":
+        _responder(sys.argv[2], [sys.argv[3]], float(sys.argv[4]))
+    elif role == "_initiator":
+        res = _initiator(sys.argv[2], [sys.argv[3]], int(sys.argv[4]), float(sys.argv[5]), int(sys.argv[6]))
+        print(json.dumps(res))
