@@ -18,6 +18,8 @@ from . import __version__
 COMMANDS: list[str] = [
     "larns.bench",
     "larns.record",
+    "larns.station_cmd",
+    "larns.fleet",
 ]
 
 

@@ -1,0 +1,411 @@
+"""Station process: one :class:`~stations.core.StationCore` driven by the wall clock over Zenoh.
+
+The node is a thin I/O shell around the same objects the in-process simulator runs
+(``stations.sim.make_core`` -> ``StationCore`` + ``Clock``, ``net.channel.AirChannel``, seeded from
+the same per-station streams):
+
+* **time**: fleet (true) time ``t = (wall - epoch) * speed``; every process computes slot
+  boundaries itself from the common epoch (no clock master). The core works on the station's
+  *local* clock ``clock.to_local(t)``.
+* **timers**: the core's ``next_deadline()`` (local) is converted to wall time; ``on_timer`` is
+  called with the exact deadline. A request timer firing after half a slot is a *missed slot*.
+* **transmit**: core outputs go to their keys (``net.messages.key_for``); air messages carry the
+  physical part ``phy`` = true sender position + true transmit time (``clock.to_true(t_tx_s)``).
+  The core's ``estimate`` is published with the true position on ``.../truth``.
+* **receive**: bytes -> strict decode (malformed: counted and dropped, never a crash) -> key/src
+  consistency -> wire faults (delay, jitter, loss, duplication; seeded) -> duplicate filter ->
+  air channel (time of flight, clock, noise, NLOS, air loss) -> local rx timestamp. A range
+  request or reply delivered (wall clock) after the end of the slot it was sent in is dropped as
+  late: a lost measurement. ``phy`` is stripped before the core sees the message.
+
+SIGINT / SIGTERM: clean exit (liveliness token withdrawn, session closed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import heapq
+import json
+import logging
+import math
+import queue
+import signal
+import sys
+import threading
+import time
+from collections import Counter, deque
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from net import messages as M
+from net.channel import AirChannel, station_rng
+from net.faults import WireFaults, merge_faults
+from net.scenario import Scenario
+
+log = logging.getLogger("larns.station")
+
+AIR_KINDS = ("range_req", "range_rsp", "nav")
+
+
+def default_epoch(now_s: float | None = None) -> float:
+    """Start of the current UTC day: a common epoch for processes started without ``--epoch``
+    (fleet times stay small, so time differences keep sub-millimetre float resolution)."""
+    now_s = time.time() if now_s is None else now_s
+    return math.floor(now_s / 86400.0) * 86400.0
+
+
+@dataclass
+class NodeOptions:
+    station_id: int
+    join: bool = False
+    speed: float = 1.0
+    epoch_unix_s: float | None = None
+    duration_s: float | None = None  # fleet seconds since the epoch; None = forever
+    start_at_s: float | None = None  # fleet time at which the station powers on (None: now)
+    estimator: str | None = None
+    seed: int | None = None
+    status_every_s: float = 5.0       # fleet seconds between status lines (0 = never)
+    quiet: bool = False
+
+
+class StationNode:
+    """Wall-clock shell around a station core. ``run()`` blocks until stopped or the duration ends."""
+
+    def __init__(self, scn: Scenario, opts: NodeOptions, bus: Any):
+        from .sim import make_core
+
+        if opts.station_id not in scn.ids:
+            raise ValueError(f"station {opts.station_id} is not in scenario {scn.name} (ids {scn.ids})")
+        if opts.speed <= 0:
+            raise ValueError("--speed must be > 0")
+        self.scn = scn
+        self.opts = opts
+        self.id = opts.station_id
+        self.bus = bus
+        self.epoch = default_epoch() if opts.epoch_unix_s is None else float(opts.epoch_unix_s)
+        self.speed = float(opts.speed)
+        self.seed = scn.seed if opts.seed is None else opts.seed
+        self._stop = threading.Event()
+        self.true_pos = np.asarray(scn.true_pos(self.id), float)
+        self._make_core = make_core
+        self.core = None
+        self.clock = None
+        self.air = AirChannel(scn.channel, station_rng(self.seed, self.id, 2))
+        self.wire = WireFaults(scn.net, station_rng(self.seed, self.id, 3))
+        self.slot_s = scn.tdma.slot_s
+        self.cycle_s = scn.tdma.cycle_s
+        self.drops = M.DropCounter(f"station {self.id}")
+        self.stats: Counter[str] = Counter()
+        self.max_lateness_s = 0.0
+        self._inbox: queue.SimpleQueue = queue.SimpleQueue()
+        self._pending: list = []  # heap of (wall deliver time, order, msg, phy)
+        self._order = 0
+        self._seen: set = set()
+        self._seen_q: deque = deque()
+        self._truth_seq = 0
+        self._last_status = -math.inf
+
+    # ------------------------------------------------------------------ time
+    def fleet_now(self) -> float:
+        return (time.time() - self.epoch) * self.speed
+
+    def wall_of(self, t_true_s: float) -> float:
+        return self.epoch + t_true_s / self.speed
+
+    def _sleep_until_fleet(self, t_s: float) -> None:
+        while not self._stop.is_set():
+            dt = self.wall_of(t_s) - time.time()
+            if dt <= 0:
+                return
+            time.sleep(min(dt, 0.1))
+
+    def stop(self, *_: Any) -> None:
+        self._stop.set()
+
+    # ------------------------------------------------------------------ receive path
+    def _on_bytes(self, key: str, data: bytes) -> None:  # Zenoh thread: hand over only
+        self._inbox.put((time.time(), key, data))
+
+    def _check_key(self, key: str, msg: dict) -> bool:
+        pk = M.parse_key(key)
+        if pk is None or pk[0] != "station" or pk[1] != msg["src"]:
+            return False
+        rest = pk[2]
+        kind = msg["kind"]
+        if kind == "nav":
+            return rest == ["nav"]
+        if kind == "range_req":
+            return rest == ["range", "req", str(self.id)] and msg["dst"] == self.id
+        if kind == "range_rsp":
+            return rest == ["range", "rsp", str(self.id)] and msg["dst"] == self.id
+        return False
+
+    def _ingest(self, recv_wall: float, key: str, data: bytes) -> None:
+        try:
+            msg, phy = M.decode(data)
+        except M.MessageError as e:
+            self.drops.drop_error(e)
+            return
+        if msg["kind"] not in AIR_KINDS or phy is None:
+            self.drops.drop("kind", f"{msg['kind']} on {key} (phy {'present' if phy else 'absent'})")
+            return
+        if not self._check_key(key, msg):
+            self.drops.drop("key", f"{msg['kind']} from {msg['src']} on {key}")
+            return
+        if msg["src"] == self.id:
+            return
+        for delay in self.wire.deliveries():
+            self._order += 1
+            heapq.heappush(self._pending, (recv_wall + delay / self.speed, self._order, msg, phy))
+        if not self.wire.active:
+            return
+        self.stats["wire_in"] += 1
+
+    def _deliver(self, msg: dict, phy: dict) -> None:
+        ident = (msg["kind"], msg["src"], msg["seq"])
+        if ident in self._seen:
+            self.stats["duplicates"] += 1
+            return
+        self._seen.add(ident)
+        self._seen_q.append(ident)
+        if len(self._seen_q) > 4096:
+            self._seen.discard(self._seen_q.popleft())
+        t_now = self.fleet_now()
+        if msg["kind"] in ("range_req", "range_rsp"):
+            # the exchange lives inside the slot it was transmitted in
+            t_tx = phy["t_true_s"]
+            slot_end = (math.floor(t_tx / self.slot_s + 1e-9) + 1) * self.slot_s
+            if t_now > slot_end:
+                self.stats["late"] += 1
+                return
+        t_rx_local = self.air.arrival_local_s(np.asarray(phy["pos_m"]), phy["t_true_s"],
+                                              self.true_pos, self.clock)
+        if t_rx_local is None:
+            self.stats["air_lost"] += 1
+            return
+        self.stats["rx_" + msg["kind"]] += 1
+        outs = self.core.on_message(msg, t_rx_local)  # phy stripped: the core sees msg only
+        self._send(outs)
+
+    # ------------------------------------------------------------------ transmit path
+    def _send(self, outs: list[dict]) -> None:
+        for m in outs:
+            kind = m["kind"]
+            try:
+                if kind in AIR_KINDS:
+                    t_true = self.clock.to_true(m["t_tx_s"])
+                    data = M.encode(m, {"pos_m": self.true_pos, "t_true_s": t_true})
+                elif kind == "estimate":
+                    m = dict(m)
+                    if self.core.slot is not None:
+                        m["slot"] = int(self.core.slot)
+                    m["dropped"] = int(self.drops.total)
+                    data = M.encode(m)
+                    self._publish_truth(m)
+                else:
+                    data = M.encode(m)
+            except M.MessageError as e:  # a core bug: report loudly, keep running
+                log.error("station %d: refusing to send invalid %s: %s", self.id, kind, e)
+                self.stats["tx_invalid"] += 1
+                continue
+            self.bus.publish(M.key_for(m), data)
+            self.stats["tx_" + kind] += 1
+
+    def _publish_truth(self, est: dict) -> None:
+        self._truth_seq += 1
+        t = self.fleet_now()
+        m = {"kind": "truth", "src": self.id, "seq": self._truth_seq, "stamp_s": float(est["stamp_s"]),
+             "t_s": float(t), "pos_m": self.true_pos}
+        self.bus.publish(M.key_for(m), M.encode(m))
+
+    # ------------------------------------------------------------------ main loop
+    def _fire_timers(self) -> None:
+        for _ in range(16):  # bounded: a core asking for the past repeatedly must not spin
+            dl = self.core.next_deadline()
+            if dl is None:
+                return
+            wall = self.wall_of(self.clock.to_true(dl))
+            now = time.time()
+            if wall > now:
+                return
+            lateness = now - wall
+            is_req = abs(dl - getattr(self.core, "_next_req_s", math.nan)) < 1e-9
+            outs = self.core.on_timer(dl)
+            if is_req:
+                self.stats["slots"] += 1
+                self.max_lateness_s = max(self.max_lateness_s, lateness * self.speed)
+                if lateness * self.speed > 0.5 * self.slot_s:
+                    self.stats["missed_slots"] += 1
+            self._send(outs)
+
+    def _next_wake(self) -> float:
+        t = time.time() + 0.1
+        dl = self.core.next_deadline()
+        if dl is not None:
+            t = min(t, self.wall_of(self.clock.to_true(dl)))
+        if self._pending:
+            t = min(t, self._pending[0][0])
+        return t
+
+    def _status(self, t: float) -> None:
+        if self.opts.quiet or self.opts.status_every_s <= 0 or t - self._last_status < self.opts.status_every_s:
+            return
+        self._last_status = t
+        est = self.core.est
+        err = float(np.linalg.norm(np.asarray(est.pos_m) - self.true_pos)) if est.pos_m is not None else math.nan
+        print(f"[station {self.id}] t={t:7.1f}s state={self.core.state} slot={self.core.slot} "
+              f"updates={est.n_updates} err={err:.2f} m drops={self.drops.total} "
+              f"late={self.stats['late']} missed={self.stats['missed_slots']}", file=sys.stderr, flush=True)
+
+    def start_core(self) -> None:
+        """Power on: build the core at the current fleet time (what ``run`` does first)."""
+        t0 = max(0.0, self.fleet_now())
+        self.core, self.clock = self._make_core(self.scn, self.id, estimator=self.opts.estimator,
+                                                join=self.opts.join, start_s=t0, seed=self.seed)
+
+    def run(self) -> dict:
+        bus = self.bus
+        me = self.id
+        if self.opts.start_at_s is not None:
+            self._sleep_until_fleet(self.opts.start_at_s)
+            if self._stop.is_set():
+                return self.report()
+        self.start_core()
+        bus.subscribe(f"larns/station/*/range/req/{me}", self._on_bytes)
+        bus.subscribe(f"larns/station/*/range/rsp/{me}", self._on_bytes)
+        bus.subscribe("larns/station/*/nav", self._on_bytes)
+        bus.declare_token(M.alive_key("station", me))
+        end = math.inf if self.opts.duration_s is None else self.opts.duration_s
+        if not self.opts.quiet:
+            print(f"[station {me}] scenario {self.scn.name}, join={self.opts.join}, speed={self.speed}, "
+                  f"epoch={self.epoch:.3f}, slot={self.core.slot}", file=sys.stderr, flush=True)
+        while not self._stop.is_set():
+            t = self.fleet_now()
+            if t >= end:
+                break
+            if t >= 0:
+                self._fire_timers()
+            now = time.time()
+            while self._pending and self._pending[0][0] <= now:
+                _, _, msg, phy = heapq.heappop(self._pending)
+                self._deliver(msg, phy)
+            self._status(t)
+            timeout = max(0.0, min(self._next_wake(), self.wall_of(end) if end < math.inf else math.inf)
+                          - time.time())
+            try:
+                item = self._inbox.get(timeout=timeout) if timeout > 0 else self._inbox.get_nowait()
+            except queue.Empty:
+                continue
+            while item is not None:
+                self._ingest(*item)
+                try:
+                    item = self._inbox.get_nowait()
+                except queue.Empty:
+                    item = None
+            now = time.time()
+            while self._pending and self._pending[0][0] <= now:
+                _, _, msg, phy = heapq.heappop(self._pending)
+                self._deliver(msg, phy)
+        return self.report()
+
+    def report(self) -> dict:
+        if self.core is None:
+            return {"id": self.id, "state": "off", "slot": None, "n_updates": 0, "pos_m": [math.nan] * 3,
+                    "err_m": math.nan, "slots": 0, "missed_slots": 0, "late": 0, "duplicates": 0,
+                    "air_lost": 0, "max_lateness_ms": 0.0, "drops": self.drops.as_dict(), "counters": {},
+                    "tx": {}, "rx": {}}
+        est = self.core.est
+        pos = np.asarray(est.pos_m, float) if est.pos_m is not None else np.full(3, np.nan)
+        return {
+            "id": self.id, "state": self.core.state, "slot": self.core.slot,
+            "n_updates": int(est.n_updates), "pos_m": pos.tolist(),
+            "err_m": float(np.linalg.norm(pos - self.true_pos)),
+            "slots": int(self.stats["slots"]), "missed_slots": int(self.stats["missed_slots"]),
+            "late": int(self.stats["late"]), "duplicates": int(self.stats["duplicates"]),
+            "air_lost": int(self.stats["air_lost"]), "max_lateness_ms": self.max_lateness_s * 1e3,
+            "drops": self.drops.as_dict(), "counters": dict(self.core.counters),
+            "tx": {k[3:]: v for k, v in self.stats.items() if k.startswith("tx_")},
+            "rx": {k[3:]: v for k, v in self.stats.items() if k.startswith("rx_")},
+        }
+
+
+# --------------------------------------------------------------------------- command line
+
+def add_args(p: argparse.ArgumentParser) -> None:
+    from net.bus import add_bus_args
+
+    p.add_argument("--id", type=int, required=True, help="station id (1..65535; 1-3 define the frame)")
+    p.add_argument("--scenario", default="seed000", help="scenario name or TOML path (default seed000)")
+    p.add_argument("--join", action="store_true",
+                   help="hot-join a running fleet: listen for a cycle, claim a free slot, initialize")
+    p.add_argument("--speed", type=float, default=1.0, help="run K times faster than real time (default 1)")
+    p.add_argument("--epoch", type=float, default=None,
+                   help="fleet epoch, Unix seconds (all processes must agree; default: start of the UTC day)")
+    p.add_argument("--duration", type=float, default=None,
+                   help="stop at this fleet time (seconds since the epoch); default: run until signalled")
+    p.add_argument("--start-at", type=float, default=None, metavar="T",
+                   help="power on at fleet time T (with --join: hot-join at T); default: now")
+    p.add_argument("--estimator", default=None, help="override the scenario's survey estimator")
+    p.add_argument("--seed", type=int, default=None, help="override the scenario's world seed")
+    p.add_argument("--n-stations", type=int, default=None,
+                   help="override the number of stations of a random-layout scenario")
+    g = p.add_argument_group("network faults (override the scenario's [net] section)")
+    g.add_argument("--net-delay", type=float, default=None, metavar="S", help="extra delivery delay, s")
+    g.add_argument("--net-jitter", type=float, default=None, metavar="S", help="delay jitter (1 sigma), s")
+    g.add_argument("--net-loss", type=float, default=None, metavar="P", help="loss probability")
+    g.add_argument("--net-dup", type=float, default=None, metavar="P", help="duplication probability")
+    p.add_argument("--status-every", type=float, default=5.0, help="fleet seconds between status lines")
+    p.add_argument("--report-json", action="store_true", help="print a JSON report on stdout at exit")
+    p.add_argument("-q", "--quiet", action="store_true")
+    add_bus_args(p)
+
+
+def load_scenario(args: argparse.Namespace) -> Scenario:
+    from dataclasses import replace
+
+    from net import scenario as S
+
+    over: dict[str, Any] = {}
+    if args.n_stations:
+        over["layout"] = {"n": int(args.n_stations)}
+    scn = S.load(args.scenario, **over)
+    net = merge_faults(scn.net, args.net_delay, args.net_jitter, args.net_loss, args.net_dup)
+    return replace(scn, net=net)
+
+
+def main_args(args: argparse.Namespace) -> int:
+    from net.bus import Bus, bus_kwargs
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    scn = load_scenario(args)
+    opts = NodeOptions(station_id=args.id, join=args.join, speed=args.speed, epoch_unix_s=args.epoch,
+                       duration_s=args.duration, start_at_s=args.start_at, estimator=args.estimator, seed=args.seed,
+                       status_every_s=args.status_every, quiet=args.quiet)
+    bus = Bus(**bus_kwargs(args))
+    try:
+        node = StationNode(scn, opts, bus)
+        signal.signal(signal.SIGINT, node.stop)
+        signal.signal(signal.SIGTERM, node.stop)
+        rep = node.run()
+    finally:
+        bus.close()
+    if args.report_json:
+        print(json.dumps(rep), flush=True)
+    if not args.quiet:
+        print(f"[station {args.id}] stopped: updates={rep['n_updates']} err={rep['err_m']:.2f} m "
+              f"drops={rep['drops']['total']} late={rep['late']} missed_slots={rep['missed_slots']}",
+              file=sys.stderr, flush=True)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m stations", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_args(p)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    return main_args(build_parser().parse_args(argv))
