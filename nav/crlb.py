@@ -1,0 +1,110 @@
+"""Centralized yardstick for the self-survey: Bayesian CRLB and batch MAP over all stations.
+
+Only for *measuring* the decentralized estimators; no station ever uses it.
+
+Unknowns ``theta`` are the free coordinates of all stations (``free`` mask (n, 3), seed 000
+constraints (1)). A two-way range between stations i and j has gradient ``+u`` on i's free
+coordinates and ``-u`` on j's, ``u = (c_i - c_j)/|c_i - c_j|``. The Bayesian information is
+
+    J = P0^-1 + sum_links n_ij / sigma_d^2 g_ij g_ij^T,
+
+and the bound on the covariance of any estimator is ``J^-1`` (prior ``P0 = sigma0^2 I`` on free
+coordinates of the stations that have a coarse fix).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg as sla
+from scipy.optimize import least_squares
+
+
+def _index(free: np.ndarray) -> np.ndarray:
+    """(n, 3) int map from (station, axis) to the position in theta, -1 for constrained."""
+    idx = -np.ones(free.shape, dtype=np.int64)
+    idx[free] = np.arange(int(free.sum()))
+    return idx
+
+
+def survey_fim(pos_m: np.ndarray, counts: np.ndarray, sigma_d_m: float, free: np.ndarray,
+               sigma0_m: float | np.ndarray | None) -> np.ndarray:
+    """Bayesian Fisher information of the free coordinates.
+
+    Parameters
+    ----------
+    pos_m : (n, 3) true positions (network frame). counts : (n, n) ranges measured per ordered pair
+        (initiator, responder); the pair total ``counts + counts.T`` is what matters.
+    sigma_d_m : range noise. free : (n, 3) bool. sigma0_m : prior sigma per coordinate, scalar or (n,)
+        (``np.inf`` / None for no prior).
+
+    Returns
+    -------
+    J : (p, p) with ``p = free.sum()``.
+    """
+    idx = _index(free)
+    p = int(free.sum())
+    J = np.zeros((p, p))
+    if sigma0_m is not None:
+        s0 = np.broadcast_to(np.asarray(sigma0_m, dtype=float), (len(pos_m),))
+        for i in range(len(pos_m)):
+            if np.isfinite(s0[i]) and s0[i] > 0:
+                k = idx[i][free[i]]
+                J[k, k] += 1.0 / s0[i] ** 2
+    n = len(pos_m)
+    tot = counts + counts.T
+    ii, jj = np.nonzero(np.triu(tot, 1))
+    for i, j in zip(ii, jj):
+        d = pos_m[i] - pos_m[j]
+        u = d / np.linalg.norm(d)
+        g = np.zeros(p)
+        g[idx[i][free[i]]] += u[free[i]]
+        g[idx[j][free[j]]] -= u[free[j]]
+        J += tot[i, j] / sigma_d_m**2 * np.outer(g, g)
+    return J
+
+
+def survey_crlb(pos_m, counts, sigma_d_m, free, sigma0_m) -> np.ndarray:
+    """Per-station bound covariances (n, 3, 3) (zeros on constrained coordinates), from ``J^-1``."""
+    J = survey_fim(pos_m, counts, sigma_d_m, free, sigma0_m)
+    C = sla.cho_solve(sla.cho_factor(J, lower=True), np.eye(len(J)))
+    idx = _index(free)
+    n = len(pos_m)
+    out = np.zeros((n, 3, 3))
+    for i in range(n):
+        k = idx[i][free[i]]
+        out[i][np.ix_(free[i], free[i])] = C[np.ix_(k, k)]
+    return out
+
+
+def batch_map(pairs: np.ndarray, ranges_m: np.ndarray, sigma_d_m: float, free: np.ndarray,
+              prior_m: np.ndarray, sigma0_m: float | None, x0_m: np.ndarray | None = None) -> np.ndarray:
+    """Centralized batch MAP (ML if ``sigma0_m`` is None) of all station positions.
+
+    Parameters
+    ----------
+    pairs : (m, 2) station indices of each range. ranges_m : (m,).
+    free : (n, 3). prior_m : (n, 3) prior means (coarse fixes; constrained entries = their fixed values).
+    x0_m : (n, 3) starting point (default: the prior).
+
+    Returns
+    -------
+    (n, 3) estimated positions.
+    """
+    prior_m = np.asarray(prior_m, dtype=float)
+    base = prior_m.copy()
+    start = (prior_m if x0_m is None else np.asarray(x0_m, float))[free]
+    i, j = pairs[:, 0], pairs[:, 1]
+
+    def resid(theta):
+        X = base.copy()
+        X[free] = theta
+        d = np.linalg.norm(X[i] - X[j], axis=1)
+        r = (ranges_m - d) / sigma_d_m
+        if sigma0_m is not None:
+            r = np.concatenate([r, (theta - prior_m[free]) / sigma0_m])
+        return r
+
+    sol = least_squares(resid, start, method="lm" if len(ranges_m) > start.size else "trf", xtol=1e-10)
+    X = base.copy()
+    X[free] = sol.x
+    return X

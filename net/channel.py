@@ -1,0 +1,97 @@
+"""Air-channel emulation (pure, seeded): clocks, time of flight, timing noise, NLOS, air loss.
+
+The channel turns a transmission's physical part (true sender position, true transmit time)
+into the receiver's *local* reception timestamp. Two-way ranging then sees exactly what real
+hardware would: ``range = c (rtt_local - turnaround_reported) / 2`` with the clock drift of both
+ends acting on the turnaround and the flight time.
+
+Range noise: each one-way arrival timestamp carries Gaussian noise ``sigma_t = sqrt(2) sigma_d / c``,
+so that a two-way range (two legs) has standard deviation ``sigma_d``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from nav.geometry import SPEED_OF_LIGHT_M_S, frame_free_mask
+
+from .scenario import ChannelParams
+
+
+@dataclass(frozen=True)
+class Clock:
+    """Local clock: ``t_local = t_true (1 + drift) + offset_s`` (drift is fractional, 1e-6 = 1 ppm)."""
+
+    offset_s: float = 0.0
+    drift: float = 0.0
+
+    def to_local(self, t_true_s: float) -> float:
+        return t_true_s * (1.0 + self.drift) + self.offset_s
+
+    def to_true(self, t_local_s: float) -> float:
+        return (t_local_s - self.offset_s) / (1.0 + self.drift)
+
+
+def station_rng(seed: int, station_id: int, purpose: int) -> np.random.Generator:
+    """Independent, reproducible stream per (world seed, station, purpose).
+
+    Purposes: 0 clock, 1 coarse initial fix, 2 air channel at this receiver, 3 wire faults.
+    The simulator and the Zenoh node derive the same streams, so they draw the same world.
+    """
+    return np.random.default_rng([int(seed), int(station_id), int(purpose)])
+
+
+def draw_clock(params: ChannelParams, rng: np.random.Generator) -> Clock:
+    """Random clock error of one station: offset ~ N(0, clock_offset_s^2), drift ~ N(0, ppm^2) * 1e-6."""
+    return Clock(
+        offset_s=float(rng.normal(0.0, params.clock_offset_s)) if params.clock_offset_s > 0 else 0.0,
+        drift=float(rng.normal(0.0, params.clock_drift_ppm)) * 1e-6 if params.clock_drift_ppm > 0 else 0.0,
+    )
+
+
+def coarse_fix(
+    true_pos_m: np.ndarray, station_id: int, sigma0_m: float, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """Coarse external fix (e.g. a GNSS snapshot before the network runs), in the network frame.
+
+    Free coordinates get ``N(0, sigma0^2)`` errors; constrained ones (frame stations) are exact.
+    Returns ``pos_m`` (3,) and ``cov_m2`` (3, 3) (zero rows/cols on constrained coordinates).
+    """
+    free = frame_free_mask(4)[station_id - 1] if station_id <= 3 else np.ones(3, bool)
+    err = rng.normal(0.0, sigma0_m, 3) * free
+    pos = np.asarray(true_pos_m, dtype=float) + err
+    pos[~free] = np.asarray(true_pos_m, dtype=float)[~free]
+    return pos, np.diag(free * sigma0_m**2).astype(float)
+
+
+class AirChannel:
+    """The air as seen by one receiver. Pure apart from its own seeded generator."""
+
+    def __init__(self, params: ChannelParams, rng: np.random.Generator):
+        self.params = params
+        self.rng = rng
+        self.sigma_t_s = np.sqrt(2.0) * params.sigma_d_m / SPEED_OF_LIGHT_M_S
+
+    def arrival_local_s(
+        self, tx_pos_m: np.ndarray, t_tx_true_s: float, rx_pos_m: np.ndarray, rx_clock: Clock
+    ) -> float | None:
+        """Local reception time of a transmission, or ``None`` if it is lost on air.
+
+        Parameters
+        ----------
+        tx_pos_m : (3,) true sender position. t_tx_true_s : true transmit time.
+        rx_pos_m : (3,) true receiver position. rx_clock : receiver's clock.
+        """
+        p = self.params
+        if p.loss_prob > 0 and self.rng.random() < p.loss_prob:
+            return None
+        d = float(np.linalg.norm(np.asarray(rx_pos_m, float) - np.asarray(tx_pos_m, float)))
+        t = t_tx_true_s + d / SPEED_OF_LIGHT_M_S
+        if self.sigma_t_s > 0:
+            t += float(self.rng.normal(0.0, self.sigma_t_s))
+        if p.nlos_prob > 0 and self.rng.random() < p.nlos_prob:
+            # an NLOS leg lengthens the two-way range by nlos_bias_m on average
+            t += 2.0 * float(self.rng.exponential(p.nlos_bias_m)) / SPEED_OF_LIGHT_M_S
+        return rx_clock.to_local(t)

@@ -1,0 +1,264 @@
+"""Sans-I/O station core: TDMA slot timing, peer rotation, ranging protocol, slot claim on join,
+measurement bookkeeping and the self-survey estimator.
+
+The core owns no socket, clock or RNG. A shell (the in-process simulator or the Zenoh node) drives it:
+
+* ``next_deadline()`` -> the local time at which the core wants ``on_timer`` to be called;
+* ``on_timer(t_local_s)`` -> outgoing messages (a range request at the start of the own slot,
+  the nav broadcast at a fixed offset inside the slot, slot claims while joining);
+* ``on_message(msg, t_rx_local_s)`` -> outgoing messages (the answer to a request addressed to us,
+  the nav broadcast after our own exchange) - ``t_rx_local_s`` is the reception time on the
+  station's own clock, as radio hardware would timestamp it.
+
+Outgoing air messages carry ``t_tx_s``: the local time at which the radio transmits them (the
+shell stamps the physical part from it). ``estimate`` messages are for monitoring only.
+
+Timeline of the own slot (offsets from the slot start, local clock)::
+
+    0            range_req to the addressee of this cycle
+    ~turnaround  range_rsp arrives (addressee's estimate + its measured turnaround)
+    nav_offset   nav broadcast: own estimate, the ranges measured since the last nav, members
+    slot end     a reply not heard by then is lost
+
+Joining (``join=True``): listen for ``listen_cycles`` cycles, collecting the slots in use from the
+nav broadcasts heard; claim the default slot (``id - 1``) if free, else the first free slot after it.
+Two newcomers claiming the same slot both hear each other's nav in that slot: the lower id keeps it,
+the higher id listens again and claims another one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from nav.geometry import SPEED_OF_LIGHT_M_S
+
+from .estimators import SurveyEstimator, make_estimator
+from .tdma import TdmaPlan
+
+
+@dataclass
+class StationConfig:
+    id: int
+    tdma: TdmaPlan = field(default_factory=TdmaPlan)
+    sigma_d_m: float = 0.5
+    estimator: str = "dmap"
+    ranges_per_update: int = 3
+    known_ids: tuple[int, ...] = ()
+    join: bool = False
+    turnaround_s: float = 0.001
+    nav_offset_s: float = 0.005
+    listen_cycles: int = 1
+    dead_after_cycles: int = 5
+    max_range_m: float = 1e6
+
+
+@dataclass
+class PeerInfo:
+    pos_m: np.ndarray
+    cov_m2: np.ndarray
+    n_updates: int = 0
+    state: str = "surveying"
+    slot: int | None = None
+    last_heard_s: float = -np.inf
+
+
+class StationCore:
+    """One station's protocol state machine (see module docstring)."""
+
+    def __init__(self, cfg: StationConfig, init_pos_m: np.ndarray | None, init_cov_m2: np.ndarray | None,
+                 start_s: float = 0.0):
+        self.cfg = cfg
+        self.id = cfg.id
+        self.plan = cfg.tdma
+        self.est: SurveyEstimator = make_estimator(cfg.estimator, cfg.id, init_pos_m, init_cov_m2,
+                                                   cfg.sigma_d_m, cfg.ranges_per_update)
+        self.peers: dict[int, PeerInfo] = {}
+        self.known: dict[int, float] = {p: start_s for p in cfg.known_ids if p != cfg.id}
+        self.seq = {"range_req": 0, "range_rsp": 0, "nav": 0, "estimate": 0}
+        self.pending: dict[int, tuple[int, float, float]] = {}  # req seq -> (dst, t_tx, slot end)
+        self.ranges_out: list[list] = []
+        self.counters = {"requests": 0, "responses": 0, "lost": 0, "ranges_in": 0, "ignored": 0,
+                         "rejected_ranges": 0}
+        if cfg.join:
+            self.state = "joining"
+            self.slot: int | None = None
+            self.listen_until_s = start_s + cfg.listen_cycles * self.plan.cycle_s
+            self.heard_slots: dict[int, int] = {}
+        else:
+            self.state = "frame" if cfg.id == 1 else "surveying"
+            self.slot = self.plan.default_slot(cfg.id)
+            self.listen_until_s = start_s
+            self.heard_slots = {}
+        self._next_req_s, self._nav_s = self._schedule_after(start_s)
+        self._cycle = 0
+        self._started_s = start_s
+
+    # ------------------------------------------------------------------ timing
+    def _schedule_after(self, t_s: float) -> tuple[float, float]:
+        if self.slot is None:
+            return float("inf"), float("inf")
+        cycle, t0 = self.plan.next_slot_start(self.slot, t_s - 1e-9)
+        return t0, float("inf")
+
+    def next_deadline(self) -> float | None:
+        """Local time of the next ``on_timer`` call the core needs."""
+        times = [self._next_req_s, self._nav_s]
+        if self.state == "joining" and self.slot is None:
+            times.append(self.listen_until_s)
+        t = min(times)
+        return None if not np.isfinite(t) else t
+
+    # ------------------------------------------------------------------ peers
+    def members(self, t_s: float) -> list[int]:
+        """Peers in the rotation: heard (or known at deployment) within ``dead_after_cycles``."""
+        horizon = self.cfg.dead_after_cycles * self.plan.cycle_s
+        return sorted(p for p, t in self.known.items() if t_s - t <= horizon and p != self.id)
+
+    def _heard(self, pid: int, t_s: float) -> None:
+        if pid != self.id:
+            self.known[pid] = max(self.known.get(pid, -np.inf), t_s)
+
+    # ------------------------------------------------------------------ outputs
+    def _base(self, kind: str, t_s: float) -> dict:
+        self.seq[kind] += 1
+        return {"kind": kind, "src": self.id, "seq": self.seq[kind], "stamp_s": float(t_s)}
+
+    def estimate_msg(self, t_s: float) -> dict:
+        m = self._base("estimate", t_s)
+        m.update(t_s=float(t_s), pos_m=self.est.pos_m.tolist(), cov_m2=self.est.cov_m2.tolist(),
+                 n_updates=int(self.est.n_updates), estimator=self.est.name, state=self.state)
+        return m
+
+    def _nav_msg(self, t_s: float) -> dict:
+        m = self._base("nav", t_s)
+        cycle, slot = self.plan.locate(t_s)
+        m.update(cycle=cycle, slot=self.slot if self.slot is not None else slot, t_tx_s=float(t_s),
+                 pos_m=self.est.pos_m.tolist(), cov_m2=self.est.cov_m2.tolist(),
+                 n_updates=int(self.est.n_updates), state=self.state,
+                 ranges=self.ranges_out, members=self.members(t_s))
+        self.ranges_out = []
+        return m
+
+    # ------------------------------------------------------------------ events
+    def on_timer(self, t_s: float) -> list[dict]:
+        out: list[dict] = []
+        if self.state == "joining" and self.slot is None and t_s >= self.listen_until_s - 1e-12:
+            self._claim_slot(t_s)
+        if t_s >= self._nav_s - 1e-12:
+            self._nav_s = float("inf")
+            out.append(self._nav_msg(t_s))
+            out.append(self.estimate_msg(t_s))
+        if t_s >= self._next_req_s - 1e-12:
+            t0 = self._next_req_s
+            cycle, _ = self.plan.locate(t0 + 1e-9)
+            self._cycle = cycle
+            mem = self.members(t0)
+            if mem:
+                # the addressee rotates over the members from cycle to cycle
+                dst = mem[(cycle + self.id) % len(mem)]
+                m = self._base("range_req", t0)
+                m.update(dst=dst, cycle=cycle, slot=self.slot, t_tx_s=float(t0))
+                self.pending[m["seq"]] = (dst, t0, t0 + self.plan.slot_s)
+                self.counters["requests"] += 1
+                out.append(m)
+            self._nav_s = t0 + self.cfg.nav_offset_s
+            self._next_req_s = self.plan.slot_start_s(cycle + 1, self.slot)
+            # forget requests whose slot is over
+            for s in [s for s, (_, _, end) in self.pending.items() if end < t0]:
+                del self.pending[s]
+                self.counters["lost"] += 1
+        return out
+
+    def _claim_slot(self, t_s: float) -> None:
+        used = set(self.heard_slots.values())
+        n = self.plan.slots_per_cycle
+        pref = self.plan.default_slot(self.id)
+        for k in range(n):
+            s = (pref + k) % n
+            if s not in used:
+                self.slot = s
+                break
+        else:
+            self.listen_until_s = t_s + self.plan.cycle_s  # no free slot: keep listening
+            return
+        self._next_req_s, _ = self._schedule_after(t_s)
+        self._refresh_state()
+
+    def on_message(self, msg: dict, t_rx_s: float) -> list[dict]:
+        kind = msg.get("kind")
+        src = msg.get("src")
+        if src == self.id:
+            return []
+        if kind == "range_req":
+            self._heard(src, t_rx_s)
+            if msg.get("dst") != self.id:
+                return []
+            t_tx = t_rx_s + self.cfg.turnaround_s
+            m = self._base("range_rsp", t_tx)
+            m.update(dst=src, req_seq=msg["seq"], turnaround_s=float(self.cfg.turnaround_s), t_tx_s=float(t_tx),
+                     pos_m=self.est.pos_m.tolist(), cov_m2=self.est.cov_m2.tolist(),
+                     n_updates=int(self.est.n_updates), state=self.state)
+            return [m]
+        if kind == "range_rsp":
+            self._heard(src, t_rx_s)
+            if msg.get("dst") != self.id:
+                return []
+            pend = self.pending.pop(msg.get("req_seq"), None)
+            if pend is None or pend[0] != src or t_rx_s > pend[2]:
+                self.counters["ignored"] += 1
+                return []
+            _, t_tx, _ = pend
+            range_m = 0.5 * SPEED_OF_LIGHT_M_S * ((t_rx_s - t_tx) - msg["turnaround_s"])
+            if not (0.0 < range_m < self.cfg.max_range_m):
+                self.counters["rejected_ranges"] += 1
+                return []
+            self.counters["responses"] += 1
+            pos = np.asarray(msg["pos_m"], float)
+            cov = np.asarray(msg["cov_m2"], float)
+            self._update_peer(src, msg, t_rx_s)
+            self.ranges_out.append([src, float(range_m), float(t_rx_s)])
+            self.est.on_range(src, range_m, t_rx_s, True, pos, cov)
+            self._refresh_state()
+            return []
+        if kind == "nav":
+            self._heard(src, t_rx_s)
+            self._update_peer(src, msg, t_rx_s)
+            slot = msg.get("slot")
+            if slot is not None:
+                self.heard_slots[src] = slot
+                if self.slot is not None and slot == self.slot and src < self.id:
+                    # slot collision: the lower id keeps the slot, we listen again and re-claim
+                    self.slot = None
+                    self.state = "joining"
+                    self.listen_until_s = t_rx_s + self.plan.cycle_s
+                    self._next_req_s = self._nav_s = float("inf")
+            pos = np.asarray(msg["pos_m"], float)
+            cov = np.asarray(msg["cov_m2"], float)
+            self.est.on_peer(src, pos, cov)
+            for peer, range_m, _t in msg.get("ranges", ()):
+                if peer == self.id and 0.0 < range_m < self.cfg.max_range_m:
+                    self.counters["ranges_in"] += 1
+                    if self.est.name == "dmap":
+                        self.est.on_range(src, float(range_m), t_rx_s, False, pos, cov)
+            self._refresh_state()
+            return []
+        return []
+
+    def _refresh_state(self) -> None:
+        if self.state == "joining" and self.slot is not None and self.est.initialized:
+            self.state = "surveying"
+
+    def _update_peer(self, src: int, msg: dict, t_s: float) -> None:
+        p = self.peers.get(src)
+        pos = np.asarray(msg["pos_m"], float)
+        cov = np.asarray(msg["cov_m2"], float)
+        if p is None:
+            self.peers[src] = PeerInfo(pos, cov, int(msg.get("n_updates", 0)), msg.get("state", "surveying"),
+                                       msg.get("slot"), t_s)
+        else:
+            p.pos_m, p.cov_m2, p.n_updates = pos, cov, int(msg.get("n_updates", 0))
+            p.state, p.last_heard_s = msg.get("state", p.state), t_s
+            if msg.get("slot") is not None:
+                p.slot = msg["slot"]

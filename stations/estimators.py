@@ -1,0 +1,299 @@
+"""Self-survey estimators of one station's own coordinates (pure; no I/O, no RNG).
+
+Two estimators share one interface:
+
+``seed-ukf``  The decentralized UKF of seed 000 (Borzov & Mikaelyan 2016, eqs. 8-13): buffer ``l``
+              ranges this station initiated together with the peers' estimates sent in the answers;
+              stack ``x = [c_m, c_n1..c_nl]`` over *free* coordinates, ``P = blockdiag(P_m, P_n1..)``;
+              Julier sigma points with ``n + kappa = 3``; update ``c_m``, ``P_m`` only.
+
+``dmap``      Our default: a distributed maximum a posteriori estimator. Every exchange is used at
+              *both* ends (the initiator shares the range in its nav broadcast). Because stations
+              are static, a link's ranges are summarized losslessly by their count and mean. A station
+              re-solves its own coordinates by Gauss-Newton on
+
+                  (c - c0)^T P0^-1 (c - c0) + sum_j w_j (dbar_j - |c - c_j|)^2,
+                  w_j = 1 / (sigma_d^2 / n_j + u_j^T P_j u_j),
+
+              with the peers' *latest* estimates ``c_j, P_j``. Re-solving from all stored link
+              statistics (instead of consuming each range once, as the UKF does) makes the network a
+              block-coordinate (Gauss-Seidel) solver of the centralized MAP problem, which is
+              efficient (reaches the Bayesian CRLB) once the peers have converged. The ``u^T P_j u``
+              term charges each link with its peer's uncertainty, so poorly known peers (newcomers)
+              neither pull the solution nor make the covariance overconfident.
+              Own covariance: ``(P0^-1 + J^T W J)^-1`` over the free coordinates.
+
+Coordinates constrained by the frame (station 1 all, station 2 y/z, station 3 z) are not state.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+
+from nav.geometry import frame_free_mask
+from nav.kalman import symmetrize, update
+from nav.ut import SigmaParams, unscented_transform
+
+
+def free_mask(station_id: int) -> np.ndarray:
+    """(3,) bool: which of x, y, z station ``station_id`` estimates."""
+    return frame_free_mask(4)[station_id - 1].copy() if station_id <= 3 else np.ones(3, bool)
+
+
+def _clean_cov(P: np.ndarray, free: np.ndarray, floor_m2: float = 1e-8) -> np.ndarray:
+    """Symmetrize, zero constrained rows/cols, keep the free block positive definite."""
+    P = symmetrize(np.asarray(P, dtype=float))
+    out = np.zeros((3, 3))
+    if free.any():
+        B = P[np.ix_(free, free)]
+        w, V = np.linalg.eigh(B)
+        if w.min() < floor_m2:
+            B = (V * np.maximum(w, floor_m2)) @ V.T
+        out[np.ix_(free, free)] = B
+    return out
+
+
+class SurveyEstimator(Protocol):
+    name: str
+    pos_m: np.ndarray  # (3,)
+    cov_m2: np.ndarray  # (3, 3), zero on constrained coordinates
+    n_updates: int
+    initialized: bool
+
+    def on_range(self, peer_id: int, range_m: float, t_s: float, initiated: bool,
+                 peer_pos_m: np.ndarray | None, peer_cov_m2: np.ndarray | None) -> bool:
+        """A range to ``peer_id``; returns True if the estimate changed."""
+
+    def on_peer(self, peer_id: int, pos_m: np.ndarray, cov_m2: np.ndarray) -> None:
+        """The peer's latest broadcast estimate."""
+
+
+class SeedUkf:
+    """Seed 000 decentralized UKF (eqs. 8-13), with Julier sigma points ``n + kappa = 3``."""
+
+    name = "seed-ukf"
+
+    def __init__(self, station_id: int, pos0_m: np.ndarray, cov0_m2: np.ndarray, sigma_d_m: float,
+                 ranges_per_update: int = 3):
+        self.id = station_id
+        self.free = free_mask(station_id)
+        self.pos_m = np.asarray(pos0_m, dtype=float).copy()
+        self.cov_m2 = _clean_cov(cov0_m2, self.free)
+        self.sigma_d_m = float(sigma_d_m)
+        self.l = int(ranges_per_update)
+        self.buffer: list[tuple[int, float, np.ndarray, np.ndarray]] = []
+        self.n_updates = 0
+        self.initialized = True
+        self.params = SigmaParams.julier()
+
+    def on_peer(self, peer_id, pos_m, cov_m2) -> None:  # the paper uses the answers' estimates only
+        return None
+
+    def on_range(self, peer_id, range_m, t_s, initiated, peer_pos_m, peer_cov_m2) -> bool:
+        if not initiated or peer_pos_m is None or not self.free.any():
+            return False
+        self.buffer.append((peer_id, float(range_m), np.asarray(peer_pos_m, float), np.asarray(peer_cov_m2, float)))
+        if len(self.buffer) < self.l:
+            return False
+        self._update()
+        self.buffer.clear()
+        return True
+
+    def _update(self) -> None:
+        # eq. (8): stacked mean/covariance over free coordinates only
+        blocks = [(self.pos_m, self.cov_m2, self.free)]
+        for pid, _, pp, pc in self.buffer:
+            blocks.append((pp, pc, free_mask(pid)))
+        base = np.stack([b[0] for b in blocks])  # (l+1, 3)
+        masks = np.stack([b[2] for b in blocks])  # (l+1, 3)
+        x = np.concatenate([b[0][b[2]] for b in blocks])
+        n = x.size
+        P = np.zeros((n, n))
+        k = 0
+        for pos, cov, m in blocks:
+            d = int(m.sum())
+            P[k:k + d, k:k + d] = cov[np.ix_(m, m)] if d else 0.0
+            k += d
+        P = symmetrize(P) + 1e-9 * np.eye(n)
+        z = np.array([b[1] for b in self.buffer])
+        flat_idx = np.flatnonzero(masks.ravel())
+
+        def h(X: np.ndarray) -> np.ndarray:  # eq. (11); X (..., 2n+1, n)
+            full = np.broadcast_to(base.ravel(), X.shape[:-1] + (base.size,)).copy()
+            full[..., flat_idx] = X
+            full = full.reshape(X.shape[:-1] + base.shape)
+            d = full[..., :1, :] - full[..., 1:, :]
+            return np.sqrt(np.einsum("...ki,...ki->...k", d, d))
+
+        ut = unscented_transform(h, x, P, self.params)  # eq. (10)
+        S = ut.cov + self.sigma_d_m**2 * np.eye(len(z))
+        nf = int(self.free.sum())
+        xm, Pm = update(x[:nf], P[:nf, :nf], z - ut.mean, S, ut.cross[:nf])  # eqs. (12), (13)
+        self.pos_m = self.pos_m.copy()
+        self.pos_m[self.free] = xm
+        P3 = np.zeros((3, 3))
+        P3[np.ix_(self.free, self.free)] = Pm
+        self.cov_m2 = _clean_cov(P3, self.free)
+        self.n_updates += 1
+
+
+class DistributedMap:
+    """Distributed MAP by block Gauss-Newton on stored link statistics (see module docstring)."""
+
+    name = "dmap"
+
+    def __init__(self, station_id: int, pos0_m: np.ndarray | None, cov0_m2: np.ndarray | None,
+                 sigma_d_m: float, *, max_iter: int = 3, tol_m: float = 1e-3,
+                 no_fix_sigma_m: float = 1000.0, min_peers_to_init: int = 4, extrinsic: bool = True,
+                 peer_corr: float = 2.0):
+        self.id = station_id
+        self.free = free_mask(station_id)
+        self.nf = int(self.free.sum())
+        self.sigma_d_m = float(sigma_d_m)
+        self.max_iter = max_iter
+        self.tol_m = tol_m
+        self.no_fix_sigma_m = no_fix_sigma_m
+        self.min_peers_to_init = min_peers_to_init
+        self.extrinsic = extrinsic
+        self.peer_corr = peer_corr
+        self.n_updates = 0
+        # per-peer arrays: link count and sum of ranges, latest estimate and covariance
+        self._index: dict[int, int] = {}
+        self._n = np.zeros(0)
+        self._sum = np.zeros(0)
+        self._pos = np.zeros((0, 3))
+        self._cov = np.zeros((0, 3, 3))
+        self._known = np.zeros(0, bool)
+        if pos0_m is None or cov0_m2 is None or not np.any(np.diag(cov0_m2)[self.free] > 0) and self.nf:
+            # no coarse fix: trilaterate once enough peers are known
+            self.initialized = self.nf == 0
+            self.pos_m = np.zeros(3) if pos0_m is None else np.asarray(pos0_m, float).copy()
+            self.cov_m2 = np.diag(self.free * no_fix_sigma_m**2).astype(float)
+            self.prior_mean = None
+            self.prior_info = np.zeros((self.nf, self.nf))
+        else:
+            self.initialized = True
+            self.pos_m = np.asarray(pos0_m, dtype=float).copy()
+            self.cov_m2 = _clean_cov(cov0_m2, self.free)
+            self.prior_mean = self.pos_m[self.free].copy()
+            self.prior_info = np.linalg.inv(self.cov_m2[np.ix_(self.free, self.free)]) if self.nf else np.zeros((0, 0))
+
+    def _slot(self, peer_id: int) -> int:
+        k = self._index.get(peer_id)
+        if k is None:
+            k = self._index[peer_id] = len(self._index)
+            if k >= len(self._n):  # grow the peer arrays
+                grow = max(8, len(self._n))
+                self._n = np.concatenate([self._n, np.zeros(grow)])
+                self._sum = np.concatenate([self._sum, np.zeros(grow)])
+                self._pos = np.concatenate([self._pos, np.zeros((grow, 3))])
+                self._cov = np.concatenate([self._cov, np.zeros((grow, 3, 3))])
+                self._known = np.concatenate([self._known, np.zeros(grow, bool)])
+        return k
+
+    def on_peer(self, peer_id, pos_m, cov_m2) -> None:
+        k = self._slot(peer_id)
+        self._pos[k] = pos_m
+        self._cov[k] = cov_m2
+        self._known[k] = True
+
+    @property
+    def links(self) -> dict[int, tuple[int, float]]:
+        """Link statistics {peer: (count, mean range)}."""
+        return {p: (int(self._n[k]), float(self._sum[k] / self._n[k])) for p, k in self._index.items() if self._n[k] > 0}
+
+    def on_range(self, peer_id, range_m, t_s, initiated, peer_pos_m, peer_cov_m2) -> bool:
+        if peer_pos_m is not None:
+            self.on_peer(peer_id, peer_pos_m, peer_cov_m2)
+        k = self._slot(peer_id)
+        self._n[k] += 1.0
+        self._sum[k] += float(range_m)
+        if self.nf == 0:
+            return False
+        return self.solve()
+
+    def _arrays(self):
+        sel = (self._n > 0) & self._known
+        if not sel.any():
+            return None
+        n = self._n[sel]
+        return n, self._sum[sel] / n, self._pos[sel], self._cov[sel]
+
+    def _extrinsic(self, x, n, Pj, Cj):
+        """Peer covariances with this station's own link removed (Gaussian BP extrinsic message).
+
+        Peer j's information ``P_j^-1`` contains the link to us, weighted (from j's side) by
+        ``1/(sigma^2/n + u^T P_m u)``. Using it again here would count that link twice (the length-2
+        loop that makes naive decentralized fusion overconfident), so subtract it before use.
+        """
+        diff = x - Pj
+        u = diff / np.linalg.norm(diff, axis=1)[:, None]
+        w = 1.0 / (self.sigma_d_m**2 / n + np.einsum("ki,ij,kj->k", u, self.cov_m2, u))
+        M = np.einsum("kii->ki", Cj) > 0  # (k, 3) free coordinates of each peer
+        eye = np.eye(3)
+        Lam = np.linalg.inv(Cj + eye * (~M)[:, None, :])  # constrained axes decoupled with unit variance
+        um = u * M
+        Lam = Lam - w[:, None, None] * um[:, :, None] * um[:, None, :]
+        ok = np.linalg.eigvalsh(symmetrize(Lam)).min(axis=1) > 0
+        Ce = np.linalg.inv(np.where(ok[:, None, None], Lam, eye))
+        Ce = symmetrize(Ce) * M[:, :, None] * M[:, None, :]
+        return np.where(ok[:, None, None], Ce, Cj)
+
+    def solve(self) -> bool:
+        arr = self._arrays()
+        if arr is None:
+            return False
+        n, dbar, Pj, Cj = arr
+        iters = self.max_iter
+        if not self.initialized:
+            if len(n) < self.min_peers_to_init:
+                return False
+            # weak prior at the peers' centroid: fixes the mirror ambiguity of a flat network
+            self.prior_mean = Pj.mean(axis=0)[self.free]
+            self.prior_info = np.eye(self.nf) / self.no_fix_sigma_m**2
+            self.pos_m = Pj.mean(axis=0)
+            self.pos_m[~self.free] = 0.0
+            iters = 50
+        x = self.pos_m.copy()
+        f = self.free
+        A = self.prior_info
+        if self.extrinsic and self.initialized:
+            Cj = self._extrinsic(x, n, Pj, Cj)
+        for _ in range(iters):
+            diff = x - Pj
+            r = np.sqrt(np.einsum("ki,ki->k", diff, diff))
+            u = diff / r[:, None]
+            var = self.sigma_d_m**2 / n + self.peer_corr * np.einsum("ki,kij,kj->k", u, Cj, u)
+            w = 1.0 / var
+            J = u[:, f]
+            A = self.prior_info + (J.T * w) @ J
+            b = self.prior_info @ (self.prior_mean - x[f]) + J.T @ (w * (dbar - r))
+            L = np.linalg.cholesky(A)
+            dx = np.linalg.solve(L.T, np.linalg.solve(L, b))
+            x[f] += dx
+            if np.max(np.abs(dx)) < self.tol_m:
+                break
+        self.pos_m = x
+        cov = np.zeros((3, 3))
+        Linv = np.linalg.solve(np.linalg.cholesky(A), np.eye(self.nf))
+        cov[np.ix_(f, f)] = Linv.T @ Linv
+        self.cov_m2 = symmetrize(cov)
+        self.initialized = True
+        self.n_updates += 1
+        return True
+
+
+ESTIMATORS = {"dmap": DistributedMap, "seed-ukf": SeedUkf}
+
+
+def make_estimator(name: str, station_id: int, pos0_m, cov0_m2, sigma_d_m: float,
+                   ranges_per_update: int = 3) -> SurveyEstimator:
+    if name == "seed-ukf":
+        if pos0_m is None:
+            raise ValueError("seed-ukf needs an initial fix (scenario init.sigma0_m > 0)")
+        return SeedUkf(station_id, pos0_m, cov0_m2, sigma_d_m, ranges_per_update)
+    if name == "dmap":
+        return DistributedMap(station_id, pos0_m, cov0_m2, sigma_d_m)
+    raise ValueError(f"unknown estimator {name!r}; choose from {sorted(ESTIMATORS)}")
