@@ -9,6 +9,7 @@ from __future__ import annotations
 import importlib
 
 BENCHES: list[str] = [
+    "larns.bench_aircraft",
     "larns.bench_net",
 ]
 

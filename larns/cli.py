@@ -20,6 +20,7 @@ COMMANDS: list[str] = [
     "larns.record",
     "larns.station_cmd",
     "larns.fleet",
+    "larns.crlb_cmd",
 ]
 
 

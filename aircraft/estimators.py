@@ -1,0 +1,378 @@
+"""Aircraft position estimators (sans-I/O, vectorized over Monte Carlo runs on the leading axis).
+
+* :func:`lsq_pr`, :func:`lsq_tdoa` - snapshot iterative least squares (seed 001 eq. 14 with the
+  weights of eqs. 16 and 18).
+* :class:`CvTracker` - EKF or UKF on the constant-velocity model, pseudorange or TDOA measurements.
+  Prediction is the linear CV step (``nav.kalman.kf_predict``; the unscented transform of a linear map
+  is exact, so the UKF's prediction equals it); updates are ``nav.kalman.ekf_update`` /
+  ``nav.kalman.ukf_update`` with the scaled sigma points of ``nav.ut`` (alpha, beta = 2, kappa = 0).
+* :class:`AircraftEstimator` - the small message-level API the aircraft node, the bench and a replay
+  share: ``on_measurement`` (one TDMA slot), ``on_epoch`` (synchronous epoch), ``estimate()``.
+
+Shapes: ``M`` runs, ``m`` stations in a batch, ``n`` states. Stations are shared by all runs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from nav.kalman import chol_solve, ekf_update, kf_predict, symmetrize, ukf_update
+from nav.ut import SigmaParams
+
+from . import models as mdl
+
+ALGOS = ("lsq-pr", "lsq-tdoa", "ekf-pr", "ekf-tdoa", "ukf-pr", "ukf-tdoa")
+
+
+# --------------------------------------------------------------------------- snapshot LSQ
+def _solve_normal(H: np.ndarray, Rinv_H: np.ndarray, Rinv_dz: np.ndarray) -> np.ndarray:
+    """Solve ``(H^T W H) dx = H^T W dz`` given ``W H`` and ``W dz``; (M, n)."""
+    Ht = np.swapaxes(H, -1, -2)
+    N = symmetrize(Ht @ Rinv_H)
+    # Levenberg-Marquardt damping: changes the path, not the fixed point (H^T W dz = 0); keeps the step
+    # finite where a column vanishes (aircraft in the station plane: d r / d z = 0)
+    d = np.einsum("...ii->...i", N)
+    N = N + (1e-3 * d + 1e-9 * d.sum(-1, keepdims=True))[..., None] * np.eye(N.shape[-1])
+    g = np.einsum("...ij,...j->...i", Ht, Rinv_dz)
+    try:
+        return chol_solve(N, g[..., None])[..., 0]
+    except np.linalg.LinAlgError:  # a degenerate run: least-norm step for the whole batch
+        return np.linalg.lstsq(N, g[..., None], rcond=None)[0][..., 0] if N.ndim == 2 else \
+            np.einsum("...ij,...j->...i", np.linalg.pinv(N), g)
+
+
+def _limit(dx: np.ndarray, max_step_m: float) -> np.ndarray:
+    """Scale Gauss-Newton steps so the position part moves at most ``max_step_m`` (trust region)."""
+    nrm = np.linalg.norm(dx[..., :3], axis=-1, keepdims=True)
+    return dx * np.minimum(1.0, max_step_m / np.maximum(nrm, 1e-300))
+
+
+def mirror_above(x: np.ndarray, floor_z_m: float | None, vel: bool = False) -> np.ndarray:
+    """Reflect states whose height is below ``floor_z_m`` (the station plane) to its mirror image.
+
+    With (nearly) coplanar stations the ranges are symmetric about their plane, so the mirror image
+    fits the measurements equally well; the aircraft is known to be above. ``vel`` also flips vz.
+    Returns the boolean mask of reflected runs (M,); ``x`` is modified in place.
+    """
+    if floor_z_m is None:
+        return np.zeros(x.shape[:-1], dtype=bool)
+    below = x[..., 2] < floor_z_m
+    x[..., 2] = np.where(below, 2.0 * floor_z_m - x[..., 2], x[..., 2])
+    if vel:
+        x[..., 5] = np.where(below, -x[..., 5], x[..., 5])
+    return below
+
+
+def lsq_pr(
+    rho_m: np.ndarray, stations_m: np.ndarray, x0: np.ndarray, var_m2: np.ndarray | float,
+    station_cov_m2: np.ndarray | None = None, iters: int = 10, tol_m: float = 1e-4,
+    floor_z_m: float | None = None, max_step_m: float = 200.0,
+) -> np.ndarray:
+    """Iterative pseudorange LSQ (seed 001 eqs. 14-16).
+
+    Parameters
+    ----------
+    rho_m : (M, m) pseudoranges. stations_m : (m, 3). x0 : (M, 4) start ``[x y z b]``.
+    var_m2 : measurement variance (scalar or (m,)). station_cov_m2 : (m, 3, 3) or None.
+    floor_z_m : reflect iterates below this height (see :func:`mirror_above`).
+    max_step_m : trust region of one Gauss-Newton step.
+
+    Returns
+    -------
+    x : (M, 4) estimates ``[x y z b]``.
+    """
+    x = np.array(x0, dtype=float)
+    sigma = np.sqrt(np.broadcast_to(var_m2, (stations_m.shape[0],)))
+    for _ in range(iters):
+        X = np.concatenate([x[..., :3], np.zeros(x.shape[:-1] + (3,)), x[..., 3:4]], axis=-1)
+        H = mdl.jac_pr(X, stations_m)[..., [0, 1, 2, 6]]
+        var = mdl.range_var(X, stations_m, station_cov_m2, sigma)
+        dz = rho_m - mdl.h_pr(X, stations_m)
+        dx = _limit(_solve_normal(H, H / var[..., None], dz / var), max_step_m)
+        x = x + dx
+        mirror_above(x, floor_z_m)
+        if np.all(np.abs(dx) < tol_m):
+            break
+    return x
+
+
+def lsq_tdoa(
+    rho_m: np.ndarray, stations_m: np.ndarray, x0: np.ndarray, var_m2: np.ndarray | float,
+    station_cov_m2: np.ndarray | None = None, base: int = 0, iters: int = 10, tol_m: float = 1e-4,
+    floor_z_m: float | None = None, max_step_m: float = 200.0,
+) -> np.ndarray:
+    """Iterative range-difference LSQ weighted with ``(G R G^T)^-1`` (seed 001 eqs. 14, 17, 18).
+
+    rho_m : (M, m) pseudoranges (differenced here against ``base``); x0 : (M, 3). Returns (M, 3).
+    """
+    x = np.array(x0, dtype=float)
+    m = stations_m.shape[0]
+    G = mdl.g_matrix(m, base)
+    z = np.einsum("ij,...j->...i", G, rho_m)
+    sigma = np.sqrt(np.broadcast_to(var_m2, (m,)))
+    for _ in range(iters):
+        X = np.concatenate([x, np.zeros(x.shape[:-1] + (3,))], axis=-1)
+        H = mdl.jac_tdoa(X, stations_m, base)[..., :3]
+        S = mdl.r_tdoa(mdl.range_var(X, stations_m, station_cov_m2, sigma), base)
+        dz = z - mdl.h_tdoa(X, stations_m, base)
+        SiH = chol_solve(S, H)
+        Sidz = chol_solve(S, dz[..., None])[..., 0]
+        dx = _limit(_solve_normal(H, SiH, Sidz), max_step_m)
+        x = x + dx
+        mirror_above(x, floor_z_m)
+        if np.all(np.abs(dx) < tol_m):
+            break
+    return x
+
+
+# --------------------------------------------------------------------------- filters
+@dataclass(frozen=True)
+class Tuning:
+    """One filter tuning (shared by all trajectories).
+
+    ``q_acc`` white-acceleration density (m^2/s^3); ``q_clock`` clock random walk (m^2/s);
+    ``q_drift`` clock-rate random walk (m^2/s^3, drift state only); ``alpha`` UKF spread;
+    ``sigma_m`` nominal pseudorange noise; ``p0_*`` initial standard deviations.
+    """
+
+    q_acc: float = 1.0
+    q_clock: float = 1e-4
+    q_drift: float = 1e-4
+    drift_state: bool = True
+    alpha: float = 1e-1
+    sigma_m: float = 0.5
+    p0_pos_m: float = 20.0
+    p0_vel_m_s: float = 5.0
+    p0_clock_m: float = 20.0
+    p0_drift_m_s: float = 1.0
+    floor_z_m: float | None = 0.0  # station plane: estimates below it are mirrored (None: off)
+
+    def p0(self, layout: mdl.StateLayout) -> np.ndarray:
+        d = [self.p0_pos_m] * 3 + [self.p0_vel_m_s] * 3
+        if layout.kind == "pr":
+            d.append(self.p0_clock_m)
+            if layout.drift:
+                d.append(self.p0_drift_m_s)
+        return np.diag(np.square(d))
+
+
+class CvTracker:
+    """EKF / UKF on the constant-velocity model, batched over ``M`` runs.
+
+    Parameters
+    ----------
+    kind : "ekf" or "ukf". model : "pr" or "tdoa". x0 : (M, n) initial means. tuning : :class:`Tuning`.
+    t0_s : time of ``x0``. base : TDOA base station index within each batch.
+    """
+
+    def __init__(self, kind: str, model: str, x0: np.ndarray, tuning: Tuning, t0_s: float = 0.0, base: int = 0):
+        if kind not in ("ekf", "ukf"):
+            raise ValueError(f"unknown filter {kind!r} (ekf or ukf)")
+        self.kind = kind
+        self.layout = mdl.StateLayout(model, drift=tuning.drift_state and model == "pr")
+        self.tuning = tuning
+        x0 = np.atleast_2d(np.asarray(x0, dtype=float))
+        if x0.shape[-1] != self.layout.n:
+            raise ValueError(f"x0 must have {self.layout.n} states for {model}, got {x0.shape}")
+        self.x = x0.copy()
+        self.P = np.broadcast_to(tuning.p0(self.layout), x0.shape[:-1] + (self.layout.n,) * 2).copy()
+        self.t_s = float(t0_s)
+        self.base = base
+        self.params = SigmaParams.scaled(alpha=tuning.alpha, beta=2.0, kappa=0.0)
+        self._fq: dict[float, tuple[np.ndarray, np.ndarray]] = {}
+
+    def _FQ(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        key = round(dt, 12)
+        if key not in self._fq:
+            n, tu = self.layout.n, self.tuning
+            if len(self._fq) > 64:
+                self._fq.clear()
+            self._fq[key] = (mdl.cv_transition(n, dt), mdl.cv_noise(n, dt, tu.q_acc, tu.q_clock, tu.q_drift))
+        return self._fq[key]
+
+    def predict_to(self, t_s: float) -> None:
+        """Propagate to ``t_s`` (no-op if ``t_s <= t``: measurements are never processed backwards)."""
+        dt = t_s - self.t_s
+        if dt <= 0.0:
+            return
+        F, Q = self._FQ(dt)
+        self.x, self.P = kf_predict(self.x, self.P, F, Q)
+        self.t_s = float(t_s)
+
+    def update(
+        self, stations_m: np.ndarray, rho_m: np.ndarray, station_cov_m2: np.ndarray | None = None,
+        dt_s: np.ndarray | None = None, sigma_m: float | np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """One batch update with pseudoranges ``rho_m`` (M, m) from ``stations_m`` (m, 3).
+
+        ``dt_s`` (m,) are the measurement times relative to the filter time (TDMA batches).
+        TDOA: the batch is differenced against ``self.base`` (needs m >= 2). Returns (nu, S).
+        """
+        stations_m = np.asarray(stations_m, dtype=float)
+        sig = self.tuning.sigma_m if sigma_m is None else sigma_m
+        var = mdl.range_var(self.x, stations_m, station_cov_m2, sig, dt_s)
+        if self.layout.kind == "pr":
+            R = mdl.r_pr(var)
+            z = rho_m
+
+            def h(X):
+                return mdl.h_pr(X, stations_m, dt_s)
+        else:
+            b = self.base
+            R = mdl.r_tdoa(var, b)
+            z = np.delete(rho_m, b, axis=-1) - rho_m[..., b : b + 1]
+
+            def h(X):
+                return mdl.h_tdoa(X, stations_m, b, dt_s)
+        if self.kind == "ekf":
+            H = (mdl.jac_pr(self.x, stations_m, dt_s) if self.layout.kind == "pr"
+                 else mdl.jac_tdoa(self.x, stations_m, self.base, dt_s))
+            self.x, self.P, nu, S = ekf_update(self.x, self.P, z, h, H, R)
+        else:
+            self.x, self.P, nu, S = ukf_update(self.x, self.P, z, h, R, self.params)
+        self._mirror()
+        return nu, S
+
+    def _mirror(self) -> None:
+        """Reflect runs that fell below the station plane (state and covariance, ``J P J``)."""
+        fz = self.tuning.floor_z_m
+        if fz is None:
+            return
+        below = self.x[..., 2] < fz
+        if not np.any(below):
+            return
+        J = np.ones(self.layout.n)
+        J[[2, 5]] = -1.0
+        self.x[below, 2] = 2.0 * fz - self.x[below, 2]
+        self.x[below, 5] = -self.x[below, 5]
+        self.P[below] = self.P[below] * J[:, None] * J[None, :]
+
+
+# --------------------------------------------------------------------------- message-level API
+@dataclass
+class EstimatorConfig:
+    """Configuration of one :class:`AircraftEstimator` (defaults = the bench's shared tuning)."""
+
+    tuning: Tuning = field(default_factory=Tuning)
+    min_stations: int = 4
+    max_batch_age_s: float = 5.0  # TDMA: measurements older than this are dropped from a batch
+
+
+class AircraftEstimator:
+    """One algorithm for one aircraft, fed by messages; no I/O, no clocks, no truth.
+
+    ``on_measurement(t_s, station_id, station_pos_m, station_cov_m2, rho_m)`` takes one TDMA slot;
+    ``on_epoch(t_s, station_pos_m, station_cov_m2, rho_m)`` a synchronous epoch. Filters start from a
+    snapshot LSQ fix of the first complete batch. ``estimate()`` returns a dict or None.
+    """
+
+    def __init__(self, algo: str, config: EstimatorConfig | None = None, x0_guess_m: np.ndarray | None = None):
+        if algo not in ALGOS:
+            raise ValueError(f"unknown algorithm {algo!r}; choose from {', '.join(ALGOS)}")
+        self.algo = algo
+        self.method, self.model = algo.split("-")
+        self.cfg = config or EstimatorConfig()
+        self.tracker: CvTracker | None = None
+        self.fix: np.ndarray | None = None  # LSQ state (4,) or (3,)
+        self.t_s: float | None = None
+        self.guess = np.array([0.0, 0.0, 1000.0]) if x0_guess_m is None else np.asarray(x0_guess_m, float)
+        self._pending: dict[int, tuple[float, np.ndarray, np.ndarray, float]] = {}
+        self.n_updates = 0
+        self.n_dropped = 0
+        self.last_nis: float | None = None
+
+    # -- input
+    def on_epoch(self, t_s: float, station_pos_m, station_cov_m2, rho_m) -> None:
+        pos = np.asarray(station_pos_m, float)
+        cov = None if station_cov_m2 is None else np.asarray(station_cov_m2, float)
+        rho = np.asarray(rho_m, float)
+        if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(rho))) or pos.shape[0] != rho.shape[0]:
+            self.n_dropped += 1
+            return
+        self._batch(t_s, pos, cov, rho, np.zeros(len(rho)))
+
+    def on_measurement(self, t_s: float, station_id: int, station_pos_m, station_cov_m2, rho_m: float) -> None:
+        pos = np.asarray(station_pos_m, float).reshape(3)
+        cov = np.zeros((3, 3)) if station_cov_m2 is None else np.asarray(station_cov_m2, float).reshape(3, 3)
+        if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(cov)) and np.isfinite(rho_m)):
+            self.n_dropped += 1
+            return
+        if self.tracker is not None and self.model == "pr":
+            # sequential scalar update at the slot's own time
+            self.tracker.predict_to(t_s)
+            nu, S = self.tracker.update(pos[None], np.array([[rho_m]]), cov[None])
+            self.last_nis = float(nu[0, 0] ** 2 / S[0, 0, 0])
+            self.t_s = t_s
+            self.n_updates += 1
+            return
+        # batch: LSQ, TDOA, and filter initialisation collect one cycle (a station repeats -> flush)
+        if station_id in self._pending:
+            self._flush(t_s)
+        self._pending[station_id] = (t_s, pos, cov, float(rho_m))
+        self._pending = {k: v for k, v in self._pending.items() if t_s - v[0] <= self.cfg.max_batch_age_s}
+
+    def _flush(self, t_now: float) -> None:
+        items = sorted(self._pending.values(), key=lambda v: v[0])
+        self._pending.clear()
+        if len(items) < self.cfg.min_stations:
+            return
+        t_last = items[-1][0]
+        pos = np.array([v[1] for v in items])
+        cov = np.array([v[2] for v in items])
+        rho = np.array([v[3] for v in items])
+        dt = np.array([v[0] for v in items]) - t_last
+        self._batch(t_last, pos, cov, rho, dt)
+
+    def _batch(self, t_s, pos, cov, rho, dt) -> None:
+        m = len(rho)
+        if m < self.cfg.min_stations:
+            self.n_dropped += 1
+            return
+        tu = self.cfg.tuning
+        var = tu.sigma_m**2
+        if self.tracker is None:
+            if self.fix is None:
+                self.fix = np.append(self.guess, 0.0) if self.model == "pr" else self.guess.copy()
+            if self.model == "pr":
+                x0 = self.fix if self.fix.size == 4 else np.append(self.fix, 0.0)
+                self.fix = lsq_pr(rho[None], pos, x0[None], var, cov, floor_z_m=tu.floor_z_m)[0]
+            else:
+                self.fix = lsq_tdoa(rho[None], pos, self.fix[:3][None], var, cov, floor_z_m=tu.floor_z_m)[0]
+            self.t_s = t_s
+            self.n_updates += 1
+            if self.method == "lsq":
+                return
+            x0 = np.concatenate([self.fix[:3], np.zeros(3)])
+            if self.model == "pr":
+                x0 = np.append(x0, self.fix[3])
+                if tu.drift_state:
+                    x0 = np.append(x0, 0.0)
+            self.tracker = CvTracker(self.method, self.model, x0[None], tu, t0_s=t_s)
+            return
+        self.tracker.predict_to(t_s)
+        nu, S = self.tracker.update(pos, rho[None], cov, dt if np.any(dt) else None)
+        self.last_nis = float(np.einsum("...i,...i->...", nu, chol_solve(S, nu[..., None])[..., 0])[0])
+        self.t_s = t_s
+        self.n_updates += 1
+
+    # -- output
+    def estimate(self) -> dict | None:
+        """Latest estimate: ``t_s``, ``pos_m`` [3], ``cov_m2`` [3][3] (None for LSQ), ``vel_m_s``, ``clock_m``."""
+        if self.t_s is None:
+            return None
+        if self.tracker is None:
+            if self.method != "lsq" or self.fix is None:
+                return None
+            return {"t_s": self.t_s, "pos_m": self.fix[:3].tolist(), "cov_m2": None, "vel_m_s": None,
+                    "clock_m": float(self.fix[3]) if self.fix.size == 4 else None, "n_updates": self.n_updates}
+        x, P = self.tracker.x[0], self.tracker.P[0]
+        return {"t_s": self.tracker.t_s, "pos_m": x[:3].tolist(), "cov_m2": P[:3, :3].tolist(),
+                "vel_m_s": x[3:6].tolist(), "clock_m": float(x[6]) if x.size > 6 else None,
+                "n_updates": self.n_updates}
+
+
+def with_tuning(cfg: EstimatorConfig, **kw) -> EstimatorConfig:
+    """A copy of ``cfg`` with tuning fields replaced."""
+    return replace(cfg, tuning=replace(cfg.tuning, **kw))

@@ -1,0 +1,185 @@
+"""Aircraft measurement and motion models (pure, vectorized over leading axes).
+
+State layouts (all in the network frame, metres and seconds):
+
+* ``pr``   : ``[x y z vx vy vz b]`` with ``b = c * dtau`` the receiver clock offset in metres
+  (seed 001 eq. 11 extended by velocity, the paper's Theta_rho for the filters);
+* ``pr`` with ``drift=True`` : ``[x y z vx vy vz b bdot]`` (clock offset and its rate, m and m/s);
+* ``tdoa`` : ``[x y z vx vy vz]`` (seed 001 Theta_drho for the filters).
+
+Measurements (seed 001 eqs. 5, 10, 13), each optionally taken ``dt_j`` seconds away from the
+state's time (TDMA slots inside one batch; zero for synchronous epochs):
+
+* pseudorange ``rho_j = |p + v dt_j - s_j| + b (+ bdot dt_j) + xi_j``;
+* range difference to base ``b``: ``rho_j - rho_b`` for ``j != b`` (the clock cancels).
+
+Noise: each pseudorange has variance ``sigma^2 + u_j^T P_j u_j`` where ``P_j`` is the 3x3
+covariance of station ``j``'s broadcast self-survey position and ``u_j`` the line-of-sight unit
+vector (first-order propagation of the station position error into the range). Differences are
+weighted with ``G R G^T`` (seed 001 eq. 18), ``G`` = identity with a ``-1`` column at ``b``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from nav.geometry import SPEED_OF_LIGHT_M_S
+
+
+@dataclass(frozen=True)
+class StateLayout:
+    """Which measurement model and which clock states a filter carries."""
+
+    kind: str  # "pr" or "tdoa"
+    drift: bool = False  # pr only: carry the clock rate state
+
+    @property
+    def n(self) -> int:
+        if self.kind == "tdoa":
+            return 6
+        return 8 if self.drift else 7
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("pr", "tdoa"):
+            raise ValueError(f"unknown measurement model {self.kind!r} (pr or tdoa)")
+        if self.kind == "tdoa" and self.drift:
+            raise ValueError("the TDOA state has no clock")
+
+
+def g_matrix(m: int, base: int) -> np.ndarray:
+    """Differencing matrix ``G`` (m-1, m): identity with a ``-1`` column at ``base`` (seed 001 eq. 18)."""
+    G = np.zeros((m - 1, m))
+    rows = [j for j in range(m) if j != base]
+    G[np.arange(m - 1), rows] = 1.0
+    G[:, base] = -1.0
+    return G
+
+
+def _positions(X: np.ndarray, dt: np.ndarray | None) -> np.ndarray:
+    """Aircraft positions at the measurement times: (..., m, 3) (or (..., 1, 3) if dt is None)."""
+    p = X[..., None, 0:3]
+    if dt is None:
+        return p
+    return p + X[..., None, 3:6] * np.asarray(dt, dtype=float)[:, None]
+
+
+def los(X: np.ndarray, stations_m: np.ndarray, dt: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Ranges (..., m) and unit line-of-sight vectors station->aircraft (..., m, 3)."""
+    d = _positions(X, dt) - stations_m
+    r = np.sqrt(np.einsum("...i,...i->...", d, d))
+    return r, d / r[..., None]
+
+
+def h_pr(X: np.ndarray, stations_m: np.ndarray, dt: np.ndarray | None = None) -> np.ndarray:
+    """Pseudoranges (..., m) for states X (..., n>=7) (seed 001 eq. 13)."""
+    r, _ = los(X, stations_m, dt)
+    b = X[..., 6:7]
+    if X.shape[-1] > 7 and dt is not None:
+        b = b + X[..., 7:8] * np.asarray(dt, dtype=float)
+    return r + b
+
+
+def h_tdoa(X: np.ndarray, stations_m: np.ndarray, base: int, dt: np.ndarray | None = None) -> np.ndarray:
+    """Range differences (..., m-1) ``r_j - r_base`` for j != base, in station order (seed 001 eq. 10)."""
+    r, _ = los(X, stations_m, dt)
+    return np.delete(r, base, axis=-1) - r[..., base : base + 1]
+
+
+def jac_pr(X: np.ndarray, stations_m: np.ndarray, dt: np.ndarray | None = None) -> np.ndarray:
+    """Jacobian of :func:`h_pr`: (..., m, n) (seed 001 eq. 15 with velocity columns)."""
+    _, u = los(X, stations_m, dt)
+    m = stations_m.shape[0]
+    H = np.zeros(X.shape[:-1] + (m, X.shape[-1]))
+    H[..., 0:3] = u
+    if dt is not None:
+        H[..., 3:6] = u * np.asarray(dt, dtype=float)[:, None]
+    H[..., 6] = 1.0
+    if X.shape[-1] > 7 and dt is not None:
+        H[..., 7] = dt
+    return H
+
+
+def jac_tdoa(X: np.ndarray, stations_m: np.ndarray, base: int, dt: np.ndarray | None = None) -> np.ndarray:
+    """Jacobian of :func:`h_tdoa`: (..., m-1, 6) (seed 001 eq. 17 with velocity columns)."""
+    _, u = los(X, stations_m, dt)
+    m = stations_m.shape[0]
+    Hr = np.zeros(X.shape[:-1] + (m, 6))
+    Hr[..., 0:3] = u
+    if dt is not None:
+        Hr[..., 3:6] = u * np.asarray(dt, dtype=float)[:, None]
+    return np.delete(Hr, base, axis=-2) - Hr[..., base : base + 1, :]
+
+
+def range_var(
+    X: np.ndarray, stations_m: np.ndarray, station_cov_m2: np.ndarray | None, sigma_m: float | np.ndarray,
+    dt: np.ndarray | None = None,
+) -> np.ndarray:
+    """Per-pseudorange noise variance (..., m): ``sigma^2 + u^T P_station u``."""
+    sig2 = np.broadcast_to(np.asarray(sigma_m, dtype=float) ** 2, (stations_m.shape[0],))
+    if station_cov_m2 is None:
+        return np.broadcast_to(sig2, X.shape[:-1] + sig2.shape).copy()
+    _, u = los(X, stations_m, dt)
+    return sig2 + np.einsum("...mi,mij,...mj->...m", u, station_cov_m2, u)
+
+
+def r_pr(var: np.ndarray) -> np.ndarray:
+    """Diagonal pseudorange covariance (..., m, m) from variances (..., m) (seed 001 eq. 16)."""
+    return var[..., :, None] * np.eye(var.shape[-1])
+
+
+def r_tdoa(var: np.ndarray, base: int) -> np.ndarray:
+    """Range-difference covariance ``G R G^T`` (..., m-1, m-1) (seed 001 eq. 18)."""
+    G = g_matrix(var.shape[-1], base)
+    return np.einsum("ij,...j,kj->...ik", G, var, G)
+
+
+def cv_transition(n: int, dt_s: float) -> np.ndarray:
+    """Constant-velocity transition (n, n) (seed 001 F_rho / F_drho); clock ``b += bdot dt`` if n == 8."""
+    F = np.eye(n)
+    F[0:3, 3:6] = dt_s * np.eye(3)
+    if n == 8:
+        F[6, 7] = dt_s
+    return F
+
+
+def cv_noise(n: int, dt_s: float, q_acc: float, q_clock: float, q_drift: float) -> np.ndarray:
+    """Process noise (n, n) of the discretized continuous white-noise models.
+
+    Position/velocity per axis: white acceleration of spectral density ``q_acc`` (m^2/s^3):
+    ``q [[dt^3/3, dt^2/2], [dt^2/2, dt]]``. Clock offset: random walk ``q_clock`` (m^2/s); clock rate
+    (if ``n == 8``): random walk ``q_drift`` (m^2/s^3) integrated into the offset.
+    """
+    Q = np.zeros((n, n))
+    a = q_acc * np.array([[dt_s**3 / 3.0, dt_s**2 / 2.0], [dt_s**2 / 2.0, dt_s]])
+    for i in range(3):
+        Q[np.ix_([i, i + 3], [i, i + 3])] = a
+    if n >= 7:
+        Q[6, 6] = q_clock * dt_s
+    if n == 8:
+        Q[6, 6] += q_drift * dt_s**3 / 3.0
+        Q[6, 7] = Q[7, 6] = q_drift * dt_s**2 / 2.0
+        Q[7, 7] = q_drift * dt_s
+    return Q
+
+
+@dataclass(frozen=True)
+class ReceiverClock:
+    """Receiver clock model of seed 001: ``dtau(t) = df * lambda * t / c + tau0``.
+
+    ``df_hz`` carrier frequency offset, ``lambda_m`` carrier wavelength, ``tau0_s`` initial offset.
+    The paper's values ``df = 20 Hz``, ``lambda = 0.03 m``, ``tau0 = 0`` give 0.6 m/s of range drift.
+    """
+
+    df_hz: float = 20.0
+    lambda_m: float = 0.03
+    tau0_s: float = 0.0
+
+    @property
+    def drift_m_s(self) -> float:
+        return self.df_hz * self.lambda_m
+
+    def bias_m(self, t_s: np.ndarray | float) -> np.ndarray:
+        """Clock offset in range units ``c * dtau(t)``; same shape as ``t_s``."""
+        return self.drift_m_s * np.asarray(t_s, dtype=float) + SPEED_OF_LIGHT_M_S * self.tau0_s

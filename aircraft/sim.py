@@ -1,0 +1,134 @@
+"""Monte Carlo simulation of the aircraft estimators on synchronous epochs (seed 001 setup).
+
+The truth (trajectory, clock) and the noise live here; the estimators only receive pseudoranges,
+station positions and covariances. Everything is vectorized over ``M`` runs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from nav.pcrb import pcrb_linear_gaussian
+
+from . import models as mdl
+from .estimators import CvTracker, Tuning, lsq_pr, lsq_tdoa
+from .trajectory import Track
+
+
+@dataclass
+class RunResult:
+    """Errors of one algorithm at one point: ``err_m`` (M, T, 3) position errors over the whole run,
+    ``nees``/``nis`` (M, T) for filters (None for LSQ), ``x_hat`` final states."""
+
+    err_m: np.ndarray
+    nees: np.ndarray | None = None
+    nis: np.ndarray | None = None
+    P_pos: np.ndarray | None = None  # (M, T, 3, 3) filter position covariance (filters only)
+
+
+def pseudoranges(
+    track: Track, stations_m: np.ndarray, clock: mdl.ReceiverClock, sigma_m: float, runs: int,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """Noisy pseudoranges (T, M, m): ``|p(t) - s_j| + c dtau(t) + N(0, sigma^2)`` (seed 001 eq. 5)."""
+    r = np.linalg.norm(track.pos_m[:, None, :] - stations_m[None], axis=-1)  # (T, m)
+    rho = r + clock.bias_m(track.t_s)[:, None]
+    return rho[:, None, :] + sigma_m * rng.standard_normal((track.t_s.size, runs, stations_m.shape[0]))
+
+
+def true_state(track: Track, clock: mdl.ReceiverClock, layout: mdl.StateLayout) -> np.ndarray:
+    """True filter states (T, n) along the track."""
+    cols = [track.pos_m, track.vel_m_s]
+    if layout.kind == "pr":
+        cols.append(clock.bias_m(track.t_s)[:, None])
+        if layout.drift:
+            cols.append(np.full((track.t_s.size, 1), clock.drift_m_s))
+    return np.concatenate(cols, axis=1)
+
+
+def run_algo(
+    algo: str, track: Track, stations_m: np.ndarray, rho: np.ndarray, tuning: Tuning, clock: mdl.ReceiverClock,
+    rng: np.random.Generator, station_cov_m2: np.ndarray | None = None, keep_cov: bool = False,
+    lsq_stride: int = 1,
+) -> RunResult:
+    """Run one algorithm over all epochs of ``rho`` (T, M, m); returns the errors against the truth.
+
+    Filters start from the truth plus a draw from their own prior ``N(0, P0)`` (so the posterior
+    CRLB with the same ``P0`` applies); LSQ starts its first epoch from the same kind of coarse fix and
+    each later epoch from its previous solution. LSQ is a snapshot method, so it may skip epochs
+    (``lsq_stride``): its ``err_m`` then has ``ceil(T / lsq_stride)`` samples per run.
+    """
+    method, model = algo.split("-")
+    T, M, m = rho.shape
+    err = np.empty((M, T, 3))
+    layout = mdl.StateLayout(model, drift=tuning.drift_state and model == "pr")
+    xt = true_state(track, clock, layout)
+    P0 = tuning.p0(layout)
+    x0 = xt[0] + rng.standard_normal((M, layout.n)) @ np.linalg.cholesky(P0).T
+    var = tuning.sigma_m**2
+    if method == "lsq":
+        x = x0[:, [0, 1, 2, 6]] if model == "pr" else x0[:, :3]
+        centre = stations_m.mean(axis=0)
+        ks = range(0, T, lsq_stride)
+        err = np.empty((M, len(ks), 3))
+        for i, k in enumerate(ks):
+            if model == "pr":
+                x = lsq_pr(rho[k], stations_m, x, var, station_cov_m2, floor_z_m=tuning.floor_z_m)
+            else:
+                x = lsq_tdoa(rho[k], stations_m, x, var, station_cov_m2, floor_z_m=tuning.floor_z_m)
+            # a run whose iteration left the 100 km world restarts from its coarse initial fix
+            bad = ~np.all(np.isfinite(x), axis=-1) | (np.linalg.norm(x[:, :3] - centre, axis=-1) > 1e5)
+            if np.any(bad):
+                x[bad] = x0[bad][:, : x.shape[1]]
+            err[:, i] = x[:, :3] - track.pos_m[k]
+        return RunResult(err)
+    trk = CvTracker(method, model, x0, tuning, t0_s=float(track.t_s[0]))
+    nees = np.empty((M, T))
+    nis = np.empty((M, T))
+    P_pos = np.empty((M, T, 3, 3)) if keep_cov else None
+    for k in range(T):
+        trk.predict_to(float(track.t_s[k]))
+        nu, S = trk.update(stations_m, rho[k], station_cov_m2)
+        e = trk.x - xt[k]
+        err[:, k] = e[:, :3]
+        L = np.linalg.cholesky(trk.P)
+        w = np.linalg.solve(L, e[..., None])[..., 0]
+        nees[:, k] = np.einsum("...i,...i->...", w, w)
+        Ls = np.linalg.cholesky(S)
+        ws = np.linalg.solve(Ls, nu[..., None])[..., 0]
+        nis[:, k] = np.einsum("...i,...i->...", ws, ws)
+        if keep_cov:
+            P_pos[:, k] = trk.P[:, :3, :3]
+    return RunResult(err, nees, nis, P_pos)
+
+
+def pcrb_track(
+    model: str, track: Track, stations_m: np.ndarray, tuning: Tuning, clock: mdl.ReceiverClock,
+    station_cov_m2: np.ndarray | None = None,
+) -> np.ndarray:
+    """Posterior CRLB of the filter's own model along the true track; position bound (T, 3, 3)."""
+    layout = mdl.StateLayout(model, drift=tuning.drift_state and model == "pr")
+    xt = true_state(track, clock, layout)
+    dt = float(np.median(np.diff(track.t_s)))
+    F = mdl.cv_transition(layout.n, dt)
+    Q = mdl.cv_noise(layout.n, dt, tuning.q_acc, tuning.q_clock, tuning.q_drift)
+    var = mdl.range_var(xt, stations_m, station_cov_m2, tuning.sigma_m)  # (T, m)
+    if model == "pr":
+        H = mdl.jac_pr(xt, stations_m)
+        R = mdl.r_pr(var)
+    else:
+        H = mdl.jac_tdoa(xt, stations_m, 0)
+        R = mdl.r_tdoa(var, 0)
+    # the first batch is measured at t0 without a preceding prediction: start one step earlier
+    P0 = tuning.p0(layout)
+    Finv = np.linalg.inv(F)
+    P_start = Finv @ (P0 - Q) @ Finv.T if np.all(np.linalg.eigvalsh(P0 - Q) > 0) else P0
+    P = pcrb_linear_gaussian(P_start, F, Q, H, R)
+    return P[:, :3, :3]
+
+
+def rms_total(err_m: np.ndarray) -> float:
+    """Seed 001's total error ``sqrt(sx^2 + sy^2 + sz^2)`` as an RMS over all samples (bias included)."""
+    return float(np.sqrt(np.mean(np.sum(err_m**2, axis=-1))))

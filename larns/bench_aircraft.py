@@ -1,0 +1,354 @@
+"""`larns bench aircraft`: seed 001's accuracy study (Fig. 4 and 5) against the posterior CRLB.
+
+Six algorithms (lsq-pr, lsq-tdoa, ekf-pr, ekf-tdoa, ukf-pr, ukf-tdoa) on the scenario's transmitters
+(seed001: 4 on a circle of R0 = 50 m, sigma 0.5 m, 100 Hz synchronous epochs, receiver clock
+drift 20 Hz x 0.03 m). Hover at 50..1500 m and a coordinated turn with jumping angular velocity
+starting at 500..2000 m, vectorized over Monte Carlo runs with common random numbers across
+algorithms. Prints a table, writes JSON (--json) and PNGs (--png-dir), checks the bar
+RMSE <= 1.1 x PCRB for the pseudorange EKF and UKF, runs a height sweep and times the UKF update
+against filterpy's UnscentedKalmanFilter.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+
+import numpy as np
+
+ALGOS = ("lsq-pr", "lsq-tdoa", "ekf-pr", "ekf-tdoa", "ukf-pr", "ukf-tdoa")
+FILTERS = ("ekf-pr", "ekf-tdoa", "ukf-pr", "ukf-tdoa")
+PAPER = {  # seed 001, conclusions (p. 3): hover and turn at 1000 m
+    "hover": {"ukf-pr": {"1000": 10.0}, "ukf-tdoa": {"1000": 20.0}},
+    "turn": {"ukf-pr": {"1000": 30.0}, "ukf-tdoa": {"1000": 140.0}},
+}
+BAR = 1.1
+HEIGHT_NOTE = "height: 3 deg glide path toward the circle centre (h = d tan 3 deg) unless --height"
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "aircraft",
+        help="seed 001 accuracy sweep: 6 algorithms vs distance, PCRB bar, filterpy speed",
+        description=__doc__,
+    )
+    p.add_argument("--scenario", default="seed001", help="scenario name or file (default seed001)")
+    p.add_argument("--trials", type=int, default=None, help="Monte Carlo runs per point (default from scenario, 32)")
+    p.add_argument("--seed", type=int, default=1, help="RNG seed (default 1)")
+    p.add_argument("--json", metavar="FILE", help="write the results as JSON")
+    p.add_argument("--png-dir", metavar="DIR", help="write fig4/fig5-like plots and the height sweep here")
+    p.add_argument("--height", type=float, default=None, help="fixed aircraft height in m (default: glide path)")
+    p.add_argument("--duration", type=float, default=None, help="seconds per run (default from scenario, 40)")
+    p.add_argument("--warmup", type=float, default=None, help="seconds discarded at the start (default 10)")
+    p.add_argument("--quick", action="store_true", help="small smoke-test version (few runs, short, 2 points each)")
+    p.add_argument("--no-sweep", action="store_true", help="skip the height sweep")
+    p.add_argument("--no-speed", action="store_true", help="skip the filterpy speed comparison")
+    p.set_defaults(func=run)
+
+
+def _progress(msg: str) -> None:
+    print(f"[bench aircraft] {msg}", file=sys.stderr, flush=True)
+
+
+def setup(scenario: str):
+    """Stations, clock, tuning and bench settings from the scenario's ``[aircraft]`` table."""
+    from aircraft.config import from_scenario
+    from net.scenario import load
+
+    sc = load(scenario)
+    return sc, from_scenario(sc)
+
+
+def run_point(ac, kind: str, dist_m: float, runs: int, duration_s: float, warmup_s: float,
+              height_m: float | None, rng: np.random.Generator, algos=ALGOS, lsq_stride: int = 4) -> dict:
+    """All algorithms at one point; returns rmse, pcrb (filters), nees/nis means, height, samples, timings."""
+    from aircraft import sim, trajectory
+
+    dt = 1.0 / ac.rate_hz
+    t = np.arange(0.0, duration_s, dt)
+    cfg = dict(ac.trajectories.get(kind, {}), kind=kind, distance_m=dist_m)
+    track = trajectory.from_config(cfg, t, ac.centre_m, height_m)
+    rho = sim.pseudoranges(track, ac.stations_m, ac.clock, ac.sigma_m, runs, rng)
+    win = t >= warmup_s
+    out = {"height_m": float(track.pos_m[0, 2] - ac.centre_m[2]), "samples": int(runs * win.sum()),
+           "rmse_m": {}, "pcrb_m": {}, "nees": {}, "nis": {}, "sec_per_update_run": {}, "samples_by_algo": {}}
+    pc_cache = {}
+    for algo in algos:
+        method, model = algo.split("-")
+        t0 = time.perf_counter()
+        stride = lsq_stride if method == "lsq" else 1
+        res = sim.run_algo(algo, track, ac.stations_m, rho, ac.tuning, ac.clock, rng, lsq_stride=stride)
+        el = time.perf_counter() - t0
+        w = win[::stride]
+        out["rmse_m"][algo] = sim.rms_total(res.err_m[:, w])
+        out["samples_by_algo"][algo] = int(runs * w.sum())
+        out["sec_per_update_run"][algo] = el / (res.err_m.shape[1] * runs)
+        if method != "lsq":
+            if model not in pc_cache:
+                P = sim.pcrb_track(model, track, ac.stations_m, ac.tuning, ac.clock)
+                pc_cache[model] = float(np.sqrt(np.mean(np.trace(P[win], axis1=1, axis2=2))))
+            out["pcrb_m"][algo] = pc_cache[model]
+            out["nees"][algo] = float(np.mean(res.nees[:, win]))
+            out["nis"][algo] = float(np.mean(res.nis[:, win]))
+    out["samples"] = min(out["samples_by_algo"].values())
+    return out
+
+
+def speed_vs_filterpy(ac, steps: int = 400, runs: int = 64) -> dict:
+    """Time per UKF-PR update (predict + update) of ours vs filterpy's UnscentedKalmanFilter.
+
+    Same problem (seed001 stations, hover 1000 m, 100 Hz, same tuning, same measurements), with
+    filterpy told to redraw sigma points after its prediction (``sigmas_f`` from the predicted x, P) as
+    seed 001's correction step does. Returns times and the max state difference.
+    """
+    from dataclasses import replace
+
+    from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+
+    from aircraft import models as mdl
+    from aircraft import sim, trajectory
+    from aircraft.estimators import CvTracker
+
+    tun = replace(ac.tuning, floor_z_m=None)
+    dt = 1.0 / ac.rate_hz
+    t = np.arange(steps) * dt
+    track = trajectory.from_config({"kind": "hover", "distance_m": 1000.0}, t, ac.centre_m)
+    rng = np.random.default_rng(7)
+    rho = sim.pseudoranges(track, ac.stations_m, ac.clock, ac.sigma_m, runs, rng)
+    layout = mdl.StateLayout("pr", drift=tun.drift_state)
+    x0 = sim.true_state(track, ac.clock, layout)[0] + 5.0
+    S = ac.stations_m
+    F = mdl.cv_transition(layout.n, dt)
+    Q = mdl.cv_noise(layout.n, dt, tun.q_acc, tun.q_clock, tun.q_drift)
+
+    pts = MerweScaledSigmaPoints(layout.n, alpha=tun.alpha, beta=2.0, kappa=0.0)
+    fp = UnscentedKalmanFilter(dim_x=layout.n, dim_z=S.shape[0], dt=dt, points=pts,
+                               fx=lambda x, dt_: F @ x, hx=lambda x: mdl.h_pr(x, S))
+    fp.x = x0.copy()
+    fp.P = tun.p0(layout).copy()
+    fp.Q = Q
+    fp.R = np.eye(S.shape[0]) * tun.sigma_m**2
+    ours = CvTracker("ukf", "pr", x0[None], tun)
+    diff = scale = 0.0
+    t_fp = t_one = 0.0
+    for k in range(steps):
+        a = time.perf_counter()
+        if k:
+            fp.predict()
+            fp.sigmas_f = pts.sigma_points(fp.x, fp.P)
+        else:
+            fp.sigmas_f = pts.sigma_points(fp.x, fp.P)
+        fp.update(rho[k, 0])
+        b = time.perf_counter()
+        ours.predict_to(t[k])
+        ours.update(S, rho[k, :1])
+        c = time.perf_counter()
+        t_fp += b - a
+        t_one += c - b
+        diff = max(diff, float(np.max(np.abs(ours.x[0] - fp.x))))
+        scale = max(scale, float(np.max(np.abs(fp.x))))
+    batch = CvTracker("ukf", "pr", np.broadcast_to(x0, (runs, layout.n)), tun)
+    a = time.perf_counter()
+    for k in range(steps):
+        batch.predict_to(t[k])
+        batch.update(S, rho[k])
+    t_batch = time.perf_counter() - a
+    return {"filterpy_s_per_update": t_fp / steps, "ours_single_s_per_update": t_one / steps,
+            "ours_batched_s_per_update_run": t_batch / (steps * runs), "batch_runs": runs,
+            "speedup_single": t_fp / t_one, "speedup_batched": (t_fp / steps) / (t_batch / (steps * runs)),
+            "max_abs_state_diff": diff, "max_rel_state_diff": diff / scale, "steps": steps}
+
+
+def run(args) -> int:
+    sc, ac = setup(args.scenario)
+    b = ac.bench
+    runs = args.trials or int(b.get("runs", 32))
+    duration = args.duration or float(b.get("duration_s", 40.0))
+    warmup = args.warmup if args.warmup is not None else float(b.get("warmup_s", 10.0))
+    hover_d = [float(d) for d in b.get("hover_m", [50, 100, 250, 500, 1000, 1500])]
+    turn_d = [float(d) for d in b.get("turn_m", [500, 1000, 1500, 2000])]
+    sweep_h = [float(h) for h in b.get("sweep_heights_m", [10, 25, 52.4, 100, 200, 300, 500])]
+    if args.quick:
+        runs = args.trials or 4
+        duration = args.duration or 6.0
+        warmup = args.warmup if args.warmup is not None else 2.0
+        hover_d, turn_d, sweep_h = [100.0, 1000.0], [1000.0], [52.4, 300.0]
+    if warmup >= duration:
+        print("error: --warmup must be shorter than --duration", file=sys.stderr)
+        return 2
+    rng = np.random.default_rng(args.seed)
+    t_start = time.perf_counter()
+    res = {"hover": {}, "turn": {}}
+    points = [("hover", d) for d in hover_d] + [("turn", d) for d in turn_d]
+    for i, (kind, d) in enumerate(points):
+        _progress(f"{i + 1}/{len(points)} {kind} {d:g} m ({runs} runs x {duration:g} s)")
+        res[kind][f"{d:g}"] = run_point(ac, kind, d, runs, duration, warmup, args.height, rng)
+    sweep = {}
+    if not args.no_sweep:
+        for j, h in enumerate(sweep_h):
+            _progress(f"height sweep {j + 1}/{len(sweep_h)}: hover 1000 m at h = {h:g} m")
+            sweep[f"{h:g}"] = run_point(ac, "hover", 1000.0, runs, duration, warmup, h, rng,
+                                        algos=("ekf-pr", "ukf-pr", "ekf-tdoa", "ukf-tdoa"))
+    speed = None if args.no_speed else speed_vs_filterpy(ac, steps=100 if args.quick else 400)
+    wall = time.perf_counter() - t_start
+
+    out = _assemble(res, sweep, speed, runs, duration, warmup, args, ac, wall)
+    _print_table(out)
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(out, f, indent=1)
+        _progress(f"wrote {args.json}")
+    if args.png_dir:
+        for p in _plots(out, args.png_dir):
+            _progress(f"wrote {p}")
+    return 0
+
+
+def _assemble(res, sweep, speed, runs, duration, warmup, args, ac, wall) -> dict:
+    out = {"rmse_m": {}, "pcrb_m": {}, "ratio": {}, "nees": {}, "nis": {}, "height_m": {}, "samples": {},
+           "paper_m": PAPER, "bar": {"factor": BAR, "algos": ["ekf-pr", "ukf-pr"], "violations": []}}
+    for kind, pts in res.items():
+        for key in ("rmse_m", "pcrb_m", "ratio", "nees", "nis"):
+            out[key][kind] = {}
+        out["height_m"][kind] = {d: p["height_m"] for d, p in pts.items()}
+        out["samples"][kind] = {d: p["samples"] for d, p in pts.items()}
+        for d, p in pts.items():
+            for algo, v in p["rmse_m"].items():
+                out["rmse_m"][kind].setdefault(algo, {})[d] = v
+            for algo, v in p["pcrb_m"].items():
+                out["pcrb_m"][kind].setdefault(algo, {})[d] = v
+                r = p["rmse_m"][algo] / v
+                out["ratio"][kind].setdefault(algo, {})[d] = r
+                if algo in ("ekf-pr", "ukf-pr") and r > BAR:
+                    out["bar"]["violations"].append(f"{kind} {d} m {algo}: {r:.3f}")
+            for algo, v in p["nees"].items():
+                out["nees"][kind].setdefault(algo, {})[d] = v
+                out["nis"][kind].setdefault(algo, {})[d] = p["nis"][algo]
+    out["bar"]["pass"] = not out["bar"]["violations"]
+    out["height_sweep"] = {
+        "distance_m": 1000.0,
+        "rmse_m": {h: p["rmse_m"] for h, p in sweep.items()},
+        "pcrb_m": {h: p["pcrb_m"] for h, p in sweep.items()},
+    }
+    out["speed"] = speed
+    tu = ac.tuning
+    out["settings"] = {
+        "scenario": args.scenario, "runs": runs, "duration_s": duration, "warmup_s": warmup, "seed": args.seed,
+        "rate_hz": ac.rate_hz, "sigma_m": ac.sigma_m, "clock_drift_m_s": ac.clock.drift_m_s,
+        "height": "fixed %g m" % args.height if args.height is not None else "3 deg glide path",
+        "tuning": {k: getattr(tu, k) for k in tu.__dataclass_fields__},
+        "quick": bool(args.quick), "wall_s": wall,
+        "samples_note": "samples = runs x epochs after warm-up; epochs within a run are correlated",
+    }
+    return out
+
+
+def _print_table(out: dict) -> None:
+    print(f"\nRMS total position error [m] vs distance; in brackets RMSE/PCRB. {HEIGHT_NOTE}")
+    for kind in ("hover", "turn"):
+        ds = list(out["height_m"][kind])
+        if not ds:
+            continue
+        print(f"\n{kind:<6} {'dist m':>7} {'h m':>6} {'samples':>8} " + " ".join(f"{a:>16}" for a in ALGOS))
+        for d in ds:
+            cells = []
+            for a in ALGOS:
+                v = out["rmse_m"][kind].get(a, {}).get(d)
+                r = out["ratio"][kind].get(a, {}).get(d)
+                cells.append(f"{v:9.2f}" + (f" ({r:4.2f})" if r is not None else "       ") if v is not None else " " * 16)
+            print(f"{'':<6} {d:>7} {out['height_m'][kind][d]:6.1f} {out['samples'][kind][d]:8d} " + " ".join(cells))
+    print("\nPCRB of the filter model [m]:")
+    for kind in ("hover", "turn"):
+        for a in ("ekf-pr", "ekf-tdoa"):
+            m = "pr" if a.endswith("pr") else "tdoa"
+            vals = out["pcrb_m"][kind].get(a, {})
+            if vals:
+                print(f"  {kind:<6} {m:<5} " + "  ".join(f"{d}: {v:.2f}" for d, v in vals.items()))
+    print("\nPaper (seed 001) vs ours at 1000 m:")
+    for kind in ("hover", "turn"):
+        for a in ("ukf-pr", "ukf-tdoa"):
+            ours = out["rmse_m"][kind].get(a, {}).get("1000")
+            ptxt = PAPER[kind][a]["1000"]
+            print(f"  {kind:<6} {a:<9} paper ~{ptxt:5.0f} m   ours " + (f"{ours:7.2f} m" if ours else "   n/a"))
+    hs = out["height_sweep"]["rmse_m"]
+    if hs:
+        print("\nHeight sweep, hover at 1000 m: RMSE [m] (PCRB)")
+        for h, r in hs.items():
+            pc = out["height_sweep"]["pcrb_m"][h]
+            print(f"  h = {h:>5} m  " + "  ".join(f"{a} {r[a]:7.2f} ({pc[a]:.2f})" for a in r))
+    sp = out["speed"]
+    if sp:
+        print(f"\nUKF-PR update (predict+update): filterpy {sp['filterpy_s_per_update'] * 1e6:.0f} us, "
+              f"ours single {sp['ours_single_s_per_update'] * 1e6:.0f} us (x{sp['speedup_single']:.1f}), "
+              f"ours batched {sp['ours_batched_s_per_update_run'] * 1e6:.1f} us/run over {sp['batch_runs']} runs "
+              f"(x{sp['speedup_batched']:.0f}); max |x_ours - x_filterpy| = {sp['max_abs_state_diff']:.2e} m "
+              f"(relative {sp['max_rel_state_diff']:.1e}) over {sp['steps']} steps")
+    bar = out["bar"]
+    print(f"\nBar: RMSE <= {BAR} x PCRB for ekf-pr and ukf-pr at every point: "
+          + ("PASS" if bar["pass"] else "FAIL: " + "; ".join(bar["violations"])))
+    print(f"wall time {out['settings']['wall_s']:.0f} s")
+
+
+def _plots(out: dict, png_dir: str) -> list[str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import os
+
+    import matplotlib.pyplot as plt
+
+    os.makedirs(png_dir, exist_ok=True)
+    paths = []
+    for kind, fig_no in (("hover", 4), ("turn", 5)):
+        ds = list(out["height_m"][kind])
+        if not ds:
+            continue
+        x = [float(d) for d in ds]
+        fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 4.8))
+        for a in ALGOS:
+            y = [out["rmse_m"][kind][a][d] for d in ds]
+            (a2 if a.startswith("lsq") else a1).plot(x, y, "o-", label=a)
+            if a in ("ekf-pr", "ekf-tdoa"):
+                pc = [out["pcrb_m"][kind][a][d] for d in ds]
+                a1.plot(x, pc, "k--" if a.endswith("pr") else "k:", lw=1, label=f"PCRB {a.split('-')[1]}")
+        for a, mk in (("ukf-pr", "*"), ("ukf-tdoa", "X")):
+            a1.plot([1000.0], [PAPER[kind][a]["1000"]], mk, ms=12, color="red", label=f"paper {a}")
+        a1.set_title(f"filters ({kind}, cf. seed 001 Fig. {fig_no}a)")
+        a2.set_title("snapshot LSQ")
+        a2.set_yscale("log")
+        for ax in (a1, a2):
+            ax.set_xlabel("distance from the circle centre, m")
+            ax.set_ylabel("RMS total error, m")
+            ax.grid(True, alpha=0.3)
+            ax.legend(fontsize=7)
+        fig.suptitle(f"{kind}: {HEIGHT_NOTE}; {out['settings']['runs']} runs x "
+                     f"{out['settings']['duration_s']:g} s", fontsize=9)
+        p = os.path.join(png_dir, f"aircraft_fig{fig_no}_{kind}.png")
+        fig.tight_layout()
+        fig.savefig(p, dpi=110)
+        plt.close(fig)
+        paths.append(p)
+    hs = out["height_sweep"]
+    if hs["rmse_m"]:
+        hh = [float(h) for h in hs["rmse_m"]]
+        fig, ax = plt.subplots(figsize=(7, 4.8))
+        for a in next(iter(hs["rmse_m"].values())):
+            ax.plot(hh, [hs["rmse_m"][h][a] for h in hs["rmse_m"]], "o-", label=a)
+        for m, ls in (("ekf-pr", "--"), ("ekf-tdoa", ":")):
+            ax.plot(hh, [hs["pcrb_m"][h][m] for h in hs["pcrb_m"]], "k" + ls, lw=1, label=f"PCRB {m.split('-')[1]}")
+        ax.axvline(1000.0 * np.tan(np.radians(3.0)), color="grey", lw=0.8)
+        ax.text(1000.0 * np.tan(np.radians(3.0)), ax.get_ylim()[1] * 0.9, " 3 deg glide", fontsize=8)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("aircraft height above the station plane, m")
+        ax.set_ylabel("RMS total error, m")
+        ax.set_title("hover at 1000 m: error vs height (seed 001 geometry)", fontsize=10)
+        ax.grid(True, alpha=0.3, which="both")
+        ax.legend(fontsize=8)
+        p = os.path.join(png_dir, "aircraft_height_sweep.png")
+        fig.tight_layout()
+        fig.savefig(p, dpi=110)
+        plt.close(fig)
+        paths.append(p)
+    return paths

@@ -1,0 +1,145 @@
+"""`larns crlb`: Cramer-Rao bound maps of one TDMA cycle (seed 003, eqs. 1-7).
+
+For every point of a horizontal grid at a fixed height, the Fisher information of the aircraft's
+position and velocity at the start of a TDMA cycle (every station transmits once, in its own slot,
+while the aircraft moves uniformly) is inverted; the horizontal ``sqrt(var x + var y)`` and vertical
+``sqrt(var z)`` bounds are drawn as PNG maps and summarized by distance from the station area.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+
+import numpy as np
+
+from nav.geometry import SPEED_OF_LIGHT_M_S
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "crlb",
+        help="CRLB maps (horizontal / vertical) of one TDMA cycle over an area (seed 003)",
+        description=__doc__,
+    )
+    p.add_argument("--scenario", default="seed003", help="scenario name or file (default seed003)")
+    p.add_argument("--height", type=float, default=None, help="aircraft height above station 1, m (default 1000)")
+    p.add_argument("--sigma-t-ns", type=float, default=None, help="timing noise, ns (default 3)")
+    p.add_argument("--slot-s", type=float, default=None, help="TDMA slot length, s (default: scenario [tdma])")
+    p.add_argument("--velocity", type=float, nargs=3, default=None, metavar=("VX", "VY", "VZ"),
+                   help="aircraft velocity during the cycle, m/s (default 50 0 0)")
+    p.add_argument("--params", choices=("posvel", "pos"), default=None,
+                   help="estimated parameters: position and velocity (seed 003, default) or position only")
+    p.add_argument("--clock", action="store_true", help="also estimate a receiver clock offset (pseudoranges)")
+    p.add_argument("--extent", type=float, nargs=4, default=None, metavar=("X0", "X1", "Y0", "Y1"),
+                   help="map area in the network frame, m (default: station area +- 35 km)")
+    p.add_argument("--step", type=float, default=None, help="grid step, m (default 1000)")
+    p.add_argument("--png", metavar="FILE", default="crlb.png", help="output PNG (default crlb.png)")
+    p.add_argument("--json", metavar="FILE", help="write the grid and the summary as JSON")
+    p.set_defaults(func=run)
+
+
+def compute(stations_m, height_m, sigma_m, t_rel_s, velocity_m_s, params, clock, extent, step):
+    """Bounds on a grid: returns x (nx,), y (ny,), horiz (ny, nx), vert (ny, nx), dist_area (ny, nx)."""
+    from nav.pcrb import crlb_cycle, fisher_cycle
+
+    x = np.arange(extent[0], extent[1] + 0.5 * step, step)
+    y = np.arange(extent[2], extent[3] + 0.5 * step, step)
+    X, Y = np.meshgrid(x, y)
+    r0 = np.stack([X, Y, np.full_like(X, height_m)], axis=-1)
+    J = fisher_cycle(r0, np.asarray(velocity_m_s, float), stations_m, t_rel_s, sigma_m,
+                     clock=clock, velocity=(params == "posvel"))
+    b = crlb_cycle(J)
+    lo, hi = stations_m[:, :2].min(axis=0), stations_m[:, :2].max(axis=0)
+    dx = np.maximum(np.maximum(lo[0] - X, X - hi[0]), 0.0)
+    dy = np.maximum(np.maximum(lo[1] - Y, Y - hi[1]), 0.0)
+    return x, y, b["horiz_m"], b["vert_m"], np.hypot(dx, dy)
+
+
+def summary(horiz, vert, dist, bands=((0, 0), (0, 10e3), (10e3, 20e3), (20e3, 30e3))):
+    """Median / min / max bounds inside the station area (0, 0) and in distance bands from it."""
+    out = []
+    for a, b in bands:
+        m = (dist == 0) if b == 0 else (dist > a) & (dist <= b)
+        if not np.any(m):
+            continue
+        h, v = horiz[m], vert[m]
+        out.append({"band_km": [a / 1e3, b / 1e3], "horiz_median_m": float(np.median(h)),
+                    "horiz_min_m": float(np.min(h)), "horiz_max_m": float(np.max(h)),
+                    "vert_median_m": float(np.median(v)), "vert_min_m": float(np.min(v)),
+                    "vert_max_m": float(np.max(v)), "points": int(m.sum())})
+    return out
+
+
+def run(args) -> int:
+    from net.scenario import load
+
+    sc = load(args.scenario)
+    cfg = dict(sc.aircraft.get("crlb", {}))
+    height = args.height if args.height is not None else float(cfg.get("height_m", 1000.0))
+    sigma_t_ns = args.sigma_t_ns if args.sigma_t_ns is not None else float(cfg.get("sigma_t_ns", 3.0))
+    slot = args.slot_s if args.slot_s is not None else float(cfg.get("slot_s", sc.tdma.slot_s))
+    vel = args.velocity if args.velocity is not None else [float(v) for v in cfg.get("velocity_m_s", [50, 0, 0])]
+    params = args.params or str(cfg.get("params", "posvel"))
+    clock = bool(args.clock or cfg.get("clock", False))
+    S = np.asarray(sc.pos_m, dtype=float)
+    lo, hi = S[:, :2].min(axis=0), S[:, :2].max(axis=0)
+    ext = args.extent or cfg.get("extent_m") or [lo[0] - 35e3, hi[0] + 35e3, lo[1] - 35e3, hi[1] + 35e3]
+    step = args.step or float(cfg.get("step_m", 1000.0))
+    if step <= 0 or ext[1] <= ext[0] or ext[3] <= ext[2]:
+        print("error: need a positive --step and X0 < X1, Y0 < Y1", file=sys.stderr)
+        return 2
+    sigma_m = SPEED_OF_LIGHT_M_S * sigma_t_ns * 1e-9
+    t_rel = np.arange(len(S)) * slot  # slots in station-id order, one cycle
+    x, y, hz, vt, dist = compute(S, S[0, 2] + height, sigma_m, t_rel, vel, params, clock, ext, step)
+    summ = summary(hz, vt, dist)
+    what = f"{'position+velocity' if params == 'posvel' else 'position'}{' + clock' if clock else ''}"
+    print(f"CRLB of one TDMA cycle: {len(S)} stations, {what}, h = {height:g} m, sigma_t = {sigma_t_ns:g} ns "
+          f"({sigma_m:.2f} m), slot {slot:g} s, v = {vel} m/s")
+    print(f"{'distance from station area':>28} {'horiz median [min..max] m':>30} {'vert median [min..max] m':>30}")
+    for s in summ:
+        lab = "inside" if s["band_km"][1] == 0 else f"{s['band_km'][0]:g}-{s['band_km'][1]:g} km"
+        print(f"{lab:>28} {s['horiz_median_m']:10.2f} [{s['horiz_min_m']:.2f}..{s['horiz_max_m']:.2f}]"
+              f"{'':>4}{s['vert_median_m']:10.2f} [{s['vert_min_m']:.2f}..{s['vert_max_m']:.2f}]")
+    _plot(args.png, x, y, hz, vt, S, f"{sc.name}: {what}, h = {height:g} m (fixed, above station 1), "
+          f"sigma_t = {sigma_t_ns:g} ns, slot {slot:g} s, v = {vel} m/s")
+    print(f"wrote {args.png}")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({"scenario": sc.name, "height_m": height, "sigma_t_ns": sigma_t_ns, "slot_s": slot,
+                       "velocity_m_s": vel, "params": params, "clock": clock, "x_m": x.tolist(), "y_m": y.tolist(),
+                       "horiz_m": np.where(np.isfinite(hz), hz, -1).tolist(),
+                       "vert_m": np.where(np.isfinite(vt), vt, -1).tolist(), "summary": summ}, f)
+        print(f"wrote {args.json}")
+    return 0
+
+
+def _plot(path, x, y, hz, vt, S, title):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import LogNorm
+
+    fig, axes = plt.subplots(1, 2, figsize=(13, 5.2))
+    for ax, Z, name in ((axes[0], hz, "horizontal sqrt(var x + var y)"), (axes[1], vt, "vertical sqrt(var z)")):
+        Zf = np.where(np.isfinite(Z), Z, np.nan)
+        lo = max(np.nanmin(Zf), 1e-2)
+        hi = max(np.nanpercentile(Zf, 99), lo * 10)
+        im = ax.pcolormesh(x / 1e3, y / 1e3, np.clip(Zf, lo, hi), norm=LogNorm(lo, hi), shading="auto", cmap="viridis")
+        levels = [v for v in (1, 2, 3, 5, 10, 20, 50, 100, 200, 500, 1000) if lo < v < hi]
+        if levels:
+            cs = ax.contour(x / 1e3, y / 1e3, Zf, levels=levels, colors="w", linewidths=0.6)
+            ax.clabel(cs, fmt="%g m", fontsize=7)
+        ax.plot(S[:, 0] / 1e3, S[:, 1] / 1e3, "r^", ms=7)
+        for i, s in enumerate(S):
+            ax.annotate(f"{i + 1} ({s[2]:.0f} m)", (s[0] / 1e3, s[1] / 1e3), fontsize=7, color="w")
+        fig.colorbar(im, ax=ax, label="m")
+        ax.set_title(f"CRLB {name}", fontsize=10)
+        ax.set_xlabel("x, km (network frame)")
+        ax.set_ylabel("y, km")
+        ax.set_aspect("equal")
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

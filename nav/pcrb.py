@@ -1,0 +1,110 @@
+"""Cramer-Rao bounds for aircraft positioning (pure math, vectorized over leading axes).
+
+* :func:`fisher_cycle` - Fisher information of position and velocity from one TDMA cycle while the
+  aircraft moves uniformly (seed 003 eqs. 5-7), optionally with an unknown receiver clock offset.
+* :func:`crlb_cycle` - its inverse (seed 003 eq. 1) with horizontal / vertical position bounds.
+* :func:`pcrb_linear_gaussian` - posterior CRLB (Tichavsky, Muravchik & Nehorai 1998) for linear
+  Gaussian dynamics ``x_{k+1} = F x_k + w``, ``w ~ N(0, Q)`` and measurements ``z = h(x) + v``,
+  ``v ~ N(0, R)``, with the measurement information ``H^T R^-1 H`` evaluated along the true trajectory.
+  In that case the Tichavsky recursion ``J_{k+1} = D22 - D21 (J_k + D11)^-1 D12`` equals the
+  covariance form ``P^-_{k+1} = F P_k F^T + Q``, ``P_{k+1} = (P^-_{k+1}^-1 + H^T R^-1 H)^-1`` which
+  is used here because it tolerates a singular ``Q`` (the CV model's noise is rank-deficient).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .geometry import range_jacobian
+from .kalman import chol_solve, symmetrize
+
+
+def fisher_cycle(
+    r0_m: np.ndarray, v_m_s: np.ndarray, stations_m: np.ndarray, t_rel_s: np.ndarray,
+    sigma_m: float | np.ndarray, clock: bool = False, velocity: bool = True,
+) -> np.ndarray:
+    """Fisher information of ``[r0, v (, b)]`` from one TDMA cycle (seed 003 eq. 7).
+
+    Measurement ``i`` (slot at ``t_rel_s[i]`` after the cycle start): ``|r0 + v t_i - p_i| (+ b) + xi``,
+    ``xi ~ N(0, sigma_i^2)`` (range units: ``c * sigma_t``).
+
+    Parameters
+    ----------
+    r0_m : (..., 3) positions at the cycle start. v_m_s : (3,) or (..., 3) velocity.
+    stations_m : (N, 3). t_rel_s : (N,). sigma_m : scalar or (N,).
+    clock : add an unknown receiver clock offset (pseudoranges); velocity : estimate v (else known).
+
+    Returns
+    -------
+    J : (..., k, k) with ``k = 3 (+3 if velocity) (+1 if clock)``.
+    """
+    r0 = np.asarray(r0_m, dtype=float)
+    t = np.asarray(t_rel_s, dtype=float)
+    pos_i = r0[..., None, :] + np.asarray(v_m_s, dtype=float)[..., None, :] * t[:, None]  # (..., N, 3)
+    u = range_jacobian(pos_i, stations_m)  # (..., N, 3)
+    cols = [u]
+    if velocity:
+        cols.append(u * t[:, None])
+    if clock:
+        cols.append(np.ones(u.shape[:-1] + (1,)))
+    g = np.concatenate(cols, axis=-1)  # (..., N, k)
+    w = 1.0 / np.broadcast_to(np.asarray(sigma_m, dtype=float) ** 2, t.shape)
+    return np.einsum("n,...ni,...nj->...ij", w, g, g)
+
+
+def crlb_cycle(J: np.ndarray, cond_max: float = 1e14) -> dict[str, np.ndarray]:
+    """Bounds from a Fisher matrix (..., k, k) whose first 3 parameters are the position.
+
+    Returns ``cov`` (..., 3, 3) position bound, ``horiz_m`` sqrt(var x + var y), ``vert_m`` sqrt(var z)
+    and ``total_m``; points whose Fisher matrix is singular (condition > ``cond_max``) get ``inf``.
+    """
+    k = J.shape[-1]
+    scale = np.sqrt(np.einsum("...ii->...i", J))
+    scale = np.where(scale > 0, scale, 1.0)
+    Jn = J / scale[..., :, None] / scale[..., None, :]  # equilibrate before factorizing
+    cond = np.linalg.cond(Jn)
+    bad = ~np.isfinite(cond) | (cond > cond_max)
+    Jn = np.where(bad[..., None, None], np.eye(k), Jn)
+    inv = chol_solve(Jn, np.broadcast_to(np.eye(k), Jn.shape).copy()) / scale[..., :, None] / scale[..., None, :]
+    cov = symmetrize(inv)[..., :3, :3]
+    hv = cov[..., 0, 0] + cov[..., 1, 1]
+    vv = cov[..., 2, 2]
+    out = {
+        "cov": np.where(bad[..., None, None], np.inf, cov),
+        "horiz_m": np.where(bad, np.inf, np.sqrt(np.maximum(hv, 0.0))),
+        "vert_m": np.where(bad, np.inf, np.sqrt(np.maximum(vv, 0.0))),
+    }
+    out["total_m"] = np.hypot(out["horiz_m"], out["vert_m"])
+    return out
+
+
+def pcrb_linear_gaussian(
+    P0: np.ndarray, F: np.ndarray, Q: np.ndarray, H_seq: np.ndarray, R_seq: np.ndarray,
+) -> np.ndarray:
+    """Posterior CRLB sequence for the filters (Tichavsky recursion, covariance form).
+
+    Parameters
+    ----------
+    P0 : (n, n) prior covariance of the initial state (the bound at k = 0 before any measurement).
+    F, Q : (n, n) transition and process noise per step (a step precedes every measurement batch).
+    H_seq : (T, m, n) measurement Jacobians at the true states. R_seq : (T, m, m) or (m, m).
+
+    Returns
+    -------
+    P : (T, n, n) the bound after the measurement batch of each step.
+    """
+    T = H_seq.shape[0]
+    R_seq = np.broadcast_to(R_seq, (T,) + R_seq.shape[-2:])
+    # information contributed by each batch: H^T R^-1 H, all steps at once
+    RiH = chol_solve(R_seq, H_seq)
+    Jz = symmetrize(np.swapaxes(H_seq, -1, -2) @ RiH)
+    n = P0.shape[-1]
+    out = np.empty((T, n, n))
+    P = np.asarray(P0, dtype=float)
+    eye = np.eye(n)
+    for k in range(T):
+        Pp = symmetrize(F @ P @ F.T + Q)
+        # P = (Pp^-1 + Jz)^-1 = Pp - Pp Jz (I + Pp Jz)^-1 ... use the stable form (I + Pp Jz)^-1 Pp
+        P = symmetrize(np.linalg.solve(eye + Pp @ Jz[k], Pp))
+        out[k] = P
+    return out
