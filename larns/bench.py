@@ -10,6 +10,7 @@ import importlib
 
 BENCHES: list[str] = [
     "larns.bench_aircraft",
+    "larns.bench_survey",
     "larns.bench_net",
 ]
 

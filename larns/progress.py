@@ -40,7 +40,8 @@ class Progress:
         if self.enabled:
             self.stream.write("\r" + line)
             self.stream.flush()
-        elif self.n >= self.total:
+        elif self.n >= self.total and not getattr(self, "_done", False):
+            self._done = True
             self.stream.write(line + "\n")
 
     def close(self) -> None:

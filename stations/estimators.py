@@ -147,7 +147,7 @@ class DistributedMap:
     def __init__(self, station_id: int, pos0_m: np.ndarray | None, cov0_m2: np.ndarray | None,
                  sigma_d_m: float, *, max_iter: int = 3, tol_m: float = 1e-3,
                  no_fix_sigma_m: float = 1000.0, min_peers_to_init: int = 4, extrinsic: bool = True,
-                 peer_corr: float = 2.0):
+                 peer_corr: float = 2.0, peer_corr_est: float = 1.0):
         self.id = station_id
         self.free = free_mask(station_id)
         self.nf = int(self.free.sum())
@@ -158,6 +158,7 @@ class DistributedMap:
         self.min_peers_to_init = min_peers_to_init
         self.extrinsic = extrinsic
         self.peer_corr = peer_corr
+        self.peer_corr_est = peer_corr_est
         self.n_updates = 0
         # per-peer arrays: link count and sum of ranges, latest estimate and covariance
         self._index: dict[int, int] = {}
@@ -241,6 +242,20 @@ class DistributedMap:
         Ce = symmetrize(Ce) * M[:, :, None] * M[:, None, :]
         return np.where(ok[:, None, None], Ce, Cj)
 
+    def _normal(self, x, n, dbar, Pj, Cj, gamma):
+        """Normal equations of the local MAP problem at ``x``: information ``A`` (nf, nf) and ``b`` (nf,).
+
+        Link variance: ``sigma_d^2 / n_j + gamma u_j^T C_j u_j`` (gamma: consider factor of the peer error).
+        """
+        diff = x - Pj
+        r = np.sqrt(np.einsum("ki,ki->k", diff, diff))
+        u = diff / r[:, None]
+        w = 1.0 / (self.sigma_d_m**2 / n + gamma * np.einsum("ki,kij,kj->k", u, Cj, u))
+        J = u[:, self.free]
+        A = self.prior_info + (J.T * w) @ J
+        b = self.prior_info @ (self.prior_mean - x[self.free]) + J.T @ (w * (dbar - r))
+        return A, b, w
+
     def solve(self) -> bool:
         arr = self._arrays()
         if arr is None:
@@ -262,19 +277,13 @@ class DistributedMap:
         if self.extrinsic and self.initialized:
             Cj = self._extrinsic(x, n, Pj, Cj)
         for _ in range(iters):
-            diff = x - Pj
-            r = np.sqrt(np.einsum("ki,ki->k", diff, diff))
-            u = diff / r[:, None]
-            var = self.sigma_d_m**2 / n + self.peer_corr * np.einsum("ki,kij,kj->k", u, Cj, u)
-            w = 1.0 / var
-            J = u[:, f]
-            A = self.prior_info + (J.T * w) @ J
-            b = self.prior_info @ (self.prior_mean - x[f]) + J.T @ (w * (dbar - r))
+            A, b, _ = self._normal(x, n, dbar, Pj, Cj, self.peer_corr_est)
             L = np.linalg.cholesky(A)
             dx = np.linalg.solve(L.T, np.linalg.solve(L, b))
             x[f] += dx
             if np.max(np.abs(dx)) < self.tol_m:
                 break
+        A, _, _ = self._normal(x, n, dbar, Pj, Cj, self.peer_corr)
         self.pos_m = x
         cov = np.zeros((3, 3))
         Linv = np.linalg.solve(np.linalg.cholesky(A), np.eye(self.nf))

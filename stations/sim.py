@@ -85,6 +85,7 @@ class Simulator:
         self.air = [AirChannel(scn.channel, station_rng(self.seed, i, 2)) for i in scn.ids]
         self.net_rng = np.random.default_rng([self.seed, 0, 3])
         self.links = np.zeros((n, n), dtype=np.int64)
+        self.range_log: list[tuple[float, int, int, float]] = []  # (t_true, initiator idx, responder idx, range_m)
         self._heap: list = []
         self._order = 0
         self._timer_ver = [0] * n
@@ -116,6 +117,9 @@ class Simulator:
                 continue
             t_tx_true = self.clocks[k].to_true(m["t_tx_s"])
             if kind == "nav":
+                for peer, rng_m, _ in m["ranges"]:
+                    if peer in ids:
+                        self.range_log.append((t_tx_true, k, ids.index(peer), float(rng_m)))
                 targets = [j for j in range(len(ids)) if j != k]
             else:
                 targets = [ids.index(m["dst"])] if m["dst"] in ids else []

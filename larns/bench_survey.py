@@ -1,0 +1,250 @@
+"""`larns bench survey`: Monte Carlo of the seed-000 self-survey scenario.
+
+Each trial draws a fresh random layout (10 stations in 2 x 2 km x 80 m by default), coarse fixes,
+clocks and range noise from its own seed, runs the in-process simulator (the same station cores
+as the Zenoh fleet) and compares the estimates with the truth, with the centralized Bayesian CRLB
+of the *same* realized measurements, and with the centralized batch MAP on the same ranges.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+TABLE_TIMES_S = [10, 15, 20, 30, 40, 60]
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "survey",
+        help="self-survey Monte Carlo (seed 000 scenario): errors vs time, CRLB, NEES",
+        description=(
+            "Monte Carlo of the stations' self-survey (seed 000: 10 stations, 2 x 2 km x 80 m, 1 s cycle of "
+            "10 ms slots, coarse fix sigma0 = 10 m). Prints, per estimator and sigma_d, a table at "
+            "t = 10, 15, 20, 30, 40, 60 s: mean/max horizontal error, mean vertical error, horizontal RMS, "
+            "the centralized CRLB horizontal RMS for the same measurements and their ratio, the centralized "
+            "batch-MAP horizontal RMS, and the mean NEES with its 95%% chi-square band. Errors are over "
+            "stations 4..n; the 'free' columns cover all free coordinates of stations 2..n."
+        ),
+    )
+    p.add_argument("--trials", type=int, default=100, help="Monte Carlo trials per configuration (default 100)")
+    p.add_argument("--sigma-d", type=float, nargs="+", default=[0.5, 1.5], metavar="M",
+                   help="range noise sigma_d in metres (default: 0.5 1.5)")
+    p.add_argument("--stations", type=int, default=10, help="number of stations (default 10)")
+    p.add_argument("--estimator", nargs="+", default=["dmap", "seed-ukf"], choices=["dmap", "seed-ukf"],
+                   help="estimators to run (default: dmap seed-ukf)")
+    p.add_argument("--duration", type=float, default=60.0, help="simulated seconds per trial (default 60)")
+    p.add_argument("--scenario", default="seed000", help="scenario name or TOML path (default seed000)")
+    p.add_argument("--seed", type=int, default=1, help="base seed; trial k uses seed + k (default 1)")
+    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: all cores)")
+    p.add_argument("--no-map", action="store_true", help="skip the centralized batch MAP yardstick")
+    p.add_argument("--json", metavar="FILE", help="write the results as JSON")
+    p.add_argument("--png-dir", metavar="DIR", default="bench-out/survey",
+                   help="where to write PNG figures (default bench-out/survey; '' to skip)")
+    p.set_defaults(func=main)
+
+
+def _trial(job: tuple) -> dict:
+    from nav.crlb import batch_map, survey_crlb
+    from nav.geometry import frame_free_mask
+    from net.channel import coarse_fix, station_rng
+    from net.scenario import load
+    from stations.sim import Simulator
+
+    scenario, estimator, sigma_d, n, seed, duration, table_times, with_map = job
+    scn = load(scenario, seed=seed, channel={"sigma_d_m": sigma_d}, layout={"n": n})
+    sim = Simulator(scn, estimator=estimator)
+    times = np.arange(1.0, duration + 1e-9, 1.0)
+    r = sim.run(duration, times)
+    err = r.pos_m - r.truth_m  # (K, n, 3)
+    free = frame_free_mask(len(scn.ids))
+    ti = [int(np.argmin(np.abs(times - t))) for t in table_times]
+    crlb = np.stack([survey_crlb(r.truth_m, r.link_counts[k], sigma_d, free, scn.sigma0_m) for k in ti])
+    # NEES over stations 4..n (3 dof each)
+    e4 = err[:, 3:]
+    P4 = r.cov_m2[:, 3:]
+    nees = np.einsum("kni,kni->kn", e4, np.linalg.solve(P4, e4[..., None])[..., 0])
+    out = {"err": err, "nees": nees, "crlb_diag": np.einsum("knii->kni", crlb)}
+    if with_map:
+        prior = np.stack([coarse_fix(scn.pos_m[i], sid, scn.sigma0_m, station_rng(scn.seed, sid, 1))[0]
+                          for i, sid in enumerate(scn.ids)])
+        log = np.array(sim.range_log) if sim.range_log else np.zeros((0, 4))
+        maps = []
+        for k in ti:
+            sel = log[:, 0] <= times[k]
+            X = batch_map(log[sel, 1:3].astype(int), log[sel, 3], sigma_d, free, prior, scn.sigma0_m)
+            maps.append(X - r.truth_m)
+        out["map_err"] = np.stack(maps)
+    return out
+
+
+def chi2_band(dof: int, n: int, level: float = 0.95) -> tuple[float, float]:
+    """Two-sided band for the mean of ``n`` independent chi-square(dof) NEES values."""
+    from scipy.stats import chi2
+
+    a = (1 - level) / 2
+    return float(chi2.ppf(a, dof * n) / n), float(chi2.ppf(1 - a, dof * n) / n)
+
+
+def summarize(results: list[dict], sigma_d: float, estimator: str, times: np.ndarray,
+              table_times: list[float]) -> dict:
+    err = np.stack([r["err"] for r in results])  # (T, K, n, 3)
+    h = np.hypot(err[..., 3:, 0], err[..., 3:, 1])  # (T, K, n-3)
+    v = np.abs(err[..., 3:, 2])
+    n = err.shape[2]
+    from nav.geometry import frame_free_mask
+
+    free = frame_free_mask(n)
+    ti = [int(np.argmin(np.abs(times - t))) for t in table_times]
+    crlb = np.stack([r["crlb_diag"] for r in results])  # (T, Kt, n, 3)
+    h_mean = h.mean(axis=(0, 2))
+    first = np.flatnonzero(h_mean < sigma_d)
+    first2 = np.flatnonzero(h_mean < 2 * sigma_d)
+    fe = err[:, ti][..., free]  # (T, Kt, nfree)
+    nees = np.stack([r["nees"] for r in results])[:, ti]  # (T, Kt, n-3)
+    lo, hi = chi2_band(3, nees.shape[0] * nees.shape[2])
+    res = {
+        "estimator": estimator,
+        "sigma_d_m": sigma_d,
+        "trials": len(results),
+        "stations": n,
+        "times_s": [float(t) for t in table_times],
+        "horizontal_mean_m": h_mean[ti].tolist(),
+        "horizontal_max_m": h.max(axis=(0, 2))[ti].tolist(),
+        "vertical_mean_m": v.mean(axis=(0, 2))[ti].tolist(),
+        "horizontal_rms_m": np.sqrt((h[:, ti] ** 2).mean(axis=(0, 2))).tolist(),
+        "crlb_horizontal_rms_m": np.sqrt((crlb[..., 3:, 0] + crlb[..., 3:, 1]).mean(axis=(0, 2))).tolist(),
+        "free_rms_m": np.sqrt((fe**2).mean(axis=(0, 2))).tolist(),
+        "crlb_free_rms_m": np.sqrt(crlb[..., free].mean(axis=(0, 2))).tolist(),
+        "nees_mean": nees.mean(axis=(0, 2)).tolist(),
+        "nees_band_95": [lo, hi],
+        "time_to_sigma_d_s": float(times[first[0]]) if len(first) else None,
+        "time_to_2sigma_d_s": float(times[first2[0]]) if len(first2) else None,
+        "curve_times_s": times.tolist(),
+        "curve_horizontal_mean_m": h_mean.tolist(),
+        "curve_horizontal_max_m": h.max(axis=(0, 2)).tolist(),
+    }
+    res["crlb_ratio"] = (np.array(res["horizontal_rms_m"]) / np.array(res["crlb_horizontal_rms_m"])).tolist()
+    if "map_err" in results[0]:
+        me = np.stack([r["map_err"] for r in results])
+        res["map_horizontal_rms_m"] = np.sqrt((me[..., 3:, 0] ** 2 + me[..., 3:, 1] ** 2).mean(axis=(0, 2))).tolist()
+    res["final_horizontal_errors_m"] = h[:, -1].ravel().tolist()
+    res["final_vertical_errors_m"] = (err[:, -1, 3:, 2]).ravel().tolist()
+    return res
+
+
+def bar_checks(res: dict) -> dict:
+    """The issue's bar for the default estimator (evaluated for every configuration)."""
+    t = res["times_s"]
+    out = {}
+    if 40.0 in t:
+        k = t.index(40.0)
+        out["ratio_at_40s_le_1.2"] = res["crlb_ratio"][k] <= 1.2
+        out["mean_at_40s_le_sigma_d"] = res["horizontal_mean_m"][k] <= res["sigma_d_m"]
+    if 15.0 in t:
+        out["mean_at_15s_lt_2sigma_d"] = res["horizontal_mean_m"][t.index(15.0)] < 2 * res["sigma_d_m"]
+    return out
+
+
+def print_table(res: dict) -> None:
+    print(f"\nestimator={res['estimator']}  sigma_d={res['sigma_d_m']} m  trials={res['trials']}  "
+          f"stations={res['stations']}  wall={res.get('wall_s', float('nan')):.1f} s")
+    hdr = ("t_s", "h_mean", "h_max", "v_mean", "h_rms", "crlb_h", "ratio", "map_h", "free_rms", "crlb_free", "NEES")
+    print("  ".join(f"{h:>8}" for h in hdr))
+    for k, t in enumerate(res["times_s"]):
+        row = [t, res["horizontal_mean_m"][k], res["horizontal_max_m"][k], res["vertical_mean_m"][k],
+               res["horizontal_rms_m"][k], res["crlb_horizontal_rms_m"][k], res["crlb_ratio"][k],
+               res["map_horizontal_rms_m"][k] if "map_horizontal_rms_m" in res else float("nan"),
+               res["free_rms_m"][k], res["crlb_free_rms_m"][k], res["nees_mean"][k]]
+        print("  ".join(f"{x:8.3f}" if isinstance(x, float) else f"{x:8}" for x in row))
+    lo, hi = res["nees_band_95"]
+    print(f"NEES (3 dof) 95% band for the mean: [{lo:.2f}, {hi:.2f}];  "
+          f"time to mean h < sigma_d: {res['time_to_sigma_d_s']} s;  < 2 sigma_d: {res['time_to_2sigma_d_s']} s")
+    for name, ok in bar_checks(res).items():
+        print(f"  bar {name}: {'PASS' if ok else 'FAIL'}")
+
+
+def plot(all_res: list[dict], png_dir: Path) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    png_dir.mkdir(parents=True, exist_ok=True)
+    files = []
+    fig, ax = plt.subplots(figsize=(8, 5))
+    for res in all_res:
+        t = res["curve_times_s"]
+        lbl = f"{res['estimator']} sigma_d={res['sigma_d_m']} m"
+        (l,) = ax.plot(t, res["curve_horizontal_mean_m"], label=f"mean, {lbl}")
+        ax.plot(t, res["curve_horizontal_max_m"], ls="--", color=l.get_color(), label=f"max, {lbl}")
+    ax.set_yscale("log")
+    ax.set_xlabel("time, s")
+    ax.set_ylabel("horizontal error, m")
+    ax.set_title("Self-survey convergence (stations 4..n, Monte Carlo), cf. seed 000 Fig. 3")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7)
+    f = png_dir / "survey_convergence.png"
+    fig.tight_layout()
+    fig.savefig(f, dpi=110)
+    plt.close(fig)
+    files.append(f)
+    for res in all_res:
+        fig, axs = plt.subplots(1, 2, figsize=(10, 4))
+        axs[0].hist(res["final_horizontal_errors_m"], bins=40, color="tab:blue")
+        axs[0].set_xlabel("horizontal error, m")
+        axs[1].hist(res["final_vertical_errors_m"], bins=40, color="tab:orange")
+        axs[1].set_xlabel("vertical error, m")
+        for a in axs:
+            a.set_ylabel("count")
+            a.grid(alpha=0.3)
+        fig.suptitle(f"Errors at t = {res['curve_times_s'][-1]:.0f} s: {res['estimator']}, "
+                     f"sigma_d = {res['sigma_d_m']} m (cf. seed 000 Figs. 4, 5)")
+        f = png_dir / f"survey_hist_{res['estimator']}_sd{res['sigma_d_m']}.png"
+        fig.tight_layout()
+        fig.savefig(f, dpi=110)
+        plt.close(fig)
+        files.append(f)
+    return files
+
+
+def main(args) -> int:
+    from .progress import Progress
+
+    table_times = [t for t in TABLE_TIMES_S if t <= args.duration]
+    times = np.arange(1.0, args.duration + 1e-9, 1.0)
+    all_res = []
+    ctx = mp.get_context("fork")
+    with ctx.Pool(max(1, args.jobs)) as pool:
+        for est in args.estimator:
+            for sd in args.sigma_d:
+                jobs = [(args.scenario, est, sd, args.stations, args.seed + k, args.duration, table_times,
+                         not args.no_map) for k in range(args.trials)]
+                t0 = time.perf_counter()
+                bar = Progress(len(jobs), f"survey {est} sigma_d={sd}")
+                results = []
+                for r in pool.imap(_trial, jobs):
+                    results.append(r)
+                    bar.update(1)
+                bar.close()
+                res = summarize(results, sd, est, times, table_times)
+                res["wall_s"] = time.perf_counter() - t0
+                res["jobs"] = args.jobs
+                res["bar"] = bar_checks(res)
+                print_table(res)
+                all_res.append(res)
+    if args.png_dir:
+        for f in plot(all_res, Path(args.png_dir)):
+            print(f"wrote {f}")
+    if args.json:
+        slim = [{k: v for k, v in r.items() if not k.startswith("final_")} for r in all_res]
+        doc = slim[0] if len(slim) == 1 else {"runs": slim}
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(doc, indent=1))
+        print(f"wrote {args.json}")
+    return 0
