@@ -207,6 +207,8 @@ def run_fleet(args: argparse.Namespace) -> int:
     for sid in scn.join_ids:
         if sid not in [j for j, _ in joins]:
             joins.append((sid, args.join_time))
+    if args.duration:
+        joins = [(s, t) for s, t in joins if t < args.duration]
     join_ids = {j for j, _ in joins}
     for sid, _ in joins:
         if sid not in scn.ids:

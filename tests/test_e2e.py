@@ -1,0 +1,312 @@
+"""End-to-end: real station processes over real Zenoh on loopback, recorder, MCAP read back.
+
+The scenarios here are seed000's world (2 km x 2 km, 0.5 m ranging noise, 10 m coarse fix) with
+fewer stations and wider TDMA slots (50 ms in a 0.5 s cycle), so that at ``--speed 5`` a slot
+still lasts 10 ms of wall time: long enough for a Zenoh round trip on a loaded 2-core CI box.
+Errors are computed from the MCAP file alone (estimate + truth topics) and compared with the
+in-process simulator on the same scenario (the "accuracy class").
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from larns.fleet import mcap_station_summary
+from net.bus import free_tcp_ports
+
+pytestmark = pytest.mark.e2e
+
+SPEED = 5.0
+PY = sys.executable
+
+
+def write_scenario(tmp_path: Path, n: int, join_ids: list[int] | None = None, name: str = "e2e") -> Path:
+    p = tmp_path / f"{name}.toml"
+    p.write_text(textwrap.dedent(f"""
+        name = "{name}"
+        seed = 1
+        [frame]
+        z_ref = 4
+        [layout]
+        kind = "random"
+        n = {n}
+        join_ids = {join_ids or []}
+        area_m = [2000.0, 2000.0, 80.0]
+        min_separation_m = 100.0
+        [tdma]
+        cycle_s = 0.5
+        slot_s = 0.05
+        [channel]
+        sigma_d_m = 0.5
+        turnaround_s = 0.001
+        [init]
+        sigma0_m = 10.0
+        [survey]
+        estimator = "dmap"
+        ranges_per_update = 3
+    """))
+    return p
+
+
+def sim_rms(path: Path, t_s: float, ids: list[int], start_s: dict | None = None) -> float:
+    """Mean over 3 world seeds of the RMS final error of ``ids`` in the in-process simulator."""
+    from net.scenario import load
+    from stations.sim import Simulator
+
+    scn = load(path)
+    out = []
+    for seed in range(3):
+        r = Simulator(scn, seed=seed, start_s=start_s).run(t_s, [t_s])
+        k = [scn.ids.index(i) for i in ids]
+        e = np.linalg.norm(r.pos_m[-1, k] - r.truth_m[k], axis=-1)
+        out.append(np.sqrt(np.mean(e**2)))
+    return float(np.mean(out))
+
+
+def station_pids(tag: str) -> dict[int, list[int]]:
+    """Station processes whose command line mentions ``tag`` (the scenario path): id -> pids."""
+    out = subprocess.run(["ps", "-ww", "-eo", "pid=,args="], capture_output=True, text=True).stdout
+    ids: dict[int, list[int]] = {}
+    for line in out.splitlines():
+        pid, _, args = line.strip().partition(" ")
+        a = args.split()
+        if "stations" in a and "-m" in a and tag in args and "--id" in a:
+            ids.setdefault(int(a[a.index("--id") + 1]), []).append(int(pid))
+    return ids
+
+
+def assert_accuracy_class(summary: dict, ids: list[int], sim: float) -> float:
+    errs = np.array([summary[i]["err_m"] for i in ids])
+    sig = np.array([summary[i]["sigma_m"] for i in ids])
+    rms = float(np.sqrt(np.mean(errs**2)))
+    assert rms <= 3.0 * sim + 1.0, (rms, sim, errs)
+    # consistency: no station far outside its own covariance (3D, generous 4 sigma)
+    assert np.all(errs <= 4.0 * sig + 0.5), (errs, sig)
+    return rms
+
+
+def test_fleet_six_stations_converge_from_mcap(tmp_path):
+    scn = write_scenario(tmp_path, 6)
+    out = tmp_path / "run.mcap"
+    js = tmp_path / "fleet.json"
+    dur = 60.0
+    fleet = subprocess.Popen([PY, "-m", "larns", "fleet", "--scenario", str(scn), "--duration", str(dur),
+                              "--speed", str(SPEED), "--record", str(out), "--no-table", "--json", str(js)],
+                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    # ps shows one process per station
+    seen: dict[int, list[int]] = {}
+    t0 = time.time()
+    while time.time() - t0 < 30 and len(seen) < 6:
+        seen = station_pids(str(scn))
+        time.sleep(0.5)
+    assert sorted(seen) == [1, 2, 3, 4, 5, 6] and all(len(p) == 1 for p in seen.values()), (seen, fleet.poll())
+    log, _ = fleet.communicate(timeout=120)
+    assert fleet.returncode == 0, log
+    rep = json.loads(js.read_text())
+    assert all(v == 0 for v in rep["exit_codes"].values()), rep["exit_codes"]
+    assert station_pids(str(scn)) == {}
+
+    summary = mcap_station_summary(out)
+    assert sorted(summary) == [1, 2, 3, 4, 5, 6]
+    for sid, s in summary.items():
+        if sid != 1:  # station 1 is the fixed origin: nothing to update
+            assert s["n_updates"][-1] >= 30, (sid, s["n_updates"][-1])   # >= 1 range per cycle, 120 cycles
+        assert len(s["t_s"]) >= 60  # one estimate per cycle, published while running
+        assert np.all(np.diff(s["n_updates"]) >= 0)
+    sim = sim_rms(scn, dur, [2, 3, 4, 5, 6])
+    rms = assert_accuracy_class(summary, [2, 3, 4, 5, 6], sim)
+    print(f"networked RMS {rms:.2f} m vs simulator {sim:.2f} m")
+    # every kind of traffic is in the file
+    from mcap.reader import make_reader
+    with open(out, "rb") as f:
+        topics = {c.topic for c in make_reader(f).get_summary().channels.values()}
+    for sid in range(1, 7):
+        assert {f"larns/station/{sid}/nav", f"larns/station/{sid}/estimate", f"larns/station/{sid}/truth"} <= topics
+    assert any("/range/req/" in t for t in topics) and any("/range/rsp/" in t for t in topics)
+
+
+def test_hot_join_converges_without_disturbing(tmp_path):
+    scn = write_scenario(tmp_path, 7, join_ids=[7], name="join")
+    out = tmp_path / "join.mcap"
+    t_join, dur = 20.0, 55.0
+    r = subprocess.run([PY, "-m", "larns", "fleet", "--scenario", str(scn), "--duration", str(dur),
+                        "--speed", str(SPEED), "--record", str(out), "--no-table", "--join-time", str(t_join)],
+                       capture_output=True, text=True, timeout=150)
+    assert r.returncode == 0, r.stdout + r.stderr
+    summary = mcap_station_summary(out)
+    assert sorted(summary) == [1, 2, 3, 4, 5, 6, 7]
+    j = summary[7]
+    # the joiner's first estimate comes after the join time (fleet clock, epoch from the file)
+    from mcap.reader import make_reader
+    with open(out, "rb") as f:
+        rd = make_reader(f)
+        md = {m.name: m.metadata for m in rd.iter_metadata()}["larns"]
+        navs7 = []
+        members_with_7 = 0
+        from net import messages as M
+        for _s, ch, m in rd.iter_messages(topics=[f"larns/station/{i}/nav" for i in range(1, 8)]):
+            msg, _ = M.decode(m.data)
+            if msg["src"] == 7:
+                navs7.append(m.log_time)
+            elif 7 in msg["members"]:
+                members_with_7 += 1
+    epoch, speed = float(md["epoch_unix_s"]), float(md["speed"])
+    fleet_t = lambda ns: (ns / 1e9 - epoch) * speed  # noqa: E731
+    assert fleet_t(j["log_time_ns"][0]) >= t_join - 0.1
+    assert navs7 and members_with_7 > 0          # it took a slot and others added it to their rotation
+    assert j["state"] == "surveying"
+    # converged: consistent with its covariance, and tighter than the coarse fix it started from
+    assert j["err_m"] <= 3.0 * j["sigma_m"] + 0.5, (j["err_m"], j["sigma_m"])
+    assert j["sigma_m"] < math.sqrt(3) * 10.0 * 0.6
+    # existing stations move by < 1 sigma (per axis) across the join: last estimate before the joiner's
+    # first nav vs the first estimate 2 cycles later
+    t7 = navs7[0]
+    for sid in range(2, 7):
+        s = summary[sid]
+        before = np.searchsorted(s["log_time_ns"], t7) - 1
+        after = np.searchsorted(s["log_time_ns"], t7 + int(2 * 0.5 / speed * 1e9))
+        assert before >= 0 and after < len(s["log_time_ns"])
+        d = np.abs(s["pos_m"][after] - s["pos_m"][before])
+        sig = np.sqrt(np.diag(s["cov_m2"][before]))
+        assert np.all(d <= sig + 1e-6), (sid, d, sig)
+
+
+FUZZ = textwrap.dedent("""
+    import json, sys, time
+    import numpy as np
+    from net.bus import Bus
+    from net import messages as M
+    seed_ep, n_total, ids = sys.argv[1], int(sys.argv[2]), json.loads(sys.argv[3])
+    b = Bus(connect=[seed_ep])
+    t0 = time.time()
+    while len(b.alive("larns/alive/station/*", 0.5)) < len(ids) and time.time() - t0 < 30:
+        time.sleep(0.2)
+    time.sleep(0.5)
+    rng = np.random.default_rng(7)
+    good = M.encode({"kind": "nav", "src": 2, "seq": 1, "stamp_s": 1.0, "cycle": 1, "slot": 1, "t_tx_s": 1.0,
+                     "pos_m": [1, 2, 3], "cov_m2": np.eye(3), "n_updates": 1, "state": "surveying",
+                     "ranges": [], "members": [1]}, {"pos_m": [0, 0, 0], "t_true_s": 1.0})
+    truth = M.encode({"kind": "truth", "src": 3, "seq": 1, "stamp_s": 0.0, "t_s": 0.0, "pos_m": [0, 0, 0]})
+    expect = {i: 0 for i in ids}
+    sent = 0
+    while sent < n_total:
+        r = rng.random()
+        k = int(rng.choice(ids))
+        if r < 0.4:      # random bytes
+            data = rng.integers(0, 256, int(rng.integers(0, 300)), dtype=np.uint8).tobytes()
+        elif r < 0.8:    # bit flips of a valid nav
+            b2 = bytearray(good)
+            for j in rng.integers(0, len(b2), int(rng.integers(1, 5))):
+                b2[j] = int(rng.integers(0, 256))
+            data = bytes(b2)
+        elif r < 0.9:    # valid, but a kind stations never accept (no phy)
+            data = truth
+        else:            # valid nav from station 2 on another station's key: spoof, rejected
+            data = good
+            k = int(rng.choice([i for i in ids if i != 2]))
+        if r < 0.8:
+            try:
+                M.decode(data)
+                continue  # still a valid message: not malformed, skip it
+            except M.MessageError:
+                pass
+        if r >= 0.8 or rng.random() < 0.5:
+            key, targets = f"larns/station/{k}/nav", ids
+        else:
+            dst = int(rng.choice(ids))
+            key = f"larns/station/{k}/range/{'req' if rng.random() < 0.5 else 'rsp'}/{dst}"
+            targets = [dst]
+        b.publish(key, data)
+        for t in targets:
+            expect[t] += 1
+        sent += 1
+        if sent % 50 == 0:
+            time.sleep(0.01)
+    time.sleep(0.5)
+    print(json.dumps({"sent": sent, "expect": expect}))
+    b.close()
+""")
+
+
+def test_kill_station_and_recorder_and_fuzz(tmp_path):
+    """SIGKILL a non-frame station and (separately) one of two recorders while a fuzzer publishes
+    thousands of malformed payloads on station keys: every other station keeps updating, stays
+    alive, converges, and its drop counter accounts for the payloads it rejected."""
+    scn = write_scenario(tmp_path, 6, name="kill")
+    dur = 60.0
+    ids = [1, 2, 3, 4, 5, 6]
+    ports = free_tcp_ports(8)
+    eps = [f"tcp/127.0.0.1:{p}" for p in ports]
+    seeds = eps[:2]
+    epoch = time.time() + 5.0
+    common = ["--scenario", str(scn), "--speed", str(SPEED), "--epoch", repr(epoch)]
+    procs: dict[str, subprocess.Popen] = {}
+    for name, ep, out in (("recA", eps[6], tmp_path / "a.mcap"), ("recB", eps[7], tmp_path / "b.mcap")):
+        procs[name] = subprocess.Popen([PY, "-m", "larns", "record", "-o", str(out), "-q", "--listen", ep,
+                                        *sum((["--connect", s] for s in seeds), []), "--epoch", repr(epoch),
+                                        "--speed", str(SPEED), "--flush", "0.5"])
+    for i, sid in enumerate(ids):
+        procs[f"st{sid}"] = subprocess.Popen(
+            [PY, "-m", "stations", "--id", str(sid), *common, "--duration", str(dur), "--quiet",
+             "--report-json", "--listen", eps[i], *sum((["--connect", s] for s in seeds if s != eps[i]), [])],
+            stdout=subprocess.PIPE, text=True)
+    fuzz = subprocess.Popen([PY, "-c", FUZZ, seeds[0], "3000", json.dumps(ids)], stdout=subprocess.PIPE, text=True)
+
+    def wait_fleet(t):
+        time.sleep(max(0.0, epoch + t / SPEED - time.time()))
+
+    wait_fleet(15.0)
+    t_w = time.time()  # (on a loaded box, make sure recorder A flushed a chunk before killing it)
+    while (tmp_path / "a.mcap").stat().st_size < 4096 and time.time() - t_w < 20:
+        time.sleep(0.2)
+    procs["recA"].send_signal(signal.SIGKILL)
+    wait_fleet(25.0)
+    procs["st6"].send_signal(signal.SIGKILL)
+    t_kill_ns = time.time_ns()
+    fz_out, _ = fuzz.communicate(timeout=120)
+    fz = json.loads(fz_out.strip().splitlines()[-1])
+    reports = {}
+    for sid in ids[:-1]:
+        o, _ = procs[f"st{sid}"].communicate(timeout=120)
+        assert procs[f"st{sid}"].returncode == 0
+        reports[sid] = json.loads(o.strip().splitlines()[-1])
+    procs["recB"].send_signal(signal.SIGINT)
+    assert procs["recB"].wait(30) == 0
+    procs["st6"].wait(5)
+    procs["recA"].wait(5)
+
+    assert fz["sent"] == 3000
+    summary = mcap_station_summary(tmp_path / "b.mcap")
+    for sid in ids[:-1]:
+        s = summary[sid]
+        # keeps updating after the kills
+        k = np.searchsorted(s["log_time_ns"], t_kill_ns)
+        if sid != 1:  # station 1 is the fixed origin: no updates to make
+            assert s["n_updates"][-1] - s["n_updates"][k] >= 10, (sid, s["n_updates"][k], s["n_updates"][-1])
+        assert s["log_time_ns"][-1] > t_kill_ns + 3e9
+        # every payload sent to it was rejected and counted
+        drops = reports[sid]["drops"]["total"]
+        assert 0.9 * fz["expect"][str(sid)] <= drops <= fz["expect"][str(sid)], (sid, drops, fz["expect"])
+    sim = sim_rms(scn, dur, [2, 3, 4, 5])
+    assert_accuracy_class(summary, [2, 3, 4, 5], sim)
+    # the killed recorder's file is still readable up to its last flushed chunk
+    from mcap.records import Message
+    from mcap.stream_reader import StreamReader
+    n = 0
+    try:
+        with open(tmp_path / "a.mcap", "rb") as f:
+            for rec in StreamReader(f).records:
+                n += isinstance(rec, Message)
+    except Exception:  # truncated tail of a SIGKILLed file
+        pass
+    assert n > 0
