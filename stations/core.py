@@ -68,8 +68,18 @@ class StationCore:
     """One station's protocol state machine (see module docstring)."""
 
     def __init__(self, cfg: StationConfig, init_pos_m: np.ndarray | None, init_cov_m2: np.ndarray | None,
-                 start_s: float = 0.0):
+                 start_s: float = 0.0, journal: bool = False):
         self.cfg = cfg
+        # input journal: everything the core consumed, in order, for bit-exact offline replay
+        self.journal = journal
+        self._inputs: list[list] = []
+        self.init_record = {
+            "cfg": {k: (list(v) if isinstance(v, tuple) else v) for k, v in cfg.__dict__.items() if k != "tdma"},
+            "tdma": [cfg.tdma.cycle_s, cfg.tdma.slot_s],
+            "init_pos_m": None if init_pos_m is None else np.asarray(init_pos_m, float).tolist(),
+            "init_cov_m2": None if init_cov_m2 is None else np.asarray(init_cov_m2, float).tolist(),
+            "start_s": float(start_s),
+        }
         self.id = cfg.id
         self.plan = cfg.tdma
         self.est: SurveyEstimator = make_estimator(cfg.estimator, cfg.id, init_pos_m, init_cov_m2,
@@ -142,7 +152,31 @@ class StationCore:
         return m
 
     # ------------------------------------------------------------------ events
+    def take_inputs(self) -> list[list]:
+        """Journal entries since the last call: ``["t", t_local_s]`` or ``["m", t_rx_local_s, msg]``."""
+        out, self._inputs = self._inputs, []
+        return out
+
+    @classmethod
+    def from_init_record(cls, rec: dict) -> "StationCore":
+        """Rebuild a core from its ``init_record`` (offline replay)."""
+        cfg = dict(rec["cfg"])
+        cfg["known_ids"] = tuple(cfg.get("known_ids", ()))
+        cfg["tdma"] = TdmaPlan(*rec["tdma"])
+        pos = None if rec["init_pos_m"] is None else np.asarray(rec["init_pos_m"], float)
+        cov = None if rec["init_cov_m2"] is None else np.asarray(rec["init_cov_m2"], float)
+        return cls(StationConfig(**cfg), pos, cov, start_s=rec["start_s"])
+
+    def replay(self, inputs: list[list]) -> list[dict]:
+        """Feed journal entries; returns every output in order."""
+        out: list[dict] = []
+        for e in inputs:
+            out += self.on_timer(e[1]) if e[0] == "t" else self.on_message(e[2], e[1])
+        return out
+
     def on_timer(self, t_s: float) -> list[dict]:
+        if self.journal:
+            self._inputs.append(["t", float(t_s)])
         out: list[dict] = []
         if self.state == "joining" and self.slot is None and t_s >= self.listen_until_s - 1e-12:
             self._claim_slot(t_s)
@@ -187,6 +221,8 @@ class StationCore:
         self._refresh_state()
 
     def on_message(self, msg: dict, t_rx_s: float) -> list[dict]:
+        if self.journal:
+            self._inputs.append(["m", float(t_rx_s), msg])
         kind = msg.get("kind")
         src = msg.get("src")
         if src == self.id:
