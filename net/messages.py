@@ -51,10 +51,11 @@ class MessageError(ValueError):
 # Each validator returns the normalized value or raises MessageError.
 
 def _num(v: Any, name: str) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise MessageError("type", f"{name} must be a number, got {type(v).__name__}")
+    t = type(v)
+    if t is not float and t is not int:  # bool is a subclass of int, not int itself: rejected
+        raise MessageError("type", f"{name} must be a number, got {t.__name__}")
     f = float(v)
-    if not math.isfinite(f) or abs(f) > MAX_ABS:
+    if not -MAX_ABS <= f <= MAX_ABS:  # also false for NaN; inf is beyond MAX_ABS
         raise MessageError("value", f"{name} not finite or out of range")
     return f
 
@@ -102,7 +103,7 @@ def _state(v: Any, name: str) -> str:
 def _vec3(v: Any, name: str) -> list[float]:
     if not isinstance(v, (list, tuple)) or len(v) != 3:
         raise MessageError("shape", f"{name} must be a list of 3 numbers")
-    return [_num(x, name) for x in v]
+    return [_num(v[0], name), _num(v[1], name), _num(v[2], name)]
 
 
 def _mat33(v: Any, name: str) -> list[list[float]]:
@@ -133,7 +134,10 @@ def _ranges(v: Any, name: str) -> list[list[Any]]:
 def _members(v: Any, name: str) -> list[int]:
     if not isinstance(v, (list, tuple)) or len(v) > MAX_LIST:
         raise MessageError("shape", f"{name} must be a list of <= {MAX_LIST} ids")
-    return [_station_id(x, name) for x in v]
+    for x in v:
+        if type(x) is not int or not 1 <= x <= MAX_ID:
+            raise MessageError("range", f"{name} must hold station ids 1..{MAX_ID}")
+    return list(v)
 
 
 def _extra(v: Any, name: str) -> dict[str, float]:
