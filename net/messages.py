@@ -146,6 +146,69 @@ def _extra(v: Any, name: str) -> dict[str, float]:
     return {_text(k, name): _num(x, name) for k, x in v.items()}
 
 
+# core journal (docs/protocol.md "Core journal"): what a station core consumed, for offline replay
+AIR_MSG_KINDS = ("range_req", "range_rsp", "nav")
+MAX_JOURNAL = 4 * MAX_LIST  # entries per core_input message
+
+
+def _opt(check: Callable[[Any, str], Any]) -> Callable[[Any, str], Any]:
+    def f(v: Any, name: str) -> Any:
+        return None if v is None else check(v, name)
+    return f
+
+
+def _cfg_value(v: Any, name: str) -> Any:
+    """A station-config value: bool, int, finite number, short string or a list of ids (kept as is)."""
+    if isinstance(v, bool) or v is None:
+        return v
+    if type(v) is int:
+        if not -MAX_SEQ <= v <= MAX_SEQ:
+            raise MessageError("range", f"{name} out of range")
+        return v
+    if type(v) is float:
+        return _num(v, name)
+    if isinstance(v, str):
+        return _text(v, name)
+    if isinstance(v, (list, tuple)):
+        return _members(v, name)
+    raise MessageError("type", f"{name}: unsupported config value {type(v).__name__}")
+
+
+def _init_record(v: Any, name: str) -> dict[str, Any]:
+    need = {"cfg", "tdma", "init_pos_m", "init_cov_m2", "start_s"}
+    if not isinstance(v, dict) or set(v) != need:
+        raise MessageError("shape", f"{name} must be a map with exactly {sorted(need)}")
+    cfg = v["cfg"]
+    if not isinstance(cfg, dict) or len(cfg) > 32:
+        raise MessageError("shape", f"{name}.cfg must be a map of <= 32 entries")
+    tdma = v["tdma"]
+    if not isinstance(tdma, (list, tuple)) or len(tdma) != 2:
+        raise MessageError("shape", f"{name}.tdma must be [cycle_s, slot_s]")
+    return {"cfg": {_text(k, name): _cfg_value(x, f"{name}.cfg.{k}") for k, x in cfg.items()},
+            "tdma": [_nonneg(tdma[0], name), _nonneg(tdma[1], name)],
+            "init_pos_m": _opt(_vec3)(v["init_pos_m"], f"{name}.init_pos_m"),
+            "init_cov_m2": _opt(_cov33)(v["init_cov_m2"], f"{name}.init_cov_m2"),
+            "start_s": _num(v["start_s"], f"{name}.start_s")}
+
+
+def _journal(v: Any, name: str) -> list[list[Any]]:
+    """``[["t", t_local_s] | ["m", t_rx_local_s, msg], ...]``; msg an air message, validated."""
+    if not isinstance(v, (list, tuple)) or len(v) > MAX_JOURNAL:
+        raise MessageError("shape", f"{name} must be a list of <= {MAX_JOURNAL} entries")
+    out: list[list[Any]] = []
+    for e in v:
+        if isinstance(e, (list, tuple)) and len(e) == 2 and e[0] == "t":
+            out.append(["t", _num(e[1], name)])
+        elif isinstance(e, (list, tuple)) and len(e) == 3 and e[0] == "m":
+            m = validate_msg(e[2])
+            if m["kind"] not in AIR_MSG_KINDS:
+                raise MessageError("kind", f"{name}: {m['kind']} is not an air message")
+            out.append(["m", _num(e[1], name), m])
+        else:
+            raise MessageError("shape", f"{name} entries must be ['t', t] or ['m', t, msg]")
+    return out
+
+
 # kind -> (required fields, optional fields); common fields added below
 _COMMON_STATION = {"src": _station_id, "seq": _count, "stamp_s": _num}
 _COMMON_AIRCRAFT = {"src": _name, "seq": _count, "stamp_s": _num}
@@ -163,6 +226,8 @@ SCHEMAS: dict[str, tuple[dict[str, Callable], dict[str, Callable]]] = {
                   "n_updates": _count, "estimator": _text, "state": _state},
                  {"slot": _slot, "cycle": _count, "dropped": _count}),
     "truth": ({**_COMMON_STATION, "t_s": _num, "pos_m": _vec3}, {}),
+    "core_init": ({**_COMMON_STATION, "record": _init_record}, {}),
+    "core_input": ({**_COMMON_STATION, "entries": _journal}, {}),
     "ac_estimate": ({**_COMMON_AIRCRAFT, "t_s": _num, "pos_m": _vec3, "cov_m2": _cov33,
                      "algo": _name},
                     {"vel_m_s": _vec3, "vel_cov": _cov33, "n_updates": _count, "extra": _extra}),
@@ -303,6 +368,10 @@ def key_for(msg: dict[str, Any]) -> str:
         return station_key(src, "range", "rsp", msg["dst"])
     if kind in ("nav", "estimate", "truth"):
         return station_key(src, kind)
+    if kind == "core_init":
+        return station_key(src, "init")
+    if kind == "core_input":
+        return station_key(src, "input")
     if kind == "ac_estimate":
         return aircraft_key(src, "estimate", msg["algo"])
     if kind == "ac_truth":
