@@ -34,7 +34,7 @@ def _solve_normal(H: np.ndarray, Rinv_H: np.ndarray, Rinv_dz: np.ndarray) -> np.
     # Levenberg-Marquardt damping: changes the path, not the fixed point (H^T W dz = 0); keeps the step
     # finite where a column vanishes (aircraft in the station plane: d r / d z = 0)
     d = np.einsum("...ii->...i", N)
-    N = N + (1e-3 * d + 1e-9 * d.sum(-1, keepdims=True))[..., None] * np.eye(N.shape[-1])
+    N = N + (1e-9 * d.sum(-1, keepdims=True))[..., None] * np.eye(N.shape[-1])
     g = np.einsum("...ij,...j->...i", Ht, Rinv_dz)
     try:
         return chol_solve(N, g[..., None])[..., 0]
@@ -125,6 +125,25 @@ def lsq_tdoa(
         if np.all(np.abs(dx) < tol_m):
             break
     return x
+
+
+def lsq_cov(
+    x: np.ndarray, stations_m: np.ndarray, var_m2: np.ndarray | float, model: str,
+    station_cov_m2: np.ndarray | None = None, base: int = 0,
+) -> np.ndarray:
+    """Covariance ``(H^T W H)^-1`` of a snapshot LSQ solution ``x`` (M, 4) pr / (M, 3) tdoa."""
+    m = stations_m.shape[0]
+    sigma = np.sqrt(np.broadcast_to(var_m2, (m,)))
+    X = np.concatenate([x[..., :3], np.zeros(x.shape[:-1] + (3,)), x[..., 3:]], axis=-1)
+    var = mdl.range_var(X, stations_m, station_cov_m2, sigma)
+    if model == "pr":
+        H = mdl.jac_pr(X, stations_m)[..., [0, 1, 2, 6]]
+        N = np.swapaxes(H, -1, -2) @ (H / var[..., None])
+    else:
+        H = mdl.jac_tdoa(X, stations_m, base)[..., :3]
+        N = np.swapaxes(H, -1, -2) @ chol_solve(mdl.r_tdoa(var, base), H)
+    k = N.shape[-1]
+    return symmetrize(chol_solve(symmetrize(N), np.broadcast_to(np.eye(k), N.shape).copy()))
 
 
 # --------------------------------------------------------------------------- filters
@@ -257,6 +276,10 @@ class EstimatorConfig:
 
     tuning: Tuning = field(default_factory=Tuning)
     min_stations: int = 4
+    # coarse external fix (like a station's init.sigma0_m): if set, filters start from the guess with
+    # this position sigma instead of a snapshot LSQ fix (needed in the far field of a small-base system,
+    # where one epoch's fix is off by kilometres)
+    guess_sigma_m: float | None = None
     max_batch_age_s: float = 5.0  # TDMA: measurements older than this are dropped from a batch
 
 
@@ -335,21 +358,37 @@ class AircraftEstimator:
         if self.tracker is None:
             if self.fix is None:
                 self.fix = np.append(self.guess, 0.0) if self.model == "pr" else self.guess.copy()
+            # the first fix may start far away: more iterations and a wide trust region
+            first = self.n_updates == 0
+            kw = dict(floor_z_m=tu.floor_z_m, iters=50 if first else 10, max_step_m=5000.0 if first else 200.0)
             if self.model == "pr":
                 x0 = self.fix if self.fix.size == 4 else np.append(self.fix, 0.0)
-                self.fix = lsq_pr(rho[None], pos, x0[None], var, cov, floor_z_m=tu.floor_z_m)[0]
+                self.fix = lsq_pr(rho[None], pos, x0[None], var, cov, **kw)[0]
             else:
-                self.fix = lsq_tdoa(rho[None], pos, self.fix[:3][None], var, cov, floor_z_m=tu.floor_z_m)[0]
+                self.fix = lsq_tdoa(rho[None], pos, self.fix[:3][None], var, cov, **kw)[0]
             self.t_s = t_s
             self.n_updates += 1
             if self.method == "lsq":
                 return
+            # filter start: the fix with its own covariance (H^T W H)^-1, velocity from the tuning's prior
+            C = lsq_cov(self.fix[None], pos, var, self.model, cov)[0]
+            gs = self.cfg.guess_sigma_m
+            if gs is not None:
+                # start from the coarse fix instead; the clock from the ranges to the guessed position
+                self.fix[:3] = self.guess
+                C = np.diag([gs**2] * 3 + ([(tu.p0_clock_m + gs) ** 2] if self.model == "pr" else []))
+                if self.model == "pr":
+                    self.fix[3] = float(np.mean(rho - np.linalg.norm(self.guess - pos, axis=1)))
             x0 = np.concatenate([self.fix[:3], np.zeros(3)])
             if self.model == "pr":
                 x0 = np.append(x0, self.fix[3])
                 if tu.drift_state:
                     x0 = np.append(x0, 0.0)
             self.tracker = CvTracker(self.method, self.model, x0[None], tu, t0_s=t_s)
+            idx = [0, 1, 2, 6] if self.model == "pr" else [0, 1, 2]
+            P = self.tracker.P[0]
+            P[np.ix_(idx, idx)] = C
+            self.tracker.P[0] = P
             return
         self.tracker.predict_to(t_s)
         nu, S = self.tracker.update(pos, rho[None], cov, dt if np.any(dt) else None)

@@ -1,0 +1,337 @@
+"""Aircraft estimators, models and bounds: exactness, derivative and consistency checks (seeded)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from aircraft import models as mdl
+from aircraft import sim, trajectory
+from aircraft.config import from_scenario
+from aircraft.estimators import AircraftEstimator, CvTracker, EstimatorConfig, Tuning, lsq_pr, lsq_tdoa
+from nav.kalman import ekf_update, kf_predict, kf_update, ukf_predict, ukf_update
+from nav.pcrb import crlb_cycle, fisher_cycle, pcrb_linear_gaussian
+from nav.ut import SigmaParams
+from net.scenario import load
+
+S001 = load("seed001").pos_m
+S003 = load("seed003").pos_m
+
+
+def _fd_jac(f, x, eps=1e-5):
+    cols = []
+    for i in range(x.shape[-1]):
+        d = np.zeros_like(x)
+        d[..., i] = eps
+        cols.append((f(x + d) - f(x - d)) / (2 * eps))
+    return np.stack(cols, axis=-1)
+
+
+# ----------------------------------------------------------------------------- models
+@pytest.mark.parametrize("n", [7, 8])
+def test_pr_jacobian_matches_finite_differences(n):
+    rng = np.random.default_rng(1)
+    X = rng.normal(0, 300, (5, n)) + np.r_[[500, 200, 100], np.zeros(n - 3)]
+    dt = np.array([-0.3, -0.2, -0.1, 0.0])
+    for d in (None, dt):
+        H = mdl.jac_pr(X, S001, d)
+        Hn = _fd_jac(lambda x: mdl.h_pr(x, S001, d), X)
+        np.testing.assert_allclose(H, Hn, atol=1e-7)
+
+
+def test_tdoa_jacobian_matches_finite_differences():
+    rng = np.random.default_rng(2)
+    X = rng.normal(0, 2000, (5, 6)) + np.r_[15000, 0, 1000, 0, 0, 0]
+    dt = np.linspace(-0.7, 0.0, 8)
+    for base in (0, 3):
+        for d in (None, dt):
+            H = mdl.jac_tdoa(X, S003, base, d)
+            Hn = _fd_jac(lambda x: mdl.h_tdoa(x, S003, base, d), X)
+            np.testing.assert_allclose(H, Hn, atol=1e-6)
+
+
+def test_tdoa_covariance_is_g_r_gt():
+    var = np.array([0.25, 0.5, 1.0, 2.0])
+    G = mdl.g_matrix(4, 2)
+    assert G.shape == (3, 4) and np.all(G[:, 2] == -1) and np.allclose(np.delete(G, 2, axis=1), np.eye(3))
+    R = mdl.r_tdoa(var, 2)
+    np.testing.assert_allclose(R, G @ np.diag(var) @ G.T)
+    # and it is the covariance of the differenced noise (Monte Carlo, seeded)
+    xi = np.random.default_rng(3).standard_normal((200_000, 4)) * np.sqrt(var)
+    d = np.delete(xi, 2, axis=1) - xi[:, 2:3]
+    np.testing.assert_allclose(np.cov(d.T), R, atol=0.03)
+
+
+def test_station_covariance_enters_the_range_variance():
+    X = np.array([[1000.0, 0, 50, 0, 0, 0, 0]])
+    P = np.zeros((4, 3, 3))
+    P[1] = np.diag([4.0, 1.0, 9.0])
+    var = mdl.range_var(X, S001, P, 0.5)
+    u = (X[0, :3] - S001[1]) / np.linalg.norm(X[0, :3] - S001[1])
+    assert var[0, 0] == pytest.approx(0.25)
+    assert var[0, 1] == pytest.approx(0.25 + u @ P[1] @ u)
+
+
+def test_clock_model_seed001():
+    c = mdl.ReceiverClock()
+    assert c.drift_m_s == pytest.approx(0.6)
+    assert c.bias_m(10.0) == pytest.approx(6.0)
+
+
+def test_trajectories():
+    t = np.arange(0, 60, 0.01)
+    tr = trajectory.from_config({"kind": "turn", "distance_m": 1000.0, "speed_m_s": 30.0}, t, np.zeros(3))
+    assert tr.pos_m[0] == pytest.approx([1000.0, 0.0, 1000 * np.tan(np.radians(3))])
+    np.testing.assert_allclose(np.linalg.norm(tr.vel_m_s, axis=1), 30.0)
+    # velocity is the derivative of position (exact arcs, continuous at segment jumps)
+    np.testing.assert_allclose(np.gradient(tr.pos_m[:, :2], t, axis=0)[1:-1], tr.vel_m_s[1:-1, :2], atol=0.02)
+    el = trajectory.ellipse(t, [15000, 0], (18000, 12000), 1000.0, 50.0)
+    assert el.pos_m[0, 0] == pytest.approx(-3000.0)
+    np.testing.assert_allclose(np.gradient(el.pos_m, t, axis=0)[1:-1], el.vel_m_s[1:-1], atol=1e-3)
+
+
+# ----------------------------------------------------------------------------- LSQ
+@pytest.mark.parametrize("stations,point", [(S001, [600.0, 300.0, 80.0]), (S003, [-20000.0, 5000.0, 1000.0])])
+def test_lsq_recovers_truth_without_noise(stations, point):
+    p = np.array(point)
+    rho = np.linalg.norm(p - stations, axis=1) + 37.0
+    x0 = np.r_[p + [30.0, -20.0, 15.0], 0.0][None]
+    cov = np.broadcast_to(np.eye(3) * 0.1, (len(stations), 3, 3))
+    for c in (None, cov):
+        x = lsq_pr(rho[None], stations, x0, 0.25, c, iters=30, tol_m=1e-10)
+        np.testing.assert_allclose(x[0], np.r_[p, 37.0], atol=1e-6)
+        for base in (0, 2):
+            y = lsq_tdoa(rho[None], stations, x0[:, :3], 0.25, c, base=base, iters=30, tol_m=1e-10)
+            np.testing.assert_allclose(y[0], p, atol=1e-6)
+
+
+def test_tdoa_weighting_equals_pseudorange_lsq_with_clock_profiled_out():
+    """With (G R G^T)^-1 weights, range-difference LSQ gives exactly the pseudorange LSQ position
+    (the clock is a nuisance parameter entering every pseudorange alike), for any base station."""
+    rng = np.random.default_rng(4)
+    p = np.array([5000.0, -8000.0, 1000.0])
+    var = rng.uniform(0.3, 2.0, len(S003))
+    rho = np.linalg.norm(p - S003, axis=1) + 12.0 + rng.standard_normal((6, len(S003))) * np.sqrt(var)
+    x0 = np.tile(np.r_[p + 50.0, 0.0], (6, 1))
+    xp = lsq_pr(rho, S003, x0, var, iters=40, tol_m=1e-11)
+    for base in (0, 5):
+        xt = lsq_tdoa(rho, S003, x0[:, :3], var, base=base, iters=40, tol_m=1e-11)
+        np.testing.assert_allclose(xt, xp[:, :3], atol=1e-6)
+    # an unweighted (identity) difference LSQ would not: the weighting matters
+    assert np.max(np.abs(xp[:, :3] - p)) > 1e-3
+
+
+# ----------------------------------------------------------------------------- filters
+def _linear_problem(rng, n=7, m=3):
+    F = mdl.cv_transition(n, 0.1)
+    Q = mdl.cv_noise(n, 0.1, 2.0, 0.01, 0.01)
+    H = rng.normal(size=(m, n))
+    R = np.diag(rng.uniform(0.1, 1.0, m))
+    A = rng.normal(size=(n, n))
+    P = A @ A.T + np.eye(n)
+    x = rng.normal(size=(4, n))
+    z = rng.normal(size=(4, m))
+    return F, Q, H, R, P, x, z
+
+
+def test_ekf_and_ukf_equal_linear_kf_on_linear_models():
+    rng = np.random.default_rng(5)
+    F, Q, H, R, P, x, z = _linear_problem(rng)
+    Pb = np.broadcast_to(P, (4,) + P.shape)
+    xk, Pk = kf_predict(x, Pb, F, Q)
+    xu, Pu = ukf_predict(x, Pb, lambda X: X @ F.T, Q, SigmaParams.scaled(alpha=0.1))
+    np.testing.assert_allclose(xu, xk, atol=1e-9)
+    np.testing.assert_allclose(Pu, Pk, atol=1e-9)
+    xa, Pa, nua, Sa = kf_update(xk, Pk, z, H, R)
+    xe, Pe, nue, Se = ekf_update(xk, Pk, z, lambda X: X @ H.T, H, R)
+    xs, Ps, nus, Ss = ukf_update(xk, Pk, z, lambda X: X @ H.T, R, SigmaParams.scaled(alpha=0.1))
+    for xx, PP in ((xe, Pe), (xs, Ps)):
+        np.testing.assert_allclose(xx, xa, atol=1e-9)
+        np.testing.assert_allclose(PP, Pa, atol=1e-9)
+
+
+def test_tracker_prediction_is_the_cv_model_and_ekf_matches_ukf_when_nearly_linear():
+    tun = Tuning(p0_pos_m=1e-3, p0_vel_m_s=1e-3, p0_clock_m=1e-3, p0_drift_m_s=1e-3, floor_z_m=None)
+    x0 = np.array([[800.0, 300.0, 60.0, 10.0, -5.0, 0.0, 3.0, 0.6]])
+    e = CvTracker("ekf", "pr", x0, tun)
+    u = CvTracker("ukf", "pr", x0, tun)
+    e.predict_to(0.25)
+    np.testing.assert_allclose(e.x[0], mdl.cv_transition(8, 0.25) @ x0[0])
+    u.predict_to(0.25)
+    z = mdl.h_pr(e.x, S001) + np.array([[0.3, -0.2, 0.1, 0.0]])
+    e.update(S001, z)
+    u.update(S001, z)
+    np.testing.assert_allclose(u.x, e.x, atol=1e-5)
+    np.testing.assert_allclose(u.P, e.P, rtol=1e-4, atol=1e-12)
+
+
+def _simulate_own_model(rng, model, M, T, dt, kind):
+    """Truth drawn from the filter's own model (CV + clock random walks), pseudoranges from it."""
+    tun = Tuning(q_acc=1.0, q_clock=0.01, q_drift=0.01, p0_pos_m=5.0, p0_vel_m_s=1.0, p0_clock_m=5.0,
+                 p0_drift_m_s=0.5, floor_z_m=None)
+    lay = mdl.StateLayout(model, drift=model == "pr")
+    F, Q = mdl.cv_transition(lay.n, dt), mdl.cv_noise(lay.n, dt, tun.q_acc, tun.q_clock, tun.q_drift)
+    LQ = np.linalg.cholesky(Q + 1e-15 * np.eye(lay.n))
+    xt = np.zeros((M, lay.n))
+    xt[:, :3] = [300.0, 200.0, 150.0]
+    if model == "pr":
+        xt[:, 7] = 0.6
+    x0 = xt + rng.standard_normal((M, lay.n)) @ np.linalg.cholesky(tun.p0(lay)).T
+    trk = CvTracker(kind, model, x0, tun)
+    for k in range(T):
+        if k:
+            xt = xt @ F.T + rng.standard_normal((M, lay.n)) @ LQ.T
+            trk.predict_to(k * dt)
+        rho = np.linalg.norm(xt[:, None, :3] - S001, axis=-1) + rng.standard_normal((M, 4)) * tun.sigma_m
+        if model == "pr":
+            rho = rho + xt[:, 6:7]
+        nu, S = trk.update(S001, rho)
+    return xt, trk, nu, S
+
+
+@pytest.mark.parametrize("kind", ["ekf", "ukf"])
+@pytest.mark.parametrize("model", ["pr", "tdoa"])
+def test_nees_nis_inside_chi_square_bands(kind, model):
+    rng = np.random.default_rng(11)
+    M = 300
+    xt, trk, nu, S = _simulate_own_model(rng, model, M, 150, 0.02, kind)
+    e = trk.x - xt
+    nees = np.einsum("...i,...i->...", e, np.linalg.solve(trk.P, e[..., None])[..., 0]).sum()
+    nis = np.einsum("...i,...i->...", nu, np.linalg.solve(S, nu[..., None])[..., 0]).sum()
+    n, m = trk.layout.n, nu.shape[-1]
+    lo, hi = stats.chi2.ppf([0.0005, 0.9995], n * M)
+    assert lo < nees < hi, (nees / M, n)
+    lo, hi = stats.chi2.ppf([0.0005, 0.9995], m * M)
+    assert lo < nis < hi, (nis / M, m)
+
+
+# ----------------------------------------------------------------------------- bounds
+def test_cycle_fisher_matches_finite_difference_fisher():
+    r0 = np.array([-20000.0, 8000.0, 1000.0])
+    v = np.array([50.0, -10.0, 2.0])
+    t = np.arange(8) * 0.1
+    sig = np.linspace(0.8, 1.2, 8)
+    for clock in (False, True):
+        J = fisher_cycle(r0, v, S003, t, sig, clock=clock)
+        theta = np.r_[r0, v, 4.0] if clock else np.r_[r0, v]
+
+        def h(th):
+            pos = th[..., None, :3] + th[..., None, 3:6] * t[:, None]
+            r = np.linalg.norm(pos - S003, axis=-1)
+            return r + th[..., 6:7] if clock else r
+
+        G = _fd_jac(h, theta, eps=1e-3)  # (8, k)
+        np.testing.assert_allclose(J, G.T @ np.diag(1 / sig**2) @ G, rtol=1e-6, atol=1e-10)
+    b = crlb_cycle(J[None])
+    C = np.linalg.inv(J)
+    assert b["horiz_m"][0] == pytest.approx(np.sqrt(C[0, 0] + C[1, 1]), rel=1e-6)
+    assert b["vert_m"][0] == pytest.approx(np.sqrt(C[2, 2]), rel=1e-6)
+
+
+def test_pcrb_covariance_form_equals_tichavsky_information_recursion():
+    rng = np.random.default_rng(6)
+    n, m, T = 4, 2, 30
+    F = np.eye(n) + 0.1 * rng.normal(size=(n, n))
+    A = rng.normal(size=(n, n))
+    Q = A @ A.T * 0.01 + 0.01 * np.eye(n)
+    H = rng.normal(size=(T, m, n))
+    R = np.diag([0.5, 2.0])
+    P0 = np.eye(n) * 3.0
+    P = pcrb_linear_gaussian(P0, F, Q, H, R)
+    Qi = np.linalg.inv(Q)
+    D11, D12, D22 = F.T @ Qi @ F, -F.T @ Qi, Qi
+    J = np.linalg.inv(P0)
+    for k in range(T):
+        J = D22 + H[k].T @ np.linalg.inv(R) @ H[k] - D12.T @ np.linalg.inv(J + D11) @ D12
+        np.testing.assert_allclose(np.linalg.inv(J), P[k], rtol=1e-8, atol=1e-12)
+
+
+def test_filters_reach_the_pcrb_on_a_short_hover():
+    """Seeded Monte Carlo at 1000 m: pseudorange EKF/UKF RMSE near the posterior CRLB (honest band:
+    16 runs x 10 s of correlated epochs leave about +-20 % of sampling spread)."""
+    ac = from_scenario(load("seed001"))
+    t = np.arange(0.0, 20.0, 0.01)
+    tr = trajectory.from_config({"kind": "hover", "distance_m": 1000.0}, t, ac.centre_m)
+    rng = np.random.default_rng(9)
+    rho = sim.pseudoranges(tr, ac.stations_m, ac.clock, ac.sigma_m, 16, rng)
+    P = sim.pcrb_track("pr", tr, ac.stations_m, ac.tuning, ac.clock)
+    w = t >= 10.0
+    pc = np.sqrt(np.mean(np.trace(P[w], axis1=1, axis2=2)))
+    for algo in ("ekf-pr", "ukf-pr"):
+        res = sim.run_algo(algo, tr, ac.stations_m, rho, ac.tuning, ac.clock, rng)
+        rmse = sim.rms_total(res.err_m[:, w])
+        assert 0.6 * pc < rmse < 1.25 * pc, (algo, rmse, pc)
+
+
+# ----------------------------------------------------------------------------- message API
+def test_estimator_api_tdma_slots_and_bad_input():
+    ac = from_scenario(load("seed003"))
+    slot = 0.1
+    t = np.arange(0.0, 40.0, slot)
+    tr = trajectory.from_config(ac.trajectory, t, ac.centre_m)
+    rng = np.random.default_rng(12)
+    ests = {a: AircraftEstimator(a, EstimatorConfig(tuning=ac.tuning), x0_guess_m=ac.centre_m + [0, 0, 1000.0])
+            for a in ("ukf-pr", "ekf-pr", "lsq-pr", "ekf-tdoa")}
+    for k, tk in enumerate(t):
+        j = k % len(ac.stations_m)
+        rho = np.linalg.norm(tr.pos_m[k] - ac.stations_m[j]) + ac.clock.bias_m(tk) + ac.sigma_m * rng.standard_normal()
+        for e in ests.values():
+            e.on_measurement(tk, j + 1, ac.stations_m[j], np.eye(3) * 0.01, rho)
+    for a, e in ests.items():
+        est = e.estimate()
+        assert est is not None and est["n_updates"] > 10, a
+        p, _ = tr.at(est["t_s"])
+        tol = 200.0 if a.startswith("lsq") else 30.0  # LSQ ignores the motion within a cycle (50 m/s)
+        assert np.linalg.norm(np.array(est["pos_m"]) - p) < tol, (a, est["pos_m"], p)
+    e = ests["ukf-pr"]
+    n = e.n_updates
+    e.on_measurement(t[-1] + 0.1, 1, [np.nan, 0, 0], None, 1.0)
+    e.on_epoch(t[-1] + 0.2, ac.stations_m[:2], None, [1.0, 2.0, 3.0])
+    assert e.n_dropped == 2 and e.n_updates == n
+    with pytest.raises(ValueError):
+        AircraftEstimator("pf-pr")
+
+
+def test_estimator_api_synchronous_epochs():
+    ac = from_scenario(load("seed001"))
+    p = ac.centre_m + np.array([1000.0, 0.0, 52.4])
+    rng = np.random.default_rng(13)
+    guess = p + rng.normal(0.0, 20.0, 3)
+    e = AircraftEstimator("ukf-tdoa", EstimatorConfig(tuning=ac.tuning, guess_sigma_m=20.0), x0_guess_m=guess)
+    for k in range(300):
+        rho = np.linalg.norm(p - ac.stations_m, axis=1) + 0.6 * k * 0.01 + 0.5 * rng.standard_normal(4)
+        e.on_epoch(k * 0.01, ac.stations_m, None, rho)
+    est = e.estimate()
+    assert np.linalg.norm(np.array(est["pos_m"]) - p) < 3 * np.sqrt(np.trace(np.array(est["cov_m2"]))) + 1.0
+
+
+# ----------------------------------------------------------------------------- commands
+def test_bench_aircraft_quick_smoke(tmp_path):
+    from larns.cli import main
+
+    js = tmp_path / "b.json"
+    rc = main(["bench", "aircraft", "--quick", "--trials", "2", "--duration", "2", "--warmup", "1",
+               "--no-sweep", "--json", str(js), "--png-dir", str(tmp_path)])
+    assert rc == 0
+    out = json.loads(js.read_text())
+    assert set(out["rmse_m"]["hover"]) == {"lsq-pr", "lsq-tdoa", "ekf-pr", "ekf-tdoa", "ukf-pr", "ukf-tdoa"}
+    assert set(out["rmse_m"]["hover"]["ukf-pr"]) == {"100", "1000"}
+    assert set(out["pcrb_m"]["turn"]) == {"ekf-pr", "ekf-tdoa", "ukf-pr", "ukf-tdoa"}
+    assert out["height_m"]["hover"]["1000"] == pytest.approx(1000 * np.tan(np.radians(3)))
+    assert out["samples"]["hover"]["1000"] > 0
+    assert out["speed"]["max_rel_state_diff"] < 1e-9
+    assert (tmp_path / "aircraft_fig4_hover.png").stat().st_size > 1000
+
+
+def test_crlb_command_smoke(tmp_path, capsys):
+    from larns.cli import main
+
+    png, js = tmp_path / "c.png", tmp_path / "c.json"
+    assert main(["crlb", "--scenario", "seed003", "--step", "5000", "--png", str(png), "--json", str(js)]) == 0
+    out = json.loads(js.read_text())
+    inside = out["summary"][0]
+    assert inside["band_km"] == [0, 0] and inside["horiz_median_m"] < inside["vert_median_m"]
+    assert png.stat().st_size > 1000
