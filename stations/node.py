@@ -68,6 +68,7 @@ class NodeOptions:
     seed: int | None = None
     status_every_s: float = 5.0       # fleet seconds between status lines (0 = never)
     quiet: bool = False
+    journal: bool = True              # publish the core journal (larns/station/<id>/init, .../input)
 
 
 class StationNode:
@@ -105,6 +106,8 @@ class StationNode:
         self._seen: set = set()
         self._seen_q: deque = deque()
         self._truth_seq = 0
+        self._journal_seq = {"core_init": 0, "core_input": 0}
+        self._navs_sent = 0
         self._last_status = -math.inf
 
     # ------------------------------------------------------------------ time
@@ -212,6 +215,45 @@ class StationNode:
                 continue
             self.bus.publish(M.key_for(m), data)
             self.stats["tx_" + kind] += 1
+            if kind == "nav":
+                self._navs_sent += 1
+        if self.opts.journal and any(m["kind"] == "nav" for m in outs):
+            self._publish_journal()
+
+    # ------------------------------------------------------------------ core journal
+    def _journal_msg(self, kind: str, **fields: Any) -> dict:
+        self._journal_seq[kind] += 1
+        return {"kind": kind, "src": self.id, "seq": self._journal_seq[kind],
+                "stamp_s": float(self.fleet_now()), **fields}
+
+    def _publish_init(self) -> None:
+        m = self._journal_msg("core_init", record=self.core.init_record)
+        try:
+            self.bus.publish(M.key_for(m), M.encode(m))
+        except M.MessageError as e:
+            log.error("station %d: cannot publish core_init: %s", self.id, e)
+
+    def _publish_journal(self) -> None:
+        """After the own slot's nav: what the core consumed since the last one (docs/protocol.md)."""
+        if self._navs_sent % 10 == 0:
+            self._publish_init()
+        entries = self.core.take_inputs()
+        chunks = [entries]
+        while chunks:
+            part = chunks.pop(0)
+            m = self._journal_msg("core_input", entries=part)
+            try:
+                data = M.encode(m)
+            except M.MessageError as e:
+                if e.reason in ("size", "shape") and len(part) > 1:  # too big for one message: split
+                    self._journal_seq["core_input"] -= 1
+                    half = len(part) // 2
+                    chunks[:0] = [part[:half], part[half:]]
+                    continue
+                log.error("station %d: dropping %d journal entries: %s", self.id, len(part), e)
+                self.stats["journal_invalid"] += 1
+                continue
+            self.bus.publish(M.key_for(m), data)
 
     def _publish_truth(self, est: dict) -> None:
         self._truth_seq += 1
@@ -264,6 +306,9 @@ class StationNode:
         t0 = max(0.0, self.fleet_now())
         self.core, self.clock = self._make_core(self.scn, self.id, estimator=self.opts.estimator,
                                                 join=self.opts.join, start_s=t0, seed=self.seed)
+        if self.opts.journal:
+            self.core.journal = True
+            self._publish_init()
 
     def run(self) -> dict:
         bus = self.bus
@@ -357,6 +402,9 @@ def add_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--net-loss", type=float, default=None, metavar="P", help="loss probability")
     g.add_argument("--net-dup", type=float, default=None, metavar="P", help="duplication probability")
     p.add_argument("--status-every", type=float, default=5.0, help="fleet seconds between status lines")
+    p.add_argument("--no-journal", action="store_true",
+                   help="do not publish the core journal (larns/station/<id>/init and .../input, "
+                        "needed for bit-exact offline re-estimation)")
     p.add_argument("--report-json", action="store_true", help="print a JSON report on stdout at exit")
     p.add_argument("-q", "--quiet", action="store_true")
     add_bus_args(p)
@@ -382,7 +430,8 @@ def main_args(args: argparse.Namespace) -> int:
     scn = load_scenario(args)
     opts = NodeOptions(station_id=args.id, join=args.join, speed=args.speed, epoch_unix_s=args.epoch,
                        duration_s=args.duration, start_at_s=args.start_at, estimator=args.estimator, seed=args.seed,
-                       status_every_s=args.status_every, quiet=args.quiet)
+                       status_every_s=args.status_every, quiet=args.quiet,
+                       journal=not getattr(args, "no_journal", False))
     bus = Bus(**bus_kwargs(args))
     try:
         node = StationNode(scn, opts, bus)
