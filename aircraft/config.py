@@ -11,7 +11,8 @@ from .estimators import ALGOS, Tuning
 from .models import ReceiverClock
 
 _KNOWN = {"name", "algos", "rate_hz", "sync", "sigma_m", "df_hz", "lambda_m", "tau0_s", "height_m",
-          "trajectory", "tuning", "turn", "hover", "bench", "crlb"}
+          "trajectory", "tuning", "turn", "hover", "bench", "crlb", "init_sigma_m",
+          "station_clock_residual_m"}
 
 
 @dataclass
@@ -30,6 +31,7 @@ class AircraftConfig:
     tuning: Tuning
     bench: dict[str, Any] = field(default_factory=dict)
     crlb: dict[str, Any] = field(default_factory=dict)
+    init_sigma_m: float | None = None  # coarse external fix of the start point (node); None: LSQ start
 
 
 def from_scenario(sc) -> AircraftConfig:
@@ -65,4 +67,5 @@ def from_scenario(sc) -> AircraftConfig:
         tuning=Tuning(**tk),
         bench=dict(a.get("bench", {})),
         crlb=dict(a.get("crlb", {})),
+        init_sigma_m=None if a.get("init_sigma_m") is None else float(a["init_sigma_m"]),
     )

@@ -23,7 +23,7 @@ from nav.ut import SigmaParams
 
 from . import models as mdl
 
-ALGOS = ("lsq-pr", "lsq-tdoa", "ekf-pr", "ekf-tdoa", "ukf-pr", "ukf-tdoa")
+ALGOS = mdl.ALGOS
 
 
 # --------------------------------------------------------------------------- snapshot LSQ
@@ -302,6 +302,7 @@ class AircraftEstimator:
         self.t_s: float | None = None
         self.guess = np.array([0.0, 0.0, 1000.0]) if x0_guess_m is None else np.asarray(x0_guess_m, float)
         self._pending: dict[int, tuple[float, np.ndarray, np.ndarray, float]] = {}
+        self._last_geom: tuple[np.ndarray, np.ndarray | None] | None = None  # LSQ covariance
         self.n_updates = 0
         self.n_dropped = 0
         self.last_nis: float | None = None
@@ -350,6 +351,7 @@ class AircraftEstimator:
 
     def _batch(self, t_s, pos, cov, rho, dt) -> None:
         m = len(rho)
+        self._last_geom = (pos, cov)
         if m < self.cfg.min_stations:
             self.n_dropped += 1
             return
@@ -398,13 +400,21 @@ class AircraftEstimator:
 
     # -- output
     def estimate(self) -> dict | None:
-        """Latest estimate: ``t_s``, ``pos_m`` [3], ``cov_m2`` [3][3] (None for LSQ), ``vel_m_s``, ``clock_m``."""
+        """Latest estimate: ``t_s``, ``pos_m`` [3], ``cov_m2`` [3][3] (LSQ: its ``(H^T W H)^-1``), ``vel_m_s``,
+        ``clock_m``, ``n_updates``."""
         if self.t_s is None:
             return None
         if self.tracker is None:
             if self.method != "lsq" or self.fix is None:
                 return None
-            return {"t_s": self.t_s, "pos_m": self.fix[:3].tolist(), "cov_m2": None, "vel_m_s": None,
+            C = None
+            if self._last_geom is not None:
+                try:
+                    C = lsq_cov(self.fix[None], self._last_geom[0], self.cfg.tuning.sigma_m**2, self.model,
+                                self._last_geom[1])[0, :3, :3].tolist()
+                except np.linalg.LinAlgError:
+                    C = None
+            return {"t_s": self.t_s, "pos_m": self.fix[:3].tolist(), "cov_m2": C, "vel_m_s": None,
                     "clock_m": float(self.fix[3]) if self.fix.size == 4 else None, "n_updates": self.n_updates}
         x, P = self.tracker.x[0], self.tracker.P[0]
         return {"t_s": self.tracker.t_s, "pos_m": x[:3].tolist(), "cov_m2": P[:3, :3].tolist(),

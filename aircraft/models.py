@@ -27,6 +27,8 @@ import numpy as np
 
 from nav.geometry import SPEED_OF_LIGHT_M_S
 
+ALGOS = ("lsq-pr", "lsq-tdoa", "ekf-pr", "ekf-tdoa", "ukf-pr", "ukf-tdoa")
+
 
 @dataclass(frozen=True)
 class StateLayout:

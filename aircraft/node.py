@@ -1,0 +1,307 @@
+"""Aircraft process: flies its true trajectory, listens to the stations' nav broadcasts over Zenoh,
+measures pseudoranges in its own channel layer and runs the estimators (one per ``--algo``).
+
+* **time**: fleet time ``t = (wall - epoch) * speed`` like the stations (same ``--epoch``).
+* **receive**: ``larns/station/*/nav`` -> strict decode (malformed: counted and dropped) -> key/src
+  check -> channel layer: reception at ``t_rx = t_true_tx + |r(t_rx) - p_tx| / c`` (true sender
+  position and transmit time from ``phy``), pseudorange ``rho = c (t_rx_local - t_tx)`` with the
+  receiver clock ``c dtau(t) = df lambda t + c tau0`` (seed 001), timing noise ``sigma_m`` and the
+  station clock corrected by the nav message (an optional residual ``station_clock_residual_m``).
+  The estimator sees the broadcast's *estimated* station position and covariance (``msg.pos_m``,
+  ``msg.cov_m2``), never ``phy``.
+* **publish**: ``larns/aircraft/<name>/estimate/<algo>`` (``ac_estimate``) after every update and
+  ``larns/aircraft/<name>/truth`` (``ac_truth``) with every measurement; liveliness token
+  ``larns/alive/aircraft/<name>``.
+
+SIGINT / SIGTERM: clean exit.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import queue
+import signal
+import sys
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from nav.geometry import SPEED_OF_LIGHT_M_S
+
+
+log = logging.getLogger("larns.aircraft")
+
+USABLE_STATES = ("frame", "surveying")
+
+
+@dataclass
+class AircraftOptions:
+    name: str = "ac1"
+    algos: tuple[str, ...] = ("ukf-pr",)
+    speed: float = 1.0
+    epoch_unix_s: float | None = None
+    duration_s: float | None = None
+    seed: int | None = None
+    height_m: float | None = None
+    status_every_s: float = 5.0
+    quiet: bool = False
+
+
+class AircraftCore:
+    """Sans-I/O aircraft: channel layer + estimators. ``on_nav(msg, phy)`` returns messages to publish.
+
+    Pure apart from its own seeded generator; the node and tests drive it with decoded messages.
+    """
+
+    def __init__(self, ac, algos, name: str, rng: np.random.Generator,
+                 height_m: float | None = None, horizon_s: float = 7200.0, residual_m: float = 0.0):
+        from . import trajectory
+        from .estimators import AircraftEstimator, EstimatorConfig
+
+        self.ac = ac
+        self.name = name
+        self.rng = rng
+        dt = 1.0 / max(ac.rate_hz, 10.0)
+        t = np.arange(0.0, horizon_s + dt, dt)
+        h = height_m if height_m is not None else ac.height_m
+        self.track = trajectory.from_config(dict(ac.trajectories.get(ac.trajectory.get("kind"), {}), **ac.trajectory),
+                                            t, ac.centre_m, h)
+        p0, _ = self.track.at(0.0)
+        sig0 = ac.init_sigma_m
+        if sig0:  # coarse external fix of the start point (emulator side: truth + noise)
+            guess = p0 + rng.normal(0.0, sig0, 3)
+        else:
+            guess = ac.centre_m + np.array([0.0, 0.0, 1000.0])
+            sig0 = None
+        cfg = EstimatorConfig(tuning=ac.tuning, guess_sigma_m=sig0)
+        self.estimators = {a: AircraftEstimator(a, cfg, x0_guess_m=guess) for a in algos}
+        self.residual_m = residual_m
+        self.seq: Counter[str] = Counter()
+        self.stats: Counter[str] = Counter()
+
+    def measure(self, phy: dict) -> tuple[float, float, np.ndarray]:
+        """Channel layer: (t_rx true, pseudorange, true aircraft position at reception)."""
+        p_tx = np.asarray(phy["pos_m"], float)
+        t_tx = float(phy["t_true_s"])
+        p, _ = self.track.at(t_tx)
+        t_rx = t_tx + np.linalg.norm(p - p_tx) / SPEED_OF_LIGHT_M_S
+        p, _ = self.track.at(t_rx)  # one fixed-point step is exact to micrometres at aircraft speeds
+        r = float(np.linalg.norm(p - p_tx))
+        rho = r + float(self.ac.clock.bias_m(t_rx)) + self.ac.sigma_m * float(self.rng.standard_normal())
+        if self.residual_m > 0:
+            rho += self.residual_m * float(self.rng.standard_normal())
+        return t_rx, rho, p
+
+    def on_nav(self, msg: dict, phy: dict) -> list[dict]:
+        """One station nav broadcast -> ``ac_truth`` + one ``ac_estimate`` per algorithm that has one."""
+        if msg.get("state") not in USABLE_STATES:
+            self.stats["nav_unusable_state"] += 1
+            return []
+        t_rx, rho, p_true = self.measure(phy)
+        if not (np.all(np.isfinite(msg["pos_m"])) and math.isfinite(t_rx)):
+            self.stats["nav_bad"] += 1
+            return []
+        self.stats["measurements"] += 1
+        out = [self._msg("ac_truth", t_s=t_rx, pos_m=p_true.tolist(), vel_m_s=self.track.at(t_rx)[1].tolist())]
+        for algo, est in self.estimators.items():
+            n = est.n_updates
+            est.on_measurement(t_rx, int(msg["src"]), msg["pos_m"], msg["cov_m2"], rho)
+            if est.n_updates == n:
+                continue
+            e = est.estimate()
+            if e is None:
+                continue
+            cov = e["cov_m2"] if e["cov_m2"] is not None else np.zeros((3, 3))
+            m = self._msg("ac_estimate", t_s=float(e["t_s"]), pos_m=e["pos_m"], cov_m2=np.asarray(cov).tolist(),
+                          algo=algo, n_updates=int(e["n_updates"]))
+            if e["vel_m_s"] is not None:
+                m["vel_m_s"] = e["vel_m_s"]
+            out.append(m)
+        return out
+
+    def _msg(self, kind: str, **fields: Any) -> dict:
+        self.seq[kind] += 1
+        return {"kind": kind, "src": self.name, "seq": self.seq[kind], "stamp_s": float(fields["t_s"]), **fields}
+
+
+class AircraftNode:
+    """Wall-clock shell around :class:`AircraftCore` over a :class:`net.bus.Bus`."""
+
+    def __init__(self, scn, opts: AircraftOptions, bus: Any):
+        from net import messages as M
+
+        from .config import from_scenario
+
+        self.M = M
+        self.ac = from_scenario(scn)
+        if opts.speed <= 0:
+            raise ValueError("--speed must be > 0")
+        self.opts = opts
+        self.bus = bus
+        self.epoch = (math.floor(time.time() / 86400.0) * 86400.0 if opts.epoch_unix_s is None
+                      else float(opts.epoch_unix_s))
+        seed = scn.seed if opts.seed is None else opts.seed
+        rng = np.random.default_rng([int(seed), 0xA1C, sum(map(ord, opts.name))])
+        horizon = (opts.duration_s or 7200.0) + 10.0
+        self.core = AircraftCore(self.ac, opts.algos, opts.name, rng, opts.height_m, horizon_s=horizon,
+                                 residual_m=float(scn.aircraft.get("station_clock_residual_m", 0.0)))
+        self.drops = M.DropCounter(f"aircraft {opts.name}")
+        self._inbox: queue.SimpleQueue = queue.SimpleQueue()
+        self._stop = threading.Event()
+        self._last_status = -math.inf
+
+    def fleet_now(self) -> float:
+        return (time.time() - self.epoch) * self.opts.speed
+
+    def stop(self, *_: Any) -> None:
+        self._stop.set()
+
+    def _on_bytes(self, key: str, data: bytes) -> None:
+        self._inbox.put((key, data))
+
+    def _ingest(self, key: str, data: bytes) -> None:
+        M = self.M
+        try:
+            msg, phy = M.decode(data)
+        except M.MessageError as e:
+            self.drops.drop_error(e)
+            return
+        pk = M.parse_key(key)
+        if msg["kind"] != "nav" or phy is None or pk is None or pk[0] != "station" or pk[1] != msg["src"]:
+            self.drops.drop("key", f"{msg['kind']} on {key}")
+            return
+        try:
+            outs = self.core.on_nav(msg, phy)
+        except Exception as e:  # an estimator failure must not kill the node
+            log.exception("aircraft %s: estimator failed on nav from %s", self.opts.name, msg.get("src"))
+            self.drops.drop("estimator", type(e).__name__)
+            return
+        for m in outs:
+            try:
+                self.bus.publish(M.key_for(m), M.encode(m))
+            except M.MessageError as e:
+                log.error("aircraft %s: refusing to send invalid %s: %s", self.opts.name, m["kind"], e)
+
+    def _status(self, t: float) -> None:
+        if self.opts.quiet or self.opts.status_every_s <= 0 or t - self._last_status < self.opts.status_every_s:
+            return
+        self._last_status = t
+        p, _ = self.core.track.at(max(t, 0.0))
+        parts = []
+        for a, est in self.core.estimators.items():
+            e = est.estimate()
+            if e is None:
+                parts.append(f"{a}=init")
+            else:
+                pt, _ = self.core.track.at(e["t_s"])
+                parts.append(f"{a}={np.linalg.norm(np.asarray(e['pos_m']) - pt):.1f}m")
+        print(f"[aircraft {self.opts.name}] t={t:7.1f}s pos=({p[0]:.0f},{p[1]:.0f},{p[2]:.0f}) "
+              f"meas={self.core.stats['measurements']} err {' '.join(parts)} drops={self.drops.total}",
+              file=sys.stderr, flush=True)
+
+    def run(self) -> dict:
+        self.bus.subscribe("larns/station/*/nav", self._on_bytes)
+        self.bus.declare_token(self.M.alive_key("aircraft", self.opts.name))
+        end = math.inf if self.opts.duration_s is None else self.opts.duration_s
+        if not self.opts.quiet:
+            print(f"[aircraft {self.opts.name}] algos {','.join(self.opts.algos)}, trajectory "
+                  f"{self.ac.trajectory.get('kind')}, speed={self.opts.speed}, epoch={self.epoch:.3f}",
+                  file=sys.stderr, flush=True)
+        while not self._stop.is_set():
+            t = self.fleet_now()
+            if t >= end:
+                break
+            self._status(t)
+            try:
+                item = self._inbox.get(timeout=0.1)
+            except queue.Empty:
+                continue
+            self._ingest(*item)
+        return self.report()
+
+    def report(self) -> dict:
+        out = {"name": self.opts.name, "measurements": int(self.core.stats["measurements"]),
+               "drops": self.drops.as_dict(), "estimates": {}}
+        for a, est in self.core.estimators.items():
+            e = est.estimate()
+            if e is not None:
+                pt, _ = self.core.track.at(e["t_s"])
+                out["estimates"][a] = {"t_s": e["t_s"], "err_m": float(np.linalg.norm(np.asarray(e["pos_m"]) - pt)),
+                                       "n_updates": e["n_updates"]}
+        return out
+
+
+# --------------------------------------------------------------------------- command line
+
+def add_args(p: argparse.ArgumentParser) -> None:
+    from net.bus import add_bus_args
+
+    from .models import ALGOS
+
+    p.add_argument("--scenario", default="seed003", help="scenario name or TOML path (default seed003)")
+    p.add_argument("--algo", action="append", choices=ALGOS, default=None,
+                   help="estimator to run (repeatable; default: the scenario's [aircraft] algos)")
+    p.add_argument("--name", default=None, help="aircraft name (default: scenario's, ac1)")
+    p.add_argument("--speed", type=float, default=1.0, help="run K times faster than real time (default 1)")
+    p.add_argument("--epoch", type=float, default=None,
+                   help="fleet epoch, Unix seconds (must match the stations; default: start of the UTC day)")
+    p.add_argument("--duration", type=float, default=None, help="stop at this fleet time (s since the epoch)")
+    p.add_argument("--height", type=float, default=None, help="fixed flight height, m (overrides the scenario)")
+    p.add_argument("--seed", type=int, default=None, help="override the scenario's world seed")
+    p.add_argument("--n-stations", type=int, default=None,
+                   help="override the number of stations of a random-layout scenario (as the stations do)")
+    g = p.add_argument_group("network faults (accepted for launcher compatibility; the aircraft's own "
+                             "subscription is not faulted - the stations' links are)")
+    for flag in ("--net-delay", "--net-jitter", "--net-loss", "--net-dup"):
+        g.add_argument(flag, type=float, default=None, help=argparse.SUPPRESS)
+    p.add_argument("--status-every", type=float, default=5.0, help="fleet seconds between status lines")
+    p.add_argument("--report-json", action="store_true", help="print a JSON report on stdout at exit")
+    p.add_argument("-q", "--quiet", action="store_true")
+    add_bus_args(p)
+
+
+def main_args(args: argparse.Namespace) -> int:
+    from net.bus import Bus, bus_kwargs
+    from net.scenario import load
+
+    from .config import from_scenario
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    scn = load(args.scenario, **({"layout": {"n": int(args.n_stations)}} if args.n_stations else {}))
+    ac = from_scenario(scn)
+    opts = AircraftOptions(name=args.name or ac.name, algos=tuple(args.algo or ac.algos), speed=args.speed,
+                           epoch_unix_s=args.epoch, duration_s=args.duration, seed=args.seed,
+                           height_m=args.height, status_every_s=args.status_every, quiet=args.quiet)
+    bus = Bus(**bus_kwargs(args))
+    try:
+        node = AircraftNode(scn, opts, bus)
+        signal.signal(signal.SIGINT, node.stop)
+        signal.signal(signal.SIGTERM, node.stop)
+        rep = node.run()
+    finally:
+        bus.close()
+    if args.report_json:
+        print(json.dumps(rep), flush=True)
+    if not args.quiet:
+        print(f"[aircraft {opts.name}] stopped: measurements={rep['measurements']} "
+              + " ".join(f"{a}: {v['err_m']:.1f} m" for a, v in rep["estimates"].items()),
+              file=sys.stderr, flush=True)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m aircraft", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_args(p)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    return main_args(build_parser().parse_args(argv))
