@@ -182,6 +182,8 @@ class StationCore:
             self._claim_slot(t_s)
         if t_s >= self._nav_s - 1e-12:
             self._nav_s = float("inf")
+            self.est.refresh()
+            self._refresh_state()
             out.append(self._nav_msg(t_s))
             out.append(self.estimate_msg(t_s))
         if t_s >= self._next_req_s - 1e-12:

@@ -69,6 +69,9 @@ class SurveyEstimator(Protocol):
     def on_peer(self, peer_id: int, pos_m: np.ndarray, cov_m2: np.ndarray) -> None:
         """The peer's latest broadcast estimate."""
 
+    def refresh(self) -> bool:
+        """Bring the estimate up to date with everything received; True if it changed."""
+
 
 class SeedUkf:
     """Seed 000 decentralized UKF (eqs. 8-13), with Julier sigma points ``n + kappa = 3``."""
@@ -90,6 +93,9 @@ class SeedUkf:
 
     def on_peer(self, peer_id, pos_m, cov_m2) -> None:  # the paper uses the answers' estimates only
         return None
+
+    def refresh(self) -> bool:  # updates happen in on_range, every l ranges
+        return False
 
     def on_range(self, peer_id, range_m, t_s, initiated, peer_pos_m, peer_cov_m2) -> bool:
         if not initiated or peer_pos_m is None or not self.free.any():
@@ -167,6 +173,7 @@ class DistributedMap:
         self._pos = np.zeros((0, 3))
         self._cov = np.zeros((0, 3, 3))
         self._known = np.zeros(0, bool)
+        self._dirty = False
         if pos0_m is None or cov0_m2 is None or not np.any(np.diag(cov0_m2)[self.free] > 0) and self.nf:
             # no coarse fix: trilaterate once enough peers are known
             self.initialized = self.nf == 0
@@ -211,9 +218,15 @@ class DistributedMap:
         k = self._slot(peer_id)
         self._n[k] += 1.0
         self._sum[k] += float(range_m)
-        if self.nf == 0:
+        self._dirty = self.nf > 0
+        return False
+
+    def refresh(self) -> bool:
+        """Re-solve if new ranges arrived since the last solve (the core calls this before its nav)."""
+        if not self._dirty:
             return False
-        return self.solve()
+        self._dirty = not self.solve()
+        return not self._dirty
 
     def _arrays(self):
         sel = (self._n > 0) & self._known
@@ -232,15 +245,13 @@ class DistributedMap:
         diff = x - Pj
         u = diff / np.linalg.norm(diff, axis=1)[:, None]
         w = 1.0 / (self.sigma_d_m**2 / n + np.einsum("ki,ij,kj->k", u, self.cov_m2, u))
-        M = np.einsum("kii->ki", Cj) > 0  # (k, 3) free coordinates of each peer
-        eye = np.eye(3)
-        Lam = np.linalg.inv(Cj + eye * (~M)[:, None, :])  # constrained axes decoupled with unit variance
-        um = u * M
-        Lam = Lam - w[:, None, None] * um[:, :, None] * um[:, None, :]
-        ok = np.linalg.eigvalsh(symmetrize(Lam)).min(axis=1) > 0
-        Ce = np.linalg.inv(np.where(ok[:, None, None], Lam, eye))
-        Ce = symmetrize(Ce) * M[:, :, None] * M[:, None, :]
-        return np.where(ok[:, None, None], Ce, Cj)
+        # rank-1 downdate of the information, (C^-1 - w u u^T)^-1, by Sherman-Morrison; positive
+        # definite iff w u^T C u < 1 (else the peer's information is mostly ours: keep C as is)
+        Cu = np.einsum("kij,kj->ki", Cj, u)
+        s = w * np.einsum("ki,ki->k", u, Cu)
+        ok = s < 0.99
+        g = np.where(ok, w / np.where(ok, 1.0 - s, 1.0), 0.0)
+        return Cj + g[:, None, None] * Cu[:, :, None] * Cu[:, None, :]
 
     def _normal(self, x, n, dbar, Pj, Cj, gamma):
         """Normal equations of the local MAP problem at ``x``: information ``A`` (nf, nf) and ``b`` (nf,).
