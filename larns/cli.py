@@ -21,6 +21,7 @@ COMMANDS: list[str] = [
     "larns.station_cmd",
     "larns.fleet",
     "larns.crlb_cmd",
+    "larns.info",
     "larns.aircraft_cmd",
 ]
 
