@@ -163,7 +163,7 @@ def run_scale_once(n: int, duration_s: float, warmup_s: float = 4.0, quiet: bool
     ports = free_tcp_ports(n)
     seeds = [f"tcp/127.0.0.1:{p}" for p in ports[:2]]
     start = time.time()
-    epoch = start + warmup_s + 0.15 * n
+    epoch = start + warmup_s + 0.3 * n
     procs = []
     for k in range(n):
         sid = k + 1
