@@ -22,6 +22,7 @@ COMMANDS: list[str] = [
     "larns.fleet",
     "larns.crlb_cmd",
     "larns.info",
+    "larns.replay",
     "larns.aircraft_cmd",
 ]
 

@@ -189,6 +189,16 @@ class OfflineResult:
     def speedup(self) -> float:
         return self.fleet_span_s / self.wall_s if self.wall_s > 0 else math.inf
 
+    def as_dict(self) -> dict[str, Any]:
+        return {"messages_in": self.messages_in, "fleet_span_s": self.fleet_span_s, "wall_s": self.wall_s,
+                "speedup": self.speedup, "output": self.output,
+                "stations": {sid: {"estimator": r.estimator, "inputs": r.n_inputs, "entries": r.n_entries,
+                                   "estimates": len(r.estimates), "compared": r.compared, "equal": r.equal,
+                                   "bit_exact": r.bit_exact, "missing_from": r.missing_from, "error": r.error}
+                             for sid, r in self.stations.items()},
+                "aircraft": {k: {a: {kk: vv for kk, vv in v.items() if kk != "estimates"}
+                                 for a, v in d.items()} for k, d in self.aircraft.items()}}
+
 
 def fleet_span_s(logs: Sequence[LogFile], msgs: Sequence[Msg]) -> float:
     if not msgs:
@@ -199,7 +209,8 @@ def fleet_span_s(logs: Sequence[LogFile], msgs: Sequence[Msg]) -> float:
 
 def run_offline(paths: Sequence[str | Path], output: str | Path | None = None, estimator: str | None = None,
                 stations: Sequence[int] | None = None, strict: bool = True, logs: Sequence[LogFile] | None = None,
-                progress: bool = False) -> OfflineResult:
+                progress: bool = False, algos: Sequence[str] | None = None,
+                scenario: str | None = None) -> OfflineResult:
     """Re-estimate every station with a journal; optionally write ``output`` (all recorded messages
     with the station estimates replaced by the re-estimated ones)."""
     import time
@@ -224,15 +235,18 @@ def run_offline(paths: Sequence[str | Path], output: str | Path | None = None, e
     if bar:
         bar.close()
     res = OfflineResult(results, len(msgs), fleet_span_s(logs, msgs))
+    if algos:
+        res.aircraft = reestimate_aircraft(logs, msgs, algos, scenario)
     if output is not None:
-        write_output(output, logs, msgs, results, estimator)
+        write_output(output, logs, msgs, results, estimator, res.aircraft)
         res.output = str(output)
     res.wall_s = time.perf_counter() - t0
     return res
 
 
 def write_output(output: str | Path, logs: Sequence[LogFile], msgs: Sequence[Msg],
-                 results: dict[int, StationResult], estimator: str | None) -> None:
+                 results: dict[int, StationResult], estimator: str | None,
+                 aircraft: dict[str, dict] | None = None) -> None:
     """The recording with the re-estimated stations' ``estimate`` topics replaced."""
     import heapq
 
@@ -248,6 +262,14 @@ def write_output(output: str | Path, logs: Sequence[LogFile], msgs: Sequence[Msg
     for sid, r in results.items():
         for lt, pt, o in r.estimates:
             new.append(Msg(M.key_for(o), lt, pt, o["seq"], M.encode(o)))
+    for name, per_algo in (aircraft or {}).items():
+        for algo, d in per_algo.items():
+            key = f"larns/aircraft/{name}/estimate/{algo}"
+            replaced.add(key)
+            new += d.get("estimates", [])
+        replaced.add(f"larns/aircraft/{name}/truth")
+        first = next(iter(per_algo.values()), {})
+        new += first.get("truth", [])
     new.sort(key=lambda m: m.log_time)
     kept = [m for m in msgs if m.topic not in replaced]
     with LogWriter(output, md, library="larns replay --offline") as w:
@@ -262,6 +284,72 @@ def write_output(output: str | Path, logs: Sequence[LogFile], msgs: Sequence[Msg
                     if schema:
                         break
             w.write(m.topic, m.data, m.log_time, m.publish_time, m.encoding, schema)
+
+
+def reestimate_aircraft(logs: Sequence[LogFile], msgs: Sequence[Msg], algos: Sequence[str],
+                        scenario: str | None = None, name: str | None = None, seed: int | None = None,
+                        height_m: float | None = None) -> dict[str, dict]:
+    """Re-fly the aircraft over the recorded station nav broadcasts with other algorithms.
+
+    The aircraft process does not record its measurement inputs (pseudoranges), so they are
+    regenerated: the aircraft core (``aircraft.node.AircraftCore``: trajectory, receiver clock,
+    channel noise from the world seed) is rebuilt from the scenario and fed the recorded nav
+    messages (with their ``phy`` part) in recorded order. Deterministic for a given log, but not
+    bit-identical to the live aircraft's estimates (its Zenoh link may have delivered the navs in
+    another order or lost some). Returns ``{name: {algo: {"n", "final_err_m", "rms_err_m",
+    "estimates": [Msg], "truth": [Msg]}}}``.
+    """
+    import numpy as np
+
+    from aircraft.config import from_scenario
+    from aircraft.node import AircraftCore
+    from net import messages as M
+    from net.scenario import load
+
+    md = logs[0].larns_meta if logs else {}
+    scn_name = scenario or md.get("scenario")
+    if not scn_name:
+        raise ValueError("aircraft re-estimation needs the scenario: pass --scenario")
+    scn = load(scn_name)
+    ac = from_scenario(scn)
+    name = name or ac.name
+    seed = scn.seed if seed is None else seed
+    horizon = float(md.get("duration_s", 7200.0)) + 10.0
+    rng = np.random.default_rng([int(seed), 0xA1C, sum(map(ord, name))])  # as aircraft.node.AircraftNode
+    core = AircraftCore(ac, tuple(algos), name, rng, height_m, horizon_s=horizon,
+                        residual_m=float(scn.aircraft.get("station_clock_residual_m", 0.0)))
+    ep = logs[0].epoch_unix_s if logs else None
+    speed = logs[0].speed if logs else 1.0
+    out: dict[str, dict] = {a: {"estimates": [], "truth": [], "err": []} for a in algos}
+    truth: list[Msg] = []
+    for m in msgs:
+        if m.encoding != "msgpack" or not m.topic.endswith("/nav"):
+            continue
+        try:
+            msg, phy = M.decode(m.data)
+        except M.MessageError:
+            continue
+        if msg["kind"] != "nav" or phy is None:
+            continue
+        for o in core.on_nav(msg, phy):
+            pub = m.log_time if ep is None else int(round((ep + o["stamp_s"] / speed) * 1e9))
+            rec = Msg(M.key_for(o), m.log_time, pub, o["seq"], M.encode(o))
+            if o["kind"] == "ac_truth":
+                truth.append(rec)
+            else:
+                d = out[o["algo"]]
+                d["estimates"].append(rec)
+                p_true, _ = core.track.at(o["t_s"])
+                d["err"].append(float(np.linalg.norm(np.asarray(o["pos_m"]) - p_true)))
+    res = {}
+    for a, d in out.items():
+        e = np.asarray(d["err"])
+        # skip the first 10 % (filter start-up) for the RMS
+        tail = e[len(e) // 10:] if e.size else e
+        res[a] = {"n": int(e.size), "final_err_m": float(e[-1]) if e.size else math.nan,
+                  "rms_err_m": float(np.sqrt(np.mean(tail**2))) if tail.size else math.nan,
+                  "estimates": d["estimates"], "truth": truth}
+    return {name: res}
 
 
 def format_result(res: OfflineResult, compare: bool = True) -> str:
@@ -280,4 +368,8 @@ def format_result(res: OfflineResult, compare: bool = True) -> str:
                      f"{r.compared:>8} {exact:>9}  {'; '.join(notes)}")
     lines.append(f"{res.messages_in} messages, {res.fleet_span_s:.1f} s of fleet time re-estimated in "
                  f"{res.wall_s:.2f} s ({res.speedup:.0f}x real time)")
+    for name, per in res.aircraft.items():
+        for a, d in per.items():
+            lines.append(f"aircraft {name} {a}: {d['n']} estimates, final error {d['final_err_m']:.2f} m, "
+                         f"RMS error (after the first 10 %) {d['rms_err_m']:.2f} m")
     return "\n".join(lines)

@@ -1,0 +1,322 @@
+"""`larns replay run.mcap`: play a recording back onto Zenoh, or re-estimate it offline.
+
+Live replay (default) republishes the **exact recorded wire bytes** (``msgpack`` channels; JSON
+view channels are skipped) on their keys with the recorded timing (``log_time`` differences divided
+by ``--rate``). The flags follow ``ros2 bag play``:
+
+    --rate R            play R times faster (0.5 = half speed)
+    --loop              start again at the end (until Ctrl-C)
+    --start-offset S    skip the first S seconds (log time) of the recording
+    --until S           stop S seconds (log time) after the start of the recording
+    --topics GLOB ...   only these keys (Zenoh globs: * one chunk, ** any chunks)
+    --exclude GLOB ...  not these keys
+    --remap FROM=TO     publish FROM (a key, key prefix or glob) as TO (repeatable)
+    --start-paused      wait for the space bar before the first message
+    --delay S           wait S seconds after opening the session (peers link up)
+    --wait-for KEYEXPR  ...and until a liveliness token matching KEYEXPR is present
+
+On a terminal: SPACE pauses/resumes, ``s`` publishes the next message while paused, ``q`` quits.
+Several input files are merged by log time. A live ``larns aircraft`` can fly against a replayed
+log of station broadcasts: its channel layer takes the sender's true position and transmit time
+from the recorded ``phy`` part.
+
+Offline (``--offline``, no Zenoh, no sleeping): every station with a recorded core journal is
+rebuilt and re-run (``larns/offline.py``); re-running the recorded estimator reproduces the
+recorded estimates bit for bit (checked and reported), ``--estimator`` runs another survey
+estimator on the same inputs, ``--algo`` re-runs the aircraft estimators on the recorded nav
+broadcasts. ``-o out.mcap`` writes the recording with the estimates replaced.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import select
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from typing import Sequence
+
+from .mcaputil import Msg, merge, parse_remaps, read_logs, remap
+
+
+# --------------------------------------------------------------------------- selection
+
+def select_messages(msgs: Sequence[Msg], topics: Sequence[str] | None = None, exclude: Sequence[str] | None = None,
+                    start_offset_s: float = 0.0, until_s: float | None = None) -> list[Msg]:
+    """Wire messages (msgpack) matching the globs, inside ``[start + offset, start + until]``;
+    offsets in seconds of log time from the first message of the recording."""
+    from .mcaputil import topic_selected
+
+    if not msgs:
+        return []
+    t0 = msgs[0].log_time
+    lo = t0 + int(start_offset_s * 1e9)
+    hi = t0 + int(until_s * 1e9) if until_s is not None else None
+    return [m for m in msgs if m.encoding == "msgpack" and m.log_time >= lo and (hi is None or m.log_time <= hi)
+            and topic_selected(m.topic, topics, exclude)]
+
+
+# --------------------------------------------------------------------------- keyboard
+
+class Controls:
+    """Pause / step / quit state; fed by the keyboard thread (or by tests)."""
+
+    def __init__(self, paused: bool = False):
+        self.paused = paused
+        self.steps = 0
+        self.quit = False
+        self.cv = threading.Condition()
+
+    def key(self, ch: str) -> None:
+        with self.cv:
+            if ch == " ":
+                self.paused = not self.paused
+            elif ch in ("s", "S") and self.paused:
+                self.steps += 1
+            elif ch in ("q", "Q", "\x03"):
+                self.quit = True
+            self.cv.notify_all()
+
+
+class Keyboard:
+    """Reads single keys from a TTY stdin in cbreak mode (restored on exit). No-op otherwise."""
+
+    def __init__(self, controls: Controls, stream=None):
+        self.c = controls
+        self.stream = stream or sys.stdin
+        self.enabled = hasattr(self.stream, "isatty") and self.stream.isatty()
+        self._old = None
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def __enter__(self) -> "Keyboard":
+        if self.enabled:
+            import termios
+            import tty
+
+            fd = self.stream.fileno()
+            self._old = termios.tcgetattr(fd)
+            tty.setcbreak(fd)
+            self._thread = threading.Thread(target=self._loop, daemon=True)
+            self._thread.start()
+        return self
+
+    def _loop(self) -> None:
+        fd = self.stream.fileno()
+        while not self._stop.is_set():
+            r, _, _ = select.select([fd], [], [], 0.1)
+            if r:
+                ch = os.read(fd, 1).decode(errors="ignore")
+                if ch:
+                    self.c.key(ch)
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        if self._thread:
+            self._thread.join(1.0)
+        if self._old is not None:
+            import termios
+
+            termios.tcsetattr(self.stream.fileno(), termios.TCSADRAIN, self._old)
+
+
+# --------------------------------------------------------------------------- player
+
+@dataclass
+class PlayStats:
+    published: int = 0
+    loops: int = 0
+    wall_s: float = 0.0
+    max_lag_ms: float = 0.0
+
+
+def _wait_due(offset_ns: int, rate: float, c: Controls, clock, sleep, base_ref: list, st: PlayStats) -> bool:
+    """Block until the message at ``offset_ns`` is due (or stepped while paused). Pauses shift the
+    schedule (``base_ref[0]``). Returns False on quit."""
+    while True:
+        with c.cv:
+            if c.quit:
+                return False
+            if c.paused:
+                if c.steps > 0:
+                    c.steps -= 1
+                    return True
+                t_p = clock()
+                c.cv.wait(0.05)
+                base_ref[0] += clock() - t_p
+                continue
+        due = base_ref[0] + offset_ns * 1e-9 / rate
+        dt = due - clock()
+        if dt <= 0:
+            st.max_lag_ms = max(st.max_lag_ms, -dt * 1e3)
+            return True
+        sleep(min(dt, 0.05))
+
+
+def play(msgs: Sequence[Msg], publish, rate: float = 1.0, loop: bool = False, remaps=(),
+         controls: Controls | None = None, progress: bool = True, clock=time.monotonic,
+         sleep=time.sleep) -> PlayStats:
+    """Publish ``msgs`` with their recorded timing: ``publish(key, data)`` at
+    ``wall_start + (log_time - first) / rate``. Pauses shift the schedule."""
+    if rate <= 0:
+        raise ValueError("--rate must be > 0")
+    c = controls or Controls()
+    st = PlayStats()
+    t_start = clock()
+    while True:
+        if not msgs:
+            break
+        first = msgs[0].log_time
+        bar = None
+        if progress:
+            from .progress import Progress
+
+            bar = Progress(len(msgs), f"replay{' loop %d' % (st.loops + 1) if loop else ''}")
+        base = clock()
+        for m in msgs:
+            if not _wait_due(m.log_time - first, rate, c, clock, sleep, base_ref := [base], st):
+                break
+            base = base_ref[0]
+            publish(remap(m.topic, remaps) if remaps else m.topic, m.data)
+            st.published += 1
+            if bar:
+                bar.update(1)
+        if bar:
+            bar.close()
+        st.loops += 1
+        if c.quit or not loop:
+            break
+    st.wall_s = clock() - t_start
+    return st
+
+
+# --------------------------------------------------------------------------- commands
+
+def _wait_for(bus, keyexpr: str, timeout_s: float) -> bool:
+    t_end = time.monotonic() + timeout_s
+    while time.monotonic() < t_end:
+        if bus.alive(keyexpr, 0.5):
+            return True
+        time.sleep(0.2)
+    return False
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    if args.offline:
+        return cmd_offline(args)
+    from net.bus import Bus, bus_kwargs
+
+    try:
+        logs = read_logs(args.files, encodings=["msgpack"])
+        rules = parse_remaps(args.remap)
+    except (OSError, ValueError) as e:
+        print(f"larns replay: {e}", file=sys.stderr)
+        return 1
+    for lg in logs:
+        if not lg.complete:
+            print(f"[replay] {lg.path}: incomplete recording ({lg.error}); playing the "
+                  f"{len(lg.messages)} messages before the damage", file=sys.stderr)
+    msgs = select_messages(merge(logs), args.topics, args.exclude, args.start_offset, args.until)
+    if not msgs:
+        print("[replay] nothing to play (check --topics / --exclude / --start-offset / --until)", file=sys.stderr)
+        return 1
+    span = (msgs[-1].log_time - msgs[0].log_time) * 1e-9
+    print(f"[replay] {len(msgs)} messages on {len({m.topic for m in msgs})} keys, {span:.1f} s at rate "
+          f"{args.rate:g} ({span / args.rate:.1f} s)", file=sys.stderr, flush=True)
+    bus = Bus(**bus_kwargs(args))
+    try:
+        if args.wait_for:
+            ok = _wait_for(bus, args.wait_for, args.wait_timeout)
+            print(f"[replay] {'found' if ok else 'timed out waiting for'} {args.wait_for}", file=sys.stderr)
+        if args.delay > 0:
+            time.sleep(args.delay)
+        controls = Controls(paused=args.start_paused)
+        kb = Keyboard(controls)
+        if args.start_paused:
+            print("[replay] paused: SPACE to start/pause, 's' to step one message, 'q' to quit"
+                  if kb.enabled else "[replay] --start-paused needs a terminal on stdin: starting now",
+                  file=sys.stderr, flush=True)
+            if not kb.enabled:
+                controls.paused = False
+        with kb:
+            st = play(msgs, bus.publish, rate=args.rate, loop=args.loop, remaps=rules, controls=controls,
+                      progress=not args.quiet)
+        time.sleep(0.2)  # let the last samples leave
+    except KeyboardInterrupt:
+        return 130
+    finally:
+        bus.close()
+    print(f"[replay] published {st.published} messages in {st.wall_s:.1f} s ({st.loops} pass"
+          f"{'es' if st.loops != 1 else ''}; max lag {st.max_lag_ms:.1f} ms)", file=sys.stderr)
+    if args.json:
+        print(json.dumps(vars(st)))
+    return 0
+
+
+def cmd_offline(args: argparse.Namespace) -> int:
+    from .offline import format_result, run_offline
+
+    try:
+        logs = read_logs(args.files)
+    except (OSError, ValueError) as e:
+        print(f"larns replay --offline: {e}", file=sys.stderr)
+        return 1
+    for lg in logs:
+        if not lg.complete:
+            print(f"[offline] {lg.path}: incomplete recording ({lg.error}); using the "
+                  f"{len(lg.messages)} messages before the damage", file=sys.stderr)
+    res = run_offline(args.files, output=args.output, estimator=args.estimator, logs=logs,
+                      strict=not args.fast, progress=not args.quiet, algos=args.algo,
+                      scenario=args.scenario, stations=args.stations)
+    if not args.quiet:
+        print(format_result(res))
+    if args.json:
+        print(json.dumps(res.as_dict()))
+    if args.check and not args.estimator:
+        bad = [s for s, r in res.stations.items() if r.compared and not r.bit_exact]
+        if bad or not any(r.bit_exact for r in res.stations.values()):
+            print(f"[offline] --check failed: stations not reproduced bit for bit: {bad}", file=sys.stderr)
+            return 3
+    return 0
+
+
+def register(sub) -> None:
+    from net.bus import add_bus_args
+
+    p = sub.add_parser(
+        "replay", help="play an MCAP recording back on Zenoh, or re-estimate it offline",
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("files", nargs="+", help="MCAP file(s), merged by log time")
+    p.add_argument("-r", "--rate", type=float, default=1.0, help="playback rate factor (default 1)")
+    p.add_argument("-l", "--loop", action="store_true", help="loop playback")
+    p.add_argument("--start-offset", type=float, default=0.0, metavar="S", help="skip the first S seconds")
+    p.add_argument("--until", type=float, default=None, metavar="S", help="stop S seconds after the start")
+    p.add_argument("--topics", nargs="+", default=None, metavar="GLOB", help="only keys matching these globs")
+    p.add_argument("--exclude", nargs="+", default=None, metavar="GLOB", help="skip keys matching these globs")
+    p.add_argument("--remap", action="append", default=None, metavar="FROM=TO", help="publish FROM as TO")
+    p.add_argument("--start-paused", action="store_true", help="start paused (SPACE plays, 's' steps)")
+    p.add_argument("--delay", type=float, default=1.0, metavar="S",
+                   help="wait S seconds after opening the Zenoh session before playing (default 1)")
+    p.add_argument("--wait-for", default=None, metavar="KEYEXPR",
+                   help="wait for a liveliness token, e.g. larns/alive/aircraft/*")
+    p.add_argument("--wait-timeout", type=float, default=30.0, help="seconds to wait for --wait-for")
+    g = p.add_argument_group("offline re-estimation (no Zenoh, no sleeping)")
+    g.add_argument("--offline", action="store_true", help="re-run the estimators on the recorded inputs")
+    g.add_argument("-o", "--output", default=None, help="write the re-estimated recording here (.mcap)")
+    g.add_argument("--estimator", default=None, help="survey estimator for the stations (dmap, seed-ukf); "
+                                                     "default: the recorded one")
+    g.add_argument("--algo", action="append", default=None,
+                   help="aircraft algorithm to re-run on the recorded nav broadcasts (repeatable)")
+    g.add_argument("--scenario", default=None,
+                   help="scenario for aircraft re-estimation (default: the recording's metadata)")
+    g.add_argument("--stations", type=int, nargs="+", default=None, help="only these station ids")
+    g.add_argument("--fast", action="store_true", help="skip strict validation of the journal payloads")
+    g.add_argument("--check", action="store_true",
+                   help="exit 3 unless every re-estimated station reproduces its recorded estimates bit for bit")
+    p.add_argument("--json", action="store_true", help="print statistics as JSON")
+    p.add_argument("-q", "--quiet", action="store_true")
+    add_bus_args(p)
+    p.set_defaults(func=cmd_replay)
