@@ -23,6 +23,7 @@ COMMANDS: list[str] = [
     "larns.crlb_cmd",
     "larns.info",
     "larns.replay",
+    "larns.recover",
     "larns.aircraft_cmd",
 ]
 
