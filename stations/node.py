@@ -108,6 +108,7 @@ class StationNode:
         self._truth_seq = 0
         self._journal_seq = {"core_init": 0, "core_input": 0}
         self._navs_sent = 0
+        self._journal_pubs: dict[str, Any] = {}
         self._last_status = -math.inf
 
     # ------------------------------------------------------------------ time
@@ -243,9 +244,26 @@ class StationNode:
     def _publish_init(self) -> None:
         m = self._journal_msg("core_init", record=self.core.init_record)
         try:
-            self.bus.publish(M.key_for(m), M.encode(m))
+            self._publish_journal_bytes(M.key_for(m), M.encode(m))
         except M.MessageError as e:
             log.error("station %d: cannot publish core_init: %s", self.id, e)
+
+    def _publish_journal_bytes(self, key: str, data: bytes) -> None:
+        """Journal samples use congestion control BLOCK: a journal with a hole cannot be replayed
+        bit for bit, while an air message dropped under load is just a lost measurement. One sample
+        per own slot; a dead recorder's link closes, so this cannot stall the station for long."""
+        session = getattr(self.bus, "session", None)
+        if session is None:  # a test double without a Zenoh session
+            self.bus.publish(key, data)
+            return
+        pub = self._journal_pubs.get(key)
+        if pub is None:
+            import zenoh
+
+            pub = session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK,
+                                            priority=zenoh.Priority.DATA)
+            self._journal_pubs[key] = pub
+        pub.put(data)
 
     def _publish_journal(self) -> None:
         """After the own slot's nav: what the core consumed since the last one (docs/protocol.md)."""
@@ -267,7 +285,7 @@ class StationNode:
                 log.error("station %d: dropping %d journal entries: %s", self.id, len(part), e)
                 self.stats["journal_invalid"] += 1
                 continue
-            self.bus.publish(M.key_for(m), data)
+            self._publish_journal_bytes(M.key_for(m), data)
 
     def _publish_truth(self, est: dict) -> None:
         self._truth_seq += 1
