@@ -276,14 +276,31 @@ def _plain(o: Any) -> Any:
     raise TypeError(f"cannot encode {type(o).__name__}")
 
 
+_SCALARS = frozenset((int, float, str, bool, type(None), bytes))
+
+
 def to_plain(o: Any) -> Any:
-    """Recursively convert numpy arrays / scalars (and tuples) into msgpack-native values."""
+    """Recursively convert numpy arrays / scalars (and tuples) into msgpack-native values.
+    Flat lists of plain scalars (the common case) are returned without recursion."""
+    t = type(o)
+    if t in _SCALARS:
+        return o
+    if t is dict:
+        return {k: to_plain(v) for k, v in o.items()}
+    if t is list or t is tuple:
+        scal = _SCALARS
+        for x in o:
+            if type(x) not in scal:
+                return [to_plain(v) for v in o]
+        return o if t is list else list(o)
+    if t is np.ndarray:
+        return o.tolist()
+    if isinstance(o, np.generic):
+        return o.item()
     if isinstance(o, dict):
         return {k: to_plain(v) for k, v in o.items()}
     if isinstance(o, (list, tuple)):
         return [to_plain(v) for v in o]
-    if isinstance(o, (np.ndarray, np.generic)):
-        return _plain(o)
     return o
 
 
