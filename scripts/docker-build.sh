@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # Build the larns image on a machine without registry access:
-#   1. wheels for larns and its run-time dependencies, built on the host into build/wheels
-#      (pinned to the versions installed in .venv, so the image runs what the tests ran);
+#   1. wheels of the run-time dependencies (+ setuptools, wheel), fetched/built on the host into
+#      build/wheels (pinned to the versions installed in .venv, so the image runs what the tests ran);
 #   2. the local base image larns-base:bookworm (scripts/docker-base.sh, skipped if present);
-#   3. the real Dockerfile with --build-arg BASE=larns-base:bookworm, installing from the wheels.
+#   3. the real Dockerfile with --build-arg BASE=larns-base:bookworm, installing from the wheels
+#      (larns itself is built from the source tree inside the image).
 #
 #   scripts/docker-build.sh [--tag larns:latest] [--base IMAGE] [--force-base] [--no-wheels]
 #
@@ -39,11 +40,19 @@ if [ "$WHEELS" = 1 ]; then
   t=$(now)
   "$PY" -c 'import sys; assert sys.version_info[:2] == (3, 11), "need CPython 3.11 on the host, got " + sys.version' \
     || { echo "docker-build.sh: set PYTHON=/path/to/python3.11 or use --no-wheels" >&2; exit 1; }
-  rm -rf "$WH"; mkdir -p "$WH"
-  constraints=$(mktemp); trap 'rm -f "$constraints"' EXIT
-  # pin third-party packages to what the dev venv runs (larns itself comes from this tree)
+  reqs=$(mktemp); constraints=$(mktemp); trap 'rm -f "$reqs" "$constraints"' EXIT
+  # the run-time dependencies of pyproject.toml (larns itself is built inside the image) ...
+  "$PY" -c 'import tomllib; print("\n".join(tomllib.load(open("pyproject.toml", "rb"))["project"]["dependencies"]))' >"$reqs"
+  # ... pinned to what the dev venv runs, so the image runs what the tests ran
   "$PY" -m pip freeze --exclude-editable 2>/dev/null | grep -viE '^(larns|-e |#)' >"$constraints" || true
-  "$PY" -m pip wheel -q --disable-pip-version-check . -c "$constraints" -w "$WH"
+  key=$(cat "$reqs" "$constraints" | sha1sum | cut -c1-16)
+  if [ -f "$WH/.key-$key" ]; then
+    log "wheelhouse up to date ($WH)"
+  else
+    rm -rf "$WH"; mkdir -p "$WH"
+    "$PY" -m pip wheel -q --disable-pip-version-check -r "$reqs" "setuptools>=68" wheel -c "$constraints" -w "$WH"
+    touch "$WH/.key-$key"
+  fi
   log "wheels: $(ls "$WH" | wc -l) files, $(du -sh "$WH" | cut -f1) in $WH ($(dt "$t") s)"
 else
   rm -rf "$WH"
