@@ -192,7 +192,7 @@ class CvTracker:
         self.kind = kind
         self.layout = mdl.StateLayout(model, drift=tuning.drift_state and model == "pr")
         self.tuning = tuning
-        x0 = np.atleast_2d(np.asarray(x0, dtype=float))
+        x0 = np.asarray(x0, dtype=float)  # (M, n) batched, or (n,) for one run (faster small-matrix path)
         if x0.shape[-1] != self.layout.n:
             raise ValueError(f"x0 must have {self.layout.n} states for {model}, got {x0.shape}")
         self.x = x0.copy()
@@ -259,14 +259,17 @@ class CvTracker:
         fz = self.tuning.floor_z_m
         if fz is None:
             return
-        below = self.x[..., 2] < fz
+        n = self.layout.n
+        x = self.x.reshape(-1, n)  # views: in-place edits reach self.x / self.P
+        P = self.P.reshape(-1, n, n)
+        below = x[:, 2] < fz
         if not np.any(below):
             return
-        J = np.ones(self.layout.n)
+        J = np.ones(n)
         J[[2, 5]] = -1.0
-        self.x[below, 2] = 2.0 * fz - self.x[below, 2]
-        self.x[below, 5] = -self.x[below, 5]
-        self.P[below] = self.P[below] * J[:, None] * J[None, :]
+        x[below, 2] = 2.0 * fz - x[below, 2]
+        x[below, 5] = -x[below, 5]
+        P[below] = P[below] * J[:, None] * J[None, :]
 
 
 # --------------------------------------------------------------------------- message-level API
@@ -326,8 +329,8 @@ class AircraftEstimator:
         if self.tracker is not None and self.model == "pr":
             # sequential scalar update at the slot's own time
             self.tracker.predict_to(t_s)
-            nu, S = self.tracker.update(pos[None], np.array([[rho_m]]), cov[None])
-            self.last_nis = float(nu[0, 0] ** 2 / S[0, 0, 0])
+            nu, S = self.tracker.update(pos[None], np.array([rho_m]), cov[None])
+            self.last_nis = float(nu[0] ** 2 / S[0, 0])
             self.t_s = t_s
             self.n_updates += 1
             return
@@ -386,15 +389,13 @@ class AircraftEstimator:
                 x0 = np.append(x0, self.fix[3])
                 if tu.drift_state:
                     x0 = np.append(x0, 0.0)
-            self.tracker = CvTracker(self.method, self.model, x0[None], tu, t0_s=t_s)
+            self.tracker = CvTracker(self.method, self.model, x0, tu, t0_s=t_s)
             idx = [0, 1, 2, 6] if self.model == "pr" else [0, 1, 2]
-            P = self.tracker.P[0]
-            P[np.ix_(idx, idx)] = C
-            self.tracker.P[0] = P
+            self.tracker.P[np.ix_(idx, idx)] = C
             return
         self.tracker.predict_to(t_s)
-        nu, S = self.tracker.update(pos, rho[None], cov, dt if np.any(dt) else None)
-        self.last_nis = float(np.einsum("...i,...i->...", nu, chol_solve(S, nu[..., None])[..., 0])[0])
+        nu, S = self.tracker.update(pos, rho, cov, dt if np.any(dt) else None)
+        self.last_nis = float(nu @ chol_solve(S, nu[:, None])[:, 0])
         self.t_s = t_s
         self.n_updates += 1
 
@@ -416,7 +417,7 @@ class AircraftEstimator:
                     C = None
             return {"t_s": self.t_s, "pos_m": self.fix[:3].tolist(), "cov_m2": C, "vel_m_s": None,
                     "clock_m": float(self.fix[3]) if self.fix.size == 4 else None, "n_updates": self.n_updates}
-        x, P = self.tracker.x[0], self.tracker.P[0]
+        x, P = self.tracker.x, self.tracker.P
         return {"t_s": self.tracker.t_s, "pos_m": x[:3].tolist(), "cov_m2": P[:3, :3].tolist(),
                 "vel_m_s": x[3:6].tolist(), "clock_m": float(x[6]) if x.size > 6 else None,
                 "n_updates": self.n_updates}

@@ -129,7 +129,7 @@ def speed_vs_filterpy(ac, steps: int = 400, runs: int = 64) -> dict:
     fp.P = tun.p0(layout).copy()
     fp.Q = Q
     fp.R = np.eye(S.shape[0]) * tun.sigma_m**2
-    ours = CvTracker("ukf", "pr", x0[None], tun)
+    ours = CvTracker("ukf", "pr", x0, tun)  # one run: (n,) state, small-matrix path
     diff = scale = 0.0
     t_fp = t_one = 0.0
     for k in range(steps):
@@ -142,11 +142,11 @@ def speed_vs_filterpy(ac, steps: int = 400, runs: int = 64) -> dict:
         fp.update(rho[k, 0])
         b = time.perf_counter()
         ours.predict_to(t[k])
-        ours.update(S, rho[k, :1])
+        ours.update(S, rho[k, 0])
         c = time.perf_counter()
         t_fp += b - a
         t_one += c - b
-        diff = max(diff, float(np.max(np.abs(ours.x[0] - fp.x))))
+        diff = max(diff, float(np.max(np.abs(ours.x - fp.x))))
         scale = max(scale, float(np.max(np.abs(fp.x))))
     batch = CvTracker("ukf", "pr", np.broadcast_to(x0, (runs, layout.n)), tun)
     a = time.perf_counter()
