@@ -24,6 +24,7 @@ COMMANDS: list[str] = [
     "larns.info",
     "larns.replay",
     "larns.recover",
+    "larns.foxglove",
     "larns.aircraft_cmd",
 ]
 

@@ -31,7 +31,7 @@ class McapSink:
     """Writes wire samples into an MCAP file: one channel per key. Not thread-safe (one writer)."""
 
     def __init__(self, path: str | Path, metadata: dict[str, str] | None = None,
-                 epoch_unix_s: float | None = None, speed: float = 1.0):
+                 epoch_unix_s: float | None = None, speed: float = 1.0, foxglove: bool = True):
         from mcap.writer import CompressionType, Writer
 
         from net.messages import peek_stamp
@@ -55,6 +55,15 @@ class McapSink:
         md.update({k: str(v) for k, v in (metadata or {}).items()})
         self.writer.add_metadata("larns", md)
         self.finished = False
+        # Foxglove view (larns/foxglove.py): JSON channels next to the wire channels
+        self.fox = None
+        self.json_channels: dict[str, int] = {}
+        self.json_schemas: dict[str, int] = {}
+        self.json_count = 0
+        if foxglove:
+            from .foxglove import FoxgloveView
+
+            self.fox = FoxgloveView()
 
     def write(self, key: str, data: bytes, recv_ns: int) -> None:
         ch = self.channels.get(key)
@@ -75,6 +84,30 @@ class McapSink:
         self.seq[key] += 1
         self.count += 1
         self.bytes += len(data)
+        if self.fox is not None:
+            try:
+                for topic, schema, js in self.fox.convert_bytes(key, data, recv_ns):
+                    self._write_json(topic, schema, js, recv_ns)
+            except Exception:  # the view must never cost a wire message
+                log.exception("foxglove view failed on %s", key)
+
+    def _write_json(self, topic: str, schema: str, data: bytes, recv_ns: int) -> None:
+        from .foxglove import SCHEMA_BYTES
+
+        ch = self.json_channels.get(topic)
+        if ch is None:
+            sid = self.json_schemas.get(schema)
+            if sid is None:
+                sid = self.writer.register_schema(name=schema, encoding="jsonschema", data=SCHEMA_BYTES[schema])
+                self.json_schemas[schema] = sid
+            ch = self.writer.register_channel(topic=topic, message_encoding="json", schema_id=sid,
+                                              metadata={"source": "larns foxglove view"})
+            self.json_channels[topic] = ch
+            self.seq[topic] = 0
+        self.writer.add_message(channel_id=ch, log_time=recv_ns, data=data, publish_time=recv_ns,
+                                sequence=self.seq[topic])
+        self.seq[topic] += 1
+        self.json_count += 1
 
     def flush(self) -> None:
         self.writer.flush()
@@ -90,7 +123,7 @@ class McapSink:
 def run_recorder(out: str, bus_kw: dict, keyexpr: str = "larns/**", duration_s: float | None = None,
                  flush_s: float = 2.0, metadata: dict[str, str] | None = None,
                  epoch_unix_s: float | None = None, speed: float = 1.0,
-                 quiet: bool = False) -> dict:
+                 quiet: bool = False, foxglove: bool = True) -> dict:
     from net.bus import Bus
 
     stop = threading.Event()
@@ -102,7 +135,7 @@ def run_recorder(out: str, bus_kw: dict, keyexpr: str = "larns/**", duration_s: 
     signal.signal(signal.SIGTERM, on_signal)
 
     q: queue.SimpleQueue = queue.SimpleQueue()
-    sink = McapSink(out, metadata=metadata, epoch_unix_s=epoch_unix_s, speed=speed)
+    sink = McapSink(out, metadata=metadata, epoch_unix_s=epoch_unix_s, speed=speed, foxglove=foxglove)
     bus = Bus(**bus_kw)
     bus.subscribe(keyexpr, lambda k, d: q.put((time.time_ns(), k, d)))
     bus.declare_token("larns/alive/recorder/" + str(int(time.time() * 1e3) % 10**9))
@@ -153,7 +186,8 @@ def cmd_record(args: argparse.Namespace) -> int:
         md["scenario"] = args.scenario
     stats = run_recorder(args.output, bus_kwargs(args), keyexpr=args.keyexpr,
                          duration_s=args.duration, flush_s=args.flush, metadata=md,
-                         epoch_unix_s=args.epoch, speed=args.speed, quiet=args.quiet)
+                         epoch_unix_s=args.epoch, speed=args.speed, quiet=args.quiet,
+                         foxglove=not args.no_foxglove)
     if args.json:
         print(json.dumps(stats))
     return 0
@@ -176,6 +210,9 @@ def register(sub) -> None:
                    help="fleet epoch (Unix s): converts message stamps to publish_time")
     p.add_argument("--speed", type=float, default=1.0, help="fleet speed factor (for publish_time)")
     p.add_argument("--meta", action="append", metavar="KEY=VALUE", help="extra metadata (repeatable)")
+    p.add_argument("--no-foxglove", action="store_true",
+                   help="do not write the Foxglove JSON channels (larns/foxglove/**: 3D scene, "
+                        "transforms, plottable estimates and errors; see larns export)")
     p.add_argument("--json", action="store_true", help="print statistics as JSON at the end")
     p.add_argument("-q", "--quiet", action="store_true")
     add_bus_args(p)
