@@ -163,7 +163,7 @@ def run_scale_once(n: int, duration_s: float, warmup_s: float = 4.0, quiet: bool
     ports = free_tcp_ports(n)
     seeds = [f"tcp/127.0.0.1:{p}" for p in ports[:2]]
     start = time.time()
-    epoch = start + warmup_s + 0.3 * n
+    epoch = start + warmup_s + 0.5 * n
     procs = []
     for k in range(n):
         sid = k + 1
@@ -175,7 +175,7 @@ def run_scale_once(n: int, duration_s: float, warmup_s: float = 4.0, quiet: bool
                 cmd += ["--connect", s]
         procs.append(subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True))
     # CPU measured over the steady part only
-    time.sleep(max(0.0, epoch + 2.0 - time.time()))
+    time.sleep(max(0.0, epoch + 5.0 - time.time()))
     c0 = {p.pid: _proc_stats(p.pid)[0] for p in procs if p.poll() is None}
     t_c0 = time.time()
     time.sleep(max(0.0, epoch + duration_s - 1.0 - time.time()))

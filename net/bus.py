@@ -98,7 +98,7 @@ def make_config(listen: Sequence[str] = (), connect: Sequence[str] = (),
     conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
     conf.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast)))
     conf.insert_json5("scouting/gossip/enabled", "true")
-    conf.insert_json5("scouting/gossip/multihop", "true")
+    conf.insert_json5("scouting/gossip/multihop", "false")
     conf.insert_json5("scouting/gossip/autoconnect", '{"router": [], "peer": ["router", "peer"]}')
     conf.insert_json5("transport/shared_memory/enabled", "false")
     # keep retrying seeds that are not up yet (processes start in any order)
