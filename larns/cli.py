@@ -25,6 +25,7 @@ COMMANDS: list[str] = [
     "larns.replay",
     "larns.recover",
     "larns.foxglove",
+    "larns.report",
     "larns.aircraft_cmd",
 ]
 
