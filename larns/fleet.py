@@ -24,6 +24,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -66,6 +67,8 @@ class Monitor:
     views: dict[int, StationView] = field(default_factory=dict)
     lock: threading.Lock = field(default_factory=threading.Lock)
     alive: set = field(default_factory=set)
+    aircraft: dict[tuple[str, str], dict] = field(default_factory=dict)  # (name, algo) -> last estimate
+    ac_truth: dict[str, deque] = field(default_factory=dict)              # name -> recent truths
 
     def on_sample(self, key: str, data: bytes) -> None:
         from net import messages as M
@@ -73,6 +76,13 @@ class Monitor:
         try:
             msg, _ = M.decode(data)
         except M.MessageError:
+            return
+        if msg["kind"] in ("ac_estimate", "ac_truth"):
+            with self.lock:
+                if msg["kind"] == "ac_truth":
+                    self.ac_truth.setdefault(msg["src"], deque(maxlen=256)).append(msg)
+                else:
+                    self.aircraft[(msg["src"], msg["algo"])] = msg
             return
         if msg["kind"] not in ("estimate", "truth"):
             return
@@ -98,6 +108,20 @@ class Monitor:
     def snapshot(self) -> list[StationView]:
         with self.lock:
             return [StationView(**vars(v)) for _, v in sorted(self.views.items())]
+
+    def aircraft_lines(self) -> list[str]:
+        """One line per (aircraft, algorithm): estimate error against the truth sample nearest in time."""
+        out = []
+        with self.lock:
+            for (name, algo), m in sorted(self.aircraft.items()):
+                hist = self.ac_truth.get(name)
+                # truth sample nearest in time to the estimate (the aircraft moves fast)
+                tr = min(hist, key=lambda h: abs(h["t_s"] - m["t_s"])) if hist else None
+                err = math.dist(m["pos_m"], tr["pos_m"]) if tr else math.nan
+                sig = math.sqrt(max(sum(m["cov_m2"][i][i] for i in range(3)), 0.0))
+                out.append(f"aircraft {name:>6} {algo:>10}: t={m['t_s']:7.1f} s  sigma {sig:7.2f} m  "
+                           f"error {err:7.2f} m")
+        return out
 
 
 def format_table(views: list[StationView], t_s: float, n_alive: int | None = None) -> str:
@@ -229,6 +253,10 @@ def run_fleet(args: argparse.Namespace) -> int:
         logdir = Path(args.logs)
     elif args.record:
         logdir = Path(str(args.record) + ".logs")
+    else:  # keep the children's output out of the live table
+        import tempfile
+
+        logdir = Path(tempfile.mkdtemp(prefix="larns-fleet-logs-"))
     if logdir:
         logdir.mkdir(parents=True, exist_ok=True)
     py = sys.executable
@@ -300,6 +328,8 @@ def run_fleet(args: argparse.Namespace) -> int:
         bus = Bus(listen=[monitor_ep], connect=seeds, config_file=args.zenoh_config)
         bus.subscribe("larns/station/*/estimate", monitor.on_sample)
         bus.subscribe("larns/station/*/truth", monitor.on_sample)
+        if args.aircraft:
+            bus.subscribe("larns/aircraft/**", monitor.on_sample)
         bus.subscribe_liveliness("larns/alive/**", monitor.on_alive)
         t_end_wall = epoch + args.duration / args.speed if args.duration else math.inf
         next_print = epoch
@@ -317,7 +347,7 @@ def run_fleet(args: argparse.Namespace) -> int:
             if now >= next_print and not args.no_table:
                 t_f = (now - epoch) * args.speed
                 n_alive = sum(1 for c in children if c.proc is not None and c.proc.poll() is None)
-                txt = format_table(monitor.snapshot(), t_f, n_alive)
+                txt = "\n".join([format_table(monitor.snapshot(), t_f, n_alive), *monitor.aircraft_lines()])
                 if tty:
                     sys.stdout.write("\x1b[H\x1b[2J" + txt + "\n")
                 else:
@@ -347,7 +377,7 @@ def run_fleet(args: argparse.Namespace) -> int:
         signal.signal(signal.SIGINT, old_int)
         signal.signal(signal.SIGTERM, old_term)
     t_f = (time.time() - epoch) * args.speed
-    print(format_table(final, t_f))
+    print("\n".join([format_table(final, t_f), *monitor.aircraft_lines()]))
     rc = {c.name: (c.proc.returncode if c.proc else None) for c in children}
     bad = {k: v for k, v in rc.items() if v not in (0, None)}
     if bad:
