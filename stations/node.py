@@ -453,6 +453,9 @@ def main_args(args: argparse.Namespace) -> int:
     from net.bus import Bus, bus_kwargs
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    stop_early = threading.Event()  # a signal during start-up (Zenoh open) still means: exit cleanly
+    signal.signal(signal.SIGINT, lambda *_: stop_early.set())
+    signal.signal(signal.SIGTERM, lambda *_: stop_early.set())
     scn = load_scenario(args)
     opts = NodeOptions(station_id=args.id, join=args.join, speed=args.speed, epoch_unix_s=args.epoch,
                        duration_s=args.duration, start_at_s=args.start_at, estimator=args.estimator, seed=args.seed,
@@ -463,6 +466,8 @@ def main_args(args: argparse.Namespace) -> int:
         node = StationNode(scn, opts, bus)
         signal.signal(signal.SIGINT, node.stop)
         signal.signal(signal.SIGTERM, node.stop)
+        if stop_early.is_set():
+            node.stop()
         rep = node.run()
     finally:
         bus.close()

@@ -310,3 +310,34 @@ def test_kill_station_and_recorder_and_fuzz(tmp_path):
     except Exception:  # truncated tail of a SIGKILLed file
         pass
     assert n > 0
+
+
+def test_sigterm_clean_exit(tmp_path):
+    """SIGTERM: a station withdraws its liveliness token and exits 0 with its report; the recorder
+    finishes an indexed MCAP file."""
+    scn = write_scenario(tmp_path, 4, name="term")
+    p1, p2, p3 = free_tcp_ports(3)
+    epoch = time.time() + 2.0
+    st = [subprocess.Popen([PY, "-m", "stations", "--id", str(i), "--scenario", str(scn), "--epoch", repr(epoch),
+                            "--speed", "5", "--quiet", "--report-json", "--listen", f"tcp/127.0.0.1:{p}",
+                            "--connect", f"tcp/127.0.0.1:{p1}"], stdout=subprocess.PIPE, text=True)
+          for i, p in ((1, p1), (2, p2))]
+    out = tmp_path / "t.mcap"
+    rec = subprocess.Popen([PY, "-m", "larns", "record", "-o", str(out), "-q", "--listen", f"tcp/127.0.0.1:{p3}",
+                            "--connect", f"tcp/127.0.0.1:{p1}", "--flush", "0.5"])
+    time.sleep(max(0.0, epoch + 3.0 - time.time()))
+    t0 = time.time()  # on a loaded box: wait until the stations are up and publishing
+    while (not out.exists() or out.stat().st_size < 4096) and time.time() - t0 < 30:
+        time.sleep(0.2)
+    for p in (*st, rec):
+        p.send_signal(signal.SIGTERM)
+    for p in st:
+        o, _ = p.communicate(timeout=20)
+        assert p.returncode == 0
+        rep = json.loads(o.strip().splitlines()[-1])
+        assert rep["slots"] >= 3
+    assert rec.wait(20) == 0
+    from mcap.reader import make_reader
+    with open(out, "rb") as f:
+        summ = make_reader(f).get_summary()
+    assert summ is not None and summ.statistics.message_count > 0
