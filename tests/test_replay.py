@@ -309,3 +309,58 @@ def test_killed_recording_info_report_replay_recover(run, tmp_path):
     want = [(m.topic, m.log_time, m.data) for m in lg.messages]
     assert sorted(got) == sorted(want)
     assert read_log(fixed).complete
+
+
+# --------------------------------------------------------------------------- Foxglove
+
+def _json_channels(path: Path) -> dict[str, list]:
+    from larns.mcaputil import read_log
+
+    lg = read_log(path)
+    schemas = {name: json.loads(data) for name, enc, data in lg.schemas.values() if enc == "jsonschema"}
+    out: dict[str, list] = {}
+    for m in lg.messages:
+        if m.encoding == "json":
+            out.setdefault(m.topic, []).append((m.schema, schemas[m.schema], m.data))
+    return out
+
+
+def _no_nan(s: str):
+    raise ValueError(f"non-finite number {s} in JSON")
+
+
+def test_foxglove_channels_from_recorder_and_export(run, tmp_path):
+    import jsonschema
+
+    _, rec, _ = run
+    got = _json_channels(rec)  # written live by the recorder
+    assert {"larns/foxglove/tf", "larns/foxglove/scene", "larns/foxglove/aircraft/ac1/ukf-pr"} <= set(got)
+    assert {f"larns/foxglove/station/{i}" for i in range(1, 6)} <= set(got)
+    names = set()
+    for topic, rows in got.items():
+        for name, schema, data in rows:
+            names.add(name)
+            doc = json.loads(data, parse_constant=_no_nan)  # rejects NaN / Infinity
+            jsonschema.validate(doc, schema)
+    assert {"foxglove.FrameTransform", "foxglove.SceneUpdate", "larns.StationEstimate",
+            "larns.AircraftEstimate"} <= names
+    # errors are plottable numbers: the survey converges (last error of station 2 well below its start)
+    st2 = [json.loads(d) for _, _, d in got["larns/foxglove/station/2"]]
+    assert all("err_m" in r for r in st2[1:])
+    assert st2[-1]["err_m"] < st2[0]["err_m"] and st2[-1]["err_m"] < 3 * st2[-1]["sigma_m"] + 0.5
+    # an old log without the view: export adds the same channels
+    bare = tmp_path / "bare.mcap"
+    from larns.mcaputil import LogWriter, read_log
+
+    lg = read_log(rec)
+    with LogWriter(bare, lg.metadata) as w:
+        for m in lg.messages:
+            if m.encoding == "msgpack":
+                w.write(m.topic, m.data, m.log_time, m.publish_time)
+    out = tmp_path / "fox.mcap"
+    larns("export", str(bare), "-o", str(out))
+    exp = _json_channels(out)
+    assert {t: len(v) for t, v in exp.items()} == {t: len(v) for t, v in got.items()}
+    layout = json.loads((Path(__file__).parents[1] / "docs" / "foxglove-layout.json").read_text())
+    text = json.dumps(layout)
+    assert "larns/foxglove/scene" in text and "larns/foxglove/station/" in text
