@@ -17,6 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.special import erfcx
 
 from nav.kalman import chol_solve, ekf_update, kf_predict, symmetrize, ukf_update
 from nav.ut import SigmaParams
@@ -151,12 +152,13 @@ def lsq_cov(
 class Tuning:
     """One filter tuning (shared by all trajectories).
 
-    ``q_acc`` white-acceleration density (m^2/s^3); ``q_clock`` clock random walk (m^2/s);
+    ``q_acc`` white-acceleration density (m^2/s^3), ``q_acc_z`` its vertical one; ``q_clock`` clock random walk (m^2/s);
     ``q_drift`` clock-rate random walk (m^2/s^3, drift state only); ``alpha`` UKF spread;
     ``sigma_m`` nominal pseudorange noise; ``p0_*`` initial standard deviations.
     """
 
     q_acc: float = 1.0
+    q_acc_z: float | None = None  # vertical white-acceleration density; None = q_acc
     q_clock: float = 1e-4
     q_drift: float = 1e-4
     drift_state: bool = True
@@ -166,7 +168,7 @@ class Tuning:
     p0_vel_m_s: float = 5.0
     p0_clock_m: float = 20.0
     p0_drift_m_s: float = 1.0
-    floor_z_m: float | None = 0.0  # station plane: estimates below it are mirrored (None: off)
+    floor_z_m: float | None = 0.0  # station plane: LSQ mirrors below it, filters truncate (None: off)
 
     def p0(self, layout: mdl.StateLayout) -> np.ndarray:
         d = [self.p0_pos_m] * 3 + [self.p0_vel_m_s] * 3
@@ -208,7 +210,8 @@ class CvTracker:
             n, tu = self.layout.n, self.tuning
             if len(self._fq) > 64:
                 self._fq.clear()
-            self._fq[key] = (mdl.cv_transition(n, dt), mdl.cv_noise(n, dt, tu.q_acc, tu.q_clock, tu.q_drift))
+            self._fq[key] = (mdl.cv_transition(n, dt),
+                             mdl.cv_noise(n, dt, tu.q_acc, tu.q_clock, tu.q_drift, tu.q_acc_z))
         return self._fq[key]
 
     def predict_to(self, t_s: float) -> None:
@@ -255,21 +258,35 @@ class CvTracker:
         return nu, S
 
     def _mirror(self) -> None:
-        """Reflect runs that fell below the station plane (state and covariance, ``J P J``)."""
+        """Enforce "above the station plane" (``floor_z_m``) by moment-matching truncation.
+
+        The Gaussian posterior is truncated to ``z >= floor`` and re-approximated by the truncated
+        mean and variance of ``z``, propagated to the other states through their covariance with ``z``
+        (Simon & Simon's truncated filter). Near a plane of (nearly) coplanar transmitters the range
+        likelihood is symmetric in ``z``: a filter whose mean sits on the plane sees no gradient
+        (EKF) or symmetric sigma points (UKF) and would stay there; the truncation moves it onto the
+        physical side. For a posterior well above the floor the correction vanishes.
+        """
         fz = self.tuning.floor_z_m
         if fz is None:
             return
         n = self.layout.n
         x = self.x.reshape(-1, n)  # views: in-place edits reach self.x / self.P
         P = self.P.reshape(-1, n, n)
-        below = x[:, 2] < fz
-        if not np.any(below):
+        s2 = P[:, 2, 2]
+        s = np.sqrt(s2)
+        a = (fz - x[:, 2]) / s
+        act = a > -6.0  # mass below the floor > 1e-9
+        if not np.any(act):
             return
-        J = np.ones(n)
-        J[[2, 5]] = -1.0
-        x[below, 2] = 2.0 * fz - x[below, 2]
-        x[below, 5] = -x[below, 5]
-        P[below] = P[below] * J[:, None] * J[None, :]
+        a, s, s2 = a[act], s[act], s2[act]
+        lam = np.sqrt(2.0 / np.pi) / erfcx(a / np.sqrt(2.0))  # inverse Mills ratio phi(a) / (1 - Phi(a))
+        dmu = s * lam
+        var_t = s2 * np.maximum(1.0 + a * lam - lam**2, 1e-12)
+        pc = P[act, :, 2]  # (k, n)
+        x[act] = x[act] + pc * (dmu / s2)[:, None]
+        P[act] = P[act] + pc[:, :, None] * pc[:, None, :] * ((var_t - s2) / s2**2)[:, None, None]
+        P[act] = 0.5 * (P[act] + np.swapaxes(P[act], -1, -2))
 
 
 # --------------------------------------------------------------------------- message-level API

@@ -113,7 +113,7 @@ def pcrb_track(
     xt = true_state(track, clock, layout)
     dt = float(np.median(np.diff(track.t_s)))
     F = mdl.cv_transition(layout.n, dt)
-    Q = mdl.cv_noise(layout.n, dt, tuning.q_acc, tuning.q_clock, tuning.q_drift)
+    Q = mdl.cv_noise(layout.n, dt, tuning.q_acc, tuning.q_clock, tuning.q_drift, tuning.q_acc_z)
     var = mdl.range_var(xt, stations_m, station_cov_m2, tuning.sigma_m)  # (T, m)
     if model == "pr":
         H = mdl.jac_pr(xt, stations_m)

@@ -120,7 +120,7 @@ def speed_vs_filterpy(ac, steps: int = 400, runs: int = 64) -> dict:
     x0 = sim.true_state(track, ac.clock, layout)[0] + 5.0
     S = ac.stations_m
     F = mdl.cv_transition(layout.n, dt)
-    Q = mdl.cv_noise(layout.n, dt, tun.q_acc, tun.q_clock, tun.q_drift)
+    Q = mdl.cv_noise(layout.n, dt, tun.q_acc, tun.q_clock, tun.q_drift, tun.q_acc_z)
 
     pts = MerweScaledSigmaPoints(layout.n, alpha=tun.alpha, beta=2.0, kappa=0.0)
     fp = UnscentedKalmanFilter(dim_x=layout.n, dim_z=S.shape[0], dt=dt, points=pts,
