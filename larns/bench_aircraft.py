@@ -72,7 +72,8 @@ def run_point(ac, kind: str, dist_m: float, runs: int, duration_s: float, warmup
     rho = sim.pseudoranges(track, ac.stations_m, ac.clock, ac.sigma_m, runs, rng)
     win = t >= warmup_s
     out = {"height_m": float(track.pos_m[0, 2] - ac.centre_m[2]), "samples": int(runs * win.sum()),
-           "rmse_m": {}, "pcrb_m": {}, "nees": {}, "nis": {}, "sec_per_update_run": {}, "samples_by_algo": {}}
+           "rmse_m": {}, "pcrb_m": {}, "nees": {}, "nis": {}, "sec_per_update_run": {}, "samples_by_algo": {},
+           "median_m": {}}
     pc_cache = {}
     for algo in algos:
         method, model = algo.split("-")
@@ -82,6 +83,7 @@ def run_point(ac, kind: str, dist_m: float, runs: int, duration_s: float, warmup
         el = time.perf_counter() - t0
         w = win[::stride]
         out["rmse_m"][algo] = sim.rms_total(res.err_m[:, w])
+        out["median_m"][algo] = float(np.median(np.linalg.norm(res.err_m[:, w], axis=-1)))
         out["samples_by_algo"][algo] = int(runs * w.sum())
         out["sec_per_update_run"][algo] = el / (res.err_m.shape[1] * runs)
         if method != "lsq":
@@ -206,16 +208,18 @@ def run(args) -> int:
 
 
 def _assemble(res, sweep, speed, runs, duration, warmup, args, ac, wall) -> dict:
-    out = {"rmse_m": {}, "pcrb_m": {}, "ratio": {}, "nees": {}, "nis": {}, "height_m": {}, "samples": {},
+    out = {"rmse_m": {}, "median_m": {}, "pcrb_m": {}, "ratio": {}, "nees": {}, "nis": {}, "height_m": {}, "samples": {},
            "paper_m": PAPER, "bar": {"factor": BAR, "algos": ["ekf-pr", "ukf-pr"], "violations": []}}
     for kind, pts in res.items():
-        for key in ("rmse_m", "pcrb_m", "ratio", "nees", "nis"):
+        for key in ("rmse_m", "median_m", "pcrb_m", "ratio", "nees", "nis"):
             out[key][kind] = {}
         out["height_m"][kind] = {d: p["height_m"] for d, p in pts.items()}
         out["samples"][kind] = {d: p["samples"] for d, p in pts.items()}
         for d, p in pts.items():
             for algo, v in p["rmse_m"].items():
                 out["rmse_m"][kind].setdefault(algo, {})[d] = v
+            for algo, v in p["median_m"].items():
+                out["median_m"][kind].setdefault(algo, {})[d] = v
             for algo, v in p["pcrb_m"].items():
                 out["pcrb_m"][kind].setdefault(algo, {})[d] = v
                 r = p["rmse_m"][algo] / v

@@ -378,3 +378,21 @@ def test_aircraft_node_shell_drops_garbage_and_publishes_valid_messages():
     assert algos == {"ukf-pr", "lsq-pr"}
     rep = node.report()
     assert rep["estimates"]["ukf-pr"]["err_m"] < 50.0, rep
+
+
+def test_floor_truncation_moment_matching():
+    """A mean on the station plane is moved to the truncated-normal mean; far above: untouched."""
+    tun = Tuning(floor_z_m=0.0)
+    x0 = np.array([[100.0, 0.0, 0.0, 0, 0, 0, 0, 0], [100.0, 0.0, 500.0, 0, 0, 0, 0, 0]])
+    trk = CvTracker("ukf", "pr", x0, tun)
+    trk.P[:] = np.diag([4.0, 4.0, 100.0, 1, 1, 1, 4.0, 1])
+    trk.P[:, 2, 6] = trk.P[:, 6, 2] = 10.0  # z correlated with the clock
+    P_before = trk.P.copy()
+    trk._mirror()
+    s = 10.0
+    assert trk.x[0, 2] == pytest.approx(s * np.sqrt(2 / np.pi), rel=1e-9)
+    assert trk.P[0, 2, 2] == pytest.approx(s**2 * (1 - 2 / np.pi), rel=1e-9)
+    assert trk.x[0, 6] == pytest.approx(10.0 / 100.0 * s * np.sqrt(2 / np.pi), rel=1e-9)  # via cov(z, b)
+    assert np.all(np.linalg.eigvalsh(trk.P[0]) > 0)
+    np.testing.assert_array_equal(trk.x[1], x0[1])
+    np.testing.assert_array_equal(trk.P[1], P_before[1])
