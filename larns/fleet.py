@@ -353,7 +353,7 @@ def run_fleet(args: argparse.Namespace) -> int:
                 else:
                     sys.stdout.write(txt + "\n\n")
                 sys.stdout.flush()
-                next_print = now + args.refresh
+                next_print = now + (args.refresh if tty else max(args.refresh, 10.0))
             time.sleep(0.05)
         final = monitor.snapshot()
     finally:
@@ -415,7 +415,8 @@ def register(sub) -> None:
     p.add_argument("--net-dup", type=float, default=None, metavar="P", help="wire duplication probability")
     p.add_argument("--startup", type=float, default=None, metavar="S",
                    help="seconds between launch and the epoch (default 3 + 0.25 per station)")
-    p.add_argument("--refresh", type=float, default=1.0, help="table refresh period, wall seconds")
+    p.add_argument("--refresh", type=float, default=1.0,
+                   help="table refresh period, wall seconds (at least 10 s when stdout is not a terminal)")
     p.add_argument("--no-table", action="store_true", help="no live table (final table only)")
     p.add_argument("--logs", default=None, help="folder for per-process logs (default FILE.mcap.logs/)")
     p.add_argument("--json", default=None, help="write the final table as JSON")
