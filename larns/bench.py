@@ -12,6 +12,7 @@ BENCHES: list[str] = [
     "larns.bench_aircraft",
     "larns.bench_survey",
     "larns.bench_net",
+    "larns.bench_replay",
 ]
 
 
