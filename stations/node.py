@@ -137,14 +137,16 @@ class StationNode:
         with self._lock:
             if self.core is None or self._stop.is_set():
                 return
-            dl = self.core.next_deadline()
+            core = self.core
+            sched = (core.slot, core.state)  # a message only re-schedules the core via these
             self._ingest(recv, key, data)
-            now = time.time()
-            while self._pending and self._pending[0][0] <= now:
-                _, _, msg, phy = heapq.heappop(self._pending)
-                self._deliver(msg, phy)
-            if self._pending or self.core.next_deadline() != dl:
-                self._wake.set()  # the main loop re-computes when to wake up
+            if self._pending:
+                now = time.time()
+                while self._pending and self._pending[0][0] <= now:
+                    _, _, msg, phy = heapq.heappop(self._pending)
+                    self._deliver(msg, phy)
+            if self._pending or (core.slot, core.state) != sched:
+                self._wake.set()  # the main loop re-computes when to wake up (else: <= 0.1 s anyway)
 
     def _check_key(self, key: str, msg: dict) -> bool:
         pk = M.parse_key(key)
