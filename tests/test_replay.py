@@ -364,3 +364,34 @@ def test_foxglove_channels_from_recorder_and_export(run, tmp_path):
     layout = json.loads((Path(__file__).parents[1] / "docs" / "foxglove-layout.json").read_text())
     text = json.dumps(layout)
     assert "larns/foxglove/scene" in text and "larns/foxglove/station/" in text
+
+
+def test_start_paused_keyboard_on_a_terminal(run):
+    """--start-paused with a terminal on stdin: nothing plays until a key; 's' steps one message, 'q' quits."""
+    import os
+    import pty
+
+    _, rec, _ = run
+    master, slave = pty.openpty()
+    (port,) = free_tcp_ports(1)
+    p = subprocess.Popen([PY, "-m", "larns", "replay", str(rec), "--start-paused", "--delay", "0", "--json",
+                          "--listen", f"tcp/127.0.0.1:{port}"],
+                         stdin=slave, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    os.close(slave)
+    try:
+        time.sleep(4.0)  # paused: a 6 s log at rate 1 would be well under way by now
+        assert p.poll() is None
+        os.write(master, b"s")
+        time.sleep(0.3)
+        os.write(master, b"s")
+        time.sleep(0.3)
+        os.write(master, b"q")
+        out, err = p.communicate(timeout=30)
+    finally:
+        os.close(master)
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 0, err[-2000:]
+    st = json.loads(out.strip().splitlines()[-1])
+    assert st["published"] == 2, (st, err[-1000:])
+    assert "paused" in err
