@@ -341,3 +341,27 @@ def test_sigterm_clean_exit(tmp_path):
     with open(out, "rb") as f:
         summ = make_reader(f).get_summary()
     assert summ is not None and summ.statistics.message_count > 0
+
+
+def test_fleet_ctrl_c_stops_everything(tmp_path):
+    """`larns fleet` without a duration runs until Ctrl-C (SIGINT): then every child is gone and the
+    recording is a valid indexed MCAP."""
+    scn = write_scenario(tmp_path, 4, name="ctrlc")
+    out = tmp_path / "c.mcap"
+    fleet = subprocess.Popen([PY, "-m", "larns", "fleet", "--scenario", str(scn), "--duration", "0", "--speed",
+                              str(SPEED), "--record", str(out), "--no-table"],
+                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    t0 = time.time()
+    while len(station_pids(str(scn))) < 4 and time.time() - t0 < 30:
+        time.sleep(0.3)
+    while (not out.exists() or out.stat().st_size < 4096) and time.time() - t0 < 40:
+        time.sleep(0.3)
+    fleet.send_signal(signal.SIGINT)
+    log, _ = fleet.communicate(timeout=60)
+    assert fleet.returncode == 130, log
+    assert station_pids(str(scn)) == {}
+    from mcap.reader import make_reader
+    with open(out, "rb") as f:
+        summ = make_reader(f).get_summary()
+    assert summ.statistics.message_count > 0
+    assert any(c.topic == "larns/station/4/estimate" for c in summ.channels.values())
