@@ -12,8 +12,9 @@ Figures (``DIR/*.png``):
   (seed 000, fig. 3), with the mean 1-sigma horizontal bound;
 * ``survey_histograms.png`` - histograms of horizontal and vertical errors over the second half of
   the run (seed 000, figs. 4 and 5);
-* ``aircraft_errors.png`` - aircraft error per algorithm vs time with the one-cycle CRLB
-  (seed 003 eq. 7, ``nav.pcrb``) along the true track (if aircraft topics are present);
+* ``aircraft_errors.png`` - aircraft error per algorithm vs time with the posterior CRLB of the
+  pseudorange filters' model for the recorded sequence of broadcasts, and the one-cycle snapshot
+  CRLB (seed 003 eq. 7, ``nav.pcrb``) along the true track (if aircraft topics are present);
 * ``tdma_timeline.png`` - who ranged whom when (first cycles; green = answered, red = no reply
   recorded) and the exchange count matrix over the whole run;
 * ``network.png`` - message loss per kind (sequence gaps) and latency distributions per kind.
@@ -57,14 +58,17 @@ def extract(logs) -> dict[str, Any]:
     rsps: set[tuple] = set()
     init_cfg: dict[int, dict] = {}
     lat: dict[str, list[float]] = defaultdict(list)
+    navs: list[tuple[float, list[float]]] = []
     for m in msgs:
         if m.encoding != "msgpack":
             continue
         try:
-            msg, _ = M.decode(m.data)
+            msg, phy = M.decode(m.data)
         except M.MessageError:
             continue
         k = msg["kind"]
+        if k == "nav" and phy is not None and msg["state"] in ("frame", "surveying"):
+            navs.append((phy["t_true_s"], phy["pos_m"]))
         if m.publish_time != m.log_time:
             lat[k].append((m.log_time - m.publish_time) * 1e-6)
         if k == "estimate":
@@ -100,7 +104,7 @@ def extract(logs) -> dict[str, Any]:
         ac_tr[name] = {"t_s": np.array([r[0] for r in rows]), "pos_m": np.array([r[1] for r in rows], float),
                        "vel_m_s": np.array([r[2] if r[2] is not None else [0.0, 0.0, 0.0] for r in rows], float)}
     return {"stations": stations, "aircraft": aircraft, "ac_truth": ac_tr, "reqs": reqs, "rsps": rsps,
-            "init": init_cfg, "latency_ms": lat, "truth": truth}
+            "init": init_cfg, "latency_ms": lat, "truth": truth, "navs": sorted(navs)}
 
 
 def interp_truth(tr: dict, t_s: np.ndarray) -> np.ndarray:
@@ -243,7 +247,8 @@ def fig_histograms(d: dict, path: Path) -> dict[str, Any]:
 
 def aircraft_crlb(d: dict, name: str, sigma_m: float, n_points: int = 150) -> tuple[np.ndarray, np.ndarray] | None:
     """One-cycle CRLB of the position (pseudoranges, unknown clock offset; seed 003 eq. 7) along the
-    true track, with the stations at their true positions and their TDMA slot offsets."""
+    true track, with the stations at their true positions and their TDMA slot offsets. The velocity
+    is a parameter too when one cycle has >= 8 stations (else known: one cycle cannot observe it)."""
     from nav.pcrb import crlb_cycle, fisher_cycle
 
     tr = d["ac_truth"].get(name)
@@ -257,12 +262,48 @@ def aircraft_crlb(d: dict, name: str, sigma_m: float, n_points: int = 150) -> tu
         break
     t_rel = np.array([((i - 1) * slot_s) % cycle_s for i in ids])
     k = np.unique(np.linspace(0, tr["t_s"].size - 1, n_points).astype(int))
-    J = fisher_cycle(tr["pos_m"][k], tr["vel_m_s"][k], S, t_rel, sigma_m, clock=True, velocity=True)
+    # position + clock offset (+ velocity when one cycle has enough stations to observe it)
+    J = fisher_cycle(tr["pos_m"][k], tr["vel_m_s"][k], S, t_rel, sigma_m, clock=True, velocity=len(ids) >= 8)
     b = crlb_cycle(J)
     return tr["t_s"][k], b["total_m"]
 
 
-def fig_aircraft(d: dict, path: Path, sigma_m: float | None) -> dict[str, Any]:
+def aircraft_pcrb(d: dict, name: str, tuning) -> tuple[np.ndarray, np.ndarray] | None:
+    """Posterior CRLB (Tichavsky et al. 1998; covariance form as in ``nav.pcrb``) of the pseudorange
+    filters' own model (CV + clock offset/drift, ``aircraft.estimators.Tuning``) for the sequential
+    TDMA measurements the aircraft made: one scalar pseudorange per recorded nav broadcast, from the
+    sender's true position at its true transmit time, along the recorded true track. Returns
+    (times, sqrt of the position-bound trace)."""
+    from aircraft import models as mdl
+
+    tr = d["ac_truth"].get(name)
+    navs = [n for n in d["navs"] if tr is not None and tr["t_s"][0] - 1.0 <= n[0] <= tr["t_s"][-1]]
+    if tr is None or len(navs) < 8:
+        return None
+    layout = mdl.StateLayout("pr", drift=tuning.drift_state)
+    n = layout.n
+    P = tuning.p0(layout)
+    t_prev = navs[0][0]
+    eye = np.eye(n)
+    ts, out = [], []
+    for t, pos in navs:
+        dt = max(t - t_prev, 0.0)
+        t_prev = t
+        if dt > 0:
+            F = mdl.cv_transition(n, dt)
+            P = F @ P @ F.T + mdl.cv_noise(n, dt, tuning.q_acc, tuning.q_clock, tuning.q_drift, tuning.q_acc_z)
+        X = np.zeros(n)
+        X[:3] = interp_truth(tr, np.array([t]))[0]
+        H = mdl.jac_pr(X, np.asarray(pos, float)[None])  # (1, n)
+        Jz = H.T @ H / tuning.sigma_m**2
+        P = np.linalg.solve(eye + P @ Jz, P)
+        P = 0.5 * (P + P.T)
+        ts.append(t)
+        out.append(np.sqrt(max(np.trace(P[:3, :3]), 0.0)))
+    return np.array(ts), np.array(out)
+
+
+def fig_aircraft(d: dict, path: Path, sigma_m: float | None, tuning=None) -> dict[str, Any]:
     plt = _plt()
     out: dict[str, Any] = {}
     if not d["aircraft"]:
@@ -280,6 +321,11 @@ def fig_aircraft(d: dict, path: Path, sigma_m: float | None) -> dict[str, Any]:
             tail = e[len(e) // 10:]
             out[name][algo] = {"n": int(e.size), "final_err_m": float(e[-1]),
                                "rms_err_m": float(np.sqrt(np.mean(tail**2))) if tail.size else math.nan}
+        if tuning is not None:
+            pc = aircraft_pcrb(d, name, tuning)
+            if pc is not None:
+                ax.semilogy(pc[0], pc[1], "k-", lw=1.4, label="PCRB, pseudorange filter model")
+                out[name]["pcrb_final_m"] = float(pc[1][-1])
         if sigma_m:
             cr = aircraft_crlb(d, name, sigma_m)
             if cr is not None:
@@ -370,7 +416,8 @@ def fig_network(info: dict, d: dict, path: Path) -> None:
 
 # --------------------------------------------------------------------------- the report
 
-def _aircraft_sigma(logs, scenario: str | None) -> float | None:
+def _aircraft_config(logs, scenario: str | None):
+    """The scenario's aircraft configuration (scenario from --scenario or the recording's metadata)."""
     name = scenario or (logs[0].larns_meta.get("scenario") if logs else None)
     if not name:
         return None
@@ -378,7 +425,7 @@ def _aircraft_sigma(logs, scenario: str | None) -> float | None:
         from aircraft.config import from_scenario
         from net.scenario import load
 
-        return float(from_scenario(load(name)).sigma_m)
+        return from_scenario(load(name))
     except Exception:
         return None
 
@@ -409,12 +456,21 @@ def make_report(paths: Sequence[str | Path], outdir: str | Path, scenario: str |
         if res["histograms"]:
             figs.append(("Error histograms", "survey_histograms.png"))
     if d["aircraft"]:
-        sig = sigma_m if sigma_m is not None else _aircraft_sigma(logs, scenario)
+        acfg = _aircraft_config(logs, scenario)
+        sig = sigma_m if sigma_m is not None else (acfg.sigma_m if acfg is not None else None)
         if sig is None:
             for rec in d["init"].values():
                 sig = rec["cfg"].get("sigma_d_m")
                 break
-        res["aircraft"] = fig_aircraft(d, out / "aircraft_errors.png", sig)
+        if acfg is not None:
+            tuning = acfg.tuning
+        else:
+            from dataclasses import replace
+
+            from aircraft.estimators import Tuning
+
+            tuning = replace(Tuning(), sigma_m=float(sig or 0.5))
+        res["aircraft"] = fig_aircraft(d, out / "aircraft_errors.png", sig, tuning)
         figs.append(("Aircraft errors with the CRLB", "aircraft_errors.png"))
     res["tdma"] = fig_tdma(d, out / "tdma_timeline.png")
     if res["tdma"]:
@@ -472,6 +528,8 @@ def markdown(res: dict, info: dict, figs: list[tuple[str, str]]) -> str:
             for algo, a in per.items():
                 if isinstance(a, dict):
                     L.append(f"| {name} | {algo} | {a['n']} | {_fmt(a['final_err_m'])} | {_fmt(a['rms_err_m'])} |")
+            if "pcrb_final_m" in per:
+                L.append(f"| {name} | PCRB (pseudorange filter model) | | {_fmt(per['pcrb_final_m'])} | |")
             if "crlb_median_m" in per:
                 L.append(f"| {name} | one-cycle CRLB (median) | | {_fmt(per['crlb_median_m'])} | |")
         L.append("")
