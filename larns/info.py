@@ -52,6 +52,10 @@ def summarize(paths: Sequence[str | Path], logs=None) -> dict[str, Any]:
     speed = logs[0].speed
     out["speed"] = speed
     out["fleet_duration_s"] = dur * speed
+    ep = logs[0].epoch_unix_s
+    if ep is not None:  # fleet time (seconds since the fleet epoch) of the first and last message
+        out["fleet_start_s"] = (t0 * 1e-9 - ep) * speed
+        out["fleet_end_s"] = (t1 * 1e-9 - ep) * speed
 
     topics: dict[str, dict] = {}
     seqs: dict[tuple, list[int]] = defaultdict(list)
@@ -161,6 +165,8 @@ def format_info(s: dict[str, Any]) -> str:
         return "\n".join(L)
     L.append(f"Duration:          {s['duration_s']:.3f} s wall  ({s['fleet_duration_s']:.1f} s fleet time at speed "
              f"{s['speed']:g})")
+    if "fleet_start_s" in s:
+        L.append(f"Fleet time:        {s['fleet_start_s']:.2f} s .. {s['fleet_end_s']:.2f} s since the fleet epoch")
     L.append(f"Start:             {s['start']}")
     L.append(f"End:               {s['end']}")
     st = s["stations"]
