@@ -210,10 +210,16 @@ def cmd_info(args: argparse.Namespace) -> int:
     except (OSError, ValueError) as e:
         print(f"larns info: {e}", file=sys.stderr)
         return 1
-    if args.json:
-        print(json.dumps(s, default=str, indent=1))
-    else:
-        print(format_info(s))
+    try:
+        if args.json:
+            print(json.dumps(s, default=str, indent=1))
+        else:
+            print(format_info(s))
+        sys.stdout.flush()
+    except BrokenPipeError:  # `larns info run.mcap | head`
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
     return 0
 
 
