@@ -110,6 +110,7 @@ class StationNode:
         self._navs_sent = 0
         self._journal_pubs: dict[str, Any] = {}
         self._last_status = -math.inf
+        self._wire_delay_s: deque = deque(maxlen=10000)  # recent range message delivery delays
 
     # ------------------------------------------------------------------ time
     def fleet_now(self) -> float:
@@ -197,6 +198,7 @@ class StationNode:
             # the exchange lives inside the slot it was transmitted in
             t_tx = phy["t_true_s"]
             slot_end = (math.floor(t_tx / self.slot_s + 1e-9) + 1) * self.slot_s
+            self._wire_delay_s.append((t_now - t_tx) / self.speed)  # wall: air tx -> delivery here
             if t_now > slot_end:
                 self.stats["late"] += 1
                 return
@@ -397,6 +399,8 @@ class StationNode:
             "err_m": float(np.linalg.norm(pos - self.true_pos)),
             "slots": int(self.stats["slots"]), "missed_slots": int(self.stats["missed_slots"]),
             "late": int(self.stats["late"]), "duplicates": int(self.stats["duplicates"]),
+            "range_delay_ms": ({f"p{q}": float(np.percentile(self._wire_delay_s, q)) * 1e3 for q in (50, 90, 99)}
+                               if self._wire_delay_s else {}),
             "air_lost": int(self.stats["air_lost"]), "max_lateness_ms": self.max_lateness_s * 1e3,
             "drops": self.drops.as_dict(), "counters": dict(self.core.counters),
             "tx": {k[3:]: v for k, v in self.stats.items() if k.startswith("tx_")},
@@ -477,7 +481,8 @@ def main_args(args: argparse.Namespace) -> int:
         print(json.dumps(rep), flush=True)
     if not args.quiet:
         print(f"[station {args.id}] stopped: updates={rep['n_updates']} err={rep['err_m']:.2f} m "
-              f"drops={rep['drops']['total']} late={rep['late']} missed_slots={rep['missed_slots']}",
+              f"drops={rep['drops']['total']} late={rep['late']} missed_slots={rep['missed_slots']} "
+              f"range delay ms {' '.join(f'{k}={v:.1f}' for k, v in rep['range_delay_ms'].items())}",
               file=sys.stderr, flush=True)
     return 0
 
