@@ -155,7 +155,8 @@ def _proc_stats(pid: int) -> tuple[float, int]:
     return cpu, rss
 
 
-def run_scale_once(n: int, duration_s: float, warmup_s: float = 4.0, quiet: bool = False) -> dict:
+def run_scale_once(n: int, duration_s: float, warmup_s: float = 4.0, quiet: bool = False,
+                   nice: int = 0) -> dict:
     """N station processes at speed 1 for ``duration_s`` (fleet time after warm-up)."""
     from net.bus import free_tcp_ports
 
@@ -169,7 +170,7 @@ def run_scale_once(n: int, duration_s: float, warmup_s: float = 4.0, quiet: bool
         sid = k + 1
         cmd = [sys.executable, "-m", "stations", "--id", str(sid), "--scenario", "seed000",
                "--n-stations", str(n), "--epoch", repr(epoch), "--duration", str(duration_s),
-               "--listen", f"tcp/127.0.0.1:{ports[k]}", "--quiet", "--report-json"]
+               "--listen", f"tcp/127.0.0.1:{ports[k]}", "--quiet", "--report-json", "--nice", str(nice)]
         for s in seeds:
             if s != f"tcp/127.0.0.1:{ports[k]}":
                 cmd += ["--connect", s]
@@ -202,6 +203,7 @@ def run_scale_once(n: int, duration_s: float, warmup_s: float = 4.0, quiet: bool
         "rss_per_proc_mb": float(np.mean(rss) / 2**20) if rss else float("nan"),
     }
     res["loadavg_1min_before"] = load0
+    res["nice"] = nice
     res["ok"] = bool(res["reported"] == n and res["missed_slots"] == 0)
     if not quiet:
         print(f"  N={n:3d} missed={res['missed_slots']:5d}/{res['slots']:6d} "
@@ -218,7 +220,7 @@ def cmd_bench_scale(args: argparse.Namespace) -> int:
     print(f"larns bench scale: N station processes, real time, {args.duration:.0f} s each")
     runs, best = [], 0
     for n in ns:
-        r = run_scale_once(n, args.duration)
+        r = run_scale_once(n, args.duration, nice=args.nice)
         runs.append(r)
         if r["ok"]:
             best = max(best, n)
@@ -247,6 +249,8 @@ def register(sub) -> None:
     s.add_argument("--n", default=None, help="comma-separated N values (default 10,20,...,80)")
     s.add_argument("--duration", type=float, default=60.0, help="seconds per N (default 60)")
     s.add_argument("--keep-going", action="store_true", help="try every N even after a failure")
+    s.add_argument("--nice", type=int, default=0, metavar="N",
+                   help="niceness change of the station processes (e.g. -10: ahead of other jobs; needs root)")
     s.add_argument("--json", default="runs/bench_scale.json", help="JSON output")
     s.set_defaults(func=cmd_bench_scale)
 

@@ -282,6 +282,8 @@ def run_fleet(args: argparse.Namespace) -> int:
         children.append(Child("recorder", cmd, logdir / "recorder.log" if logdir else None))
     for sid in scn.ids:
         cmd = [py, "-m", "stations", "--id", str(sid), *common, "--status-every", "10"]
+        if args.nice:
+            cmd += ["--nice", str(args.nice)]
         if args.duration:
             cmd += ["--duration", repr(args.duration)]
         start_wall = 0.0
@@ -415,6 +417,8 @@ def register(sub) -> None:
     p.add_argument("--net-dup", type=float, default=None, metavar="P", help="wire duplication probability")
     p.add_argument("--startup", type=float, default=None, metavar="S",
                    help="seconds between launch and the epoch (default 3 + 0.25 per station)")
+    p.add_argument("--nice", type=int, default=0, metavar="N",
+                   help="niceness change for the station processes (negative = higher priority; needs privileges)")
     p.add_argument("--refresh", type=float, default=1.0,
                    help="table refresh period, wall seconds (at least 10 s when stdout is not a terminal)")
     p.add_argument("--no-table", action="store_true", help="no live table (final table only)")

@@ -28,6 +28,7 @@ import heapq
 import json
 import logging
 import math
+import os
 import signal
 import sys
 import threading
@@ -436,6 +437,9 @@ def add_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--net-jitter", type=float, default=None, metavar="S", help="delay jitter (1 sigma), s")
     g.add_argument("--net-loss", type=float, default=None, metavar="P", help="loss probability")
     g.add_argument("--net-dup", type=float, default=None, metavar="P", help="duplication probability")
+    p.add_argument("--nice", type=int, default=0, metavar="N",
+                   help="change the scheduling niceness by N (negative = higher priority, needs privileges); "
+                        "helps real-time behaviour on a busy machine")
     p.add_argument("--status-every", type=float, default=5.0, help="fleet seconds between status lines")
     p.add_argument("--no-journal", action="store_true",
                    help="do not publish the core journal (larns/station/<id>/init and .../input, "
@@ -465,6 +469,11 @@ def main_args(args: argparse.Namespace) -> int:
     stop_early = threading.Event()  # a signal during start-up (Zenoh open) still means: exit cleanly
     signal.signal(signal.SIGINT, lambda *_: stop_early.set())
     signal.signal(signal.SIGTERM, lambda *_: stop_early.set())
+    if getattr(args, "nice", 0):
+        try:
+            os.nice(args.nice)
+        except OSError as e:
+            log.warning("station %d: cannot change niceness by %d: %s", args.id, args.nice, e)
     scn = load_scenario(args)
     opts = NodeOptions(station_id=args.id, join=args.join, speed=args.speed, epoch_unix_s=args.epoch,
                        duration_s=args.duration, start_at_s=args.start_at, estimator=args.estimator, seed=args.seed,
