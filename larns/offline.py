@@ -332,19 +332,17 @@ def write_output(output: str | Path, logs: Sequence[LogFile], msgs: Sequence[Msg
         first = next(iter(per_algo.values()), {})
         new += first.get("truth", [])
     new.sort(key=lambda m: m.log_time)
-    kept = [m for m in msgs if m.topic not in replaced]
+    # wire messages only; the Foxglove view is regenerated from the new estimates
+    kept = [m for m in msgs if m.topic not in replaced and m.encoding == "msgpack"]
+    wire = list(heapq.merge(kept, new, key=lambda m: m.log_time))
     with LogWriter(output, md, library="larns replay --offline") as w:
-        for m in heapq.merge(kept, new, key=lambda m: m.log_time):
-            schema = None
-            if m.schema and m.encoding == "json":
-                for lg in logs:
-                    for name, enc, data in lg.schemas.values():
-                        if name == m.schema:
-                            schema = (name, data)
-                            break
-                    if schema:
-                        break
-            w.write(m.topic, m.data, m.log_time, m.publish_time, m.encoding, schema)
+        for m in wire:
+            w.write(m.topic, m.data, m.log_time, m.publish_time)
+        if any(m.encoding == "json" for m in msgs):
+            from .foxglove import iter_json, schema_for
+
+            for lt, pt, topic, sname, data in iter_json(wire):
+                w.write(topic, data, lt, pt, "json", schema_for(sname))
 
 
 def reestimate_aircraft(logs: Sequence[LogFile], msgs: Sequence[Msg], algos: Sequence[str],

@@ -205,11 +205,17 @@ def test_offline_reestimation_is_bit_exact(run, tmp_path):
             for k in ("t_s", "pos_m", "cov_m2", "n_updates", "estimator", "state"):
                 assert o[k] == m[k], (sid, seq, k)
     # another survey estimator on the same inputs: same number of estimates, different values
-    r2 = larns("replay", str(rec), "--offline", "--estimator", "seed-ukf", "--json", "-q")
+    ukf = tmp_path / "ukf.mcap"
+    r2 = larns("replay", str(rec), "--offline", "--estimator", "seed-ukf", "--json", "-q", "-o", str(ukf))
     res2 = json.loads(r2.stdout.strip().splitlines()[-1])
     for sid, st in res2["stations"].items():
         assert st["estimator"] == "seed-ukf" and st["estimates"] == res["stations"][sid]["estimates"]
     assert not all(st["bit_exact"] for sid, st in res2["stations"].items() if sid not in ("1", 1))
+    # the written file: estimates and the regenerated Foxglove view come from the other estimator
+    est2 = _estimates(ukf)
+    assert all(m["estimator"] == "seed-ukf" for per in est2.values() for m in per.values())
+    view = [json.loads(d) for _, _, d in _json_channels(ukf)["larns/foxglove/station/3"]]
+    assert view and all(v["estimator"] == "seed-ukf" for v in view)
 
 
 def test_offline_aircraft_other_algorithm(run, tmp_path):
