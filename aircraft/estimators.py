@@ -169,6 +169,7 @@ class Tuning:
     p0_clock_m: float = 20.0
     p0_drift_m_s: float = 1.0
     floor_z_m: float | None = 0.0  # station plane: LSQ mirrors below it, filters truncate (None: off)
+    trunc_sigma: float = 6.0  # filters truncate while the mean is less than this many sigma above the floor
 
     def p0(self, layout: mdl.StateLayout) -> np.ndarray:
         d = [self.p0_pos_m] * 3 + [self.p0_vel_m_s] * 3
@@ -276,7 +277,7 @@ class CvTracker:
         s2 = P[:, 2, 2]
         s = np.sqrt(s2)
         a = (fz - x[:, 2]) / s
-        act = a > -6.0  # mass below the floor > 1e-9
+        act = a > -self.tuning.trunc_sigma  # 6 sigma: mass below the floor > 1e-9
         if not np.any(act):
             return
         a, s, s2 = a[act], s[act], s2[act]

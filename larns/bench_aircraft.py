@@ -34,12 +34,12 @@ def register(sub) -> None:
         description=__doc__,
     )
     p.add_argument("--scenario", default="seed001", help="scenario name or file (default seed001)")
-    p.add_argument("--trials", type=int, default=None, help="Monte Carlo runs per point (default from scenario, 32)")
+    p.add_argument("--trials", type=int, default=None, help="Monte Carlo runs per point (default from scenario, 64)")
     p.add_argument("--seed", type=int, default=1, help="RNG seed (default 1)")
     p.add_argument("--json", metavar="FILE", help="write the results as JSON")
     p.add_argument("--png-dir", metavar="DIR", help="write fig4/fig5-like plots and the height sweep here")
     p.add_argument("--height", type=float, default=None, help="fixed aircraft height in m (default: glide path)")
-    p.add_argument("--duration", type=float, default=None, help="seconds per run (default from scenario, 40)")
+    p.add_argument("--duration", type=float, default=None, help="seconds per run (default from scenario, 30)")
     p.add_argument("--warmup", type=float, default=None, help="seconds discarded at the start (default 10)")
     p.add_argument("--quick", action="store_true", help="small smoke-test version (few runs, short, 2 points each)")
     p.add_argument("--no-sweep", action="store_true", help="skip the height sweep")
@@ -165,8 +165,8 @@ def speed_vs_filterpy(ac, steps: int = 400, runs: int = 64) -> dict:
 def run(args) -> int:
     sc, ac = setup(args.scenario)
     b = ac.bench
-    runs = args.trials or int(b.get("runs", 32))
-    duration = args.duration or float(b.get("duration_s", 40.0))
+    runs = args.trials or int(b.get("runs", 64))
+    duration = args.duration or float(b.get("duration_s", 30.0))
     warmup = args.warmup if args.warmup is not None else float(b.get("warmup_s", 10.0))
     hover_d = [float(d) for d in b.get("hover_m", [50, 100, 250, 500, 1000, 1500])]
     turn_d = [float(d) for d in b.get("turn_m", [500, 1000, 1500, 2000])]
@@ -313,6 +313,8 @@ def _plots(out: dict, png_dir: str) -> list[str]:
         for a in ALGOS:
             y = [out["rmse_m"][kind][a][d] for d in ds]
             (a2 if a.startswith("lsq") else a1).plot(x, y, "o-", label=a)
+            if a.startswith("lsq") and out.get("median_m", {}).get(kind, {}).get(a):
+                a2.plot(x, [out["median_m"][kind][a][d] for d in ds], "s--", lw=0.8, label=f"{a} median |e|")
             if a in ("ekf-pr", "ekf-tdoa"):
                 pc = [out["pcrb_m"][kind][a][d] for d in ds]
                 a1.plot(x, pc, "k--" if a.endswith("pr") else "k:", lw=1, label=f"PCRB {a.split('-')[1]}")
