@@ -268,9 +268,20 @@ def cmd_offline(args: argparse.Namespace) -> int:
         if not lg.complete:
             print(f"[offline] {lg.path}: incomplete recording ({lg.error}); using the "
                   f"{len(lg.messages)} messages before the damage", file=sys.stderr)
-    res = run_offline(args.files, output=args.output, estimator=args.estimator, logs=logs,
-                      strict=not args.fast, progress=not args.quiet, algos=args.algo,
-                      scenario=args.scenario, stations=args.stations)
+    if args.estimator:
+        from stations.estimators import ESTIMATORS
+
+        if args.estimator not in ESTIMATORS:
+            print(f"larns replay --offline: unknown estimator {args.estimator!r}; choose from "
+                  f"{', '.join(ESTIMATORS)}", file=sys.stderr)
+            return 2
+    try:
+        res = run_offline(args.files, output=args.output, estimator=args.estimator, logs=logs,
+                          strict=not args.fast, progress=not args.quiet, algos=args.algo,
+                          scenario=args.scenario, stations=args.stations)
+    except (OSError, ValueError) as e:  # unknown algorithm, scenario not found, ...
+        print(f"larns replay --offline: {e}", file=sys.stderr)
+        return 2
     if not args.quiet:
         print(format_result(res))
     if args.json:
