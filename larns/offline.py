@@ -255,7 +255,7 @@ class OfflineResult:
                                    "estimates": len(r.estimates), "compared": r.compared, "equal": r.equal,
                                    "bit_exact": r.bit_exact, "missing_from": r.missing_from, "error": r.error}
                              for sid, r in self.stations.items()},
-                "aircraft": {k: {a: {kk: vv for kk, vv in v.items() if kk != "estimates"}
+                "aircraft": {k: {a: {kk: vv for kk, vv in v.items() if kk not in ("estimates", "truth")}
                                  for a, v in d.items()} for k, d in self.aircraft.items()}}
 
 
@@ -400,14 +400,30 @@ def reestimate_aircraft(logs: Sequence[LogFile], msgs: Sequence[Msg], algos: Seq
                 d["estimates"].append(rec)
                 p_true, _ = core.track.at(o["t_s"])
                 d["err"].append(float(np.linalg.norm(np.asarray(o["pos_m"]) - p_true)))
+    # the recorded estimates of the same algorithms, in order (the aircraft core is deterministic given
+    # the world seed and the sequence of broadcasts it measured)
+    recorded: dict[str, list[dict]] = {a: [] for a in algos}
+    for m in msgs:
+        if m.encoding == "msgpack" and m.topic.startswith(f"larns/aircraft/{name}/estimate/"):
+            try:
+                msg, _ = M.decode(m.data)
+            except M.MessageError:
+                continue
+            if msg["kind"] == "ac_estimate" and msg["algo"] in recorded:
+                recorded[msg["algo"]].append(msg)
     res = {}
     for a, d in out.items():
         e = np.asarray(d["err"])
         # skip the first 10 % (filter start-up) for the RMS
         tail = e[len(e) // 10:] if e.size else e
+        new = [M.decode(x.data)[0] for x in d["estimates"]] if recorded[a] else []
+        keys = ("t_s", "pos_m", "cov_m2", "n_updates")
+        same = [all(x.get(k) == y.get(k) for k in keys) for x, y in zip(new, recorded[a])]
+        prefix = same.index(False) if False in same else len(same)
         res[a] = {"n": int(e.size), "final_err_m": float(e[-1]) if e.size else math.nan,
                   "rms_err_m": float(np.sqrt(np.mean(tail**2))) if tail.size else math.nan,
-                  "estimates": d["estimates"], "truth": truth}
+                  "recorded": len(recorded[a]), "compared": len(same), "equal": int(sum(same)),
+                  "equal_prefix": prefix, "estimates": d["estimates"], "truth": truth}
     return {name: res}
 
 
@@ -430,6 +446,10 @@ def format_result(res: OfflineResult, compare: bool = True) -> str:
                  f"{res.speedup_cpu:.0f}x)")
     for name, per in res.aircraft.items():
         for a, d in per.items():
+            cmp = ""
+            if d.get("recorded"):
+                cmp = (f"; vs the {d['recorded']} recorded: {d['equal']}/{d['compared']} identical"
+                       + ("" if d["equal"] == d["compared"] else f" (first {d['equal_prefix']} in a row)"))
             lines.append(f"aircraft {name} {a}: {d['n']} estimates, final error {d['final_err_m']:.2f} m, "
-                         f"RMS error (after the first 10 %) {d['rms_err_m']:.2f} m")
+                         f"RMS error (after the first 10 %) {d['rms_err_m']:.2f} m{cmp}")
     return "\n".join(lines)
