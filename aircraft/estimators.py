@@ -326,6 +326,7 @@ class AircraftEstimator:
         self._last_geom: tuple[np.ndarray, np.ndarray | None] | None = None  # LSQ covariance
         self.n_updates = 0
         self.n_dropped = 0
+        self.n_resets = 0
         self.last_nis: float | None = None
 
     # -- input
@@ -346,8 +347,12 @@ class AircraftEstimator:
             return
         if self.tracker is not None and self.model == "pr":
             # sequential scalar update at the slot's own time
-            self.tracker.predict_to(t_s)
-            nu, S = self.tracker.update(pos[None], np.array([rho_m]), cov[None])
+            try:
+                self.tracker.predict_to(t_s)
+                nu, S = self.tracker.update(pos[None], np.array([rho_m]), cov[None])
+            except np.linalg.LinAlgError:
+                self._reset()
+                return
             self.last_nis = float(nu[0] ** 2 / S[0, 0])
             self.t_s = t_s
             self.n_updates += 1
@@ -379,10 +384,10 @@ class AircraftEstimator:
         tu = self.cfg.tuning
         var = tu.sigma_m**2
         if self.tracker is None:
-            if self.fix is None:
+            first = self.fix is None
+            if first:
                 self.fix = np.append(self.guess, 0.0) if self.model == "pr" else self.guess.copy()
             # the first fix may start far away: more iterations and a wide trust region
-            first = self.n_updates == 0
             kw = dict(floor_z_m=tu.floor_z_m, iters=50 if first else 10, max_step_m=5000.0 if first else 200.0)
             if self.model == "pr":
                 x0 = self.fix if self.fix.size == 4 else np.append(self.fix, 0.0)
@@ -411,11 +416,26 @@ class AircraftEstimator:
             idx = [0, 1, 2, 6] if self.model == "pr" else [0, 1, 2]
             self.tracker.P[np.ix_(idx, idx)] = C
             return
-        self.tracker.predict_to(t_s)
-        nu, S = self.tracker.update(pos, rho, cov, dt if np.any(dt) else None)
+        try:
+            self.tracker.predict_to(t_s)
+            nu, S = self.tracker.update(pos, rho, cov, dt if np.any(dt) else None)
+        except np.linalg.LinAlgError:
+            self._reset()
+            return
+        if not np.all(np.isfinite(self.tracker.x)):
+            self._reset()
+            return
         self.last_nis = float(nu @ chol_solve(S, nu[:, None])[:, 0])
         self.t_s = t_s
         self.n_updates += 1
+
+    def _reset(self) -> None:
+        """A filter whose covariance lost positive definiteness restarts from the next batch's fix."""
+        if self.tracker is not None:
+            self.guess = np.asarray(self.tracker.x[:3], dtype=float).copy()
+        self.tracker = None
+        self.fix = None
+        self.n_resets += 1
 
     # -- output
     def estimate(self) -> dict | None:

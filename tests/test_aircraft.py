@@ -396,3 +396,21 @@ def test_floor_truncation_moment_matching():
     assert np.all(np.linalg.eigvalsh(trk.P[0]) > 0)
     np.testing.assert_array_equal(trk.x[1], x0[1])
     np.testing.assert_array_equal(trk.P[1], P_before[1])
+
+
+def test_estimator_resets_a_broken_filter_instead_of_raising():
+    ac = from_scenario(load("seed003"))
+    t = np.arange(0.0, 24.0, 0.1)
+    tr = trajectory.from_config(ac.trajectory, t, ac.centre_m)
+    rng = np.random.default_rng(14)
+    e = AircraftEstimator("ukf-pr", EstimatorConfig(tuning=ac.tuning), x0_guess_m=ac.centre_m + [0, 0, 1000.0])
+    for k, tk in enumerate(t):
+        j = k % len(ac.stations_m)
+        if k == 80:
+            e.tracker.P[:] = -np.eye(e.tracker.layout.n)  # corrupt: not positive definite
+        rho = np.linalg.norm(tr.pos_m[k] - ac.stations_m[j]) + ac.clock.bias_m(tk) + 0.9 * rng.standard_normal()
+        e.on_measurement(tk, j + 1, ac.stations_m[j], None, rho)
+    assert e.n_resets == 1
+    est = e.estimate()
+    p, _ = tr.at(est["t_s"])
+    assert np.linalg.norm(np.array(est["pos_m"]) - p) < 30.0
