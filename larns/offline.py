@@ -28,6 +28,7 @@ import msgpack
 
 from .mcaputil import LogFile, LogWriter, Msg, merge, read_logs
 
+JOURNAL_TOPICS = ["larns/station/*/init", "larns/station/*/input", "larns/station/*/estimate"]
 ESTIMATE_FIELDS = ("t_s", "pos_m", "cov_m2", "n_updates", "estimator", "state", "seq", "stamp_s")
 
 
@@ -276,7 +277,11 @@ def run_offline(paths: Sequence[str | Path], output: str | Path | None = None, e
 
     t0 = time.perf_counter()
     c0 = time.process_time()
-    logs = list(logs) if logs is not None else read_logs(paths)
+    if logs is None:
+        # without an output file or the aircraft, only the journal and estimate channels are needed
+        sel = None if (output is not None or algos) else JOURNAL_TOPICS
+        logs = read_logs(paths, topics=sel)
+    logs = list(logs)
     msgs = merge(logs)
     journals = collect_journals(msgs, strict=strict)
     ep = logs[0].epoch_unix_s if logs else None

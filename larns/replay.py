@@ -259,8 +259,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
 def cmd_offline(args: argparse.Namespace) -> int:
     from .offline import format_result, run_offline
 
-    try:
-        logs = read_logs(args.files)
+    from .offline import JOURNAL_TOPICS
+
+    try:  # only the journal and estimate channels unless the whole recording is rewritten
+        logs = read_logs(args.files, topics=None if (args.output or args.algo) else JOURNAL_TOPICS)
     except (OSError, ValueError) as e:
         print(f"larns replay --offline: {e}", file=sys.stderr)
         return 1
