@@ -124,18 +124,21 @@ class Bus:
         self.closed = False
 
     # ------------------------------------------------------------------ publish
-    def publish(self, key: str, data: bytes) -> None:
-        pub = self._pubs.get(key)
+    def publish(self, key: str, data: bytes, block: bool = False) -> None:
+        """Publish ``data`` on ``key``. Default congestion control DROP (a late air message is a lost
+        one anyway); ``block=True`` waits for room instead (journals, bulk senders, fuzzers)."""
+        pub = self._pubs.get((key, block))
         if pub is None:
             with self._lock:
-                pub = self._pubs.get(key)
+                pub = self._pubs.get((key, block))
                 if pub is None:
+                    cc = self._z.CongestionControl
                     pub = self.session.declare_publisher(
-                        key, express=self._express,
-                        congestion_control=self._z.CongestionControl.DROP,
+                        key, express=self._express and not block,
+                        congestion_control=cc.BLOCK if block else cc.DROP,
                         priority=self._z.Priority.REAL_TIME if "/range/" in key
                         else self._z.Priority.DATA)
-                    self._pubs[key] = pub
+                    self._pubs[(key, block)] = pub
         pub.put(data)
 
     # ------------------------------------------------------------------ subscribe

@@ -112,7 +112,6 @@ class StationNode:
         self._journal_pubs: dict[str, Any] = {}
         self._last_status = -math.inf
         self._wire_delay_s: deque = deque(maxlen=10000)  # recent range message delivery delays
-        self._own_nav_key = M.station_key(self.id, "nav")
 
     # ------------------------------------------------------------------ time
     def fleet_now(self) -> float:
@@ -166,8 +165,6 @@ class StationNode:
         return False
 
     def _ingest(self, recv_wall: float, key: str, data: bytes) -> None:
-        if key == self._own_nav_key:  # our own broadcast, looped back by the subscription
-            return
         try:
             msg, phy = M.decode(data)
         except M.MessageError as e:
