@@ -16,6 +16,8 @@ ARG BASE=python:3.11-slim
 
 # 1. dependencies in a venv (cached until pyproject.toml or the wheelhouse change)
 FROM ${BASE} AS deps
+# build stages carry this label so scripts/docker-build.sh can prune their stale copies
+LABEL org.larns.stage="build"
 ARG WHEELHOUSE=auto
 ENV PIP_DISABLE_PIP_VERSION_CHECK=1 PIP_NO_CACHE_DIR=1 PYTHONDONTWRITEBYTECODE=1
 COPY pyproject.toml build/wheel[s] /wheels/

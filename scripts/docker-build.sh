@@ -64,8 +64,17 @@ log "base image $BASE ready ($(dt "$t") s)"
 
 t=$(now)
 mkdir -p build
-docker build --build-arg BASE="$BASE" -t "$TAG" . >build/docker-build.log 2>&1 \
-  || { tail -n 40 build/docker-build.log >&2; exit 1; }
+old=$(docker image inspect -f '{{.Id}}' "$TAG" 2>/dev/null || true)
+{
+  # the build stages get tags of their own, so pruning stale ones keeps the current cache
+  docker build --target runtime --build-arg BASE="$BASE" -t larns-build:runtime . &&
+  docker build --target app --build-arg BASE="$BASE" -t larns-build:app . &&
+  docker build --build-arg BASE="$BASE" -t "$TAG" .
+} >build/docker-build.log 2>&1 || { tail -n 40 build/docker-build.log >&2; exit 1; }
+new=$(docker image inspect -f '{{.Id}}' "$TAG")
+# drop what this build made obsolete: the previous image and untagged build stages (ours only)
+if [ -n "$old" ] && [ "$old" != "$new" ]; then docker rmi "$old" >/dev/null 2>&1 || true; fi
+docker image prune -f --filter label=org.larns.stage=build >/dev/null 2>&1 || true
 size=$(docker image inspect -f '{{.Size}}' "$TAG")
 log "$(awk -v t="$TAG" -v s="$size" 'BEGIN{printf "image %s: %.0f MB", t, s/1e6}') ($(dt "$t") s)"
 log "total $(dt "$t0") s"
