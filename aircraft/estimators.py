@@ -169,7 +169,8 @@ class Tuning:
     p0_clock_m: float = 20.0
     p0_drift_m_s: float = 1.0
     floor_z_m: float | None = 0.0  # station plane: LSQ mirrors below it, filters truncate (None: off)
-    trunc_sigma: float = 6.0  # filters truncate while the mean is less than this many sigma above the floor
+    trunc_sigma: float = 6.0
+    sequential: bool = False  # pseudorange epochs as sequential scalar updates (else one vector update)  # filters truncate while the mean is less than this many sigma above the floor
 
     def p0(self, layout: mdl.StateLayout) -> np.ndarray:
         d = [self.p0_pos_m] * 3 + [self.p0_vel_m_s] * 3
@@ -257,6 +258,22 @@ class CvTracker:
             self.x, self.P, nu, S = ukf_update(self.x, self.P, z, h, R, self.params)
         self._mirror()
         return nu, S
+
+    def update_sequential(
+        self, stations_m: np.ndarray, rho_m: np.ndarray, station_cov_m2: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Pseudorange epoch as sequential scalar updates (re-linearized / sigma points redrawn after
+        each). Equivalent to the batch update for a linear model; for ranges it reduces the EKF's
+        linearization error close to a transmitter. Returns the stacked (nu (..., m), S diag (..., m))."""
+        if self.layout.kind != "pr":
+            raise ValueError("sequential scalar updates need independent pseudoranges (pr model)")
+        nus, Ss = [], []
+        for j in range(stations_m.shape[0]):
+            c = None if station_cov_m2 is None else station_cov_m2[j : j + 1]
+            nu, S = self.update(stations_m[j : j + 1], rho_m[..., j : j + 1], c)
+            nus.append(nu[..., 0])
+            Ss.append(S[..., 0, 0])
+        return np.stack(nus, axis=-1), np.stack(Ss, axis=-1)
 
     def _mirror(self) -> None:
         """Enforce "above the station plane" (``floor_z_m``) by moment-matching truncation.
@@ -418,7 +435,11 @@ class AircraftEstimator:
             return
         try:
             self.tracker.predict_to(t_s)
-            nu, S = self.tracker.update(pos, rho, cov, dt if np.any(dt) else None)
+            if self.cfg.tuning.sequential and self.model == "pr" and not np.any(dt):
+                nu, s_diag = self.tracker.update_sequential(pos, rho, cov)
+                S = np.diag(s_diag)
+            else:
+                nu, S = self.tracker.update(pos, rho, cov, dt if np.any(dt) else None)
         except np.linalg.LinAlgError:
             self._reset()
             return

@@ -90,7 +90,11 @@ def run_algo(
     P_pos = np.empty((M, T, 3, 3)) if keep_cov else None
     for k in range(T):
         trk.predict_to(float(track.t_s[k]))
-        nu, S = trk.update(stations_m, rho[k], station_cov_m2)
+        if tuning.sequential and model == "pr":
+            nu, s_diag = trk.update_sequential(stations_m, rho[k], station_cov_m2)
+            S = s_diag[..., :, None] * np.eye(s_diag.shape[-1])  # NIS of the sequential innovations
+        else:
+            nu, S = trk.update(stations_m, rho[k], station_cov_m2)
         e = trk.x - xt[k]
         err[:, k] = e[:, :3]
         L = np.linalg.cholesky(trk.P)

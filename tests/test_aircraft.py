@@ -414,3 +414,18 @@ def test_estimator_resets_a_broken_filter_instead_of_raising():
     est = e.estimate()
     p, _ = tr.at(est["t_s"])
     assert np.linalg.norm(np.array(est["pos_m"]) - p) < 30.0
+
+
+def test_sequential_scalar_updates_equal_the_batch_update_when_nearly_linear():
+    tun = Tuning(p0_pos_m=1e-3, p0_vel_m_s=1e-3, p0_clock_m=1e-3, p0_drift_m_s=1e-3, floor_z_m=None)
+    x0 = np.array([[800.0, 300.0, 60.0, 10.0, -5.0, 0.0, 3.0, 0.6]])
+    z = mdl.h_pr(x0, S001) + np.array([[3e-4, -2e-4, 1e-4, 0.0]])
+    for kind in ("ekf", "ukf"):
+        a = CvTracker(kind, "pr", x0, tun)
+        b = CvTracker(kind, "pr", x0, tun)
+        a.update(S001, z)
+        b.update_sequential(S001, z)
+        np.testing.assert_allclose(b.x, a.x, atol=1e-8)
+        np.testing.assert_allclose(b.P, a.P, rtol=1e-5, atol=1e-13)
+    with pytest.raises(ValueError):
+        CvTracker("ekf", "tdoa", x0[:, :6], tun).update_sequential(S001, z)
