@@ -350,6 +350,58 @@ def write_output(output: str | Path, logs: Sequence[LogFile], msgs: Sequence[Msg
                 w.write(topic, data, lt, pt, "json", schema_for(sname))
 
 
+def aircraft_nav_sequence(msgs: Sequence[Msg], name: str) -> tuple[list[tuple[Msg, dict, dict]], str]:
+    """The nav broadcasts the aircraft measured, in its order, and how that order was obtained.
+
+    The aircraft publishes an ``ac_truth`` (``t_s`` = true reception time) for every broadcast it
+    measured, so its truth topic identifies them: the broadcast whose true transmit time lies within
+    a millisecond (the time of flight) before each reception. If that topic is complete (seq 1..n,
+    every reception matched), its sequence is used ("aircraft"); otherwise every recorded usable nav
+    in recorded order ("recorder")."""
+    import bisect
+
+    from net import messages as M
+
+    navs: list[tuple[float, Msg, dict, dict]] = []
+    rx: dict[int, float] = {}
+    for m in msgs:
+        if m.encoding != "msgpack":
+            continue
+        if m.topic.endswith("/nav"):
+            try:
+                msg, phy = M.decode(m.data)
+            except M.MessageError:
+                continue
+            if msg["kind"] == "nav" and phy is not None:
+                navs.append((phy["t_true_s"], m, msg, phy))
+        elif m.topic == f"larns/aircraft/{name}/truth":
+            try:
+                msg, _ = M.decode(m.data)
+            except M.MessageError:
+                continue
+            rx.setdefault(msg["seq"], msg["t_s"])
+    recorder = [(m, msg, phy) for _t, m, msg, phy in navs]
+    if not rx or 1 not in rx:
+        return recorder, "recorder"
+    by_t = sorted(navs, key=lambda x: x[0])
+    ts = [x[0] for x in by_t]
+    seq: list[tuple[Msg, dict, dict]] = []
+    k = 1
+    while k in rx:
+        t = rx[k]
+        i = bisect.bisect_right(ts, t) - 1
+        if i < 0 or t - ts[i] > 1e-3:
+            break
+        seq.append(by_t[i][1:])
+        k += 1
+    if k > max(rx):
+        return seq, "aircraft"
+    # a truth sample is missing: the aircraft's sequence up to there, then the recorder's
+    t_last = rx[k - 1] if k > 1 else -math.inf
+    rest = [x[1:] for x in navs if x[0] > t_last]
+    return seq + rest, f"aircraft up to measurement {k - 1}, then recorder"
+
+
 def reestimate_aircraft(logs: Sequence[LogFile], msgs: Sequence[Msg], algos: Sequence[str],
                         scenario: str | None = None, name: str | None = None, seed: int | None = None,
                         height_m: float | None = None) -> dict[str, dict]:
@@ -386,15 +438,8 @@ def reestimate_aircraft(logs: Sequence[LogFile], msgs: Sequence[Msg], algos: Seq
     speed = logs[0].speed if logs else 1.0
     out: dict[str, dict] = {a: {"estimates": [], "truth": [], "err": []} for a in algos}
     truth: list[Msg] = []
-    for m in msgs:
-        if m.encoding != "msgpack" or not m.topic.endswith("/nav"):
-            continue
-        try:
-            msg, phy = M.decode(m.data)
-        except M.MessageError:
-            continue
-        if msg["kind"] != "nav" or phy is None:
-            continue
+    navs, order = aircraft_nav_sequence(msgs, name)
+    for m, msg, phy in navs:
         for o in core.on_nav(msg, phy):
             pub = m.log_time if ep is None else int(round((ep + o["stamp_s"] / speed) * 1e9))
             rec = Msg(M.key_for(o), m.log_time, pub, o["seq"], M.encode(o))
@@ -423,12 +468,15 @@ def reestimate_aircraft(logs: Sequence[LogFile], msgs: Sequence[Msg], algos: Seq
         tail = e[len(e) // 10:] if e.size else e
         new = [M.decode(x.data)[0] for x in d["estimates"]] if recorded[a] else []
         keys = ("t_s", "pos_m", "cov_m2", "n_updates")
-        same = [all(x.get(k) == y.get(k) for k in keys) for x, y in zip(new, recorded[a])]
+        # match by the per-algorithm update count (robust to recorded estimates lost on the way)
+        rec_by_n = {y.get("n_updates"): y for y in recorded[a]}
+        same = [all(x.get(k) == rec_by_n[x.get("n_updates")].get(k) for k in keys)
+                for x in new if x.get("n_updates") in rec_by_n]
         prefix = same.index(False) if False in same else len(same)
         res[a] = {"n": int(e.size), "final_err_m": float(e[-1]) if e.size else math.nan,
                   "rms_err_m": float(np.sqrt(np.mean(tail**2))) if tail.size else math.nan,
                   "recorded": len(recorded[a]), "compared": len(same), "equal": int(sum(same)),
-                  "equal_prefix": prefix, "estimates": d["estimates"], "truth": truth}
+                  "equal_prefix": prefix, "sequence": order, "estimates": d["estimates"], "truth": truth}
     return {name: res}
 
 
@@ -456,5 +504,6 @@ def format_result(res: OfflineResult, compare: bool = True) -> str:
                 cmp = (f"; vs the {d['recorded']} recorded: {d['equal']}/{d['compared']} identical"
                        + ("" if d["equal"] == d["compared"] else f" (first {d['equal_prefix']} in a row)"))
             lines.append(f"aircraft {name} {a}: {d['n']} estimates, final error {d['final_err_m']:.2f} m, "
-                         f"RMS error (after the first 10 %) {d['rms_err_m']:.2f} m{cmp}")
+                         f"RMS error (after the first 10 %) {d['rms_err_m']:.2f} m{cmp} "
+                         f"[broadcast sequence: {d.get('sequence', '-')}'s]")
     return "\n".join(lines)
