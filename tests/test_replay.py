@@ -324,6 +324,12 @@ def test_killed_recording_info_report_replay_recover(run, tmp_path):
     assert "INCOMPLETE" in md and "station_errors.png" in md
     res = json.loads((rep / "report.json").read_text())
     assert set(map(int, res["stations"])) == {1, 2, 3, 4, 5}
+    # live replay of what is there (a short window, fast)
+    (port,) = free_tcp_ports(1)
+    st = json.loads(larns("replay", str(killed), "--until", "1.0", "--rate", "5", "--delay", "0", "--json", "-q",
+                          "--listen", f"tcp/127.0.0.1:{port}").stdout.strip().splitlines()[-1])
+    t0 = min(m.log_time for m in lg.messages)
+    assert st["published"] == sum(1 for m in lg.messages if m.encoding == "msgpack" and m.log_time <= t0 + 1e9)
     # offline replay of what is there: still bit exact up to the damage
     r = json.loads(larns("replay", str(killed), "--offline", "--json", "-q").stdout.strip().splitlines()[-1])
     assert all(st["bit_exact"] for st in r["stations"].values()), r
