@@ -104,7 +104,25 @@ def batch_map(pairs: np.ndarray, ranges_m: np.ndarray, sigma_d_m: float, free: n
             r = np.concatenate([r, (theta - prior_m[free]) / sigma0_m])
         return r
 
-    sol = least_squares(resid, start, method="lm" if len(ranges_m) > start.size else "trf", xtol=1e-10)
+    idx = _index(free)
+    p = start.size
+
+    def jac(theta):
+        X = base.copy()
+        X[free] = theta
+        d = X[i] - X[j]
+        u = d / np.linalg.norm(d, axis=1)[:, None]
+        G = np.zeros((len(ranges_m), p))
+        rows = np.arange(len(ranges_m))
+        for ax in range(3):
+            fi, fj = free[i, ax], free[j, ax]
+            G[rows[fi], idx[i[fi], ax]] -= u[fi, ax] / sigma_d_m
+            G[rows[fj], idx[j[fj], ax]] += u[fj, ax] / sigma_d_m
+        if sigma0_m is not None:
+            G = np.vstack([G, np.eye(p) / sigma0_m])
+        return G
+
+    sol = least_squares(resid, start, jac=jac, method="lm" if len(ranges_m) > start.size else "trf", xtol=1e-10)
     X = base.copy()
     X[free] = sol.x
     return X
