@@ -210,6 +210,20 @@ def from_dict(raw: dict[str, Any]) -> Scenario:
         phys = phys[order_for_frame(phys)]
         ids = list(range(1, n + 1))
         join_ids = [int(i) for i in lay.get("join_ids", [])]
+        joiners = int(lay.get("joiners", 0))
+        if joiners:
+            # newcomers from their own stream: the first n stations stay exactly where they were
+            jr = np.random.default_rng([seed, 7])
+            area = np.asarray(lay.get("area_m", (2000.0, 2000.0, 80.0)), dtype=float)
+            sep = float(lay.get("min_separation_m", 100.0))
+            extra: list[np.ndarray] = []
+            while len(extra) < joiners:
+                p = jr.uniform(0.0, 1.0, 3) * area
+                if all(np.hypot(*(p[:2] - q[:2])) >= sep for q in list(phys) + extra):
+                    extra.append(p)
+            phys = np.vstack([phys, extra])
+            ids += list(range(n + 1, n + joiners + 1))
+            join_ids += list(range(n + 1, n + joiners + 1))
     if len(set(ids)) != len(ids) or min(ids) < 1:
         raise ValueError("station ids must be unique positive integers")
     order = np.argsort(ids)
