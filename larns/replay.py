@@ -87,10 +87,17 @@ class Keyboard:
     def __init__(self, controls: Controls, stream=None):
         self.c = controls
         self.stream = stream or sys.stdin
-        self.enabled = hasattr(self.stream, "isatty") and self.stream.isatty()
+        self.enabled = hasattr(self.stream, "isatty") and self.stream.isatty() and self._foreground()
         self._old = None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+
+    def _foreground(self) -> bool:
+        """Only a foreground job may change the terminal (a background one would get SIGTTOU)."""
+        try:
+            return os.tcgetpgrp(self.stream.fileno()) == os.getpgrp()
+        except OSError:  # not our controlling terminal: no job control applies
+            return True
 
     def __enter__(self) -> "Keyboard":
         if self.enabled:
