@@ -69,3 +69,42 @@ def test_config_file_pass_through(tmp_path):
     assert json.loads(conf.get_json("connect/endpoints")) == ["tcp/10.0.0.1:7447"]
     conf = make_config(connect=["tcp/127.0.0.1:9"], config_file=str(f))
     assert json.loads(conf.get_json("connect/endpoints")) == ["tcp/127.0.0.1:9"]
+
+
+RING = textwrap.dedent("""
+    import json, sys, time
+    from net.bus import Bus
+    role, ep = sys.argv[1], sys.argv[2]
+    if role == "sub":
+        b = Bus(listen=[ep])
+        sub = b.subscribe_ring("ring/**", 100)
+        b.declare_token("ring/alive/sub")
+        time.sleep(4)
+        got = b.drain(sub)
+        print(json.dumps({"n": len(got), "first": got[0][1].decode() if got else None,
+                          "last": got[-1][1].decode() if got else None, "key": got[0][0] if got else None,
+                          "again": len(b.drain(sub))}))
+        b.close()
+    else:
+        b = Bus(connect=[ep])
+        t0 = time.time()
+        while not b.alive("ring/alive/*", 0.5) and time.time() - t0 < 20:
+            time.sleep(0.1)
+        time.sleep(0.3)
+        for i in range(150):
+            b.publish("ring/x", str(i).encode(), block=True)
+        time.sleep(0.5)
+        b.close()
+""")
+
+
+def test_ring_subscription_keeps_newest():
+    """Ring-buffer subscription (used for nav broadcasts): no callback per sample, drained in
+    order, oldest dropped beyond the capacity."""
+    (port,) = free_tcp_ports(1)
+    ep = f"tcp/127.0.0.1:{port}"
+    sub = subprocess.Popen([sys.executable, "-c", RING, "sub", ep], stdout=subprocess.PIPE, text=True)
+    pub = subprocess.run([sys.executable, "-c", RING, "pub", ep], timeout=40)
+    assert pub.returncode == 0
+    out = json.loads(sub.communicate(timeout=40)[0])
+    assert out == {"n": 100, "first": "50", "last": "149", "key": "ring/x", "again": 0}
