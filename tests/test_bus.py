@@ -79,7 +79,10 @@ RING = textwrap.dedent("""
         b = Bus(listen=[ep])
         sub = b.subscribe_ring("ring/**", 100)
         b.declare_token("ring/alive/sub")
-        time.sleep(4)
+        t0 = time.time()
+        while not b.alive("ring/done/*", 0.5) and time.time() - t0 < 30:
+            time.sleep(0.1)
+        time.sleep(0.3)
         got = b.drain(sub)
         print(json.dumps({"n": len(got), "first": got[0][1].decode() if got else None,
                           "last": got[-1][1].decode() if got else None, "key": got[0][0] if got else None,
@@ -93,7 +96,9 @@ RING = textwrap.dedent("""
         time.sleep(0.3)
         for i in range(150):
             b.publish("ring/x", str(i).encode(), block=True)
-        time.sleep(0.5)
+        time.sleep(0.3)
+        b.declare_token("ring/done/pub")
+        time.sleep(2.0)
         b.close()
 """)
 
