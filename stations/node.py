@@ -109,7 +109,8 @@ class StationNode:
         self._truth_seq = 0
         self._journal_seq = {"core_init": 0, "core_input": 0}
         self._navs_sent = 0
-        self._journal_pubs: dict[str, Any] = {}
+        self._journal_thread: threading.Thread | None = None
+        self._journal_q: Any = None
         self._last_status = -math.inf
         self._wire_delay_s: deque = deque(maxlen=10000)  # recent range message delivery delays
         self._nav_sub = None
@@ -268,21 +269,42 @@ class StationNode:
             log.error("station %d: cannot publish core_init: %s", self.id, e)
 
     def _publish_journal_bytes(self, key: str, data: bytes) -> None:
-        """Journal samples use congestion control BLOCK: a journal with a hole cannot be replayed
-        bit for bit, while an air message dropped under load is just a lost measurement. One sample
-        per own slot; a dead recorder's link closes, so this cannot stall the station for long."""
-        session = getattr(self.bus, "session", None)
-        if session is None:  # a test double without a Zenoh session
+        """Journal samples go out with congestion control BLOCK (a journal with a hole cannot be
+        replayed bit for bit, while an air message dropped under load is just a lost measurement),
+        from a sender thread with a bounded FIFO: a slow recorder can stall that thread, never the
+        station's timing. Overflow is counted (``journal_dropped``)."""
+        if getattr(self.bus, "session", None) is None:  # a test double without a Zenoh session
             self.bus.publish(key, data)
             return
-        pub = self._journal_pubs.get(key)
-        if pub is None:
-            import zenoh
+        if self._journal_thread is None:
+            import queue
 
-            pub = session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK,
-                                            priority=zenoh.Priority.DATA)
-            self._journal_pubs[key] = pub
-        pub.put(data)
+            self._journal_q = queue.Queue(maxsize=512)
+            self._journal_thread = threading.Thread(target=self._journal_sender, name="journal", daemon=True)
+            self._journal_thread.start()
+        try:
+            self._journal_q.put_nowait((key, data))
+        except Exception:  # queue.Full
+            self.stats["journal_dropped"] += 1
+
+    def _journal_sender(self) -> None:
+        while True:
+            item = self._journal_q.get()
+            if item is None:
+                return
+            try:
+                self.bus.publish(item[0], item[1], block=True)
+            except Exception:  # session closing
+                log.debug("journal sample not sent", exc_info=True)
+
+    def _flush_journal(self, timeout_s: float = 2.0) -> None:
+        """At exit: let the queued journal samples leave before the session closes."""
+        if self._journal_thread is not None:
+            try:
+                self._journal_q.put(None, timeout=timeout_s)
+            except Exception:
+                pass
+            self._journal_thread.join(timeout_s)
 
     def _publish_journal(self) -> None:
         """After the own slot's nav: what the core consumed since the last one (docs/protocol.md)."""
@@ -406,6 +428,7 @@ class StationNode:
                 self._wake.wait(timeout)
         with self._lock:
             self._stop.set()  # callbacks still in flight become no-ops
+        self._flush_journal()
         return self.report()
 
     def report(self) -> dict:
