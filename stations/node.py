@@ -448,6 +448,7 @@ class StationNode:
             "range_delay_ms": ({f"p{q}": float(np.percentile(self._wire_delay_s, q)) * 1e3 for q in (50, 90, 99)}
                                if self._wire_delay_s else {}),
             "air_lost": int(self.stats["air_lost"]), "max_lateness_ms": self.max_lateness_s * 1e3,
+            "journal_dropped": int(self.stats["journal_dropped"]),
             "drops": self.drops.as_dict(), "counters": dict(self.core.counters),
             "tx": {k[3:]: v for k, v in self.stats.items() if k.startswith("tx_")},
             "rx": {k[3:]: v for k, v in self.stats.items() if k.startswith("rx_")},
