@@ -256,7 +256,7 @@ class CvTracker:
             self.x, self.P, nu, S = ekf_update(self.x, self.P, z, h, H, R)
         else:
             self.x, self.P, nu, S = ukf_update(self.x, self.P, z, h, R, self.params)
-        self._mirror()
+        self._truncate_floor()
         return nu, S
 
     def update_sequential(
@@ -275,7 +275,7 @@ class CvTracker:
             Ss.append(S[..., 0, 0])
         return np.stack(nus, axis=-1), np.stack(Ss, axis=-1)
 
-    def _mirror(self) -> None:
+    def _truncate_floor(self) -> None:
         """Enforce "above the station plane" (``floor_z_m``) by moment-matching truncation.
 
         The Gaussian posterior is truncated to ``z >= floor`` and re-approximated by the truncated

@@ -69,7 +69,6 @@ def coordinated_turn(
     t_s = np.asarray(t_s, dtype=float)
     # heading and position at each segment start
     K = len(seg_start_s)
-    ends = np.append(seg_start_s[1:], np.inf)
     p0 = np.zeros((K, 2))
     psi0 = np.zeros(K)
     p, psi = np.asarray(start_m, dtype=float)[:2].copy(), float(heading_rad)
@@ -78,7 +77,6 @@ def coordinated_turn(
         if k + 1 < K:
             p, psi = _turn_step(p, psi, speed_m_s, seg_omega_rad_s[k], seg_start_s[k + 1] - seg_start_s[k])
     k = np.clip(np.searchsorted(seg_start_s, t_s, side="right") - 1, 0, K - 1)
-    del ends
     tau = t_s - seg_start_s[k]
     xy, psi_t = _turn_step(p0[k], psi0[k], speed_m_s, seg_omega_rad_s[k], tau)
     pos = np.column_stack([xy, np.full(t_s.size, float(start_m[2]))])

@@ -388,7 +388,7 @@ def test_floor_truncation_moment_matching():
     trk.P[:] = np.diag([4.0, 4.0, 100.0, 1, 1, 1, 4.0, 1])
     trk.P[:, 2, 6] = trk.P[:, 6, 2] = 10.0  # z correlated with the clock
     P_before = trk.P.copy()
-    trk._mirror()
+    trk._truncate_floor()
     s = 10.0
     assert trk.x[0, 2] == pytest.approx(s * np.sqrt(2 / np.pi), rel=1e-9)
     assert trk.P[0, 2, 2] == pytest.approx(s**2 * (1 - 2 / np.pi), rel=1e-9)
