@@ -198,6 +198,10 @@ def run_scale_once(n: int, duration_s: float, warmup_s: float = 4.0, quiet: bool
         "requests": int(sum(r["counters"].get("requests", 0) for r in ok)),
         "responses": int(sum(r["counters"].get("responses", 0) for r in ok)),
         "max_lateness_ms": float(max((r["max_lateness_ms"] for r in ok), default=float("nan"))),
+        "range_delay_p50_ms": float(np.median([r["range_delay_ms"]["p50"] for r in ok if r.get("range_delay_ms")]
+                                              or [float("nan")])),
+        "range_delay_p99_ms": float(np.median([r["range_delay_ms"]["p99"] for r in ok if r.get("range_delay_ms")]
+                                              or [float("nan")])),
         "cpu_per_proc_pct": float(np.mean(cpu) * 100) if cpu else float("nan"),
         "cpu_total_pct": float(np.sum(cpu) * 100) if cpu else float("nan"),
         "rss_per_proc_mb": float(np.mean(rss) / 2**20) if rss else float("nan"),
@@ -226,10 +230,15 @@ def cmd_bench_scale(args: argparse.Namespace) -> int:
             best = max(best, n)
         elif not args.keep_going:
             break
-    print(f"{'N':>4} {'missed':>7} {'slots':>7} {'late':>6} {'cpu/proc %':>10} {'cpu total %':>11} {'rss/proc MB':>11}")
+    print(f"{'N':>4} {'missed':>7} {'slots':>7} {'late':>6} {'delay p50/p99 ms':>17} {'cpu/proc %':>10} "
+          f"{'cpu total %':>11} {'rss/proc MB':>11} {'load':>5}")
     for r in runs:
-        print(f"{r['n']:>4} {r['missed_slots']:>7} {r['slots']:>7} {r['late_replies']:>6} "
-              f"{r['cpu_per_proc_pct']:>10.1f} {r['cpu_total_pct']:>11.1f} {r['rss_per_proc_mb']:>11.1f}")
+        d = f"{r['range_delay_p50_ms']:.1f}/{r['range_delay_p99_ms']:.1f}"
+        print(f"{r['n']:>4} {r['missed_slots']:>7} {r['slots']:>7} {r['late_replies']:>6} {d:>17} "
+              f"{r['cpu_per_proc_pct']:>10.1f} {r['cpu_total_pct']:>11.1f} {r['rss_per_proc_mb']:>11.1f} "
+              f"{r['loadavg_1min_before']:>5.1f}")
+    print("(missed: own-slot request sent more than half a slot late; late: range message delivered after "
+          "its slot; delay: median over stations of the per-station percentile, air tx -> delivery)")
     print(f"largest N with zero missed slots: {best} (goal >= 50)")
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps({"best_n": best, "runs": runs}, indent=2))
