@@ -246,18 +246,22 @@ def validate_msg(msg: Any) -> dict[str, Any]:
     if not isinstance(kind, str) or kind not in SCHEMAS:
         raise MessageError("kind", f"unknown kind {str(kind)[:32]!r}")
     req, opt = SCHEMAS[kind]
-    out: dict[str, Any] = {"kind": kind}
+    checks = _MERGED.get(kind)
+    if checks is None or len(checks) != len(req) + len(opt) + 1:  # (schemas may change after import)
+        checks = _MERGED[kind] = {**opt, **req, "kind": None}
+    out: dict[str, Any] = {}
     for k, v in msg.items():
-        if k == "kind":
-            continue
-        check = req.get(k) or opt.get(k)
-        if check is None:
-            raise MessageError("field", f"{kind}: unknown field {str(k)[:32]!r}")
-        out[k] = check(v, k)
-    missing = [k for k in req if k not in out]
-    if missing:
-        raise MessageError("field", f"{kind}: missing {missing}")
+        try:
+            check = checks[k]
+        except (KeyError, TypeError):
+            raise MessageError("field", f"{kind}: unknown field {str(k)[:32]!r}") from None
+        out[k] = kind if check is None else check(v, k)
+    if not req.keys() <= out.keys():
+        raise MessageError("field", f"{kind}: missing {[k for k in req if k not in out]}")
     return out
+
+
+_MERGED: dict[str, dict[str, Callable | None]] = {}
 
 
 def validate_phy(phy: Any) -> dict[str, Any]:
