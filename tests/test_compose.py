@@ -191,7 +191,7 @@ def fleet(larns_image, tmp_path_factory) -> FleetRun:
     for f in (mcap, logs):
         f.unlink(missing_ok=True)
     epoch = float(int(time.time()) + 5)     # about when the containers are up
-    env = {**os.environ, "LARNS_IMAGE": larns_image, "LARNS_SCENARIO": "compose",
+    env = {**os.environ, "LARNS_IMAGE": larns_image, "LARNS_SCENARIO": "compose", "LARNS_JOIN_SCENARIO": "compose",
            "LARNS_SCENARIO_DIR": str(tmp), "LARNS_SPEED": repr(SPEED), "LARNS_EPOCH": repr(epoch),
            "LARNS_RUN": name, "LARNS_UID": str(os.getuid()), "LARNS_GID": str(os.getgid())}
     dc = Compose(f"larnstest{os.getpid()}", env)
