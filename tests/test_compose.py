@@ -31,7 +31,6 @@ import os
 import shutil
 import subprocess
 import sys
-import textwrap
 import threading
 import time
 from dataclasses import dataclass, field
@@ -39,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scenario_text import random_world
 
 pytestmark = [pytest.mark.compose, pytest.mark.timeout(900)]
 
@@ -102,30 +102,8 @@ def larns_image() -> str:
     return "larns:latest"
 
 
-SCENARIO = textwrap.dedent("""
-    name = "compose"
-    description = "seed000's world; station 11 hot-joins; 50 ms slots in a 0.6 s cycle (tests)"
-    seed = 1
-    [frame]
-    z_ref = 4
-    [layout]
-    kind = "random"
-    n = 11
-    join_ids = [11]
-    area_m = [2000.0, 2000.0, 80.0]
-    min_separation_m = 100.0
-    [tdma]
-    cycle_s = 0.6
-    slot_s = 0.05
-    [channel]
-    sigma_d_m = 0.5
-    turnaround_s = 0.001
-    [init]
-    sigma0_m = 10.0
-    [survey]
-    estimator = "dmap"
-    ranges_per_update = 3
-""")
+SCENARIO = random_world("compose", 11, [11], cycle_s=0.6, slot_s=0.05,
+                        description="seed000's world; station 11 hot-joins; 50 ms slots in a 0.6 s cycle (tests)")
 
 
 @dataclass

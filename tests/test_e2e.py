@@ -24,6 +24,7 @@ import pytest
 
 from larns.fleet import mcap_station_summary
 from net.bus import free_tcp_ports
+from scenario_text import random_world
 
 pytestmark = pytest.mark.e2e
 
@@ -59,29 +60,7 @@ def spawn(tmp_path):
 
 def write_scenario(tmp_path: Path, n: int, join_ids: list[int] | None = None, name: str = "e2e") -> Path:
     p = tmp_path / f"{name}.toml"
-    p.write_text(textwrap.dedent(f"""
-        name = "{name}"
-        seed = 1
-        [frame]
-        z_ref = 4
-        [layout]
-        kind = "random"
-        n = {n}
-        join_ids = {join_ids or []}
-        area_m = [2000.0, 2000.0, 80.0]
-        min_separation_m = 100.0
-        [tdma]
-        cycle_s = 0.5
-        slot_s = 0.05
-        [channel]
-        sigma_d_m = 0.5
-        turnaround_s = 0.001
-        [init]
-        sigma0_m = 10.0
-        [survey]
-        estimator = "dmap"
-        ranges_per_update = 3
-    """))
+    p.write_text(random_world(name, n, join_ids or []))
     return p
 
 

@@ -21,6 +21,7 @@ import pytest
 
 from net import messages as M
 from net.bus import free_tcp_ports
+from scenario_text import five_stations
 
 pytestmark = pytest.mark.e2e
 
@@ -28,47 +29,19 @@ PY = sys.executable
 DURATION = 24.0
 SPEED = 4.0
 
-SCENARIO = textwrap.dedent("""
-    name = "replay_e2e"
-    seed = 3
-    [frame]
-    z_ref = 4
-    [[stations]]
-    id = 1
-    pos_m = [0.0, 0.0, 0.0]
-    [[stations]]
-    id = 2
-    pos_m = [1800.0, 0.0, 5.0]
-    [[stations]]
-    id = 3
-    pos_m = [900.0, 1500.0, 0.0]
-    [[stations]]
-    id = 4
-    pos_m = [800.0, 500.0, 60.0]
-    [[stations]]
-    id = 5
-    pos_m = [300.0, 1200.0, 20.0]
-    [tdma]
-    cycle_s = 0.25
-    slot_s = 0.05
-    [channel]
-    sigma_d_m = 0.5
-    [init]
-    sigma0_m = 5.0
-    [survey]
-    estimator = "dmap"
-    [aircraft]
-    name = "ac1"
-    algos = ["ukf-pr"]
-    sigma_m = 0.5
-    init_sigma_m = 30.0
-    [aircraft.trajectory]
-    kind = "hover"
-    distance_m = 1500.0
-    height_m = 300.0
-    [aircraft.tuning]
-    q_acc = 1.0
-    p0_pos_m = 30.0
+SCENARIO = five_stations("replay_e2e", 3, extra="""
+[aircraft]
+name = "ac1"
+algos = ["ukf-pr"]
+sigma_m = 0.5
+init_sigma_m = 30.0
+[aircraft.trajectory]
+kind = "hover"
+distance_m = 1500.0
+height_m = 300.0
+[aircraft.tuning]
+q_acc = 1.0
+p0_pos_m = 30.0
 """)
 
 
