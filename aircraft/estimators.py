@@ -205,8 +205,14 @@ class CvTracker:
         self.base = base
         self.params = SigmaParams.scaled(alpha=tuning.alpha, beta=2.0, kappa=0.0)
         self._fq: dict[float, tuple[np.ndarray, np.ndarray]] = {}
+        self._last_dt: float | None = None
+        self._last_fq: tuple[np.ndarray, np.ndarray] | None = None
+        self._r_key: tuple | None = None
+        self._r: np.ndarray | None = None
 
     def _FQ(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        if dt == self._last_dt:  # synchronous epochs: the same step every time
+            return self._last_fq
         key = round(dt, 12)
         if key not in self._fq:
             n, tu = self.layout.n, self.tuning
@@ -214,7 +220,8 @@ class CvTracker:
                 self._fq.clear()
             self._fq[key] = (mdl.cv_transition(n, dt),
                              mdl.cv_noise(n, dt, tu.q_acc, tu.q_clock, tu.q_drift, tu.q_acc_z))
-        return self._fq[key]
+        self._last_dt, self._last_fq = dt, self._fq[key]
+        return self._last_fq
 
     def predict_to(self, t_s: float) -> None:
         """Propagate to ``t_s`` (no-op if ``t_s <= t``: measurements are never processed backwards)."""
@@ -236,16 +243,21 @@ class CvTracker:
         """
         stations_m = np.asarray(stations_m, dtype=float)
         sig = self.tuning.sigma_m if sigma_m is None else sigma_m
-        var = mdl.range_var(self.x, stations_m, station_cov_m2, sig, dt_s)
         if self.layout.kind == "pr":
-            R = mdl.r_pr(var)
+            if station_cov_m2 is None and np.ndim(sig) == 0:  # R does not depend on the state: cache it
+                key = (stations_m.shape[0], float(sig), self.x.shape[:-1])
+                if self._r_key != key:
+                    self._r_key, self._r = key, mdl.r_pr(mdl.range_var(self.x, stations_m, None, sig))
+                R = self._r
+            else:
+                R = mdl.r_pr(mdl.range_var(self.x, stations_m, station_cov_m2, sig, dt_s))
             z = rho_m
 
             def h(X):
                 return mdl.h_pr(X, stations_m, dt_s)
         else:
             b = self.base
-            R = mdl.r_tdoa(var, b)
+            R = mdl.r_tdoa(mdl.range_var(self.x, stations_m, station_cov_m2, sig, dt_s), b)
             z = np.delete(rho_m, b, axis=-1) - rho_m[..., b : b + 1]
 
             def h(X):

@@ -74,9 +74,15 @@ def los(X: np.ndarray, stations_m: np.ndarray, dt: np.ndarray | None = None) -> 
     return r, d / r[..., None]
 
 
+def _ranges(X: np.ndarray, stations_m: np.ndarray, dt: np.ndarray | None = None) -> np.ndarray:
+    """Ranges (..., m) only (no line-of-sight vectors)."""
+    d = _positions(X, dt) - stations_m
+    return np.sqrt(np.einsum("...i,...i->...", d, d))
+
+
 def h_pr(X: np.ndarray, stations_m: np.ndarray, dt: np.ndarray | None = None) -> np.ndarray:
     """Pseudoranges (..., m) for states X (..., n>=7) (seed 001 eq. 13)."""
-    r, _ = los(X, stations_m, dt)
+    r = _ranges(X, stations_m, dt)
     b = X[..., 6:7]
     if X.shape[-1] > 7 and dt is not None:
         b = b + X[..., 7:8] * np.asarray(dt, dtype=float)
@@ -85,7 +91,7 @@ def h_pr(X: np.ndarray, stations_m: np.ndarray, dt: np.ndarray | None = None) ->
 
 def h_tdoa(X: np.ndarray, stations_m: np.ndarray, base: int, dt: np.ndarray | None = None) -> np.ndarray:
     """Range differences (..., m-1) ``r_j - r_base`` for j != base, in station order (seed 001 eq. 10)."""
-    r, _ = los(X, stations_m, dt)
+    r = _ranges(X, stations_m, dt)
     return np.delete(r, base, axis=-1) - r[..., base : base + 1]
 
 
@@ -119,6 +125,8 @@ def range_var(
     dt: np.ndarray | None = None,
 ) -> np.ndarray:
     """Per-pseudorange noise variance (..., m): ``sigma^2 + u^T P_station u``."""
+    if station_cov_m2 is None and np.ndim(sigma_m) == 0:
+        return np.full(X.shape[:-1] + (stations_m.shape[0],), float(sigma_m) ** 2)
     sig2 = np.broadcast_to(np.asarray(sigma_m, dtype=float) ** 2, (stations_m.shape[0],))
     if station_cov_m2 is None:
         return np.broadcast_to(sig2, X.shape[:-1] + sig2.shape).copy()
@@ -128,6 +136,8 @@ def range_var(
 
 def r_pr(var: np.ndarray) -> np.ndarray:
     """Diagonal pseudorange covariance (..., m, m) from variances (..., m) (seed 001 eq. 16)."""
+    if var.ndim == 1:
+        return np.diag(var)
     return var[..., :, None] * np.eye(var.shape[-1])
 
 

@@ -9,9 +9,9 @@ from __future__ import annotations
 from typing import Callable
 
 import numpy as np
-import scipy.linalg as sla
+from scipy.linalg.lapack import dpotrs
 
-from .ut import SigmaParams, unscented_transform
+from .ut import SigmaParams, chol_lower, sigma_points, unscented_transform
 
 
 def symmetrize(P: np.ndarray) -> np.ndarray:
@@ -21,8 +21,11 @@ def symmetrize(P: np.ndarray) -> np.ndarray:
 
 def chol_solve(S: np.ndarray, B: np.ndarray) -> np.ndarray:
     """Solve ``S X = B`` for symmetric positive definite ``S`` (..., m, m), ``B`` (..., m, k)."""
-    if S.ndim == 2 and B.ndim == 2:
-        return sla.cho_solve(sla.cho_factor(S, lower=True, check_finite=False), B, check_finite=False)
+    if S.ndim == 2 and B.ndim == 2:  # one system: LAPACK potrf/potrs directly (low call overhead)
+        X, info = dpotrs(chol_lower(S), B, lower=1)
+        if info != 0:
+            raise np.linalg.LinAlgError(f"potrs info {info}")
+        return X
     L = np.linalg.cholesky(S)
     Y = np.linalg.solve(L, B)
     return np.linalg.solve(np.swapaxes(L, -1, -2), Y)
@@ -43,6 +46,9 @@ def update(
     x : (..., n); P : (..., n, n); nu : (..., m) innovation; S : (..., m, m); Pxz : (..., n, m).
     """
     K = gain(Pxz, S)
+    if K.ndim == 2 and np.ndim(x) == 1:  # one state: matmul fast path
+        P_new = P - K @ (S @ K.T)
+        return x + K @ nu, 0.5 * (P_new + P_new.T)
     x_new = x + np.einsum("...ij,...j->...i", K, nu)
     P_new = P - K @ S @ np.swapaxes(K, -1, -2)
     return x_new, symmetrize(P_new)
@@ -50,6 +56,9 @@ def update(
 
 def kf_predict(x, P, F, Q):
     """Linear prediction ``F x``, ``F P F^T + Q``; F (..., n, n)."""
+    if F.ndim == 2 and np.ndim(x) == 1 and np.ndim(P) == 2:  # one state: matmul fast path
+        Pn = F @ P @ F.T + Q
+        return F @ x, 0.5 * (Pn + Pn.T)
     x_new = np.einsum("...ij,...j->...i", F, x)
     return x_new, symmetrize(F @ P @ np.swapaxes(F, -1, -2) + Q)
 
@@ -83,11 +92,31 @@ def ukf_predict(x, P, f: Callable, Q, params: SigmaParams):
 
 def ukf_update(x, P, z, h: Callable, R, params: SigmaParams):
     """Unscented update (seed 000 eqs. 10-13). Returns x, P, nu, S."""
+    if np.ndim(x) == 1 and np.ndim(P) == 2 and np.ndim(R) == 2:
+        return _ukf_update_one(x, P, z, h, R, params)
     ut = unscented_transform(h, x, P, params)
     S = symmetrize(ut.cov + R)
     nu = z - ut.mean
     x_new, P_new = update(x, P, nu, S, ut.cross)
     return x_new, P_new, nu, S
+
+
+def _ukf_update_one(x, P, z, h, R, params):
+    """:func:`ukf_update` for one state (n,): the same algebra with few, small numpy calls."""
+    wm, wc, _ = params.weights(x.shape[-1])
+    X = sigma_points(x, P, params)  # (2n+1, n)
+    Y = np.asarray(h(X), dtype=float)  # (2n+1, m)
+    y = wm @ Y
+    dY = Y - y
+    S = (dY.T * wc) @ dY + R
+    S = 0.5 * (S + S.T)
+    Pxz = ((X - x).T * wc) @ dY  # (n, m)
+    Kt, info = dpotrs(chol_lower(S), Pxz.T, lower=1)  # S K^T = Pxz^T
+    if info != 0:
+        raise np.linalg.LinAlgError(f"potrs info {info}")
+    nu = z - y
+    P_new = P - Kt.T @ (S @ Kt)
+    return x + nu @ Kt, 0.5 * (P_new + P_new.T), nu, S
 
 
 def nis(nu: np.ndarray, S: np.ndarray) -> np.ndarray:

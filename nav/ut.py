@@ -16,10 +16,12 @@ Julier's set is the scaled set with ``alpha = 1, beta = 0``; both go through one
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
+from scipy.linalg.lapack import dpotrf
 
 
 @dataclass(frozen=True)
@@ -41,17 +43,38 @@ class SigmaParams:
         return cls(alpha=alpha, beta=beta, kappa=kappa)
 
     def weights(self, n: int) -> tuple[np.ndarray, np.ndarray, float]:
-        """Mean weights ``(2n+1,)``, covariance weights ``(2n+1,)`` and the spread ``sqrt(n+lambda)``."""
-        kappa = 3.0 - n if self.kappa is None else self.kappa
-        lam = self.alpha**2 * (n + kappa) - n
-        c = n + lam
-        if c <= 0:
-            raise ValueError(f"n + lambda must be positive, got {c} (n={n}, params={self})")
-        wm = np.full(2 * n + 1, 0.5 / c)
-        wc = wm.copy()
-        wm[0] = lam / c
-        wc[0] = lam / c + 1.0 - self.alpha**2 + self.beta
-        return wm, wc, float(np.sqrt(c))
+        """Mean weights ``(2n+1,)``, covariance weights ``(2n+1,)`` and the spread ``sqrt(n+lambda)``.
+
+        Cached per ``(params, n)``; the arrays are read-only (copy them to modify).
+        """
+        return _weights(self, int(n))
+
+
+@functools.lru_cache(maxsize=128)
+def _weights(params: SigmaParams, n: int) -> tuple[np.ndarray, np.ndarray, float]:
+    kappa = 3.0 - n if params.kappa is None else params.kappa
+    lam = params.alpha**2 * (n + kappa) - n
+    c = n + lam
+    if c <= 0:
+        raise ValueError(f"n + lambda must be positive, got {c} (n={n}, params={params})")
+    wm = np.full(2 * n + 1, 0.5 / c)
+    wc = wm.copy()
+    wm[0] = lam / c
+    wc[0] = lam / c + 1.0 - params.alpha**2 + params.beta
+    wm.setflags(write=False)
+    wc.setflags(write=False)
+    return wm, wc, float(np.sqrt(c))
+
+
+def chol_lower(P: np.ndarray) -> np.ndarray:
+    """Lower Cholesky factor of one SPD matrix (n, n) via LAPACK ``potrf`` (low call overhead).
+
+    Raises ``numpy.linalg.LinAlgError`` if ``P`` is not positive definite (like ``np.linalg.cholesky``).
+    """
+    L, info = dpotrf(P, lower=1, clean=1)
+    if info != 0 or not np.isfinite(L[-1, -1]):
+        raise np.linalg.LinAlgError("matrix is not positive definite" if info > 0 else f"potrf info {info}")
+    return L
 
 
 def sigma_points(x: np.ndarray, P: np.ndarray, params: SigmaParams) -> np.ndarray:
@@ -71,6 +94,13 @@ def sigma_points(x: np.ndarray, P: np.ndarray, params: SigmaParams) -> np.ndarra
     x = np.asarray(x, dtype=float)
     n = x.shape[-1]
     _, _, gamma = params.weights(n)
+    if x.ndim == 1 and np.ndim(P) == 2:  # one state: small-matrix fast path
+        cols = gamma * chol_lower(np.asarray(P, dtype=float)).T
+        X = np.empty((2 * n + 1, n))
+        X[0] = x
+        np.add(x, cols, out=X[1 : n + 1])
+        np.subtract(x, cols, out=X[n + 1 :])
+        return X
     S = np.linalg.cholesky(P)  # (..., n, n) lower
     cols = gamma * np.swapaxes(S, -1, -2)  # row i = column i of S
     X = np.concatenate([x[..., None, :], x[..., None, :] + cols, x[..., None, :] - cols], axis=-2)
@@ -103,6 +133,13 @@ def unscented_transform(
     wm, wc, _ = params.weights(n)
     X = sigma_points(x, P, params)
     Y = np.asarray(f(X), dtype=float)
+    if Y.ndim == 2 and x.ndim == 1:  # one state: matmul instead of einsum
+        y = wm @ Y
+        dY = Y - y
+        dYw = (dY * wc[:, None]).T  # (m, 2n+1)
+        Py = dYw @ dY
+        Pxy = ((X - x) * wc[:, None]).T @ dY
+        return UTResult(mean=y, cov=0.5 * (Py + Py.T), cross=Pxy, sigma_x=X, sigma_y=Y)
     y = np.einsum("k,...km->...m", wm, Y)
     dY = Y - y[..., None, :]
     dX = X - x[..., None, :]
