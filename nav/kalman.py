@@ -102,15 +102,24 @@ def ukf_update(x, P, z, h: Callable, R, params: SigmaParams):
 
 
 def _ukf_update_one(x, P, z, h, R, params):
-    """:func:`ukf_update` for one state (n,): the same algebra with few, small numpy calls."""
-    wm, wc, _ = params.weights(x.shape[-1])
-    X = sigma_points(x, P, params)  # (2n+1, n)
-    Y = np.asarray(h(X), dtype=float)  # (2n+1, m)
+    """:func:`ukf_update` for one state (n,): the same algebra with few, small numpy calls.
+
+    The sigma points are ``x``, ``x +- gamma L[:, i]`` (:func:`nav.ut.sigma_points`), so the cross
+    covariance is ``Pxz = wc_1 gamma L (Y_+ - Y_-)`` (the centre point has ``X_0 - x = 0``).
+    """
+    n = x.shape[-1]
+    wm, wc, gamma = params.weights(n)
+    cols = gamma * chol_lower(P)  # column i = i-th sigma direction
+    X = np.empty((2 * n + 1, n))
+    X[0] = x
+    np.add(x, cols.T, out=X[1 : n + 1])
+    np.subtract(x, cols.T, out=X[n + 1 :])
+    Y = h(X)  # (2n+1, m)
     y = wm @ Y
     dY = Y - y
     S = (dY.T * wc) @ dY + R
     S = 0.5 * (S + S.T)
-    Pxz = ((X - x).T * wc) @ dY  # (n, m)
+    Pxz = cols @ ((Y[1 : n + 1] - Y[n + 1 :]) * wc[1])  # (n, m)
     Kt, info = dpotrs(chol_lower(S), Pxz.T, lower=1)  # S K^T = Pxz^T
     if info != 0:
         raise np.linalg.LinAlgError(f"potrs info {info}")
