@@ -429,3 +429,36 @@ def test_sequential_scalar_updates_equal_the_batch_update_when_nearly_linear():
         np.testing.assert_allclose(b.P, a.P, rtol=1e-5, atol=1e-13)
     with pytest.raises(ValueError):
         CvTracker("ekf", "tdoa", x0[:, :6], tun).update_sequential(S001, z)
+
+
+def test_one_run_fast_paths_equal_the_batched_nav_steps():
+    """The small-matrix (n,) path of nav.kalman / nav.ut gives the batched (1, n) result."""
+    from nav.kalman import chol_solve
+    from nav.ut import sigma_points, unscented_transform
+
+    rng = np.random.default_rng(3)
+    st = np.array([[50.0, 0, 0], [0, 50, 0], [-50, 0, 0], [0, -50, 0]])
+    n = 8
+    A = rng.standard_normal((n, n))
+    P = A @ A.T + n * np.eye(n)
+    x = np.array([400.0, -300, 40, 5, 1, 0, 3, 0.5])
+    z = mdl.h_pr(x, st) + rng.standard_normal(4)
+    R = np.diag(rng.uniform(0.2, 0.4, 4))
+    p = SigmaParams.scaled(alpha=0.1)
+    h = lambda X: mdl.h_pr(X, st)  # noqa: E731
+    one = ukf_update(x, P, z, h, R, p)
+    bat = ukf_update(x[None], P[None], z[None], h, R[None], p)
+    for a, b in zip(one, bat):
+        np.testing.assert_allclose(a, b[0], rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(sigma_points(x, P, p), sigma_points(x[None], P[None], p)[0], rtol=1e-12)
+    u1, ub = unscented_transform(h, x, P, p), unscented_transform(h, x[None], P[None], p)
+    np.testing.assert_allclose(u1.cov, ub.cov[0], rtol=1e-9)
+    np.testing.assert_allclose(u1.cross, ub.cross[0], rtol=1e-9)
+    F = mdl.cv_transition(n, 0.01)
+    Q = mdl.cv_noise(n, 0.01, 4.0, 1e-4, 1e-4)
+    for a, b in zip(kf_predict(x, P, F, Q), kf_predict(x[None], P[None], F, Q)):
+        np.testing.assert_allclose(a, b[0], rtol=1e-12)
+    wm, _, _ = p.weights(n)
+    assert not wm.flags.writeable and p.weights(n)[0] is wm  # cached, read-only
+    with pytest.raises(np.linalg.LinAlgError):
+        chol_solve(-np.eye(3), np.ones((3, 1)))
