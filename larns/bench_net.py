@@ -156,13 +156,24 @@ def _proc_stats(pid: int) -> tuple[float, int]:
 
 
 def run_scale_once(n: int, duration_s: float, warmup_s: float = 4.0, quiet: bool = False,
-                   nice: int = 0) -> dict:
-    """N station processes at speed 1 for ``duration_s`` (fleet time after warm-up)."""
+                   nice: int = 0, topology: str = "peer", journal: bool = True) -> dict:
+    """N station processes at speed 1 for ``duration_s`` (fleet time after warm-up).
+
+    ``topology`` "peer": full mesh by gossip from two seed stations; "router": one ``larns router``
+    process and every station a Zenoh client of it (its CPU is reported separately)."""
     from net.bus import free_tcp_ports
 
-    ports = free_tcp_ports(n)
+    if topology not in ("peer", "router"):
+        raise ValueError("topology must be peer or router")
+    ports = free_tcp_ports(n + 1)
     seeds = [f"tcp/127.0.0.1:{p}" for p in ports[:2]]
+    router_ep = f"tcp/127.0.0.1:{ports[n]}"
     load0 = os.getloadavg()[0]
+    router = None
+    if topology == "router":
+        router = subprocess.Popen([sys.executable, "-m", "larns.router_cmd", "--listen", router_ep, "--quiet",
+                                   "--duration", str(duration_s + warmup_s + 0.5 * n + 30)])
+        time.sleep(1.0)
     start = time.time()
     epoch = start + warmup_s + 0.5 * n
     procs = []
@@ -170,23 +181,37 @@ def run_scale_once(n: int, duration_s: float, warmup_s: float = 4.0, quiet: bool
         sid = k + 1
         cmd = [sys.executable, "-m", "stations", "--id", str(sid), "--scenario", "seed000",
                "--n-stations", str(n), "--epoch", repr(epoch), "--duration", str(duration_s),
-               "--listen", f"tcp/127.0.0.1:{ports[k]}", "--quiet", "--report-json", "--nice", str(nice)]
-        for s in seeds:
-            if s != f"tcp/127.0.0.1:{ports[k]}":
-                cmd += ["--connect", s]
+               "--quiet", "--report-json", "--nice", str(nice)]
+        if not journal:
+            cmd += ["--no-journal"]
+        if topology == "router":
+            cmd += ["--zenoh-mode", "client", "--connect", router_ep]
+        else:
+            cmd += ["--listen", f"tcp/127.0.0.1:{ports[k]}"]
+            for s in seeds:
+                if s != f"tcp/127.0.0.1:{ports[k]}":
+                    cmd += ["--connect", s]
         procs.append(subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True))
     # CPU measured over the steady part only
     time.sleep(max(0.0, epoch + 5.0 - time.time()))
     c0 = {p.pid: _proc_stats(p.pid)[0] for p in procs if p.poll() is None}
+    r0 = _proc_stats(router.pid) if router is not None and router.poll() is None else None
     t_c0 = time.time()
     time.sleep(max(0.0, epoch + duration_s - 1.0 - time.time()))
     cpu_rss = {p.pid: _proc_stats(p.pid) for p in procs if p.poll() is None}
+    r1 = _proc_stats(router.pid) if router is not None and router.poll() is None else None
     t_c1 = time.time()
     reports = []
     for p in procs:
         out, _ = p.communicate(timeout=duration_s + 60)
         lines = [ln for ln in (out or "").splitlines() if ln.startswith("{")]
         reports.append(json.loads(lines[-1]) if lines else None)
+    if router is not None:
+        router.terminate()
+        try:
+            router.wait(10)
+        except subprocess.TimeoutExpired:
+            router.kill()
     ok = [r for r in reports if r]
     cpu = [(cpu_rss[pid][0] - c0[pid]) / (t_c1 - t_c0) for pid in cpu_rss if pid in c0]
     rss = [cpu_rss[pid][1] for pid in cpu_rss]
@@ -207,13 +232,20 @@ def run_scale_once(n: int, duration_s: float, warmup_s: float = 4.0, quiet: bool
         "rss_per_proc_mb": float(np.mean(rss) / 2**20) if rss else float("nan"),
     }
     res["loadavg_1min_before"] = load0
+    res["loadavg_1min_after"] = os.getloadavg()[0]
     res["nice"] = nice
+    res["topology"] = topology
+    res["journal"] = journal
+    res["router_cpu_pct"] = (float((r1[0] - r0[0]) / (t_c1 - t_c0) * 100) if r0 and r1 else None)
+    res["router_rss_mb"] = float(r1[1] / 2**20) if r1 else None
     res["ok"] = bool(res["reported"] == n and res["missed_slots"] == 0)
     if not quiet:
-        print(f"  N={n:3d} missed={res['missed_slots']:5d}/{res['slots']:6d} "
+        print(f"  {topology} N={n:3d} missed={res['missed_slots']:5d}/{res['slots']:6d} "
               f"replies {res['responses']}/{res['requests']} late={res['late_replies']} "
               f"max_lateness={res['max_lateness_ms']:.2f} ms cpu/proc={res['cpu_per_proc_pct']:.1f}% "
-              f"rss/proc={res['rss_per_proc_mb']:.0f} MB load before={load0:.1f} "
+              f"rss/proc={res['rss_per_proc_mb']:.0f} MB "
+              + (f"router cpu={res['router_cpu_pct']:.1f}% " if res["router_cpu_pct"] is not None else "")
+              + f"load before={load0:.1f} "
               f"-> {'OK' if res['ok'] else 'MISSED'}",
               flush=True)
     return res
@@ -221,27 +253,31 @@ def run_scale_once(n: int, duration_s: float, warmup_s: float = 4.0, quiet: bool
 
 def cmd_bench_scale(args: argparse.Namespace) -> int:
     ns = [int(x) for x in args.n.split(",")] if args.n else [10, 20, 30, 40, 50, 60, 70, 80]
-    print(f"larns bench scale: N station processes, real time, {args.duration:.0f} s each")
+    print(f"larns bench scale: N station processes, real time, {args.duration:.0f} s each, "
+          f"topology {args.topology}")
     runs, best = [], 0
     for n in ns:
-        r = run_scale_once(n, args.duration, nice=args.nice)
+        r = run_scale_once(n, args.duration, nice=args.nice, topology=args.topology,
+                           journal=not args.no_journal)
         runs.append(r)
         if r["ok"]:
             best = max(best, n)
         elif not args.keep_going:
             break
     print(f"{'N':>4} {'missed':>7} {'slots':>7} {'late':>6} {'delay p50/p99 ms':>17} {'cpu/proc %':>10} "
-          f"{'cpu total %':>11} {'rss/proc MB':>11} {'load':>5}")
+          f"{'cpu total %':>11} {'rss/proc MB':>11} {'router %':>8} {'load':>9}")
     for r in runs:
         d = f"{r['range_delay_p50_ms']:.1f}/{r['range_delay_p99_ms']:.1f}"
         print(f"{r['n']:>4} {r['missed_slots']:>7} {r['slots']:>7} {r['late_replies']:>6} {d:>17} "
               f"{r['cpu_per_proc_pct']:>10.1f} {r['cpu_total_pct']:>11.1f} {r['rss_per_proc_mb']:>11.1f} "
-              f"{r['loadavg_1min_before']:>5.1f}")
+              f"{(r['router_cpu_pct'] if r['router_cpu_pct'] is not None else float('nan')):>8.1f} "
+              f"{r['loadavg_1min_before']:>4.1f}/{r['loadavg_1min_after']:<4.1f}")
     print("(missed: own-slot request sent more than half a slot late; late: range message delivered after "
-          "its slot; delay: median over stations of the per-station percentile, air tx -> delivery)")
-    print(f"largest N with zero missed slots: {best} (goal >= 50)")
+          "its slot; delay: median over stations of the per-station percentile, air tx -> delivery; "
+          "load: 1-min load average before/after)")
+    print(f"largest N with zero missed slots: {best} (goal >= 50), topology {args.topology}")
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.json).write_text(json.dumps({"best_n": best, "runs": runs}, indent=2))
+    Path(args.json).write_text(json.dumps({"best_n": best, "topology": args.topology, "runs": runs}, indent=2))
     print(f"wrote {args.json}")
     return 0
 
@@ -260,6 +296,11 @@ def register(sub) -> None:
     s.add_argument("--keep-going", action="store_true", help="try every N even after a failure")
     s.add_argument("--nice", type=int, default=0, metavar="N",
                    help="niceness change of the station processes (e.g. -10: ahead of other jobs; needs root)")
+    s.add_argument("--topology", choices=("peer", "router"), default="peer",
+                   help="peer: full mesh by gossip (default); router: one `larns router`, stations are "
+                        "Zenoh clients of it (N links instead of N(N-1)/2)")
+    s.add_argument("--no-journal", action="store_true",
+                   help="stations do not publish their core journal (less traffic; not the default setup)")
     s.add_argument("--json", default="runs/bench_scale.json", help="JSON output")
     s.set_defaults(func=cmd_bench_scale)
 

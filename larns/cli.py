@@ -20,6 +20,7 @@ COMMANDS: list[str] = [
     "larns.record",
     "larns.station_cmd",
     "larns.fleet",
+    "larns.router_cmd",
     "larns.crlb_cmd",
     "larns.info",
     "larns.replay",

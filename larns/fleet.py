@@ -4,7 +4,8 @@
 
 Spawns one ``python -m stations`` process per station of the scenario (each its own Zenoh peer,
 listening on its own loopback port, seeded with the endpoints of stations 1 and 2 - gossip links
-everyone to everyone), the recorder (``larns record``) when ``--record`` is given, and optional
+everyone to everyone; or, with ``--topology router``, one ``larns router`` process and every other
+process a Zenoh client of it), the recorder (``larns record``) when ``--record`` is given, and optional
 hot-joining stations (``--join ID@T``). All processes share one epoch chosen a few seconds in the
 future, so they compute the same TDMA slot boundaries without a clock master.
 
@@ -238,7 +239,7 @@ def run_fleet(args: argparse.Namespace) -> int:
         if sid not in scn.ids:
             raise SystemExit(f"--join {sid}: no such station in scenario {scn.name} (ids {scn.ids})")
     initial = [i for i in scn.ids if i not in join_ids]
-    n_proc = len(scn.ids) + (1 if args.record else 0) + 1
+    n_proc = len(scn.ids) + (1 if args.record else 0) + 2
     ports = free_tcp_ports(n_proc)
     eps = [f"tcp/127.0.0.1:{p}" for p in ports]
     wall_slot_ms = scn.tdma.slot_s / args.speed * 1e3
@@ -270,15 +271,24 @@ def run_fleet(args: argparse.Namespace) -> int:
     children: list[Child] = []
     station_ep = {sid: eps[i] for i, sid in enumerate(scn.ids)}
     monitor_ep = eps[len(scn.ids)]
-    # seeds: the first two stations (gossip links everyone else); --connect overrides
-    seeds = list(args.connect) if args.connect else [station_ep[scn.ids[0]], station_ep[scn.ids[1]]]
+    # peer: seeds = the first two stations (gossip links everyone else); --connect overrides.
+    # router: every process is a client of our own router (or of the routers given with --connect)
+    mode = "client" if args.topology == "router" or getattr(args, "zenoh_mode", "peer") == "client" else "peer"
+    router_ep = eps[-1]
+    if mode == "client":
+        seeds = list(args.connect) if args.connect else [router_ep]
+        if not args.connect:
+            children.append(Child("router", [py, "-m", "larns", "router", "--listen", router_ep, "-q"],
+                                  logdir / "router.log" if logdir else None))
+    else:
+        seeds = list(args.connect) if args.connect else [station_ep[scn.ids[0]], station_ep[scn.ids[1]]]
     if args.record:
         rec_ep = eps[len(scn.ids) + 1]
         cmd = [py, "-m", "larns", "record", "-o", str(args.record), "-q", "--scenario", scn.name,
                "--epoch", repr(epoch), "--speed", repr(args.speed),
                "--meta", f"stations={','.join(map(str, scn.ids))}", "--meta", f"seed={scn.seed}",
                "--meta", f"duration_s={args.duration}"]
-        cmd += bus_argv([rec_ep], seeds, args.zenoh_config)
+        cmd += bus_argv([rec_ep], seeds, args.zenoh_config, mode)
         children.append(Child("recorder", cmd, logdir / "recorder.log" if logdir else None))
     for sid in scn.ids:
         cmd = [py, "-m", "stations", "--id", str(sid), *common, "--status-every", "10"]
@@ -292,10 +302,10 @@ def run_fleet(args: argparse.Namespace) -> int:
             cmd += ["--join", "--start-at", repr(t_join)]
             # spawn early enough to be up at t_join (it sleeps until then)
             start_wall = max(0.0, epoch + t_join / args.speed - margin)
-        cmd += bus_argv([station_ep[sid]], [s for s in seeds if s != station_ep[sid]], args.zenoh_config)
+        cmd += bus_argv([station_ep[sid]], [s for s in seeds if s != station_ep[sid]], args.zenoh_config, mode)
         children.append(Child(f"station {sid}", cmd, logdir / f"station_{sid}.log" if logdir else None,
                               start_wall=start_wall))
-    children.sort(key=lambda c: c.name != "recorder")
+    children.sort(key=lambda c: (c.name != "router", c.name != "recorder"))
     if args.aircraft:
         if not aircraft_available():
             print("[fleet] --aircraft: no aircraft process in this build (python -m aircraft); skipped",
@@ -304,7 +314,7 @@ def run_fleet(args: argparse.Namespace) -> int:
             cmd = [py, "-m", "aircraft", *common]
             if args.duration:
                 cmd += ["--duration", repr(args.duration)]
-            cmd += bus_argv(["tcp/127.0.0.1:0"], seeds, args.zenoh_config)
+            cmd += bus_argv(["tcp/127.0.0.1:0"], seeds, args.zenoh_config, mode)
             children.append(Child("aircraft", cmd, logdir / "aircraft.log" if logdir else None))
 
     stop = threading.Event()
@@ -327,7 +337,8 @@ def run_fleet(args: argparse.Namespace) -> int:
             if c.start_wall == 0.0:
                 _spawn(c)
         # the launcher observes like any peer (spawned children first: no fork of a live runtime)
-        bus = Bus(listen=[monitor_ep], connect=seeds, config_file=args.zenoh_config)
+        bus = Bus(listen=[] if mode == "client" else [monitor_ep], connect=seeds, config_file=args.zenoh_config,
+                  mode=mode)
         bus.subscribe("larns/station/*/estimate", monitor.on_sample)
         bus.subscribe("larns/station/*/truth", monitor.on_sample)
         if args.aircraft:
@@ -360,7 +371,7 @@ def run_fleet(args: argparse.Namespace) -> int:
         final = monitor.snapshot()
     finally:
         # stations first (they exit at --duration on their own), then the recorder
-        stations = [c for c in children if c.name != "recorder"]
+        stations = [c for c in children if c.name not in ("recorder", "router")]
         if not stop.is_set() and args.duration:
             for c in stations:
                 if c.proc is not None:
@@ -371,6 +382,7 @@ def run_fleet(args: argparse.Namespace) -> int:
         _stop_children(stations)
         time.sleep(0.3)  # let the recorder receive the last samples
         _stop_children([c for c in children if c.name == "recorder"], grace_s=20.0)
+        _stop_children([c for c in children if c.name == "router"])  # last: it carries everyone's traffic
         if bus is not None:
             bus.close()
         for c in children:
@@ -419,6 +431,9 @@ def register(sub) -> None:
                    help="seconds between launch and the epoch (default 3 + 0.25 per station)")
     p.add_argument("--nice", type=int, default=0, metavar="N",
                    help="niceness change for the station processes (negative = higher priority; needs privileges)")
+    p.add_argument("--topology", choices=("peer", "router"), default="peer",
+                   help="peer: full mesh by gossip (default); router: also start a `larns router` and run "
+                        "every process as a Zenoh client of it (N links instead of N(N-1)/2)")
     p.add_argument("--refresh", type=float, default=1.0,
                    help="table refresh period, wall seconds (at least 10 s when stdout is not a terminal)")
     p.add_argument("--no-table", action="store_true", help="no live table (final table only)")

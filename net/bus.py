@@ -1,4 +1,4 @@
-"""Zenoh bus: peer mode, no router, explicit endpoints, gossip scouting.
+"""Zenoh bus: peer mode (default) or client of a router; explicit endpoints, gossip scouting.
 
 Topology. Zenoh >= 1.9 peers do not relay for each other, so every process needs a direct link to
 every other one. Each process listens on its own endpoint and connects to a few **seed** endpoints;
@@ -7,6 +7,13 @@ mesh). Multicast scouting is **off** by default (tests and containers never rely
 memory is off. ``--zenoh-config FILE`` (or the ``ZENOH_CONFIG`` environment variable) passes a
 complete Zenoh JSON5 configuration through instead, for multi-host deployments; ``--listen`` /
 ``--connect`` given explicitly still override its endpoints.
+
+Router topology (``--zenoh-mode client``). The full mesh costs N(N-1)/2 TCP links (keep-alives,
+leases, per-link tasks in every process's runtime). Alternatively one **router** process
+(``larns router --listen tcp/127.0.0.1:7447``; routing happens in Zenoh's Rust core) and every
+other process a **client** connected to it (``--zenoh-mode client --connect tcp/127.0.0.1:7447``):
+N links, one extra hop. A client does not listen and does no scouting. This is also the natural
+multi-host layout (one router per host or site). Peer mode stays the default.
 
 Open sessions only in freshly spawned processes: a Zenoh runtime inherited through ``fork()``
 hangs. Use ``subprocess`` or ``multiprocessing.get_context("spawn")``.
@@ -29,6 +36,7 @@ from typing import Callable, Iterable, Sequence
 log = logging.getLogger("larns.bus")
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:0"
+MODES = ("peer", "client", "router")
 
 
 def add_bus_args(p: argparse.ArgumentParser) -> None:
@@ -44,17 +52,24 @@ def add_bus_args(p: argparse.ArgumentParser) -> None:
                         "default: $ZENOH_CONFIG if set")
     g.add_argument("--multicast", action="store_true",
                    help="enable multicast scouting (off by default)")
+    g.add_argument("--zenoh-mode", choices=("peer", "client"), default="peer",
+                   help="peer (default: full mesh via gossip) or client (connect only to the router(s) "
+                        "given with --connect, e.g. one started with `larns router`)")
 
 
 def bus_kwargs(args: argparse.Namespace) -> dict:
     return {"listen": args.listen or (), "connect": args.connect or (),
-            "config_file": args.zenoh_config, "multicast": bool(getattr(args, "multicast", False))}
+            "config_file": args.zenoh_config, "multicast": bool(getattr(args, "multicast", False)),
+            "mode": getattr(args, "zenoh_mode", None) or "peer"}
 
 
 def bus_argv(listen: Iterable[str] = (), connect: Iterable[str] = (),
-             config_file: str | None = None) -> list[str]:
-    """Command-line flags reproducing a bus setup (for launchers)."""
+             config_file: str | None = None, mode: str = "peer") -> list[str]:
+    """Command-line flags reproducing a bus setup (for launchers). A client does not listen."""
     out: list[str] = []
+    if mode != "peer":
+        out += ["--zenoh-mode", mode]
+        listen = () if mode == "client" else listen
     for e in listen:
         out += ["--listen", e]
     for e in connect:
@@ -80,9 +95,13 @@ def free_tcp_ports(n: int, host: str = "127.0.0.1") -> list[int]:
 
 
 def make_config(listen: Sequence[str] = (), connect: Sequence[str] = (),
-                config_file: str | None = None, multicast: bool = False):
-    """Build a ``zenoh.Config``: a pass-through file, or our peer defaults, plus endpoints."""
+                config_file: str | None = None, multicast: bool = False, mode: str = "peer"):
+    """Build a ``zenoh.Config``: a pass-through file, or our defaults for ``mode`` (peer, client of
+    a router, router), plus endpoints."""
     import zenoh
+
+    if mode not in MODES:
+        raise ValueError(f"zenoh mode must be one of {MODES}, not {mode!r}")
 
     config_file = config_file or os.environ.get("ZENOH_CONFIG") or None
     if config_file:
@@ -93,6 +112,29 @@ def make_config(listen: Sequence[str] = (), connect: Sequence[str] = (),
             conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
         return conf
     conf = zenoh.Config()
+    if mode == "client":
+        if not connect:
+            raise ValueError("client mode needs --connect <router endpoint>")
+        conf.insert_json5("mode", '"client"')
+        conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+        conf.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast)))
+        conf.insert_json5("transport/shared_memory/enabled", "false")
+        # wait for a router that is not up yet instead of failing (processes start in any order)
+        conf.insert_json5("connect/timeout_ms", '{"router": -1, "peer": -1, "client": -1}')
+        conf.insert_json5("connect/exit_on_failure", '{"router": false, "peer": false, "client": false}')
+        return conf
+    if mode == "router":
+        conf.insert_json5("mode", '"router"')
+        conf.insert_json5("listen/endpoints", json.dumps(list(listen) or [DEFAULT_LISTEN]))
+        conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+        conf.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast)))
+        conf.insert_json5("scouting/gossip/enabled", "false")
+        conf.insert_json5("transport/shared_memory/enabled", "false")
+        # we never use storages or timestamps: no HLC stamp per routed sample
+        conf.insert_json5("timestamping/enabled", '{"router": false, "peer": false, "client": false}')
+        conf.insert_json5("connect/timeout_ms", '{"router": -1, "peer": -1, "client": 0}')
+        conf.insert_json5("connect/exit_on_failure", '{"router": false, "peer": false, "client": true}')
+        return conf
     conf.insert_json5("mode", '"peer"')
     conf.insert_json5("listen/endpoints", json.dumps(list(listen) or [DEFAULT_LISTEN]))
     conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
@@ -111,11 +153,13 @@ class Bus:
     """One Zenoh session with cached publishers, byte-level subscribe and liveliness."""
 
     def __init__(self, listen: Sequence[str] = (), connect: Sequence[str] = (),
-                 config_file: str | None = None, multicast: bool = False, express: bool = True):
+                 config_file: str | None = None, multicast: bool = False, express: bool = True,
+                 mode: str = "peer"):
         import zenoh
 
         self._z = zenoh
-        self.session = zenoh.open(make_config(listen, connect, config_file, multicast))
+        self.mode = mode
+        self.session = zenoh.open(make_config(listen, connect, config_file, multicast, mode))
         self._pubs: dict[str, object] = {}
         self._subs: list[object] = []
         self._tokens: list[object] = []
@@ -208,6 +252,10 @@ class Bus:
     def peers(self) -> list[str]:
         """Zenoh ids of the peers this session has a direct link to."""
         return [str(z) for z in self.session.info.peers_zid()]
+
+    def routers(self) -> list[str]:
+        """Zenoh ids of the routers this session is linked to (client mode)."""
+        return [str(z) for z in self.session.info.routers_zid()]
 
     # ------------------------------------------------------------------ lifecycle
     def close(self) -> None:

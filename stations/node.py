@@ -19,6 +19,9 @@ the same per-station streams):
   late: a lost measurement. ``phy`` is stripped before the core sees the message.
 
 SIGINT / SIGTERM: clean exit (liveliness token withdrawn, session closed).
+
+Profiling: with ``LARNS_PROFILE=DIR`` in the environment the main loop (timers and the batched nav
+receive path) runs under cProfile and the stats go to ``DIR/station_<id>.prof`` at exit.
 """
 
 from __future__ import annotations
@@ -530,7 +533,20 @@ def main_args(args: argparse.Namespace) -> int:
         signal.signal(signal.SIGTERM, node.stop)
         if stop_early.is_set():
             node.stop()
-        rep = node.run()
+        prof_dir = os.environ.get("LARNS_PROFILE")  # cProfile of the main loop (timers + nav drain)
+        if prof_dir:
+            import cProfile
+
+            prof = cProfile.Profile()
+            prof.enable()
+            try:
+                rep = node.run()
+            finally:
+                prof.disable()
+                os.makedirs(prof_dir, exist_ok=True)
+                prof.dump_stats(os.path.join(prof_dir, f"station_{args.id}.prof"))
+        else:
+            rep = node.run()
     finally:
         bus.close()
     if args.report_json:

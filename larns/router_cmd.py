@@ -1,0 +1,71 @@
+"""`larns router`: a Zenoh router for the client/router topology.
+
+One router process, every station / recorder / monitor a Zenoh **client** connected to it
+(``--zenoh-mode client --connect <router endpoint>``): N TCP links instead of the peer mesh's
+N(N-1)/2, and the fan-out of every broadcast happens in Zenoh's Rust core inside the router.
+It is also the natural multi-host setup (one router per host, routers connected to each other).
+
+    larns router --listen tcp/127.0.0.1:7447
+    larns station --id 5 --scenario seed000 --zenoh-mode client --connect tcp/127.0.0.1:7447
+
+SIGINT / SIGTERM: clean exit. The router holds no LARNS state; its clients lose connectivity while
+it is down and reconnect when it comes back.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+import time
+
+
+def run_router(listen: list[str], connect: list[str], config_file: str | None = None,
+               duration_s: float | None = None, quiet: bool = False) -> int:
+    from net.bus import Bus
+
+    stop = threading.Event()
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    bus = Bus(listen=listen, connect=connect, config_file=config_file, mode="router")
+    if not quiet:
+        print(f"[router] zid {bus.session.info.zid()} listening on {', '.join(listen)}",
+              file=sys.stderr, flush=True)
+    t_end = None if duration_s is None else time.time() + duration_s
+    try:
+        while not stop.is_set():
+            if t_end is not None and time.time() >= t_end:
+                break
+            stop.wait(0.5)
+    finally:
+        bus.close()
+    if not quiet:
+        print("[router] stopped", file=sys.stderr, flush=True)
+    return 0
+
+
+def cmd_router(args: argparse.Namespace) -> int:
+    return run_router(args.listen or ["tcp/127.0.0.1:7447"], args.connect or [], args.zenoh_config,
+                      args.duration, args.quiet)
+
+
+def register(sub) -> None:
+    p = sub.add_parser("router", help="Zenoh router for the client/router topology (--zenoh-mode client)",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--listen", action="append", default=None, metavar="ENDPOINT",
+                   help="endpoint to listen on (repeatable; default tcp/127.0.0.1:7447)")
+    p.add_argument("--connect", action="append", default=None, metavar="ENDPOINT",
+                   help="other routers to connect to (multi-host; repeatable)")
+    p.add_argument("--zenoh-config", default=None, metavar="FILE",
+                   help="full Zenoh JSON5 config instead of the built-in router defaults")
+    p.add_argument("--duration", type=float, default=None, help="exit after S seconds (default: run until signalled)")
+    p.add_argument("-q", "--quiet", action="store_true")
+    p.set_defaults(func=cmd_router)
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser(prog="python -m larns.router_cmd")
+    register(ap.add_subparsers(dest="cmd", required=True))
+    a = ap.parse_args(["router", *sys.argv[1:]])
+    sys.exit(a.func(a))
