@@ -19,8 +19,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.special import erfcx
 
-from nav.kalman import chol_solve, ekf_update, kf_predict, symmetrize, ukf_update
-from nav.ut import SigmaParams
+from nav.kalman import chol_solve, ekf_update, kf_predict, kf_update, symmetrize, ukf_update
+from nav.ut import SigmaParams, unscented_transform
 
 from . import models as mdl
 
@@ -170,7 +170,15 @@ class Tuning:
     p0_drift_m_s: float = 1.0
     floor_z_m: float | None = 0.0  # station plane: LSQ mirrors below it, filters truncate (None: off)
     trunc_sigma: float = 6.0
-    sequential: bool = False  # pseudorange epochs as sequential scalar updates (else one vector update)  # filters truncate while the mean is less than this many sigma above the floor
+    sequential: bool = False  # pseudorange epochs as sequential scalar updates (else one vector update)
+    # iterated measurement update: 1 = plain EKF/UKF; k > 1 re-linearizes k - 1 more times about the
+    # latest posterior (EKF: Gauss-Newton IEKF; UKF: iterated posterior linearization, the statistical
+    # linear regression of h over the latest posterior's sigma points)
+    iterations: int = 2
+    # EKF: Gaussian second-order terms of the range (Hessian (I - u u^T) / r): mean correction
+    # 0.5 tr(M_j P) and innovation covariance 0.5 tr(M_i P M_j P). Close to a transmitter the range's
+    # curvature biases a first-order EKF (the UKF captures it through its sigma points).
+    ekf_second_order: bool = True
 
     def p0(self, layout: mdl.StateLayout) -> np.ndarray:
         d = [self.p0_pos_m] * 3 + [self.p0_vel_m_s] * 3
@@ -263,13 +271,79 @@ class CvTracker:
             def h(X):
                 return mdl.h_tdoa(X, stations_m, b, dt_s)
         if self.kind == "ekf":
-            H = (mdl.jac_pr(self.x, stations_m, dt_s) if self.layout.kind == "pr"
-                 else mdl.jac_tdoa(self.x, stations_m, self.base, dt_s))
-            self.x, self.P, nu, S = ekf_update(self.x, self.P, z, h, H, R)
+            def jac(X):
+                return (mdl.jac_pr(X, stations_m, dt_s) if self.layout.kind == "pr"
+                        else mdl.jac_tdoa(X, stations_m, self.base, dt_s))
+
+            if self.tuning.ekf_second_order:
+                c2, S2 = self._second_order(stations_m, dt_s)
+                if self.layout.kind == "tdoa":
+                    G = mdl.g_matrix(stations_m.shape[0], self.base)
+                    c2, S2 = np.einsum("ij,...j->...i", G, c2), G @ S2 @ G.T
+                h1, R = h, R + S2
+
+                def h(X):
+                    return h1(X) + c2
+
+            x1, P1, nu, S = ekf_update(self.x, self.P, z, h, jac(self.x), R)
+            for _ in range(self.tuning.iterations - 1):
+                x1, P1 = self._iekf_step(x1, z, h, jac, R)
         else:
-            self.x, self.P, nu, S = ukf_update(self.x, self.P, z, h, R, self.params)
+            x1, P1, nu, S = ukf_update(self.x, self.P, z, h, R, self.params)
+            for _ in range(self.tuning.iterations - 1):
+                x1, P1 = self._iplf_step(x1, P1, z, h, R)
+        self.x, self.P = x1, P1
         self._truncate_floor()
-        return nu, S
+        return nu, S  # innovation and its covariance of the first (plain) linearization
+
+    def _second_order(self, stations_m, dt_s):
+        """Second-order terms of the pseudoranges at the current estimate: mean correction
+        ``c_j = 0.5 tr(M_j C_jj)`` (..., m) and covariance ``0.5 tr(M_i C_ij M_j C_ji)`` (..., m, m), with
+        ``M_j = (I - u_j u_j^T) / r_j`` the Hessian of range j in the position at its measurement time
+        and ``C_ij`` the covariance of those positions (``p + v dt``)."""
+        r, u = mdl.los(self.x, stations_m, dt_s)  # (..., m), (..., m, 3)
+        Mh = (np.eye(3) - u[..., :, None] * u[..., None, :]) / r[..., None, None]  # (..., m, 3, 3)
+        Ppp = self.P[..., None, None, 0:3, 0:3]
+        if dt_s is None:
+            C = np.broadcast_to(Ppp, Mh.shape[:-3] + (Mh.shape[-3],) * 2 + (3, 3))
+        else:
+            d = np.asarray(dt_s, dtype=float)
+            Ppv = self.P[..., None, None, 0:3, 3:6]
+            Pvv = self.P[..., None, None, 3:6, 3:6]
+            di, dj = d[:, None, None, None], d[None, :, None, None]
+            C = Ppp + Ppv * dj + np.swapaxes(Ppv, -1, -2) * di + Pvv * (di * dj)
+        MC = Mh[..., :, None, :, :] @ C  # M_i C_ij: (..., m, m, 3, 3)
+        c2 = 0.5 * np.einsum("...jjkk->...j", MC)
+        S2 = 0.5 * np.einsum("...ijkl,...jilk->...ij", MC, MC)  # tr(M_i C_ij M_j C_ji)
+        return c2, S2
+
+    def _iekf_step(self, xi, z, h, jac, R):
+        """One Gauss-Newton step of the iterated EKF (Bell & Cathey 1993): linearize ``h`` at the
+        current iterate ``xi`` and update the prior ``(x, P)`` with ``z - h(xi) - H (x - xi)``."""
+        H = jac(xi)
+        hxi = h(xi)
+        x, P = self.x, self.P
+
+        def h_lin(X):
+            return hxi + np.einsum("...ij,...j->...i", H, X - xi)
+
+        x1, P1, _, _ = ekf_update(x, P, z, h_lin, H, R)
+        return x1, P1
+
+    def _iplf_step(self, xi, Pi, z, h, R):
+        """One iterated posterior linearization step (Garcia-Fernandez et al. 2015): the statistical
+        linear regression ``h(X) ~ A X + b + e``, ``e ~ N(0, Omega)`` over the sigma points of the
+        latest posterior ``N(xi, Pi)``, then a linear update of the prior ``(x, P)`` with it. The first
+        pass (``xi, Pi`` = prior) is exactly the plain UKF update."""
+        ut = unscented_transform(h, xi, Pi, self.params)
+        At = chol_solve(Pi, ut.cross)  # (n, m): Pi A^T = Pxz
+        A = np.swapaxes(At, -1, -2)
+        b = ut.mean - np.einsum("...ij,...j->...i", A, xi)
+        Om = symmetrize(ut.cov - A @ ut.cross)  # Py - A Pi A^T
+        w, V = np.linalg.eigh(Om)  # >= 0 in exact arithmetic; the scaled set's negative W0c can break it
+        Om = (V * np.maximum(w, 0.0)[..., None, :]) @ np.swapaxes(V, -1, -2)
+        x1, P1, _, _ = kf_update(self.x, self.P, z - b, A, R + Om)
+        return x1, P1
 
     def update_sequential(
         self, stations_m: np.ndarray, rho_m: np.ndarray, station_cov_m2: np.ndarray | None = None,
