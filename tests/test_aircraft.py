@@ -462,3 +462,27 @@ def test_one_run_fast_paths_equal_the_batched_nav_steps():
     assert not wm.flags.writeable and p.weights(n)[0] is wm  # cached, read-only
     with pytest.raises(np.linalg.LinAlgError):
         chol_solve(-np.eye(3), np.ones((3, 1)))
+
+
+def test_ekf_second_order_terms_match_finite_difference_hessians():
+    """c_j = 0.5 tr(Hess_j P), S2_ij = 0.5 tr(Hess_i P Hess_j P) with Hessians of h_pr by finite differences
+    (synchronous and TDMA offsets)."""
+    rng = np.random.default_rng(5)
+    st = np.array([[50.0, 0, 0], [0, 50, 0], [-50, 0, 0], [0, -50, 0]])
+    x = np.array([-30.0, -20, 3, 4, -2, 0.5, 1, 0.6])
+    A = rng.standard_normal((8, 8))
+    P = A @ A.T * 0.5 + np.eye(8)
+    for dt in (None, np.array([-0.3, -0.2, -0.1, 0.0])):
+        trk = CvTracker("ekf", "pr", x, Tuning())
+        trk.P = P.copy()
+        c2, S2 = trk._second_order(st, dt)
+        e, m = 1e-4, 4
+        Hs = np.zeros((m, 8, 8))
+        for i in range(8):
+            for k in range(8):
+                di, dk = np.eye(8)[i] * e, np.eye(8)[k] * e
+                Hs[:, i, k] = (mdl.h_pr(x + di + dk, st, dt) - mdl.h_pr(x + di - dk, st, dt)
+                               - mdl.h_pr(x - di + dk, st, dt) + mdl.h_pr(x - di - dk, st, dt)) / (4 * e * e)
+        np.testing.assert_allclose(c2, 0.5 * np.einsum("jik,ki->j", Hs, P), rtol=1e-4, atol=1e-7)
+        S2_fd = 0.5 * np.einsum("iab,bc,jcd,da->ij", Hs, P, Hs, P)
+        np.testing.assert_allclose(S2, S2_fd, rtol=1e-4, atol=1e-7)
