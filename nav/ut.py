@@ -17,6 +17,7 @@ Julier's set is the scaled set with ``alpha = 1, beta = 0``; both go through one
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 from typing import Callable
 
@@ -72,7 +73,7 @@ def chol_lower(P: np.ndarray) -> np.ndarray:
     Raises ``numpy.linalg.LinAlgError`` if ``P`` is not positive definite (like ``np.linalg.cholesky``).
     """
     L, info = dpotrf(P, lower=1, clean=1)
-    if info != 0 or not np.isfinite(L[-1, -1]):
+    if info != 0 or not math.isfinite(L[-1, -1]):  # NaN input: potrf may succeed with NaN output
         raise np.linalg.LinAlgError("matrix is not positive definite" if info > 0 else f"potrf info {info}")
     return L
 
