@@ -259,25 +259,29 @@ class StationNode:
             self._publish_journal()
 
     # ------------------------------------------------------------------ core journal
-    def _journal_msg(self, kind: str, **fields: Any) -> dict:
+    def _journal_msg(self, kind: str, stamp_s: float, **fields: Any) -> dict:
         self._journal_seq[kind] += 1
-        return {"kind": kind, "src": self.id, "seq": self._journal_seq[kind],
-                "stamp_s": float(self.fleet_now()), **fields}
+        return {"kind": kind, "src": self.id, "seq": self._journal_seq[kind], "stamp_s": float(stamp_s), **fields}
 
     def _publish_init(self) -> None:
-        m = self._journal_msg("core_init", record=self.core.init_record)
-        try:
-            self._publish_journal_bytes(M.key_for(m), M.encode(m))
-        except M.MessageError as e:
-            log.error("station %d: cannot publish core_init: %s", self.id, e)
+        self._journal_submit("core_init", {"record": self.core.init_record})
 
-    def _publish_journal_bytes(self, key: str, data: bytes) -> None:
-        """Journal samples go out with congestion control BLOCK (a journal with a hole cannot be
-        replayed bit for bit, while an air message dropped under load is just a lost measurement),
-        from a sender thread with a bounded FIFO: a slow recorder can stall that thread, never the
-        station's timing. Overflow is counted (``journal_dropped``)."""
+    def _publish_journal(self) -> None:
+        """After the own slot's nav: what the core consumed since the last one (docs/protocol.md)."""
+        if self._navs_sent % 10 == 0:
+            self._publish_init()
+        self._journal_submit("core_input", {"entries": self.core.take_inputs()})
+
+    def _journal_submit(self, kind: str, fields: dict) -> None:
+        """Hand a journal message to the sender thread: it is encoded (validated, split when too
+        big) and published there, outside the node lock, so a big journal never delays the reply
+        to a range request. Journal samples go out with congestion control BLOCK (a journal with a
+        hole cannot be replayed bit for bit, while an air message dropped under load is just a lost
+        measurement); a slow recorder can stall that thread, never the station's timing. The FIFO
+        is bounded; overflow is counted (``journal_dropped``)."""
+        stamp_s = self.fleet_now()
         if getattr(self.bus, "session", None) is None:  # a test double without a Zenoh session
-            self.bus.publish(key, data)
+            self._journal_emit(kind, fields, stamp_s, self.bus.publish)
             return
         if self._journal_thread is None:
             import queue
@@ -286,38 +290,23 @@ class StationNode:
             self._journal_thread = threading.Thread(target=self._journal_sender, name="journal", daemon=True)
             self._journal_thread.start()
         try:
-            self._journal_q.put_nowait((key, data))
+            self._journal_q.put_nowait((kind, fields, stamp_s))
         except Exception:  # queue.Full
             self.stats["journal_dropped"] += 1
 
-    def _journal_sender(self) -> None:
-        while True:
-            item = self._journal_q.get()
-            if item is None:
-                return
+    def _journal_emit(self, kind: str, fields: dict, stamp_s: float, publish) -> None:
+        """Encode one journal message (core_input: split in halves while too big) and publish it."""
+        if kind == "core_init":
+            m = self._journal_msg("core_init", stamp_s, **fields)
             try:
-                self.bus.publish(item[0], item[1], block=True)
-            except Exception:  # session closing
-                log.debug("journal sample not sent", exc_info=True)
-
-    def _flush_journal(self, timeout_s: float = 2.0) -> None:
-        """At exit: let the queued journal samples leave before the session closes."""
-        if self._journal_thread is not None:
-            try:
-                self._journal_q.put(None, timeout=timeout_s)
-            except Exception:
-                pass
-            self._journal_thread.join(timeout_s)
-
-    def _publish_journal(self) -> None:
-        """After the own slot's nav: what the core consumed since the last one (docs/protocol.md)."""
-        if self._navs_sent % 10 == 0:
-            self._publish_init()
-        entries = self.core.take_inputs()
-        chunks = [entries]
+                publish(M.key_for(m), M.encode(m))
+            except M.MessageError as e:
+                log.error("station %d: cannot publish core_init: %s", self.id, e)
+            return
+        chunks = [fields["entries"]]
         while chunks:
             part = chunks.pop(0)
-            m = self._journal_msg("core_input", entries=part)
+            m = self._journal_msg("core_input", stamp_s, entries=part)
             try:
                 data = M.encode(m)
             except M.MessageError as e:
@@ -329,7 +318,29 @@ class StationNode:
                 log.error("station %d: dropping %d journal entries: %s", self.id, len(part), e)
                 self.stats["journal_invalid"] += 1
                 continue
-            self._publish_journal_bytes(M.key_for(m), data)
+            publish(M.key_for(m), data)
+
+    def _journal_sender(self) -> None:
+        def publish(key: str, data: bytes) -> None:
+            self.bus.publish(key, data, block=True)
+
+        while True:
+            item = self._journal_q.get()
+            if item is None:
+                return
+            try:
+                self._journal_emit(item[0], item[1], item[2], publish)
+            except Exception:  # session closing
+                log.debug("journal sample not sent", exc_info=True)
+
+    def _flush_journal(self, timeout_s: float = 2.0) -> None:
+        """At exit: let the queued journal samples leave before the session closes."""
+        if self._journal_thread is not None:
+            try:
+                self._journal_q.put(None, timeout=timeout_s)
+            except Exception:
+                pass
+            self._journal_thread.join(timeout_s)
 
     def _publish_truth(self, est: dict) -> None:
         self._truth_seq += 1
