@@ -175,6 +175,10 @@ class Tuning:
     # latest posterior (EKF: Gauss-Newton IEKF; UKF: iterated posterior linearization, the statistical
     # linear regression of h over the latest posterior's sigma points)
     iterations: int = 2
+    # ... only for runs whose linearization error over the prior is large: tr(R^-1 Omega) > this, with
+    # Omega the statistical-linearization error covariance of h over the prior (UKF: Py - Pxz^T P^-1 Pxz;
+    # EKF: its second-order term 0.5 tr(M_i P M_j P)). 0 = always iterate.
+    iterate_threshold: float = 1.0
     # EKF: Gaussian second-order terms of the range (Hessian (I - u u^T) / r): mean correction
     # 0.5 tr(M_j P) and innovation covariance 0.5 tr(M_i P M_j P). Close to a transmitter the range's
     # curvature biases a first-order EKF (the UKF captures it through its sigma points).
@@ -286,15 +290,49 @@ class CvTracker:
                     return h1(X) + c2
 
             x1, P1, nu, S = ekf_update(self.x, self.P, z, h, jac(self.x), R)
-            for _ in range(self.tuning.iterations - 1):
-                x1, P1 = self._iekf_step(x1, z, h, jac, R)
+            if self.tuning.iterations > 1:
+                mask = self._needs_iteration(R, lambda: self._om_ekf(stations_m, dt_s))
+                if np.any(mask):
+                    xi, Pi = x1, P1
+                    for _ in range(self.tuning.iterations - 1):
+                        xi, Pi = self._iekf_step(xi, z, h, jac, R)
+                    x1, P1 = self._select(mask, xi, Pi, x1, P1)
         else:
             x1, P1, nu, S = ukf_update(self.x, self.P, z, h, R, self.params)
-            for _ in range(self.tuning.iterations - 1):
-                x1, P1 = self._iplf_step(x1, P1, z, h, R)
+            if self.tuning.iterations > 1:
+                def om():
+                    ut = unscented_transform(h, self.x, self.P, self.params)
+                    return ut.cov - np.swapaxes(ut.cross, -1, -2) @ chol_solve(self.P, ut.cross)
+                mask = self._needs_iteration(R, om)
+                if np.any(mask):
+                    xi, Pi = x1, P1
+                    for _ in range(self.tuning.iterations - 1):
+                        xi, Pi = self._iplf_step(xi, Pi, z, h, R)
+                    x1, P1 = self._select(mask, xi, Pi, x1, P1)
         self.x, self.P = x1, P1
         self._truncate_floor()
         return nu, S  # innovation and its covariance of the first (plain) linearization
+
+    def _needs_iteration(self, R, omega):
+        """Runs whose linearization error over the prior is large: ``tr(R^-1 Omega) > threshold``."""
+        th = self.tuning.iterate_threshold
+        if th <= 0:
+            return np.ones(self.x.shape[:-1], dtype=bool)
+        Om = omega()
+        return np.einsum("...ii->...", chol_solve(R, Om)) > th
+
+    def _om_ekf(self, stations_m, dt_s):
+        S2 = self._second_order(stations_m, dt_s)[1]
+        if self.layout.kind == "tdoa":
+            G = mdl.g_matrix(stations_m.shape[0], self.base)
+            S2 = G @ S2 @ G.T
+        return S2
+
+    @staticmethod
+    def _select(mask, xi, Pi, x1, P1):
+        if np.ndim(mask) == 0:
+            return (xi, Pi) if mask else (x1, P1)
+        return np.where(mask[..., None], xi, x1), np.where(mask[..., None, None], Pi, P1)
 
     def _second_order(self, stations_m, dt_s):
         """Second-order terms of the pseudoranges at the current estimate: mean correction
