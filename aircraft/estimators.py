@@ -177,7 +177,8 @@ class Tuning:
     iterations: int = 2
     # ... only for runs whose linearization error over the prior is large: tr(R^-1 Omega) > this, with
     # Omega the statistical-linearization error covariance of h over the prior (UKF: Py - Pxz^T P^-1 Pxz;
-    # EKF: its second-order term 0.5 tr(M_i P M_j P)). 0 = always iterate.
+    # EKF: its second-order term 0.5 tr(M_i P M_j P), with R already including that term when
+    # ekf_second_order is on). 0 = always iterate.
     iterate_threshold: float = 1.0
     # EKF: Gaussian second-order terms of the range (Hessian (I - u u^T) / r): mean correction
     # 0.5 tr(M_j P) and innovation covariance 0.5 tr(M_i P M_j P). Close to a transmitter the range's
