@@ -117,8 +117,9 @@ class StationNode:
         self._last_status = -math.inf
         self._wire_delay_s: deque = deque(maxlen=10000)  # recent range message delivery delays
         self._nav_sub = None
-        # drain the nav buffer at least 8 times per cycle (and always right before a timer fires)
-        self._drain_every_s = min(0.05, scn.tdma.cycle_s / self.speed / 8.0)
+        # drain the nav buffer always right before a timer fires, and otherwise at least 4 times per
+        # cycle and at least every 0.25 s of wall time (each wake-up of an idle process costs CPU)
+        self._drain_every_s = min(0.25, scn.tdma.cycle_s / self.speed / 4.0)
 
     # ------------------------------------------------------------------ time
     def fleet_now(self) -> float:
@@ -158,15 +159,20 @@ class StationNode:
                 self._wake.set()  # the main loop re-computes when to wake up (else: <= 0.1 s anyway)
 
     def _drain_navs(self) -> None:
-        """Feed the navs waiting in the ring buffer through the normal receive path (lock held)."""
+        """Feed the navs waiting in the ring buffer through the normal receive path. The node lock
+        is taken per nav, not for the whole batch: a range request or reply arriving meanwhile on
+        a Zenoh thread gets in between two navs instead of waiting for the batch."""
         if self._nav_sub is None:
             return
         for key, data in self.bus.drain(self._nav_sub):
-            self._ingest(time.time(), key, data)
-        now = time.time()
-        while self._pending and self._pending[0][0] <= now:
-            _, _, msg, phy = heapq.heappop(self._pending)
-            self._deliver(msg, phy)
+            with self._lock:
+                if self._stop.is_set():
+                    return
+                self._ingest(time.time(), key, data)
+                now = time.time()
+                while self._pending and self._pending[0][0] <= now:
+                    _, _, msg, phy = heapq.heappop(self._pending)
+                    self._deliver(msg, phy)
 
     def _check_key(self, key: str, msg: dict) -> bool:
         pk = M.parse_key(key)
@@ -423,8 +429,8 @@ class StationNode:
             t = self.fleet_now()
             if t >= end:
                 break
+            self._drain_navs()
             with self._lock:
-                self._drain_navs()
                 if t >= 0:
                     self._fire_timers()
                 now = time.time()
