@@ -156,7 +156,7 @@ def _proc_stats(pid: int) -> tuple[float, int]:
 
 
 def run_scale_once(n: int, duration_s: float, warmup_s: float = 4.0, quiet: bool = False,
-                   nice: int = 0, topology: str = "peer", journal: bool = True) -> dict:
+                   nice: int = 0, topology: str = "peer", journal: bool = True, router_nice: int = 0) -> dict:
     """N station processes at speed 1 for ``duration_s`` (fleet time after warm-up).
 
     ``topology`` "peer": full mesh by gossip from two seed stations; "router": one ``larns router``
@@ -172,7 +172,8 @@ def run_scale_once(n: int, duration_s: float, warmup_s: float = 4.0, quiet: bool
     router = None
     if topology == "router":
         router = subprocess.Popen([sys.executable, "-m", "larns.router_cmd", "--listen", router_ep, "--quiet",
-                                   "--duration", str(duration_s + warmup_s + 0.5 * n + 30)])
+                                   "--duration", str(duration_s + warmup_s + 0.5 * n + 30),
+                                   "--nice", str(router_nice)])
         time.sleep(1.0)
     start = time.time()
     epoch = start + warmup_s + 0.5 * n
@@ -235,6 +236,7 @@ def run_scale_once(n: int, duration_s: float, warmup_s: float = 4.0, quiet: bool
     res["loadavg_1min_after"] = os.getloadavg()[0]
     res["nice"] = nice
     res["topology"] = topology
+    res["router_nice"] = router_nice if topology == "router" else None
     res["journal"] = journal
     res["router_cpu_pct"] = (float((r1[0] - r0[0]) / (t_c1 - t_c0) * 100) if r0 and r1 else None)
     res["router_rss_mb"] = float(r1[1] / 2**20) if r1 else None
@@ -258,7 +260,7 @@ def cmd_bench_scale(args: argparse.Namespace) -> int:
     runs, best = [], 0
     for n in ns:
         r = run_scale_once(n, args.duration, nice=args.nice, topology=args.topology,
-                           journal=not args.no_journal)
+                           journal=not args.no_journal, router_nice=args.router_nice)
         runs.append(r)
         if r["ok"]:
             best = max(best, n)
@@ -299,6 +301,8 @@ def register(sub) -> None:
     s.add_argument("--topology", choices=("peer", "router"), default="peer",
                    help="peer: full mesh by gossip (default); router: one `larns router`, stations are "
                         "Zenoh clients of it (N links instead of N(N-1)/2)")
+    s.add_argument("--router-nice", type=int, default=0, metavar="N",
+                   help="niceness change of the router process (e.g. -10: ahead of everything; needs root)")
     s.add_argument("--no-journal", action="store_true",
                    help="stations do not publish their core journal (less traffic; not the default setup)")
     s.add_argument("--json", default="runs/bench_scale.json", help="JSON output")

@@ -22,8 +22,16 @@ import time
 
 
 def run_router(listen: list[str], connect: list[str], config_file: str | None = None,
-               duration_s: float | None = None, quiet: bool = False) -> int:
+               duration_s: float | None = None, quiet: bool = False, nice: int = 0) -> int:
+    import os
+
     from net.bus import Bus
+
+    if nice:
+        try:
+            os.nice(nice)
+        except OSError as e:
+            print(f"[router] cannot change niceness by {nice}: {e}", file=sys.stderr)
 
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
@@ -47,7 +55,7 @@ def run_router(listen: list[str], connect: list[str], config_file: str | None = 
 
 def cmd_router(args: argparse.Namespace) -> int:
     return run_router(args.listen or ["tcp/127.0.0.1:7447"], args.connect or [], args.zenoh_config,
-                      args.duration, args.quiet)
+                      args.duration, args.quiet, args.nice)
 
 
 def register(sub) -> None:
@@ -60,6 +68,8 @@ def register(sub) -> None:
     p.add_argument("--zenoh-config", default=None, metavar="FILE",
                    help="full Zenoh JSON5 config instead of the built-in router defaults")
     p.add_argument("--duration", type=float, default=None, help="exit after S seconds (default: run until signalled)")
+    p.add_argument("--nice", type=int, default=0, metavar="N",
+                   help="niceness change (negative = ahead of the stations on a busy machine; needs privileges)")
     p.add_argument("-q", "--quiet", action="store_true")
     p.set_defaults(func=cmd_router)
 

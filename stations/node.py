@@ -429,6 +429,9 @@ class StationNode:
             t = self.fleet_now()
             if t >= end:
                 break
+            if t >= 0:  # a due timer (own slot) first: a batch of navs must not make it late
+                with self._lock:
+                    self._fire_timers()
             self._drain_navs()
             with self._lock:
                 if t >= 0:
