@@ -63,3 +63,21 @@ pos_m = [300.0, 1200.0, 20.0]
 cycle_s = 0.25
 slot_s = 0.05
 """ + _COMMON.format(sigma0_m=5.0) + extra
+
+
+def aircraft_hover(algos: list[str]) -> str:
+    """An ``[aircraft]`` section: hover 1500 m from the centre at 300 m, the given algorithms."""
+    return f"""
+[aircraft]
+name = "ac1"
+algos = {list(algos)!r}
+sigma_m = 0.5
+init_sigma_m = 30.0
+[aircraft.trajectory]
+kind = "hover"
+distance_m = 1500.0
+height_m = 300.0
+[aircraft.tuning]
+q_acc = 1.0
+p0_pos_m = 30.0
+""".replace("'", '"')

@@ -10,11 +10,11 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-import textwrap
 from pathlib import Path
 
 import numpy as np
 import pytest
+from scenario_text import aircraft_hover, five_stations
 
 pytestmark = pytest.mark.e2e
 
@@ -23,48 +23,7 @@ PY = sys.executable
 
 def scenario(tmp_path: Path) -> Path:
     p = tmp_path / "ac_e2e.toml"
-    p.write_text(textwrap.dedent("""
-        name = "ac_e2e"
-        seed = 2
-        [frame]
-        z_ref = 4
-        [[stations]]
-        id = 1
-        pos_m = [0.0, 0.0, 0.0]
-        [[stations]]
-        id = 2
-        pos_m = [1800.0, 0.0, 5.0]
-        [[stations]]
-        id = 3
-        pos_m = [900.0, 1500.0, 0.0]
-        [[stations]]
-        id = 4
-        pos_m = [800.0, 500.0, 60.0]
-        [[stations]]
-        id = 5
-        pos_m = [300.0, 1200.0, 20.0]
-        [tdma]
-        cycle_s = 0.25
-        slot_s = 0.05
-        [channel]
-        sigma_d_m = 0.5
-        [init]
-        sigma0_m = 5.0
-        [survey]
-        estimator = "dmap"
-        [aircraft]
-        name = "ac1"
-        algos = ["ukf-pr", "ekf-tdoa", "lsq-pr"]
-        sigma_m = 0.5
-        init_sigma_m = 30.0
-        [aircraft.trajectory]
-        kind = "hover"
-        distance_m = 1500.0
-        height_m = 300.0
-        [aircraft.tuning]
-        q_acc = 1.0
-        p0_pos_m = 30.0
-    """))
+    p.write_text(five_stations("ac_e2e", 2, extra=aircraft_hover(["ukf-pr", "ekf-tdoa", "lsq-pr"])))
     return p
 
 

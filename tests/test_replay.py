@@ -21,7 +21,7 @@ import pytest
 
 from net import messages as M
 from net.bus import free_tcp_ports
-from scenario_text import five_stations
+from scenario_text import aircraft_hover, five_stations
 
 pytestmark = pytest.mark.e2e
 
@@ -29,20 +29,7 @@ PY = sys.executable
 DURATION = 24.0
 SPEED = 4.0
 
-SCENARIO = five_stations("replay_e2e", 3, extra="""
-[aircraft]
-name = "ac1"
-algos = ["ukf-pr"]
-sigma_m = 0.5
-init_sigma_m = 30.0
-[aircraft.trajectory]
-kind = "hover"
-distance_m = 1500.0
-height_m = 300.0
-[aircraft.tuning]
-q_acc = 1.0
-p0_pos_m = 30.0
-""")
+SCENARIO = five_stations("replay_e2e", 3, extra=aircraft_hover(["ukf-pr"]))
 
 
 def larns(*args: str, timeout: float = 120, check: bool = True) -> subprocess.CompletedProcess:
