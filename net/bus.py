@@ -94,6 +94,30 @@ def free_tcp_ports(n: int, host: str = "127.0.0.1") -> list[int]:
     return ports
 
 
+# Our Zenoh settings per mode (json5 values). Shared memory is off everywhere (containers, tests).
+_NO_SHM = {"transport/shared_memory/enabled": "false"}
+_MODE_SETTINGS: dict[str, dict[str, str]] = {
+    # peers: full mesh through gossip (Zenoh >= 1.9 peers do not relay); keep retrying seeds that
+    # are not up yet (processes start in any order)
+    "peer": {"mode": '"peer"', **_NO_SHM,
+             "scouting/gossip/enabled": "true",
+             "scouting/gossip/multihop": "false",
+             "scouting/gossip/autoconnect": '{"router": [], "peer": ["router", "peer"]}',
+             "connect/timeout_ms": '{"router": -1, "peer": -1, "client": 0}',
+             "connect/exit_on_failure": '{"router": false, "peer": false, "client": true}'},
+    # clients of a router: wait for a router that is not up yet instead of failing
+    "client": {"mode": '"client"', **_NO_SHM,
+               "connect/timeout_ms": '{"router": -1, "peer": -1, "client": -1}',
+               "connect/exit_on_failure": '{"router": false, "peer": false, "client": false}'},
+    # router: no gossip; we never use storages or timestamps, so no HLC stamp per routed sample
+    "router": {"mode": '"router"', **_NO_SHM,
+               "scouting/gossip/enabled": "false",
+               "timestamping/enabled": '{"router": false, "peer": false, "client": false}',
+               "connect/timeout_ms": '{"router": -1, "peer": -1, "client": 0}',
+               "connect/exit_on_failure": '{"router": false, "peer": false, "client": true}'},
+}
+
+
 def make_config(listen: Sequence[str] = (), connect: Sequence[str] = (),
                 config_file: str | None = None, multicast: bool = False, mode: str = "peer"):
     """Build a ``zenoh.Config``: a pass-through file, or our defaults for ``mode`` (peer, client of
@@ -111,41 +135,16 @@ def make_config(listen: Sequence[str] = (), connect: Sequence[str] = (),
         if connect:
             conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
         return conf
+    if mode == "client" and not connect:
+        raise ValueError("client mode needs --connect <router endpoint>")
+    settings = dict(_MODE_SETTINGS[mode])
+    settings["scouting/multicast/enabled"] = json.dumps(bool(multicast))
+    settings["connect/endpoints"] = json.dumps(list(connect))
+    if mode != "client":  # a client only dials its router(s)
+        settings["listen/endpoints"] = json.dumps(list(listen) or [DEFAULT_LISTEN])
     conf = zenoh.Config()
-    if mode == "client":
-        if not connect:
-            raise ValueError("client mode needs --connect <router endpoint>")
-        conf.insert_json5("mode", '"client"')
-        conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
-        conf.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast)))
-        conf.insert_json5("transport/shared_memory/enabled", "false")
-        # wait for a router that is not up yet instead of failing (processes start in any order)
-        conf.insert_json5("connect/timeout_ms", '{"router": -1, "peer": -1, "client": -1}')
-        conf.insert_json5("connect/exit_on_failure", '{"router": false, "peer": false, "client": false}')
-        return conf
-    if mode == "router":
-        conf.insert_json5("mode", '"router"')
-        conf.insert_json5("listen/endpoints", json.dumps(list(listen) or [DEFAULT_LISTEN]))
-        conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
-        conf.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast)))
-        conf.insert_json5("scouting/gossip/enabled", "false")
-        conf.insert_json5("transport/shared_memory/enabled", "false")
-        # we never use storages or timestamps: no HLC stamp per routed sample
-        conf.insert_json5("timestamping/enabled", '{"router": false, "peer": false, "client": false}')
-        conf.insert_json5("connect/timeout_ms", '{"router": -1, "peer": -1, "client": 0}')
-        conf.insert_json5("connect/exit_on_failure", '{"router": false, "peer": false, "client": true}')
-        return conf
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("listen/endpoints", json.dumps(list(listen) or [DEFAULT_LISTEN]))
-    conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
-    conf.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast)))
-    conf.insert_json5("scouting/gossip/enabled", "true")
-    conf.insert_json5("scouting/gossip/multihop", "false")
-    conf.insert_json5("scouting/gossip/autoconnect", '{"router": [], "peer": ["router", "peer"]}')
-    conf.insert_json5("transport/shared_memory/enabled", "false")
-    # keep retrying seeds that are not up yet (processes start in any order)
-    conf.insert_json5("connect/timeout_ms", '{"router": -1, "peer": -1, "client": 0}')
-    conf.insert_json5("connect/exit_on_failure", '{"router": false, "peer": false, "client": true}')
+    for key, value in settings.items():
+        conf.insert_json5(key, value)
     return conf
 
 
