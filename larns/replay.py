@@ -44,6 +44,14 @@ from .mcaputil import Msg, merge, parse_remaps, read_logs, remap
 
 # --------------------------------------------------------------------------- selection
 
+def _warn_incomplete(logs, tag: str, verb: str) -> None:
+    """Say which inputs were cut short (a killed recorder) and how much of them is used."""
+    for lg in logs:
+        if not lg.complete:
+            print(f"[{tag}] {lg.path}: incomplete recording ({lg.error}); {verb} the "
+                  f"{len(lg.messages)} messages before the damage", file=sys.stderr)
+
+
 def select_messages(msgs: Sequence[Msg], topics: Sequence[str] | None = None, exclude: Sequence[str] | None = None,
                     start_offset_s: float = 0.0, until_s: float | None = None) -> list[Msg]:
     """Wire messages (msgpack) matching the globs, inside ``[start + offset, start + until]``;
@@ -222,10 +230,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     except (OSError, ValueError) as e:
         print(f"larns replay: {e}", file=sys.stderr)
         return 1
-    for lg in logs:
-        if not lg.complete:
-            print(f"[replay] {lg.path}: incomplete recording ({lg.error}); playing the "
-                  f"{len(lg.messages)} messages before the damage", file=sys.stderr)
+    _warn_incomplete(logs, "replay", "playing")
     msgs = select_messages(merge(logs), args.topics, args.exclude, args.start_offset, args.until)
     if not msgs:
         print("[replay] nothing to play (check --topics / --exclude / --start-offset / --until)", file=sys.stderr)
@@ -273,10 +278,7 @@ def cmd_offline(args: argparse.Namespace) -> int:
     except (OSError, ValueError) as e:
         print(f"larns replay --offline: {e}", file=sys.stderr)
         return 1
-    for lg in logs:
-        if not lg.complete:
-            print(f"[offline] {lg.path}: incomplete recording ({lg.error}); using the "
-                  f"{len(lg.messages)} messages before the damage", file=sys.stderr)
+    _warn_incomplete(logs, "offline", "using")
     if args.estimator:
         from stations.estimators import ESTIMATORS
 
