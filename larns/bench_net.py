@@ -156,7 +156,8 @@ def _proc_stats(pid: int) -> tuple[float, int]:
 
 
 def run_scale_once(n: int, duration_s: float, warmup_s: float = 4.0, quiet: bool = False,
-                   nice: int = 0, topology: str = "peer", journal: bool = True, router_nice: int = 0) -> dict:
+                   nice: int = 0, topology: str = "peer", journal: bool = True, router_nice: int = 0,
+                   slice_us: float | None = None) -> dict:
     """N station processes at speed 1 for ``duration_s`` (fleet time after warm-up).
 
     ``topology`` "peer": full mesh by gossip from two seed stations; "router": one ``larns router``
@@ -173,7 +174,8 @@ def run_scale_once(n: int, duration_s: float, warmup_s: float = 4.0, quiet: bool
     if topology == "router":
         router = subprocess.Popen([sys.executable, "-m", "larns.router_cmd", "--listen", router_ep, "--quiet",
                                    "--duration", str(duration_s + warmup_s + 0.5 * n + 30),
-                                   "--nice", str(router_nice)])
+                                   "--nice", str(router_nice)]
+                                  + ([] if slice_us is None else ["--slice-us", str(slice_us)]))
         time.sleep(1.0)
     start = time.time()
     epoch = start + warmup_s + 0.5 * n
@@ -185,6 +187,8 @@ def run_scale_once(n: int, duration_s: float, warmup_s: float = 4.0, quiet: bool
                "--quiet", "--report-json", "--nice", str(nice)]
         if not journal:
             cmd += ["--no-journal"]
+        if slice_us is not None:
+            cmd += ["--slice-us", str(slice_us)]
         if topology == "router":
             cmd += ["--zenoh-mode", "client", "--connect", router_ep]
         else:
@@ -238,6 +242,7 @@ def run_scale_once(n: int, duration_s: float, warmup_s: float = 4.0, quiet: bool
     res["topology"] = topology
     res["router_nice"] = router_nice if topology == "router" else None
     res["journal"] = journal
+    res["slice_us"] = slice_us
     res["router_cpu_pct"] = (float((r1[0] - r0[0]) / (t_c1 - t_c0) * 100) if r0 and r1 else None)
     res["router_rss_mb"] = float(r1[1] / 2**20) if r1 else None
     res["ok"] = bool(res["reported"] == n and res["missed_slots"] == 0)
@@ -260,7 +265,7 @@ def cmd_bench_scale(args: argparse.Namespace) -> int:
     runs, best = [], 0
     for n in ns:
         r = run_scale_once(n, args.duration, nice=args.nice, topology=args.topology,
-                           journal=not args.no_journal, router_nice=args.router_nice)
+                           journal=not args.no_journal, router_nice=args.router_nice, slice_us=args.slice_us)
         runs.append(r)
         if r["ok"]:
             best = max(best, n)
@@ -305,6 +310,8 @@ def register(sub) -> None:
                    help="niceness change of the router process (e.g. -10: ahead of everything; needs root)")
     s.add_argument("--no-journal", action="store_true",
                    help="stations do not publish their core journal (less traffic; not the default setup)")
+    s.add_argument("--slice-us", type=float, default=None, metavar="US",
+                   help="--slice-us for every station and the router (default: theirs, 100; 0 = kernel default)")
     s.add_argument("--json", default="runs/bench_scale.json", help="JSON output")
     s.set_defaults(func=cmd_bench_scale)
 

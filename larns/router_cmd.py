@@ -20,12 +20,16 @@ import sys
 import threading
 import time
 
+from net.procsched import add_sched_args
+
 
 def run_router(listen: list[str], connect: list[str], config_file: str | None = None,
-               duration_s: float | None = None, quiet: bool = False, nice: int = 0) -> int:
+               duration_s: float | None = None, quiet: bool = False, nice: int = 0,
+               slice_us: float = 0.0) -> int:
     import os
 
     from net.bus import Bus
+    from net.procsched import set_slice_us
 
     if nice:
         try:
@@ -33,6 +37,9 @@ def run_router(listen: list[str], connect: list[str], config_file: str | None = 
         except OSError as e:
             print(f"[router] cannot change niceness by {nice}: {e}", file=sys.stderr)
 
+    if slice_us > 0 and set_slice_us(slice_us) is None and not quiet:  # before Zenoh's threads start
+        print("[router] short CPU slice not available on this kernel; running with the default",
+              file=sys.stderr)
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
@@ -55,7 +62,7 @@ def run_router(listen: list[str], connect: list[str], config_file: str | None = 
 
 def cmd_router(args: argparse.Namespace) -> int:
     return run_router(args.listen or ["tcp/127.0.0.1:7447"], args.connect or [], args.zenoh_config,
-                      args.duration, args.quiet, args.nice)
+                      args.duration, args.quiet, args.nice, args.slice_us)
 
 
 def register(sub) -> None:
@@ -70,6 +77,7 @@ def register(sub) -> None:
     p.add_argument("--duration", type=float, default=None, help="exit after S seconds (default: run until signalled)")
     p.add_argument("--nice", type=int, default=0, metavar="N",
                    help="niceness change (negative = ahead of the stations on a busy machine; needs privileges)")
+    add_sched_args(p)
     p.add_argument("-q", "--quiet", action="store_true")
     p.set_defaults(func=cmd_router)
 

@@ -148,12 +148,31 @@ def make_config(listen: Sequence[str] = (), connect: Sequence[str] = (),
     return conf
 
 
+# Zenoh's async runtimes (RON, read once per process when Zenoh starts): everything on ONE worker
+# thread. A LARNS process moves a few hundred small messages per second; with Zenoh's default pools
+# (rx: 2 workers, tx, app, acc, net: 1 each) every received sample wakes two or three threads, and on
+# a 2-core machine running 50 station processes those wake-ups were most of the receive cost
+# (docs/fleet.md, "Where the time goes"). A ZENOH_RUNTIME set in the environment wins.
+LEAN_RUNTIME = "(app: (worker_threads: 1), rx: (handover: app), tx: (handover: app), " \
+               "acc: (handover: app), net: (handover: app))"
+
+
+def use_lean_runtime() -> None:
+    """Select :data:`LEAN_RUNTIME` for this process unless ``ZENOH_RUNTIME`` is already set. Call it
+    before the first Zenoh session of the process opens (later calls have no effect)."""
+    os.environ.setdefault("ZENOH_RUNTIME", LEAN_RUNTIME)
+
+
 class Bus:
-    """One Zenoh session with cached publishers, byte-level subscribe and liveliness."""
+    """One Zenoh session with cached publishers, byte-level subscribe and liveliness.
+
+    ``lean_runtime`` (default on, except for routers): :func:`use_lean_runtime`."""
 
     def __init__(self, listen: Sequence[str] = (), connect: Sequence[str] = (),
                  config_file: str | None = None, multicast: bool = False, express: bool = True,
-                 mode: str = "peer"):
+                 mode: str = "peer", lean_runtime: bool | None = None):
+        if lean_runtime if lean_runtime is not None else mode != "router":
+            use_lean_runtime()
         import zenoh
 
         self._z = zenoh

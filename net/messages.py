@@ -101,6 +101,11 @@ def _state(v: Any, name: str) -> str:
 
 
 def _vec3(v: Any, name: str) -> list[float]:
+    if type(v) is list and len(v) == 3:  # fast path: three in-range floats (every valid sender)
+        a, b, c = v
+        if (type(a) is float and type(b) is float and type(c) is float
+                and -MAX_ABS <= a <= MAX_ABS and -MAX_ABS <= b <= MAX_ABS and -MAX_ABS <= c <= MAX_ABS):
+            return [a, b, c]
     if not isinstance(v, (list, tuple)) or len(v) != 3:
         raise MessageError("shape", f"{name} must be a list of 3 numbers")
     return [_num(v[0], name), _num(v[1], name), _num(v[2], name)]
@@ -114,9 +119,8 @@ def _mat33(v: Any, name: str) -> list[list[float]]:
 
 def _cov33(v: Any, name: str) -> list[list[float]]:
     m = _mat33(v, name)
-    for i in range(3):
-        if m[i][i] < 0.0:
-            raise MessageError("value", f"{name} has a negative variance")
+    if m[0][0] < 0.0 or m[1][1] < 0.0 or m[2][2] < 0.0:
+        raise MessageError("value", f"{name} has a negative variance")
     return m
 
 
@@ -311,16 +315,15 @@ def to_plain(o: Any) -> Any:
 def encode(msg: dict[str, Any], phy: dict[str, Any] | None = None, validate: bool = True) -> bytes:
     """Envelope ``msg`` (+ optional ``phy``) as msgpack bytes. Validates by default so a bug in a
     sender fails loudly at the source instead of being dropped silently at every receiver."""
-    m = to_plain(msg)
-    p = to_plain(phy) if phy is not None else None
     if validate:
-        m = validate_msg(m)
-        if p is not None:
-            p = validate_phy(p)
+        m = validate_msg(to_plain(msg))
+        p = validate_phy(to_plain(phy)) if phy is not None else None
+    else:  # numpy values are converted by msgpack's ``default`` hook
+        m, p = msg, phy
     env: dict[str, Any] = {"v": VERSION, "msg": m}
     if p is not None:
         env["phy"] = p
-    data = msgpack.packb(env, use_bin_type=True)
+    data = msgpack.packb(env, use_bin_type=True, default=_plain)
     if len(data) > MAX_PAYLOAD_BYTES:
         raise MessageError("size", f"{len(data)} bytes > {MAX_PAYLOAD_BYTES}")
     return data

@@ -27,6 +27,7 @@ receive path) runs under cProfile and the stats go to ``DIR/station_<id>.prof`` 
 from __future__ import annotations
 
 import argparse
+import gc
 import heapq
 import json
 import logging
@@ -45,11 +46,13 @@ import numpy as np
 from net import messages as M
 from net.channel import AirChannel, station_rng
 from net.faults import WireFaults, merge_faults
+from net.procsched import add_sched_args, apply_sched_args
 from net.scenario import Scenario
 
 log = logging.getLogger("larns.station")
 
 AIR_KINDS = ("range_req", "range_rsp", "nav")
+SWITCH_INTERVAL_S = 0.0005  # GIL hand-over interval of a station process (Python default 5 ms)
 
 
 def default_epoch(now_s: float | None = None) -> float:
@@ -117,9 +120,7 @@ class StationNode:
         self._last_status = -math.inf
         self._wire_delay_s: deque = deque(maxlen=10000)  # recent range message delivery delays
         self._nav_sub = None
-        # drain the nav buffer always right before a timer fires, and otherwise at least 4 times per
-        # cycle and at least every 0.25 s of wall time (each wake-up of an idle process costs CPU)
-        self._drain_every_s = min(0.25, scn.tdma.cycle_s / self.speed / 4.0)
+        self._last_drain = -math.inf
 
     # ------------------------------------------------------------------ time
     def fleet_now(self) -> float:
@@ -158,10 +159,38 @@ class StationNode:
             if self._pending or (core.slot, core.state) != sched:
                 self._wake.set()  # the main loop re-computes when to wake up (else: <= 0.1 s anyway)
 
+    def _drain_every_s(self) -> float:
+        """Wall seconds between nav drains when no own nav is due: a station with a slot drains
+        right before its own nav (``_drain_due``), this is only a fallback; a station without a
+        slot (listening to join) drains 4 times per cycle."""
+        frac = 1.5 if self.core is not None and self.core.slot is not None else 0.25
+        return frac * self.cycle_s / self.speed
+
+    def _drain_due(self, t: float) -> bool:
+        """Navs are read in one batch per cycle, right before the station's own nav: a whole cycle
+        of peer estimates feeds the solve behind that nav, and the batch never competes with the
+        station's own range exchange at the start of its slot (it ran 5 ms earlier) nor wakes the
+        process at other times. Fallback: :meth:`_drain_every_s`."""
+        if self._nav_sub is None:
+            return False
+        now = time.time()
+        if now - self._last_drain >= self._drain_every_s():
+            return True
+        if t < 0 or self.core is None:
+            return False
+        dl = self.core.next_deadline()
+        return dl is not None and not self._is_slot_start(dl) and self.wall_of(self.clock.to_true(dl)) <= now
+
+    def _is_slot_start(self, t_local_s: float) -> bool:
+        """The core's own-slot (request) timer fires on a slot boundary of its local clock."""
+        q = t_local_s / self.slot_s
+        return abs(q - round(q)) < 1e-6
+
     def _drain_navs(self) -> None:
         """Feed the navs waiting in the ring buffer through the normal receive path. The node lock
         is taken per nav, not for the whole batch: a range request or reply arriving meanwhile on
         a Zenoh thread gets in between two navs instead of waiting for the batch."""
+        self._last_drain = time.time()
         if self._nav_sub is None:
             return
         for key, data in self.bus.drain(self._nav_sub):
@@ -314,7 +343,11 @@ class StationNode:
             part = chunks.pop(0)
             m = self._journal_msg("core_input", stamp_s, entries=part)
             try:
-                data = M.encode(m)
+                if len(part) > M.MAX_JOURNAL:
+                    raise M.MessageError("shape", f"{len(part)} journal entries > {M.MAX_JOURNAL}")
+                # not validated again here: every entry is a timer time or a message that was
+                # validated when it was received or sent (half the encoding cost); readers validate
+                data = M.encode(m, validate=False)
             except M.MessageError as e:
                 if e.reason in ("size", "shape") and len(part) > 1:  # too big for one message: split
                     self._journal_seq["core_input"] -= 1
@@ -366,8 +399,7 @@ class StationNode:
             if wall > now:
                 return
             lateness = now - wall
-            q = dl / self.slot_s  # the core's own-slot timer fires on a slot boundary (local clock)
-            is_req = abs(q - round(q)) < 1e-6
+            is_req = self._is_slot_start(dl)
             outs = self.core.on_timer(dl)
             if is_req:
                 self.stats["slots"] += 1
@@ -429,10 +461,8 @@ class StationNode:
             t = self.fleet_now()
             if t >= end:
                 break
-            if t >= 0:  # a due timer (own slot) first: a batch of navs must not make it late
-                with self._lock:
-                    self._fire_timers()
-            self._drain_navs()
+            if self._drain_due(t):
+                self._drain_navs()
             with self._lock:
                 if t >= 0:
                     self._fire_timers()
@@ -446,7 +476,7 @@ class StationNode:
             if end < math.inf:
                 wake = min(wake, self.wall_of(end))
             if self._nav_sub is not None:
-                wake = min(wake, time.time() + self._drain_every_s)
+                wake = min(wake, self._last_drain + self._drain_every_s())
             timeout = wake - time.time()
             if timeout > 0:
                 self._wake.wait(timeout)
@@ -499,6 +529,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=None, help="override the scenario's world seed")
     p.add_argument("--n-stations", type=int, default=None,
                    help="override the number of stations of a random-layout scenario")
+    add_sched_args(p)
     g = p.add_argument_group("network faults (override the scenario's [net] section)")
     g.add_argument("--net-delay", type=float, default=None, metavar="S", help="extra delivery delay, s")
     g.add_argument("--net-jitter", type=float, default=None, metavar="S", help="delay jitter (1 sigma), s")
@@ -541,6 +572,10 @@ def main_args(args: argparse.Namespace) -> int:
             os.nice(args.nice)
         except OSError as e:
             log.warning("station %d: cannot change niceness by %d: %s", args.id, args.nice, e)
+    # a Zenoh thread delivering a range request must not wait up to 5 ms (the default switch
+    # interval) for the GIL while the main thread works through a batch of navs
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
+    apply_sched_args(args, f"station {args.id}", log)  # before Zenoh starts its threads: they inherit it
     scn = load_scenario(args)
     opts = NodeOptions(station_id=args.id, join=args.join, speed=args.speed, epoch_unix_s=args.epoch,
                        duration_s=args.duration, start_at_s=args.start_at, estimator=args.estimator, seed=args.seed,
@@ -553,6 +588,10 @@ def main_args(args: argparse.Namespace) -> int:
         signal.signal(signal.SIGTERM, node.stop)
         if stop_early.is_set():
             node.stop()
+        # everything allocated so far (modules, numpy/scipy/zenoh objects: ~36k) never becomes
+        # garbage; moved out of the collector's sight, a full collection takes microseconds instead
+        # of ~20 ms, which would otherwise land on a random slot now and then
+        gc.freeze()
         prof_dir = os.environ.get("LARNS_PROFILE")  # cProfile of the main loop (timers + nav drain)
         if prof_dir:
             import cProfile
