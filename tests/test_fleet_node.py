@@ -143,3 +143,29 @@ def test_timer_sends_request_with_phy_and_estimate_with_truth():
 
 def test_default_epoch_is_day_start():
     assert default_epoch(86400 * 3 + 5000.0) == 86400 * 3
+
+
+def _make_due(node, t_local_s):
+    """Shift the node's epoch so that local time ``t_local_s`` was 1 ms of wall time ago."""
+    node.epoch = time.time() - 0.001 - node.clock.to_true(t_local_s) / node.speed
+
+
+def test_navs_are_drained_before_the_own_nav_not_at_the_request():
+    node, bus, _ = make_node(station_id=3)
+    assert not node._drain_due(node.fleet_now())  # no nav subscription: nothing to drain
+    node._nav_sub = object()
+    node._last_drain = time.time()
+    req_dl = node.core.next_deadline()
+    assert node._is_slot_start(req_dl)
+    _make_due(node, req_dl)
+    assert not node._drain_due(node.fleet_now())  # the request goes out without a batch in front
+    node._fire_timers()
+    nav_dl = node.core.next_deadline()
+    assert not node._is_slot_start(nav_dl) and nav_dl > req_dl
+    assert not node._drain_due(node.fleet_now())  # the nav is not due yet
+    _make_due(node, nav_dl)
+    assert node._drain_due(node.fleet_now())  # the batch goes right before the own nav
+    # fallback: a station that somehow has no due nav still drains every 1.5 cycles
+    node._fire_timers()
+    node._last_drain = time.time() - 1.6 * node.cycle_s / node.speed
+    assert node._drain_due(node.fleet_now())
