@@ -157,10 +157,15 @@ LEAN_RUNTIME = "(app: (worker_threads: 1), rx: (handover: app), tx: (handover: a
                "acc: (handover: app), net: (handover: app))"
 
 
-def use_lean_runtime() -> None:
+def use_lean_runtime() -> bool:
     """Select :data:`LEAN_RUNTIME` for this process unless ``ZENOH_RUNTIME`` is already set. Call it
-    before the first Zenoh session of the process opens (later calls have no effect)."""
-    os.environ.setdefault("ZENOH_RUNTIME", LEAN_RUNTIME)
+    before the first Zenoh session of the process opens (later calls have no effect). Returns True
+    if it set the variable (the caller removes it once the session is open, so that processes it
+    spawns, a router for instance, keep Zenoh's defaults)."""
+    if "ZENOH_RUNTIME" in os.environ:
+        return False
+    os.environ["ZENOH_RUNTIME"] = LEAN_RUNTIME
+    return True
 
 
 class Bus:
@@ -171,13 +176,16 @@ class Bus:
     def __init__(self, listen: Sequence[str] = (), connect: Sequence[str] = (),
                  config_file: str | None = None, multicast: bool = False, express: bool = True,
                  mode: str = "peer", lean_runtime: bool | None = None):
-        if lean_runtime if lean_runtime is not None else mode != "router":
-            use_lean_runtime()
+        set_env = use_lean_runtime() if (lean_runtime if lean_runtime is not None else mode != "router") else False
         import zenoh
 
         self._z = zenoh
         self.mode = mode
-        self.session = zenoh.open(make_config(listen, connect, config_file, multicast, mode))
+        try:
+            self.session = zenoh.open(make_config(listen, connect, config_file, multicast, mode))
+        finally:
+            if set_env:  # read once, when the first session starts Zenoh's runtimes
+                os.environ.pop("ZENOH_RUNTIME", None)
         self._pubs: dict[str, object] = {}
         self._subs: list[object] = []
         self._tokens: list[object] = []

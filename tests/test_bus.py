@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import textwrap
@@ -113,3 +114,35 @@ def test_ring_subscription_keeps_newest():
     assert pub.returncode == 0
     out = json.loads(sub.communicate(timeout=40)[0])
     assert out == {"n": 100, "first": "50", "last": "149", "key": "ring/x", "again": 0}
+
+
+_LEAN_CHECK = r"""
+import os, sys, time
+from net.bus import Bus, free_tcp_ports
+port = free_tcp_ports(1)[0]
+a = Bus(listen=[f"tcp/127.0.0.1:{port}"])
+b = Bus(connect=[f"tcp/127.0.0.1:{port}"], listen=["tcp/127.0.0.1:0"])
+got = []
+a.subscribe("larns/t", lambda k, d: got.append(d))
+for _ in range(100):
+    b.publish("larns/t", b"x")
+    time.sleep(0.02)
+    if got:
+        break
+names = sorted({open(f"/proc/self/task/{t}/comm").read().strip().split("-")[0]
+                for t in os.listdir("/proc/self/task")})
+print(bool(got), "ZENOH_RUNTIME" in os.environ, ",".join(names))
+a.close(); b.close()
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_lean_runtime_one_worker_and_not_inherited():
+    """Station-side sessions run Zenoh on one worker (no rx/tx/net/acc pools) and do not leak the
+    setting into the environment that spawned processes (a router) inherit."""
+    env = {k: v for k, v in os.environ.items() if k != "ZENOH_RUNTIME"}
+    out = subprocess.run([sys.executable, "-c", _LEAN_CHECK], capture_output=True, text=True,
+                         timeout=60, env=env).stdout.split()
+    assert out[:2] == ["True", "False"], out
+    pools = set(out[2].split(","))
+    assert "app" in pools and not pools & {"rx", "tx", "net", "acc"}, pools
