@@ -346,7 +346,8 @@ class StationNode:
                 if len(part) > M.MAX_JOURNAL:
                     raise M.MessageError("shape", f"{len(part)} journal entries > {M.MAX_JOURNAL}")
                 # not validated again here: every entry is a timer time or a message that was
-                # validated when it was received or sent (0.12 ms instead of 0.93 ms per cycle at N = 50); readers validate
+                # validated when it was received or sent; readers validate. Encoding a cycle's
+                # journal at N = 50 takes 0.12 ms instead of 0.93 ms.
                 data = M.encode(m, validate=False)
             except M.MessageError as e:
                 if e.reason in ("size", "shape") and len(part) > 1:  # too big for one message: split
