@@ -9,29 +9,11 @@ import sys
 import textwrap
 
 import pytest
+from bus_member import SCRIPT as MEMBER
 
 from net.bus import bus_argv, free_tcp_ports, make_config
 
 pytestmark = pytest.mark.e2e
-
-PEER = textwrap.dedent("""
-    import json, sys, time
-    from net.bus import Bus
-    name, n, listen, seeds = sys.argv[1], int(sys.argv[2]), sys.argv[3], sys.argv[4:]
-    b = Bus(listen=[listen], connect=seeds)
-    got = set()
-    b.subscribe("test/data/*", lambda k, d: got.add(d.decode()))
-    b.declare_token("test/alive/" + name)
-    t0 = time.time()
-    while time.time() - t0 < 10 and len(got) < n:
-        b.publish("test/data/" + name, name.encode())
-        time.sleep(0.1)
-    alive = sorted(b.alive("test/alive/*"))
-    for _ in range(10):  # keep publishing so slower peers finish too
-        b.publish("test/data/" + name, name.encode()); time.sleep(0.1)
-    print(json.dumps({"name": name, "got": sorted(got), "alive": alive, "peers": len(b.peers())}))
-    b.close()
-""")
 
 
 def test_gossip_full_mesh_from_one_seed():
@@ -40,7 +22,7 @@ def test_gossip_full_mesh_from_one_seed():
     n = 4
     ports = free_tcp_ports(n)
     seed = f"tcp/127.0.0.1:{ports[0]}"
-    procs = [subprocess.Popen([sys.executable, "-c", PEER, f"p{i}", str(n), f"tcp/127.0.0.1:{ports[i]}", seed],
+    procs = [subprocess.Popen([sys.executable, "-c", MEMBER, f"p{i}", str(n), "peer", f"tcp/127.0.0.1:{ports[i]}", seed],
                               stdout=subprocess.PIPE, text=True) for i in range(n)]
     outs = [json.loads(p.communicate(timeout=40)[0]) for p in procs]
     names = [f"p{i}" for i in range(n)]

@@ -9,33 +9,13 @@ import json
 import signal
 import subprocess
 import sys
-import textwrap
 
 import pytest
+from bus_member import SCRIPT as MEMBER
 
 from net.bus import bus_argv, free_tcp_ports, make_config
 
 pytestmark = pytest.mark.e2e
-
-CLIENT = textwrap.dedent("""
-    import json, sys, time
-    from net.bus import Bus
-    name, n, router = sys.argv[1], int(sys.argv[2]), sys.argv[3]
-    b = Bus(connect=[router], mode="client")
-    got = set()
-    b.subscribe("test/data/*", lambda k, d: got.add(d.decode()))
-    b.declare_token("test/alive/" + name)
-    t0 = time.time()
-    while time.time() - t0 < 15 and len(got) < n:
-        b.publish("test/data/" + name, name.encode())
-        time.sleep(0.1)
-    alive = sorted(b.alive("test/alive/*"))
-    for _ in range(10):  # keep publishing so slower clients finish too
-        b.publish("test/data/" + name, name.encode()); time.sleep(0.1)
-    print(json.dumps({"name": name, "got": sorted(got), "alive": alive, "peers": len(b.peers()),
-                      "routers": len(b.routers())}))
-    b.close()
-""")
 
 
 def test_clients_through_router():
@@ -43,7 +23,7 @@ def test_clients_through_router():
     (port,) = free_tcp_ports(1)
     ep = f"tcp/127.0.0.1:{port}"
     # clients first: they wait for a router that comes up late
-    procs = [subprocess.Popen([sys.executable, "-c", CLIENT, f"c{i}", str(n), ep], stdout=subprocess.PIPE, text=True)
+    procs = [subprocess.Popen([sys.executable, "-c", MEMBER, f"c{i}", str(n), "client", "-", ep], stdout=subprocess.PIPE, text=True)
              for i in range(n)]
     router = subprocess.Popen([sys.executable, "-m", "larns", "router", "--listen", ep, "-q"])
     try:
