@@ -176,7 +176,8 @@ class Bus:
     def __init__(self, listen: Sequence[str] = (), connect: Sequence[str] = (),
                  config_file: str | None = None, multicast: bool = False, express: bool = True,
                  mode: str = "peer", lean_runtime: bool | None = None):
-        set_env = use_lean_runtime() if (lean_runtime if lean_runtime is not None else mode != "router") else False
+        lean = mode != "router" if lean_runtime is None else lean_runtime
+        set_env = lean and use_lean_runtime()
         import zenoh
 
         self._z = zenoh
