@@ -17,6 +17,7 @@ import numpy as np
 
 from nav.geometry import SPEED_OF_LIGHT_M_S, frame_free_mask
 
+from .clock import ClockParams, OscillatorClock
 from .scenario import ChannelParams
 
 
@@ -33,6 +34,10 @@ class Clock:
     def to_true(self, t_local_s: float) -> float:
         return (t_local_s - self.offset_s) / (1.0 + self.drift)
 
+    def error_s(self, t_true_s: float) -> float:
+        """Local minus true time at ``t_true_s``."""
+        return t_true_s * self.drift + self.offset_s
+
 
 def station_rng(seed: int, station_id: int, purpose: int) -> np.random.Generator:
     """Independent, reproducible stream per (world seed, station, purpose).
@@ -43,8 +48,11 @@ def station_rng(seed: int, station_id: int, purpose: int) -> np.random.Generator
     return np.random.default_rng([int(seed), int(station_id), int(purpose)])
 
 
-def draw_clock(params: ChannelParams, rng: np.random.Generator) -> Clock:
-    """Random clock error of one station: offset ~ N(0, clock_offset_s^2), drift ~ N(0, ppm^2) * 1e-6."""
+def draw_clock(params: ChannelParams | ClockParams, rng: np.random.Generator) -> Clock | OscillatorClock:
+    """One station's clock from its stream: an :class:`~net.clock.OscillatorClock` of the scenario's
+    ``[clock]`` class, or (legacy ``ChannelParams``) offset ~ N(0, clock_offset_s^2), drift ~ N(0, ppm^2)."""
+    if isinstance(params, ClockParams):
+        return OscillatorClock(params, rng)
     return Clock(
         offset_s=float(rng.normal(0.0, params.clock_offset_s)) if params.clock_offset_s > 0 else 0.0,
         drift=float(rng.normal(0.0, params.clock_drift_ppm)) * 1e-6 if params.clock_drift_ppm > 0 else 0.0,
@@ -75,7 +83,7 @@ class AirChannel:
         self.sigma_t_s = np.sqrt(2.0) * params.sigma_d_m / SPEED_OF_LIGHT_M_S
 
     def arrival_local_s(
-        self, tx_pos_m: np.ndarray, t_tx_true_s: float, rx_pos_m: np.ndarray, rx_clock: Clock
+        self, tx_pos_m: np.ndarray, t_tx_true_s: float, rx_pos_m: np.ndarray, rx_clock: Clock | OscillatorClock
     ) -> float | None:
         """Local reception time of a transmission, or ``None`` if it is lost on air.
 

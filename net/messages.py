@@ -129,9 +129,22 @@ def _ranges(v: Any, name: str) -> list[list[Any]]:
         raise MessageError("shape", f"{name} must be a list of <= {MAX_LIST} entries")
     out = []
     for r in v:
-        if not isinstance(r, (list, tuple)) or len(r) != 3:
-            raise MessageError("shape", f"{name} entries must be [peer, range_m, t_s]")
-        out.append([_station_id(r[0], name), _nonneg(r[1], name), _num(r[2], name)])
+        if not isinstance(r, (list, tuple)) or len(r) not in (3, 4):
+            raise MessageError("shape", f"{name} entries must be [peer, range_m, t_s] or [peer, range_m, t_s, dtheta_s]")
+        e = [_station_id(r[0], name), _nonneg(r[1], name), _num(r[2], name)]
+        if len(r) == 4:  # two-way time transfer: own clock minus the peer's, s
+            e.append(_num(r[3], name))
+        out.append(e)
+    return out
+
+
+def _clock(v: Any, name: str) -> list[float]:
+    """Clock correction ``[t_ref_s, offset_s, freq, var_offset_s2, cov_s, var_freq]`` (sender's clock)."""
+    if not isinstance(v, (list, tuple)) or len(v) != 6:
+        raise MessageError("shape", f"{name} must be [t_ref_s, offset_s, freq, P_tt, P_tf, P_ff]")
+    out = [_num(x, name) for x in v]
+    if out[3] < 0.0 or out[5] < 0.0:
+        raise MessageError("value", f"{name} has a negative variance")
     return out
 
 
@@ -222,14 +235,15 @@ SCHEMAS: dict[str, tuple[dict[str, Callable], dict[str, Callable]]] = {
                    "t_tx_s": _num}, {}),
     "range_rsp": ({**_COMMON_STATION, "dst": _station_id, "req_seq": _count,
                    "turnaround_s": _num, "pos_m": _vec3, "cov_m2": _cov33, "n_updates": _count,
-                   "state": _state}, {"t_tx_s": _num}),
+                   "state": _state}, {"t_tx_s": _num, "t_rx_s": _num, "clock": _clock}),
     "nav": ({**_COMMON_STATION, "cycle": _count, "slot": _slot, "t_tx_s": _num, "pos_m": _vec3,
              "cov_m2": _cov33, "n_updates": _count, "state": _state, "ranges": _ranges,
-             "members": _members}, {}),
+             "members": _members}, {"clock": _clock}),
     "estimate": ({**_COMMON_STATION, "t_s": _num, "pos_m": _vec3, "cov_m2": _cov33,
                   "n_updates": _count, "estimator": _text, "state": _state},
-                 {"slot": _slot, "cycle": _count, "dropped": _count}),
-    "truth": ({**_COMMON_STATION, "t_s": _num, "pos_m": _vec3}, {}),
+                 {"slot": _slot, "cycle": _count, "dropped": _count, "clock_offset_s": _num,
+                  "clock_freq": _num, "clock_offset_sd_s": _nonneg, "clock_freq_sd": _nonneg}),
+    "truth": ({**_COMMON_STATION, "t_s": _num, "pos_m": _vec3}, {"clock_error_s": _num}),
     "core_init": ({**_COMMON_STATION, "record": _init_record}, {}),
     "core_input": ({**_COMMON_STATION, "entries": _journal}, {}),
     "ac_estimate": ({**_COMMON_AIRCRAFT, "t_s": _num, "pos_m": _vec3, "cov_m2": _cov33,

@@ -36,6 +36,13 @@ Format (see docs/scenarios.md for the full reference)::
     clock_drift_ppm = 0.0         # sigma of per-station clock drifts
     turnaround_s = 0.001          # responder's fixed turnaround
 
+    [clock]                       # station oscillators (net/clock.py); absent: perfect clocks
+    model = "tcxo"                # preset: perfect | tcxo | ocxo | custom; keys below override it
+    # offset_s = 1e-3             # sigma of the offset at the fleet epoch
+    # freq_ppm = 2.0              # sigma of the fractional frequency offset
+    # q_wf_s = 1e-20              # white frequency noise density
+    # q_rw_per_s = 3e-22          # random-walk frequency noise density
+
     [net]                         # injected network faults (wire, not air)
     delay_s = 0.0
     jitter_s = 0.0
@@ -61,6 +68,8 @@ from typing import Any
 import numpy as np
 
 from nav.geometry import to_network_frame
+
+from .clock import ClockParams, clock_params
 
 
 @dataclass(frozen=True)
@@ -111,6 +120,7 @@ class Scenario:
     join_ids: list[int] = field(default_factory=list)  # stations that start later with --join
     aircraft: dict[str, Any] = field(default_factory=dict)
     raw: dict[str, Any] = field(default_factory=dict)
+    clock: ClockParams = field(default_factory=ClockParams)  # station oscillators ([clock])
 
     def index(self, station_id: int) -> int:
         return self.ids.index(station_id)
@@ -235,6 +245,7 @@ def from_dict(raw: dict[str, Any]) -> Scenario:
     pos, _, _ = to_network_frame(phys, z_ref=zi)
     init = raw.get("init", {})
     survey = raw.get("survey", {})
+    channel = ChannelParams(**raw.get("channel", {}))
     return Scenario(
         name=str(raw.get("name", "unnamed")),
         description=str(raw.get("description", "")),
@@ -243,7 +254,7 @@ def from_dict(raw: dict[str, Any]) -> Scenario:
         pos_m=pos,
         z_ref=z_ref,
         tdma=Tdma(**raw.get("tdma", {})),
-        channel=ChannelParams(**raw.get("channel", {})),
+        channel=channel,
         net=NetFaults(**raw.get("net", {})),
         sigma0_m=float(init.get("sigma0_m", 10.0)),
         estimator=str(survey.get("estimator", "dmap")),
@@ -251,4 +262,5 @@ def from_dict(raw: dict[str, Any]) -> Scenario:
         join_ids=join_ids,
         aircraft=dict(raw.get("aircraft", {})),
         raw=raw,
+        clock=clock_params(raw.get("clock"), channel.clock_offset_s, channel.clock_drift_ppm),
     )

@@ -34,6 +34,7 @@ import numpy as np
 
 from nav.geometry import SPEED_OF_LIGHT_M_S
 
+from .clocksync import ClockEstimator, ClockModel
 from .estimators import SurveyEstimator, make_estimator
 from .tdma import TdmaPlan
 
@@ -52,6 +53,11 @@ class StationConfig:
     listen_cycles: int = 1
     dead_after_cycles: int = 5
     max_range_m: float = 1e6
+    # oscillator class (data sheet, not the realized clock): prior and noise of the clock estimator
+    clock_offset_sigma_s: float = 0.0
+    clock_freq_sigma: float = 0.0
+    clock_q_wf_s: float = 0.0
+    clock_q_rw_per_s: float = 0.0
 
 
 @dataclass
@@ -84,13 +90,15 @@ class StationCore:
         self.plan = cfg.tdma
         self.est: SurveyEstimator = make_estimator(cfg.estimator, cfg.id, init_pos_m, init_cov_m2,
                                                    cfg.sigma_d_m, cfg.ranges_per_update)
+        self.clk = ClockEstimator(cfg.id, ClockModel(cfg.clock_q_wf_s, cfg.clock_q_rw_per_s, cfg.clock_offset_sigma_s,
+                                                     cfg.clock_freq_sigma), start_s, cfg.sigma_d_m)
         self.peers: dict[int, PeerInfo] = {}
         self.known: dict[int, float] = {p: start_s for p in cfg.known_ids if p != cfg.id}
         self.seq = {"range_req": 0, "range_rsp": 0, "nav": 0, "estimate": 0}
         self.pending: dict[int, tuple[int, float, float]] = {}  # req seq -> (dst, t_tx, slot end)
         self.ranges_out: list[list] = []
         self.counters = {"requests": 0, "responses": 0, "lost": 0, "ranges_in": 0, "ignored": 0,
-                         "rejected_ranges": 0}
+                         "rejected_ranges": 0, "late": 0, "sync_in": 0}
         if cfg.join:
             self.state = "joining"
             self.slot: int | None = None
@@ -101,16 +109,32 @@ class StationCore:
             self.slot = self.plan.default_slot(cfg.id)
             self.listen_until_s = start_s
             self.heard_slots = {}
-        self._next_req_s, self._nav_s = self._schedule_after(start_s)
+        self._next_req_T, self._nav_s = self._schedule_after(start_s)
         self._cycle = 0
         self._started_s = start_s
 
     # ------------------------------------------------------------------ timing
     def _schedule_after(self, t_s: float) -> tuple[float, float]:
+        """Network time of the next own slot start after local time ``t_s``; the nav timer (off)."""
         if self.slot is None:
             return float("inf"), float("inf")
-        cycle, t0 = self.plan.next_slot_start(self.slot, t_s - 1e-9)
+        cycle, t0 = self.plan.next_slot_start(self.slot, self.clk.network_time(t_s) - 1e-9)
         return t0, float("inf")
+
+    @property
+    def _next_req_s(self) -> float:
+        """Local time of the next own slot start: slots live on (estimated) network time."""
+        T = self._next_req_T
+        return self.clk.local_time(T) if np.isfinite(T) else T
+
+    def next_request_s(self) -> float | None:
+        """Local time of the next range request (the own slot start), None without a slot."""
+        t = self._next_req_s
+        return t if np.isfinite(t) else None
+
+    def network_time(self, t_s: float) -> float:
+        """Estimated network time (station 1's clock) at local time ``t_s``."""
+        return self.clk.network_time(t_s)
 
     def next_deadline(self) -> float | None:
         """Local time of the next ``on_timer`` call the core needs."""
@@ -139,15 +163,18 @@ class StationCore:
         m = self._base("estimate", t_s)
         m.update(t_s=float(t_s), pos_m=self.est.pos_m.tolist(), cov_m2=self.est.cov_m2.tolist(),
                  n_updates=int(self.est.n_updates), estimator=self.est.name, state=self.state)
+        c = self.clk.correction(t_s)
+        m.update(clock_offset_s=c[1], clock_freq=c[2], clock_offset_sd_s=float(np.sqrt(c[3])),
+                 clock_freq_sd=float(np.sqrt(c[5])))
         return m
 
     def _nav_msg(self, t_s: float) -> dict:
         m = self._base("nav", t_s)
-        cycle, slot = self.plan.locate(t_s)
+        cycle, slot = self.plan.locate(max(self.clk.network_time(t_s), 0.0))
         m.update(cycle=cycle, slot=self.slot if self.slot is not None else slot, t_tx_s=float(t_s),
                  pos_m=self.est.pos_m.tolist(), cov_m2=self.est.cov_m2.tolist(),
                  n_updates=int(self.est.n_updates), state=self.state,
-                 ranges=self.ranges_out, members=self.members(t_s))
+                 ranges=self.ranges_out, members=self.members(t_s), clock=self.clk.correction(t_s))
         self.ranges_out = []
         return m
 
@@ -186,9 +213,10 @@ class StationCore:
             self._refresh_state()
             out.append(self._nav_msg(t_s))
             out.append(self.estimate_msg(t_s))
-        if t_s >= self._next_req_s - 1e-12:
-            t0 = self._next_req_s
-            cycle, _ = self.plan.locate(t0 + 1e-9)
+        if t_s >= self._next_req_s - 1e-9:
+            t0 = self._next_req_s  # the radio transmits at the slot start, however late the host
+            T0 = self._next_req_T
+            cycle, _ = self.plan.locate(T0 + 1e-9)
             self._cycle = cycle
             mem = self.members(t0)
             if mem:
@@ -200,7 +228,9 @@ class StationCore:
                 self.counters["requests"] += 1
                 out.append(m)
             self._nav_s = t0 + self.cfg.nav_offset_s
-            self._next_req_s = self.plan.slot_start_s(cycle + 1, self.slot)
+            self._next_req_T = self.plan.slot_start_s(cycle + 1, self.slot)
+            if self._next_req_s <= t0:  # the network-time estimate jumped ahead: next cycle's slot
+                self._next_req_T, _ = self._schedule_after(t0)
             # forget requests whose slot is over
             for s in [s for s, (_, _, end) in self.pending.items() if end < t0]:
                 del self.pending[s]
@@ -219,7 +249,7 @@ class StationCore:
         else:
             self.listen_until_s = t_s + self.plan.cycle_s  # no free slot: keep listening
             return
-        self._next_req_s, _ = self._schedule_after(t_s)
+        self._next_req_T, _ = self._schedule_after(t_s)
         self._refresh_state()
 
     def on_message(self, msg: dict, t_rx_s: float) -> list[dict]:
@@ -234,10 +264,13 @@ class StationCore:
             if msg.get("dst") != self.id:
                 return []
             t_tx = t_rx_s + self.cfg.turnaround_s
+            if not self._in_slot(msg, t_tx):
+                self.counters["late"] += 1
+                return []
             m = self._base("range_rsp", t_tx)
             m.update(dst=src, req_seq=msg["seq"], turnaround_s=float(self.cfg.turnaround_s), t_tx_s=float(t_tx),
-                     pos_m=self.est.pos_m.tolist(), cov_m2=self.est.cov_m2.tolist(),
-                     n_updates=int(self.est.n_updates), state=self.state)
+                     t_rx_s=float(t_rx_s), pos_m=self.est.pos_m.tolist(), cov_m2=self.est.cov_m2.tolist(),
+                     n_updates=int(self.est.n_updates), state=self.state, clock=self.clk.correction(t_rx_s))
             return [m]
         if kind == "range_rsp":
             self._heard(src, t_rx_s)
@@ -248,7 +281,10 @@ class StationCore:
                 self.counters["ignored"] += 1
                 return []
             _, t_tx, _ = pend
-            range_m = 0.5 * SPEED_OF_LIGHT_M_S * ((t_rx_s - t_tx) - msg["turnaround_s"])
+            corr = msg.get("clock")
+            f_me, f_peer = self.clk.freq(), (corr[2] if corr is not None else 0.0)
+            # two-way ranging on each end's own clock, durations scaled to network seconds
+            range_m = 0.5 * SPEED_OF_LIGHT_M_S * ((t_rx_s - t_tx) / (1.0 + f_me) - msg["turnaround_s"] / (1.0 + f_peer))
             if not (0.0 < range_m < self.cfg.max_range_m):
                 self.counters["rejected_ranges"] += 1
                 return []
@@ -256,7 +292,18 @@ class StationCore:
             pos = np.asarray(msg["pos_m"], float)
             cov = np.asarray(msg["cov_m2"], float)
             self._update_peer(src, msg, t_rx_s)
-            self.ranges_out.append([src, float(range_m), float(t_rx_s)])
+            entry = [src, float(range_m), float(t_rx_s)]
+            t3 = msg.get("t_tx_s")
+            if t3 is not None:
+                # two-way time transfer: theta_me - theta_peer at the exchange midpoint (both ends'
+                # midpoints are the same instant); the nav entry carries it to the other stations
+                t2 = msg.get("t_rx_s", t3 - msg["turnaround_s"])
+                dtheta = 0.5 * ((t_rx_s - t3) - (t2 - t_tx))
+                t_mid = 0.5 * (t_tx + t_rx_s)
+                entry = [src, float(range_m), float(t_mid), float(dtheta)]
+                if self.clk.on_exchange(self.id, src, self.clk.network_time(t_mid), dtheta) is not None:
+                    self.counters["sync_in"] += 1
+            self.ranges_out.append(entry)
             self.est.on_range(src, range_m, t_rx_s, True, pos, cov)
             self._refresh_state()
             return []
@@ -271,11 +318,20 @@ class StationCore:
                     self.slot = None
                     self.state = "joining"
                     self.listen_until_s = t_rx_s + self.plan.cycle_s
-                    self._next_req_s = self._nav_s = float("inf")
+                    self._next_req_T = self._nav_s = float("inf")
             pos = np.asarray(msg["pos_m"], float)
             cov = np.asarray(msg["cov_m2"], float)
             self.est.on_peer(src, pos, cov)
-            for peer, range_m, _t in msg.get("ranges", ()):
+            corr = msg.get("clock")
+            if corr is not None:
+                self.clk.on_nav(src, t_rx_s, msg["t_tx_s"], corr)  # coarse, only while unknown
+            for r in msg.get("ranges", ()):
+                peer, range_m = r[0], r[1]
+                if len(r) == 4 and corr is not None and 0.0 < range_m < self.cfg.max_range_m:
+                    # every exchange the network makes refines the network clock filter: ours (the
+                    # responder's end) and the others' alike
+                    if self.clk.on_exchange(src, peer, self.clk.peer_network_time(corr, r[2]), float(r[3])) is not None:
+                        self.counters["sync_in"] += 1
                 if peer == self.id and 0.0 < range_m < self.cfg.max_range_m:
                     self.counters["ranges_in"] += 1
                     if self.est.name == "dmap":
@@ -283,6 +339,14 @@ class StationCore:
             self._refresh_state()
             return []
         return []
+
+    def _in_slot(self, req: dict, t_tx_s: float) -> bool:
+        """Does a reply sent at local ``t_tx_s`` still fall inside the request's slot, on our estimate
+        of network time (with our clock's 3-sigma uncertainty on either end as a guard)?"""
+        start = self.plan.slot_start_s(int(req["cycle"]), int(req["slot"]))
+        T = self.clk.network_time(t_tx_s)
+        guard = 6.0 * float(np.sqrt(max(self.clk.offset_var_s2, 0.0))) + self.cfg.max_range_m / SPEED_OF_LIGHT_M_S
+        return start - guard <= T <= start + self.plan.slot_s + guard
 
     def _refresh_state(self) -> None:
         if self.state == "joining" and self.slot is not None and self.est.initialized:

@@ -32,13 +32,27 @@ class SimResult:
     n_updates: np.ndarray  # (K, n)
     link_counts: np.ndarray  # (K, n, n) cumulative ranges measured, [initiator, responder]
     counters: dict[int, dict] = field(default_factory=dict)
+    clock_err_s: np.ndarray | None = None  # (K, n) estimated minus true clock offset vs network time
+    clock_var_s2: np.ndarray | None = None  # (K, n) the estimator's offset variance
+    clock_true_s: np.ndarray | None = None  # (K, n) true offset vs network time (station 1's clock)
+
+
+def station_clock(scn: Scenario, station_id: int, seed: int | None = None):
+    """The station's oscillator, from its own stream of the world seed (simulator and node alike)."""
+    seed = scn.seed if seed is None else seed
+    return draw_clock(scn.clock, station_rng(seed, station_id, 0))
+
+
+def network_offset_s(clock, ref_clock, t_true_s: float) -> float:
+    """True offset of a clock against network time (station 1's clock) at true time ``t_true_s``."""
+    return clock.error_s(t_true_s) - ref_clock.error_s(t_true_s)
 
 
 def make_core(scn: Scenario, station_id: int, *, estimator: str | None = None, join: bool = False,
               start_s: float = 0.0, seed: int | None = None) -> tuple[StationCore, Clock]:
     """Build a station core the way a station process does: clock and coarse fix from the world seed."""
     seed = scn.seed if seed is None else seed
-    clock = draw_clock(scn.channel, station_rng(seed, station_id, 0))
+    clock = station_clock(scn, station_id, seed)
     if scn.sigma0_m > 0:
         pos0, cov0 = coarse_fix(scn.true_pos(station_id), station_id, scn.sigma0_m, station_rng(seed, station_id, 1))
     elif station_id == 1:
@@ -54,6 +68,10 @@ def make_core(scn: Scenario, station_id: int, *, estimator: str | None = None, j
         known_ids=tuple(i for i in scn.initial_ids if i != station_id) if not join else (),
         join=join,
         turnaround_s=scn.channel.turnaround_s,
+        clock_offset_sigma_s=scn.clock.offset_s,
+        clock_freq_sigma=scn.clock.freq_sigma,
+        clock_q_wf_s=scn.clock.q_wf_s,
+        clock_q_rw_per_s=scn.clock.q_rw_per_s,
     )
     return StationCore(cfg, pos0, cov0, start_s=clock.to_local(start_s)), clock
 
@@ -82,6 +100,7 @@ class Simulator:
         n = len(scn.ids)
         self.cores: list[StationCore | None] = [None] * n
         self.clocks: list[Clock] = [Clock()] * n
+        self.ref_clock = station_clock(scn, scn.ids[0], self.seed)  # network time = station 1's clock
         self.air = [AirChannel(scn.channel, station_rng(self.seed, i, 2)) for i in scn.ids]
         self.net_rng = np.random.default_rng([self.seed, 0, 3])
         self.links = np.zeros((n, n), dtype=np.int64)
@@ -117,7 +136,7 @@ class Simulator:
                 continue
             t_tx_true = self.clocks[k].to_true(m["t_tx_s"])
             if kind == "nav":
-                for peer, rng_m, _ in m["ranges"]:
+                for peer, rng_m, *_ in m["ranges"]:
                     if peer in ids:
                         self.range_log.append((t_tx_true, k, ids.index(peer), float(rng_m)))
                 targets = [j for j in range(len(ids)) if j != k]
@@ -167,6 +186,9 @@ class Simulator:
         cov = np.full((K, n, 3, 3), np.nan)
         nup = np.zeros((K, n), dtype=np.int64)
         links = np.zeros((K, n, n), dtype=np.int64)
+        cerr = np.full((K, n), np.nan)
+        cvar = np.full((K, n), np.nan)
+        ctrue = np.full((K, n), np.nan)
         si = 0
         while si < K:
             t_next = self._heap[0][0] if self._heap else np.inf
@@ -176,6 +198,10 @@ class Simulator:
                         pos[si, k] = c.est.pos_m
                         cov[si, k] = c.est.cov_m2
                         nup[si, k] = c.est.n_updates
+                        t_loc = self.clocks[k].to_local(snaps[si])
+                        ctrue[si, k] = network_offset_s(self.clocks[k], self.ref_clock, snaps[si])
+                        cerr[si, k] = c.clk.offset_at(t_loc) - ctrue[si, k]
+                        cvar[si, k] = c.clk.variance_at(t_loc)
                 links[si] = self.links
                 si += 1
                 continue
@@ -184,4 +210,5 @@ class Simulator:
             self._handle(t, ev)
         return SimResult(ids=list(self.scn.ids), times_s=snaps, truth_m=self.scn.pos_m.copy(), pos_m=pos,
                          cov_m2=cov, n_updates=nup, link_counts=links,
-                         counters={sid: dict(c.counters) for sid, c in zip(self.scn.ids, self.cores) if c})
+                         counters={sid: dict(c.counters) for sid, c in zip(self.scn.ids, self.cores) if c},
+                         clock_err_s=cerr, clock_var_s2=cvar, clock_true_s=ctrue)

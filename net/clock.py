@@ -1,0 +1,187 @@
+"""Station oscillators as they are (pure, seeded): a two-state clock model.
+
+State of one free-running clock against true time ``tau``: phase (time error) ``x(tau)`` in seconds,
+``t_local = tau + x(tau)``, and fractional frequency ``y = dx/dtau``. The standard two-state model
+(e.g. Zucca & Tavella 2005; the GNSS receiver clock model ``q_wf``/``q_rw``)::
+
+    dx/dtau = y + w_1      white frequency noise,        E[w_1 w_1] = q_wf  delta   (q_wf in s)
+    dy/dtau = w_2          random-walk frequency noise,  E[w_2 w_2] = q_rw  delta   (q_rw in 1/s)
+
+has the Allan variance ``sigma_y^2(tau) = q_wf / tau + q_rw tau / 3`` and, over a step ``h``, the exact
+discrete transition ``F = [[1, h], [0, 1]]`` with noise covariance
+``Q(h) = [[q_wf h + q_rw h^3/3, q_rw h^2/2], [q_rw h^2/2, q_rw h]]``.
+
+Presets (``docs/scenarios.md``, section ``[clock]``):
+
+========  =============  ==============  ============  =============  ====================
+preset    offset sigma   freq. sigma     q_wf (s)      q_rw (1/s)     ADEV 1 s / 100 s
+========  =============  ==============  ============  =============  ====================
+tcxo      1 ms           2 ppm           1e-20         3e-22          1.0e-10 / 1.0e-10
+ocxo      1 ms           0.05 ppm        1e-24         3e-28          1.0e-12 / 1.0e-12
+========  =============  ==============  ============  =============  ====================
+
+The emulated phase is generated on a grid of ``h = 1 s`` from true time 0 (the fleet epoch) with the
+exact discrete model, and interpolated linearly in between (so time is continuous and monotonic and
+the Allan deviation at multiples of ``h`` is the model's). Steps are drawn in fixed-size chunks from
+the clock's own stream, so any process asking for any times sees the same clock.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+PRESETS: dict[str, dict[str, float]] = {
+    "perfect": {"offset_s": 0.0, "freq_ppm": 0.0, "q_wf_s": 0.0, "q_rw_per_s": 0.0},
+    "tcxo": {"offset_s": 1e-3, "freq_ppm": 2.0, "q_wf_s": 1e-20, "q_rw_per_s": 3e-22},
+    "ocxo": {"offset_s": 1e-3, "freq_ppm": 0.05, "q_wf_s": 1e-24, "q_rw_per_s": 3e-28},
+}
+
+
+@dataclass(frozen=True)
+class ClockParams:
+    """Oscillator class of every station: initial offset / frequency sigmas and the noise densities."""
+
+    model: str = "perfect"
+    offset_s: float = 0.0      # sigma of the offset at the fleet epoch
+    freq_ppm: float = 0.0      # sigma of the fractional frequency offset, ppm
+    q_wf_s: float = 0.0        # white frequency noise density, s (sigma_y(1 s)^2)
+    q_rw_per_s: float = 0.0    # random-walk frequency noise density, 1/s
+
+    @property
+    def freq_sigma(self) -> float:
+        return self.freq_ppm * 1e-6
+
+    @property
+    def stochastic(self) -> bool:
+        return self.q_wf_s > 0 or self.q_rw_per_s > 0
+
+    @property
+    def perfect(self) -> bool:
+        return self.offset_s == 0 and self.freq_ppm == 0 and not self.stochastic
+
+    def adev(self, tau_s: np.ndarray | float) -> np.ndarray:
+        """Model Allan deviation ``sqrt(q_wf / tau + q_rw tau / 3)``."""
+        tau = np.asarray(tau_s, float)
+        return np.sqrt(self.q_wf_s / tau + self.q_rw_per_s * tau / 3.0)
+
+
+def clock_params(raw: dict | None, legacy_offset_s: float = 0.0, legacy_drift_ppm: float = 0.0) -> ClockParams:
+    """``[clock]`` section -> :class:`ClockParams`: ``model`` preset, any key overrides the preset.
+
+    Without a ``[clock]`` section the legacy ``[channel] clock_offset_s / clock_drift_ppm`` describe a
+    clock without noise (both 0: perfect clocks)."""
+    raw = dict(raw or {})
+    if not raw:
+        return ClockParams("perfect" if not (legacy_offset_s or legacy_drift_ppm) else "custom",
+                           float(legacy_offset_s), float(legacy_drift_ppm))
+    model = str(raw.pop("model", "tcxo"))
+    if model not in PRESETS and model != "custom":
+        raise ValueError(f"[clock] model: unknown {model!r}; choose from {sorted(PRESETS) + ['custom']}")
+    vals = dict(PRESETS.get(model, PRESETS["perfect"]))
+    for k, v in raw.items():
+        if k not in vals:
+            raise ValueError(f"[clock] {k}: unknown key; keys are model, {', '.join(sorted(vals))}")
+        v = float(v)
+        if not (v >= 0 and math.isfinite(v)):
+            raise ValueError(f"[clock] {k}: must be a finite number >= 0")
+        vals[k] = v
+    return ClockParams(model, **vals)
+
+
+def transition(dt_s: float, q_wf_s: float, q_rw_per_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact discrete two-state model over ``dt_s``: ``F`` (2, 2), ``Q`` (2, 2)."""
+    h = float(dt_s)
+    F = np.array([[1.0, h], [0.0, 1.0]])
+    Q = np.array([[q_wf_s * h + q_rw_per_s * h**3 / 3.0, q_rw_per_s * h**2 / 2.0],
+                  [q_rw_per_s * h**2 / 2.0, q_rw_per_s * h]])
+    return F, Q
+
+
+class OscillatorClock:
+    """One station's oscillator: ``to_local(tau)``, ``to_true(t_local)``, ``error_s(tau)`` = ``x(tau)``.
+
+    Parameters
+    ----------
+    params : the oscillator class. rng : the clock's own stream (``station_rng(seed, id, 0)``).
+    step_s : grid of the generated phase (1 s).
+    """
+
+    CHUNK = 512
+
+    def __init__(self, params: ClockParams, rng: np.random.Generator, step_s: float = 1.0):
+        self.params = params
+        self.rng = rng
+        self.h = float(step_s)
+        x0 = float(rng.normal(0.0, params.offset_s)) if params.offset_s > 0 else 0.0
+        y0 = float(rng.normal(0.0, params.freq_sigma)) if params.freq_ppm > 0 else 0.0
+        self._x = np.array([x0])  # phase at grid points k h
+        self._y = np.array([y0])  # frequency at grid points
+        _, Q = transition(self.h, params.q_wf_s, params.q_rw_per_s)
+        self._L = np.linalg.cholesky(Q + 1e-300 * np.eye(2)) if params.stochastic else None
+
+    # ------------------------------------------------------------------ generation
+    def _extend(self, k: int) -> None:
+        """Make grid points up to index ``k`` exist (in fixed chunks: query order never matters)."""
+        while len(self._x) <= k + 1:
+            n = self.CHUNK
+            x0, y0 = self._x[-1], self._y[-1]
+            if self._L is None:
+                idx = np.arange(1, n + 1) * self.h
+                xs, ys = x0 + y0 * idx, np.full(n, y0)
+            else:
+                w = self.rng.standard_normal((n, 2)) @ self._L.T  # (n, 2): [w_x, w_y]
+                ys = y0 + np.cumsum(w[:, 1])
+                y_prev = np.concatenate([[y0], ys[:-1]])
+                xs = x0 + np.cumsum(self.h * y_prev + w[:, 0])
+            self._x = np.concatenate([self._x, xs])
+            self._y = np.concatenate([self._y, ys])
+
+    def _seg(self, k: int) -> tuple[float, float]:
+        """Phase at grid point ``k`` and the slope of segment ``[k, k+1]``."""
+        if k < 0:
+            return float(self._x[0]) + float(self._y[0]) * k * self.h, float(self._y[0])
+        self._extend(k)
+        x0 = float(self._x[k])
+        return x0, (float(self._x[k + 1]) - x0) / self.h
+
+    # ------------------------------------------------------------------ conversions
+    def error_s(self, t_true_s: float) -> float:
+        """Phase (time error) ``x(tau)``, s: local minus true time."""
+        k = math.floor(t_true_s / self.h)
+        x0, s = self._seg(k)
+        return x0 + s * (t_true_s - k * self.h)
+
+    def freq_at(self, t_true_s: float) -> float:
+        """Fractional frequency of the emulated (piecewise-linear) phase at ``tau``."""
+        return self._seg(math.floor(t_true_s / self.h))[1]
+
+    def to_local(self, t_true_s: float) -> float:
+        return t_true_s + self.error_s(t_true_s)
+
+    def to_true(self, t_local_s: float) -> float:
+        tau = t_local_s - self.error_s(t_local_s)  # |x| << h: the right segment or a neighbour
+        k = math.floor(tau / self.h)
+        for _ in range(4):
+            x0, s = self._seg(k)
+            tau = (t_local_s - x0 + s * k * self.h) / (1.0 + s)
+            kk = math.floor(tau / self.h)
+            if kk == k:
+                break
+            k = kk
+        return tau
+
+    def phase_grid(self, n: int) -> np.ndarray:
+        """Phase at the first ``n`` grid points (n,) - for statistics."""
+        self._extend(n)
+        return self._x[:n].copy()
+
+
+def allan_deviation(phase_s: np.ndarray, step_s: float, m: int) -> float:
+    """Overlapping Allan deviation at ``tau = m step_s`` from phase samples (n,)."""
+    x = np.asarray(phase_s, float)
+    d2 = x[2 * m:] - 2.0 * x[m:-m] + x[: -2 * m]
+    tau = m * step_s
+    return float(np.sqrt(np.mean(d2**2) / (2.0 * tau**2)))
