@@ -111,7 +111,7 @@ class OscillatorClock:
 
     CHUNK = 512
 
-    def __init__(self, params: ClockParams, rng: np.random.Generator, step_s: float = 1.0):
+    def __init__(self, params: ClockParams, rng: np.random.Generator, step_s: float = 0.1):
         self.params = params
         self.rng = rng
         self.h = float(step_s)

@@ -105,6 +105,7 @@ class Simulator:
         self.net_rng = np.random.default_rng([self.seed, 0, 3])
         self.links = np.zeros((n, n), dtype=np.int64)
         self.range_log: list[tuple[float, int, int, float]] = []  # (t_true, initiator idx, responder idx, range_m)
+        self.exchange_log: list[tuple[float, int, int]] = []  # (t_true reply rx, initiator idx, responder idx)
         self._heap: list = []
         self._order = 0
         self._timer_ver = [0] * n
@@ -174,6 +175,7 @@ class Simulator:
             outs = core.on_message(m, t_local)
             if core.counters["responses"] != before:
                 self.links[k, self.scn.ids.index(m["src"])] += 1
+                self.exchange_log.append((t, k, self.scn.ids.index(m["src"])))
         self._emit(k, outs)
         self._arm(k)
 

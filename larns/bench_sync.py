@@ -1,0 +1,192 @@
+"""`larns bench sync`: Monte Carlo of the stations' network time (clock synchronization).
+
+Each trial draws a fresh random layout and fresh oscillators (the scenario's ``[clock]`` class, TCXO by
+default) from its own seed and runs the in-process simulator (the same station cores as the Zenoh
+fleet). At every second it compares each station's estimate of its clock offset against network
+time (station 1's clock) with the truth, and with the Bayesian bound of the *same* realized
+exchanges: the centralized linear Kalman filter of all clocks on the true exchange times and the
+true oscillator model (linear Gaussian, so its covariance is the posterior CRLB).
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+TABLE_TIMES_S = [2, 5, 10, 20, 30, 40, 60]
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "sync",
+        help="network time Monte Carlo (seed 000 world, TCXO clocks): sync error vs time, CRLB, NEES",
+        description=(
+            "Monte Carlo of the stations' clock synchronization over the ranging exchanges. Prints, at t = "
+            "2, 5, 10, 20, 30, 40, 60 s, the RMS of the stations' clock error against network time (stations "
+            "2..n, ns), the RMS of the centralized Bayesian bound on the same exchanges, their ratio, the "
+            "largest error, and the mean NEES (1 dof) with its 95%% band. JSON keys: times_s, sync_rms_ns, "
+            "sync_crlb_rms_ns, nees_mean."),
+    )
+    p.add_argument("--trials", type=int, default=100, help="Monte Carlo trials (default 100)")
+    p.add_argument("--sigma-d", type=float, default=0.5, metavar="M", help="range noise sigma_d, m (default 0.5)")
+    p.add_argument("--stations", type=int, default=10, help="number of stations (default 10)")
+    p.add_argument("--clock", default="tcxo", help="oscillator preset: tcxo, ocxo (default tcxo)")
+    p.add_argument("--duration", type=float, default=60.0, help="simulated seconds per trial (default 60)")
+    p.add_argument("--scenario", default="seed000", help="scenario name or TOML path (default seed000)")
+    p.add_argument("--seed", type=int, default=1, help="base seed; trial k uses seed + k (default 1)")
+    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: all cores)")
+    p.add_argument("--json", metavar="FILE", help="write the results as JSON")
+    p.add_argument("--png-dir", metavar="DIR", default="bench-out/sync",
+                   help="where to write the PNG figure (default bench-out/sync; '' to skip)")
+    p.set_defaults(func=main)
+
+
+def crlb_offset_var(scn, exchange_log, ids, times_s: np.ndarray) -> np.ndarray:
+    """Offset variance (K, n) of the centralized KF of all clocks on the realized exchanges (true times)."""
+    from nav.geometry import SPEED_OF_LIGHT_M_S
+    from stations.clocksync import ClockEstimator, ClockModel
+
+    ck = scn.clock
+    model = ClockModel(ck.q_wf_s, ck.q_rw_per_s, ck.offset_s, ck.freq_sigma)
+    kf = ClockEstimator(ids[1], model, 0.0, scn.channel.sigma_d_m)
+    for sid in ids[1:]:
+        kf._add(sid)
+    out = np.zeros((len(times_s), len(ids)))
+    log = sorted(exchange_log)
+    i = 0
+    for k, t in enumerate(times_s):
+        while i < len(log) and log[i][0] <= t:
+            tt, a, b = log[i]
+            kf.on_exchange(ids[a], ids[b], tt - 0.5 * (scn.channel.turnaround_s), 0.0)
+            i += 1
+        kf.predict(t)
+        for j, sid in enumerate(ids[1:], start=1):
+            q = 2 * kf.index[sid]
+            out[k, j] = kf.P[q, q]
+    del SPEED_OF_LIGHT_M_S
+    return out
+
+
+def _trial(job: tuple) -> dict:
+    from net.scenario import load
+    from stations.sim import Simulator
+
+    scenario, clock, sigma_d, n, seed, duration = job
+    scn = load(scenario, seed=seed, channel={"sigma_d_m": sigma_d}, layout={"n": n}, clock={"model": clock})
+    sim = Simulator(scn)
+    times = np.arange(1.0, duration + 1e-9, 1.0)
+    r = sim.run(duration, times)
+    crlb = crlb_offset_var(scn, sim.exchange_log, r.ids, times)
+    return {"err_s": r.clock_err_s[:, 1:], "var_s2": r.clock_var_s2[:, 1:], "crlb_s2": crlb[:, 1:]}
+
+
+def summarize(results: list[dict], times: np.ndarray, table_times: list[float], meta: dict) -> dict:
+    from .bench_survey import chi2_band
+
+    err = np.stack([r["err_s"] for r in results]) * 1e9  # (T, K, n-1) ns
+    var = np.stack([r["var_s2"] for r in results]) * 1e18
+    crlb = np.stack([r["crlb_s2"] for r in results]) * 1e18
+    rms = np.sqrt((err**2).mean(axis=(0, 2)))
+    crlb_rms = np.sqrt(crlb.mean(axis=(0, 2)))
+    nees = (err**2 / var).mean(axis=(0, 2))
+    ti = [int(np.argmin(np.abs(times - t))) for t in table_times]
+    lo, hi = chi2_band(1, err.shape[0] * err.shape[2])
+    below = np.flatnonzero(rms <= 1.0)
+    res = dict(meta)
+    res.update({
+        "trials": len(results),
+        "times_s": [float(t) for t in table_times],
+        "sync_rms_ns": rms[ti].tolist(),
+        "sync_crlb_rms_ns": crlb_rms[ti].tolist(),
+        "crlb_ratio": (rms[ti] / crlb_rms[ti]).tolist(),
+        "sync_max_ns": np.abs(err).max(axis=(0, 2))[ti].tolist(),
+        "nees_mean": nees[ti].tolist(),
+        "nees_band_95": [lo, hi],
+        "time_to_1ns_s": float(times[below[0]]) if len(below) else None,
+        "curve_times_s": times.tolist(),
+        "curve_sync_rms_ns": rms.tolist(),
+        "curve_sync_crlb_rms_ns": crlb_rms.tolist(),
+    })
+    t = res["times_s"]
+    bar = {}
+    if 30.0 in t:
+        bar["rms_at_30s_le_1ns"] = res["sync_rms_ns"][t.index(30.0)] <= 1.0
+    if 60.0 in t:
+        bar["rms_at_60s_le_1.2_crlb"] = res["crlb_ratio"][t.index(60.0)] <= 1.2
+    bar["nees_in_band_or_below"] = all(x <= hi for x in res["nees_mean"][1:])
+    res["bar"] = bar
+    return res
+
+
+def print_table(res: dict) -> None:
+    print(f"\nclock={res['clock']}  sigma_d={res['sigma_d_m']} m  trials={res['trials']}  stations={res['stations']}  "
+          f"wall={res.get('wall_s', float('nan')):.1f} s")
+    hdr = ("t_s", "rms_ns", "crlb_ns", "ratio", "max_ns", "NEES")
+    print("  ".join(f"{h:>8}" for h in hdr))
+    for k, t in enumerate(res["times_s"]):
+        row = [t, res["sync_rms_ns"][k], res["sync_crlb_rms_ns"][k], res["crlb_ratio"][k], res["sync_max_ns"][k],
+               res["nees_mean"][k]]
+        print("  ".join(f"{x:8.3f}" for x in row))
+    lo, hi = res["nees_band_95"]
+    print(f"NEES (1 dof) 95% band for the mean: [{lo:.3f}, {hi:.3f}];  time to RMS <= 1 ns: {res['time_to_1ns_s']} s")
+    for name, ok in res["bar"].items():
+        print(f"  bar {name}: {'PASS' if ok else 'FAIL'}")
+
+
+def plot(res: dict, png_dir: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    png_dir.mkdir(parents=True, exist_ok=True)
+    fig, ax = plt.subplots(figsize=(8, 5))
+    t = res["curve_times_s"]
+    ax.plot(t, res["curve_sync_rms_ns"], label="RMS clock error vs network time")
+    ax.plot(t, res["curve_sync_crlb_rms_ns"], ls="--", label="centralized bound (same exchanges)")
+    ax.axhline(1.0, color="grey", lw=0.8)
+    ax.set_yscale("log")
+    ax.set_xlabel("time, s")
+    ax.set_ylabel("clock error, ns")
+    ax.set_title(f"Network time: {res['clock']} clocks, {res['stations']} stations, {res['trials']} trials")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    f = png_dir / "sync_convergence.png"
+    fig.tight_layout()
+    fig.savefig(f, dpi=110)
+    plt.close(fig)
+    return f
+
+
+def main(args) -> int:
+    from .progress import Progress
+
+    table_times = [t for t in TABLE_TIMES_S if t <= args.duration]
+    times = np.arange(1.0, args.duration + 1e-9, 1.0)
+    jobs = [(args.scenario, args.clock, args.sigma_d, args.stations, args.seed + k, args.duration)
+            for k in range(args.trials)]
+    t0 = time.perf_counter()
+    ctx = mp.get_context("fork")
+    results = []
+    with ctx.Pool(max(1, args.jobs)) as pool:
+        bar = Progress(len(jobs), f"sync {args.clock}")
+        for r in pool.imap(_trial, jobs):
+            results.append(r)
+            bar.update(1)
+        bar.close()
+    res = summarize(results, times, table_times, {"clock": args.clock, "sigma_d_m": args.sigma_d,
+                                                   "stations": args.stations, "scenario": args.scenario})
+    res["wall_s"] = time.perf_counter() - t0
+    print_table(res)
+    if args.png_dir:
+        print(f"wrote {plot(res, Path(args.png_dir))}")
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(res, indent=1))
+        print(f"wrote {args.json}")
+    return 0
