@@ -11,8 +11,7 @@ from .estimators import ALGOS, Tuning
 from .models import ReceiverClock
 
 _KNOWN = {"name", "algos", "rate_hz", "sync", "sigma_m", "df_hz", "lambda_m", "tau0_s", "height_m",
-          "trajectory", "tuning", "turn", "hover", "bench", "crlb", "init_sigma_m",
-          "station_clock_residual_m"}
+          "trajectory", "tuning", "turn", "hover", "bench", "crlb", "init_sigma_m"}
 
 
 @dataclass

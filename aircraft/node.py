@@ -4,11 +4,14 @@ measures pseudoranges in its own channel layer and runs the estimators (one per 
 * **time**: fleet time ``t = (wall - epoch) * speed`` like the stations (same ``--epoch``).
 * **receive**: ``larns/station/*/nav`` -> strict decode (malformed: counted and dropped) -> key/src
   check -> channel layer: reception at ``t_rx = t_true_tx + |r(t_rx) - p_tx| / c`` (true sender
-  position and transmit time from ``phy``), pseudorange ``rho = c (t_rx_local - t_tx)`` with the
-  receiver clock ``c dtau(t) = df lambda t + c tau0`` (seed 001), timing noise ``sigma_m`` and the
-  station clock corrected by the nav message (an optional residual ``station_clock_residual_m``).
-  The estimator sees the broadcast's *estimated* station position and covariance (``msg.pos_m``,
-  ``msg.cov_m2``), never ``phy``.
+  position and transmit time from ``phy``) read on the aircraft's receiver clock, which runs on network
+  time (station 1's oscillator) plus ``c dtau(t) = df lambda t + c tau0`` (seed 001) and timing noise
+  ``sigma_m``; pseudorange ``rho = c (t_rx_local - (t_tx - theta_hat(t_tx)))`` from the *station-stamped*
+  transmit time ``t_tx`` corrected by the broadcast clock correction ``theta_hat`` (``msg.clock``). Each
+  station's residual sync error reaches the aircraft as in reality; the estimators carry the broadcast
+  clock variance ``c^2 P_theta`` as range variance (an isotropic term added to the station covariance:
+  ``u^T (P + s I) u = u^T P u + s``). The estimator sees the broadcast's *estimated* station position
+  and covariance (``msg.pos_m``, ``msg.cov_m2``), never ``phy``.
 * **publish**: ``larns/aircraft/<name>/estimate/<algo>`` (``ac_estimate``) after every update and
   ``larns/aircraft/<name>/truth`` (``ac_truth``) with every measurement; liveliness token
   ``larns/alive/aircraft/<name>``.
@@ -61,7 +64,7 @@ class AircraftCore:
     """
 
     def __init__(self, ac, algos, name: str, rng: np.random.Generator,
-                 height_m: float | None = None, horizon_s: float = 7200.0, residual_m: float = 0.0):
+                 height_m: float | None = None, horizon_s: float = 7200.0, net_clock=None):
         from . import trajectory
         from .estimators import AircraftEstimator, EstimatorConfig
 
@@ -82,29 +85,50 @@ class AircraftCore:
             sig0 = None
         cfg = EstimatorConfig(tuning=ac.tuning, guess_sigma_m=sig0)
         self.estimators = {a: AircraftEstimator(a, cfg, x0_guess_m=guess) for a in algos}
-        self.residual_m = residual_m
+        self.net_clock = net_clock  # station 1's oscillator: network time (None: perfect clocks)
         self.seq: Counter[str] = Counter()
         self.stats: Counter[str] = Counter()
 
-    def measure(self, phy: dict) -> tuple[float, float, np.ndarray]:
-        """Channel layer: (t_rx true, pseudorange, true aircraft position at reception)."""
+    def measure(self, phy: dict, msg: dict | None = None) -> tuple[float, float, np.ndarray]:
+        """Channel layer: (t_rx true, pseudorange, true aircraft position at reception).
+
+        ``rho = c (t_rx_ac - T_tx)``: ``t_rx_ac`` the receiver clock (network time at the true reception
+        plus the seed-001 receiver clock), ``T_tx`` the station's stamped transmit time ``msg.t_tx_s``
+        minus its broadcast offset ``msg.clock`` (without ``msg``: the true transmit time)."""
         p_tx = np.asarray(phy["pos_m"], float)
         t_tx = float(phy["t_true_s"])
         p, _ = self.track.at(t_tx)
         t_rx = t_tx + np.linalg.norm(p - p_tx) / SPEED_OF_LIGHT_M_S
         p, _ = self.track.at(t_rx)  # one fixed-point step is exact to micrometres at aircraft speeds
         r = float(np.linalg.norm(p - p_tx))
-        rho = r + float(self.ac.clock.bias_m(t_rx)) + self.ac.sigma_m * float(self.rng.standard_normal())
-        if self.residual_m > 0:
-            rho += self.residual_m * float(self.rng.standard_normal())
+        # time terms as small differences (float resolution): network time minus true time at
+        # reception, station stamp minus true time at transmission, the broadcast offset
+        dt_s = self.net_clock.error_s(t_rx) if self.net_clock is not None else 0.0
+        if msg is not None and "t_tx_s" in msg:
+            dt_s -= float(msg["t_tx_s"]) - t_tx
+            corr = msg.get("clock")
+            if corr is not None:
+                dt_s += corr[1] + corr[2] * (float(msg["t_tx_s"]) - corr[0])
+        rho = r + SPEED_OF_LIGHT_M_S * dt_s + float(self.ac.clock.bias_m(t_rx)) \
+            + self.ac.sigma_m * float(self.rng.standard_normal())
         return t_rx, rho, p
+
+    @staticmethod
+    def clock_var_m2(msg: dict) -> float:
+        """Broadcast clock variance at the transmit time as a range variance, m^2."""
+        corr = msg.get("clock")
+        if corr is None:
+            return 0.0
+        dt = float(msg["t_tx_s"]) - corr[0]
+        return SPEED_OF_LIGHT_M_S**2 * max(corr[3] + 2 * dt * corr[4] + dt * dt * corr[5], 0.0)
 
     def on_nav(self, msg: dict, phy: dict) -> list[dict]:
         """One station nav broadcast -> ``ac_truth`` + one ``ac_estimate`` per algorithm that has one."""
         if msg.get("state") not in USABLE_STATES:
             self.stats["nav_unusable_state"] += 1
             return []
-        t_rx, rho, p_true = self.measure(phy)
+        t_rx, rho, p_true = self.measure(phy, msg)
+        cov = np.asarray(msg["cov_m2"], float) + self.clock_var_m2(msg) * np.eye(3)
         if not (np.all(np.isfinite(msg["pos_m"])) and math.isfinite(t_rx)):
             self.stats["nav_bad"] += 1
             return []
@@ -112,7 +136,7 @@ class AircraftCore:
         out = [self._msg("ac_truth", t_s=t_rx, pos_m=p_true.tolist(), vel_m_s=self.track.at(t_rx)[1].tolist())]
         for algo, est in self.estimators.items():
             n = est.n_updates
-            est.on_measurement(t_rx, int(msg["src"]), msg["pos_m"], msg["cov_m2"], rho)
+            est.on_measurement(t_rx, int(msg["src"]), msg["pos_m"], cov, rho)
             if est.n_updates == n:
                 continue
             e = est.estimate()
@@ -150,8 +174,11 @@ class AircraftNode:
         seed = scn.seed if opts.seed is None else opts.seed
         rng = np.random.default_rng([int(seed), 0xA1C, sum(map(ord, opts.name))])
         horizon = (opts.duration_s or 7200.0) + 10.0
+        from net.channel import draw_clock, station_rng
+
+        net_clock = None if scn.clock.perfect else draw_clock(scn.clock, station_rng(seed, scn.ids[0], 0))
         self.core = AircraftCore(self.ac, opts.algos, opts.name, rng, opts.height_m, horizon_s=horizon,
-                                 residual_m=float(scn.aircraft.get("station_clock_residual_m", 0.0)))
+                                 net_clock=net_clock)
         self.drops = M.DropCounter(f"aircraft {opts.name}")
         self._inbox: queue.SimpleQueue = queue.SimpleQueue()
         self._stop = threading.Event()

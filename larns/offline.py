@@ -432,8 +432,10 @@ def reestimate_aircraft(logs: Sequence[LogFile], msgs: Sequence[Msg], algos: Seq
     seed = scn.seed if seed is None else seed
     horizon = float(md.get("duration_s", 7200.0)) + 10.0
     rng = np.random.default_rng([int(seed), 0xA1C, sum(map(ord, name))])  # as aircraft.node.AircraftNode
-    core = AircraftCore(ac, tuple(algos), name, rng, height_m, horizon_s=horizon,
-                        residual_m=float(scn.aircraft.get("station_clock_residual_m", 0.0)))
+    from net.channel import draw_clock, station_rng
+
+    net_clock = None if scn.clock.perfect else draw_clock(scn.clock, station_rng(seed, scn.ids[0], 0))
+    core = AircraftCore(ac, tuple(algos), name, rng, height_m, horizon_s=horizon, net_clock=net_clock)
     ep = logs[0].epoch_unix_s if logs else None
     speed = logs[0].speed if logs else 1.0
     out: dict[str, dict] = {a: {"estimates": [], "truth": [], "err": []} for a in algos}

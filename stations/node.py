@@ -14,9 +14,14 @@ the same per-station streams):
   The core's ``estimate`` is published with the true position on ``.../truth``.
 * **receive**: bytes -> strict decode (malformed: counted and dropped, never a crash) -> key/src
   consistency -> wire faults (delay, jitter, loss, duplication; seeded) -> duplicate filter ->
-  air channel (time of flight, clock, noise, NLOS, air loss) -> local rx timestamp. A range
-  request or reply delivered (wall clock) after the end of the slot it was sent in is dropped as
-  late: a lost measurement. ``phy`` is stripped before the core sees the message.
+  air channel (time of flight, clock, noise, NLOS, air loss) -> local rx timestamp. The core, not
+  the node, decides on its own clock whether an exchange completed within its slot (the physical
+  timestamps come from ``phy``, so host latency does not change them). ``phy`` is stripped before
+  the core sees the message.
+* **emulated-time order**: the nav timer of the own slot waits (at most ``lookahead_s`` of wall
+  time) for the outstanding range reply, so the core consumes its exchange before its nav as in the
+  simulator; a message handed to the core behind its clock is counted ``host_late`` (apart from
+  ``air_lost``), and only a reply the core has already given up on is lost.
 
 SIGINT / SIGTERM: clean exit (liveliness token withdrawn, session closed).
 
@@ -75,6 +80,7 @@ class NodeOptions:
     status_every_s: float = 5.0       # fleet seconds between status lines (0 = never)
     quiet: bool = False
     journal: bool = True              # publish the core journal (larns/station/<id>/init, .../input)
+    lookahead_s: float = 0.05         # wall seconds the nav timer waits for an outstanding range reply
 
 
 class StationNode:
@@ -100,6 +106,10 @@ class StationNode:
         self.core = None
         self.clock = None
         self.air = AirChannel(scn.channel, station_rng(self.seed, self.id, 2))
+        from .sim import station_clock
+
+        self.ref_clock = station_clock(scn, scn.ids[0], self.seed)  # network time (truth side only)
+        self._last_input_s = -math.inf  # local time of the core's latest input
         self.wire = WireFaults(scn.net, station_rng(self.seed, self.id, 3))
         self.slot_s = scn.tdma.slot_s
         self.cycle_s = scn.tdma.cycle_s
@@ -182,9 +192,9 @@ class StationNode:
         return dl is not None and not self._is_slot_start(dl) and self.wall_of(self.clock.to_true(dl)) <= now
 
     def _is_slot_start(self, t_local_s: float) -> bool:
-        """The core's own-slot (request) timer fires on a slot boundary of its local clock."""
-        q = t_local_s / self.slot_s
-        return abs(q - round(q)) < 1e-6
+        """The core's own-slot (request) timer: its slot start on network time, on its local clock."""
+        t = self.core.next_request_s() if self.core is not None else None
+        return t is not None and abs(t_local_s - t) < 1e-9
 
     def _drain_navs(self) -> None:
         """Feed the navs waiting in the ring buffer through the normal receive path. The node lock
@@ -247,22 +257,23 @@ class StationNode:
         self._seen_q.append(ident)
         if len(self._seen_q) > 4096:
             self._seen.discard(self._seen_q.popleft())
-        t_now = self.fleet_now()
         if msg["kind"] in ("range_req", "range_rsp"):
-            # the exchange lives inside the slot it was transmitted in
-            t_tx = phy["t_true_s"]
-            slot_end = (math.floor(t_tx / self.slot_s + 1e-9) + 1) * self.slot_s
-            self._wire_delay_s.append((t_now - t_tx) / self.speed)  # wall: air tx -> delivery here
-            if t_now > slot_end:
-                self.stats["late"] += 1
-                return
+            self._wire_delay_s.append((self.fleet_now() - phy["t_true_s"]) / self.speed)  # wall: tx -> here
         t_rx_local = self.air.arrival_local_s(np.asarray(phy["pos_m"]), phy["t_true_s"],
                                               self.true_pos, self.clock)
         if t_rx_local is None:
             self.stats["air_lost"] += 1
             return
         self.stats["rx_" + msg["kind"]] += 1
+        if t_rx_local < self._last_input_s:
+            self.stats["host_late"] += 1  # behind the core's clock: handed over anyway, the core decides
+            if msg["kind"] in ("range_req", "range_rsp"):
+                self.stats["late"] += 1
+        self._last_input_s = max(self._last_input_s, t_rx_local)
+        lost = self.core.counters["ignored"] + self.core.counters["late"]
         outs = self.core.on_message(msg, t_rx_local)  # phy stripped: the core sees msg only
+        if self.core.counters["ignored"] + self.core.counters["late"] != lost:
+            self.stats["core_late"] += 1
         self._send(outs)
 
     # ------------------------------------------------------------------ transmit path
@@ -385,8 +396,10 @@ class StationNode:
     def _publish_truth(self, est: dict) -> None:
         self._truth_seq += 1
         t = self.fleet_now()
+        tau = self.clock.to_true(float(est["stamp_s"]))  # the estimate's instant
         m = {"kind": "truth", "src": self.id, "seq": self._truth_seq, "stamp_s": float(est["stamp_s"]),
-             "t_s": float(t), "pos_m": self.true_pos}
+             "t_s": float(t), "pos_m": self.true_pos,
+             "clock_error_s": float(self.clock.error_s(tau) - self.ref_clock.error_s(tau))}
         self.bus.publish(M.key_for(m), M.encode(m))
 
     # ------------------------------------------------------------------ main loop
@@ -401,6 +414,9 @@ class StationNode:
                 return
             lateness = now - wall
             is_req = self._is_slot_start(dl)
+            if not is_req and self.core.pending and now < wall + self.opts.lookahead_s:
+                return  # emulated-time order: the outstanding reply first (bounded wait)
+            self._last_input_s = max(self._last_input_s, dl)
             outs = self.core.on_timer(dl)
             if is_req:
                 self.stats["slots"] += 1
@@ -413,7 +429,10 @@ class StationNode:
         t = time.time() + 0.1
         dl = self.core.next_deadline()
         if dl is not None:
-            t = min(t, self.wall_of(self.clock.to_true(dl)))
+            w = self.wall_of(self.clock.to_true(dl))
+            if not self._is_slot_start(dl) and self.core.pending and time.time() >= w:
+                w += self.opts.lookahead_s  # waiting for the outstanding reply
+            t = min(t, w)
         if self._pending:
             t = min(t, self._pending[0][0])
         return t
@@ -426,7 +445,14 @@ class StationNode:
         err = float(np.linalg.norm(np.asarray(est.pos_m) - self.true_pos)) if est.pos_m is not None else math.nan
         print(f"[station {self.id}] t={t:7.1f}s state={self.core.state} slot={self.core.slot} "
               f"updates={est.n_updates} err={err:.2f} m drops={self.drops.total} "
-              f"late={self.stats['late']} missed={self.stats['missed_slots']}", file=sys.stderr, flush=True)
+              f"late={self.stats['late']} missed={self.stats['missed_slots']} "
+              f"sync={self._sync_ns():.2f} ns", file=sys.stderr, flush=True)
+
+    def _sync_ns(self) -> float:
+        """Current clock error against network time (estimate minus truth), ns - for status lines."""
+        t = self.fleet_now()
+        true_s = self.clock.error_s(t) - self.ref_clock.error_s(t)
+        return (self.core.clk.offset_at(self.clock.to_local(t)) - true_s) * 1e9
 
     def start_core(self) -> None:
         """Power on: build the core at the current fleet time (what ``run`` does first)."""
@@ -503,6 +529,8 @@ class StationNode:
             "range_delay_ms": ({f"p{q}": float(np.percentile(self._wire_delay_s, q)) * 1e3 for q in (50, 90, 99)}
                                if self._wire_delay_s else {}),
             "air_lost": int(self.stats["air_lost"]), "max_lateness_ms": self.max_lateness_s * 1e3,
+            "host_late": int(self.stats["host_late"]), "core_late": int(self.stats["core_late"]),
+            "sync_err_ns": self._sync_ns(),
             "journal_dropped": int(self.stats["journal_dropped"]),
             "drops": self.drops.as_dict(), "counters": dict(self.core.counters),
             "tx": {k[3:]: v for k, v in self.stats.items() if k.startswith("tx_")},
@@ -540,6 +568,8 @@ def add_args(p: argparse.ArgumentParser) -> None:
                    help="change the scheduling niceness by N (negative = higher priority, needs privileges); "
                         "helps real-time behaviour on a busy machine")
     p.add_argument("--status-every", type=float, default=5.0, help="fleet seconds between status lines")
+    p.add_argument("--lookahead", type=float, default=0.05, metavar="S",
+                   help="wall seconds the own nav waits for an outstanding range reply (default 0.05)")
     p.add_argument("--no-journal", action="store_true",
                    help="do not publish the core journal (larns/station/<id>/init and .../input, "
                         "needed for bit-exact offline re-estimation)")
@@ -581,7 +611,8 @@ def main_args(args: argparse.Namespace) -> int:
     opts = NodeOptions(station_id=args.id, join=args.join, speed=args.speed, epoch_unix_s=args.epoch,
                        duration_s=args.duration, start_at_s=args.start_at, estimator=args.estimator, seed=args.seed,
                        status_every_s=args.status_every, quiet=args.quiet,
-                       journal=not getattr(args, "no_journal", False))
+                       journal=not getattr(args, "no_journal", False),
+                       lookahead_s=getattr(args, "lookahead", 0.05))
     bus = Bus(**bus_kwargs(args))
     try:
         node = StationNode(scn, opts, bus)

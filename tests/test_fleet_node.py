@@ -1,7 +1,7 @@
 """Station node receive/transmit path without Zenoh: a fake bus records what the node publishes.
 
 Checks the I/O shell around the core: strict decode + drop counter, key/source consistency,
-phy stripped and turned into a local rx timestamp by the air channel, late exchanges dropped,
+phy stripped and turned into a local rx timestamp by the air channel, out-of-slot exchanges dropped by the core,
 duplicates filtered, wire loss applied, outputs stamped with the true transmit time.
 """
 
@@ -82,11 +82,25 @@ def test_request_answered_with_true_timing():
     assert node.drops.total == 0
 
 
-def test_late_request_dropped():
+def req_in_slot(scn, src, dst, seq, t_true, cycle, slot):
+    m = {"kind": "range_req", "src": src, "seq": seq, "stamp_s": t_true, "dst": dst, "cycle": cycle,
+         "slot": slot, "t_tx_s": t_true}
+    return M.key_for(m), M.encode(m, {"pos_m": scn.true_pos(src), "t_true_s": t_true})
+
+
+def test_host_late_request_is_answered_on_its_physical_time_and_out_of_slot_is_dropped_by_the_core():
     node, bus, scn = make_node()
+    # sent in the previous slot, delivered now (host latency ~ 1 s of wall time): the physics holds,
+    # the core answers as if on time (the reply carries the physical stamps)
     t_prev_slot = (math.floor(node.fleet_now() / scn.tdma.slot_s) - 1) * scn.tdma.slot_s + 1e-4
-    node._on_bytes(*req_from(scn, 3, 2, 5, t_prev_slot))
-    assert node.stats["late"] == 1 and not bus.of_kind("range_rsp")
+    cyc, slot = divmod(round((t_prev_slot - 1e-4) / scn.tdma.slot_s), scn.tdma.slots_per_cycle)
+    node._on_bytes(*req_in_slot(scn, 3, 2, 5, t_prev_slot, cyc, slot))
+    rsps = bus.of_kind("range_rsp")
+    assert len(rsps) == 1 and node.stats["core_late"] == 0
+    assert rsps[0][2]["t_true_s"] == pytest.approx(t_prev_slot + scn.channel.turnaround_s, abs=2e-5)
+    # a request whose physical time lies outside the slot it claims: the core (its own clock) drops it
+    node._on_bytes(*req_in_slot(scn, 3, 2, 6, t_prev_slot, cyc - 1, slot))
+    assert len(bus.of_kind("range_rsp")) == 1 and node.core.counters["late"] == 1 and node.stats["core_late"] == 1
 
 
 def test_malformed_spoofed_and_wrong_kind_are_counted_not_fatal():
