@@ -1,0 +1,189 @@
+"""Network time (issue 10): oscillator model, two-way time transfer, the network clock filter, slots
+on network time and clock-honest aircraft pseudoranges."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from nav.geometry import SPEED_OF_LIGHT_M_S as C
+from net.channel import AirChannel, Clock
+from net.clock import PRESETS, ClockParams, OscillatorClock, allan_deviation, clock_params
+from net.scenario import ChannelParams, load
+from stations.clocksync import ClockEstimator, ClockModel, transition
+from stations.core import StationConfig, StationCore
+from stations.sim import Simulator
+
+
+@pytest.mark.parametrize("preset", ["tcxo", "ocxo"])
+def test_oscillator_allan_deviation_matches_the_preset(preset):
+    p = clock_params({"model": preset})
+    assert p == ClockParams(preset, **PRESETS[preset])
+    adev2 = {1: [], 10: [], 100: []}
+    for s in range(12):
+        c = OscillatorClock(p, np.random.default_rng([s, 1, 0]), step_s=1.0)
+        x = c.phase_grid(20000)
+        for m in adev2:
+            adev2[m].append(allan_deviation(x, 1.0, m) ** 2)
+    for m, v in adev2.items():
+        # 12 x 20000 s: the Allan variance estimate at 100 s is good to a few percent
+        assert np.sqrt(np.mean(v)) == pytest.approx(float(p.adev(m)), rel=0.06), m
+
+
+def test_oscillator_is_one_function_of_time_whatever_the_query_order():
+    p = clock_params({"model": "tcxo"})
+    a, b = (OscillatorClock(p, np.random.default_rng([3, 2, 0])) for _ in range(2))
+    ts = np.random.default_rng(0).uniform(0, 300, 200)
+    la = [a.to_local(t) for t in ts]
+    lb = [b.to_local(t) for t in ts[::-1]][::-1]
+    assert la == lb
+    back = np.array([a.to_true(t) for t in la])
+    assert np.max(np.abs(back - ts)) < 1e-12
+    assert abs(a.error_s(0.0)) < 5e-3 and a.error_s(100.0) != a.error_s(0.0)
+
+
+def test_clock_section_errors_name_the_key():
+    with pytest.raises(ValueError, match=r"\[clock\] offset_sx"):
+        clock_params({"model": "tcxo", "offset_sx": 1.0})
+    with pytest.raises(ValueError, match=r"\[clock\] model"):
+        clock_params({"model": "rubidium"})
+    assert load("seed000").clock.model == "tcxo"
+
+
+def _cfg(i, **kw):
+    return StationConfig(id=i, sigma_d_m=0.5, known_ids=(1, 2), clock_offset_sigma_s=1e-3, clock_freq_sigma=2e-6,
+                         **kw)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_two_way_time_transfer_is_exact_on_a_noiseless_exchange(seed):
+    """Whatever the offsets and frequencies, the exchange's dtheta is the true offset difference at the
+    exchange midpoint and the range (durations scaled by the estimated frequencies) the distance."""
+    rng = np.random.default_rng(seed)
+    ci = Clock(offset_s=rng.uniform(-1e-3, 1e-3), drift=rng.uniform(-20e-6, 20e-6))
+    cj = Clock(offset_s=rng.uniform(-1e-3, 1e-3), drift=rng.uniform(-20e-6, 20e-6))
+    air = AirChannel(ChannelParams(sigma_d_m=0.0), rng)
+    pi, pj = np.zeros(3), np.array([1500.0, 300.0, 20.0]) * rng.uniform(0.5, 2)
+    a, b = StationCore(_cfg(2), pi, np.eye(3)), StationCore(_cfg(3), pj, np.eye(3))
+    # the responder's broadcast frequency: give it the true one (as a synchronized station would)
+    b.clk.x[1] = cj.drift - 0.0
+    a.clk.x[1] = ci.drift
+    t1 = 10.01  # slot 1 of cycle 10 on a's clock
+    req = {"kind": "range_req", "src": 2, "seq": 1, "stamp_s": t1, "dst": 3, "cycle": 10, "slot": 1, "t_tx_s": t1}
+    a.pending[1] = (3, t1, t1 + 1.0)
+    t2 = air.arrival_local_s(pi, ci.to_true(t1), pj, cj)
+    (rsp,) = b.on_message(req, t2)
+    t4 = air.arrival_local_s(pj, cj.to_true(rsp["t_tx_s"]), pi, ci)
+    a.on_message(rsp, t4)
+    peer, range_m, t_mid, dtheta = a.ranges_out[-1]
+    tau_mid = ci.to_true(t_mid)
+    assert tau_mid == pytest.approx(cj.to_true(0.5 * (t2 + rsp["t_tx_s"])), abs=1e-12)
+    assert dtheta == pytest.approx(ci.error_s(tau_mid) - cj.error_s(tau_mid), abs=1e-12)
+    # frequency scaling of the two durations: exact up to the drift-squared terms (~1e-9 m)
+    assert range_m == pytest.approx(np.linalg.norm(pj - pi) * (1 + 0.0), abs=1e-6)
+
+
+def _explicit_kf(n, prior, q, events, var_z, t_end):
+    """Centralized linear KF of n clocks [theta_k, f_k] (reference excluded), textbook matrices."""
+    x = np.zeros(2 * n)
+    P = np.kron(np.eye(n), np.diag(prior))
+    t = 0.0
+    for te, a, b, z in events:
+        F1, Q1 = transition(te - t, *q)
+        F, Q = np.kron(np.eye(n), F1), np.kron(np.eye(n), Q1)
+        x, P = F @ x, F @ P @ F.T + Q
+        t = te
+        H = np.zeros(2 * n)
+        if a > 1:
+            H[2 * (a - 2)] += 1
+        if b > 1:
+            H[2 * (b - 2)] -= 1
+        S = H @ P @ H + var_z
+        K = P @ H / S
+        x = x + K * (z - H @ x)
+        P = (np.eye(2 * n) - np.outer(K, H)) @ P @ (np.eye(2 * n) - np.outer(K, H)).T + var_z * np.outer(K, K)
+    F1, Q1 = transition(t_end - t, *q)
+    F, Q = np.kron(np.eye(n), F1), np.kron(np.eye(n), Q1)
+    return F @ x, F @ P @ F.T + Q
+
+
+def test_network_clock_filter_equals_a_linear_kf_on_a_linear_problem():
+    rng = np.random.default_rng(7)
+    q = (1e-20, 3e-22)
+    model = ClockModel(q[0], q[1], 1e-6, 2e-8)  # after coarse sync (a 1 ms prior costs float precision)
+    est = ClockEstimator(2, model, 0.0, 0.5)
+    for sid in (3, 4, 5):  # the same state order as the explicit filter
+        est._add(sid)
+    events = []
+    t = 0.0
+    for _ in range(80):
+        t += rng.uniform(0.01, 0.7)
+        a, b = rng.choice([1, 2, 3, 4, 5], 2, replace=False)
+        events.append((t, int(a), int(b), float(rng.normal(0, 1e-7))))
+    for te, a, b, z in events:
+        est.on_exchange(a, b, te, z)
+    est.predict(t + 1.0)
+    x, P = _explicit_kf(4, (1e-12, 4e-16), q, events, (0.5 / C) ** 2, t + 1.0)
+    assert np.allclose(est.x, x, rtol=1e-6, atol=1e-15)
+    assert np.allclose(est.P, P, rtol=1e-6, atol=1e-26)
+
+
+def test_clock_filter_is_consistent_in_the_simulator_and_syncs_below_2ns():
+    scn = load("seed000", seed=5)
+    r = Simulator(scn).run(30.0, [10.0, 30.0])
+    e, v = r.clock_err_s[:, 1:], r.clock_var_s2[:, 1:]
+    assert np.all(np.abs(e[-1]) < 3e-9)
+    assert np.mean(e**2 / v) < 3.0  # one trial, 9 stations sharing the common mode: loose, honest band
+    assert np.all(r.clock_err_s[:, 0] == 0)  # station 1 is network time
+
+
+@pytest.mark.parametrize("offset_s, drift", [(1e-3, 20e-6), (-1e-3, -20e-6), (1e-3, -20e-6), (-1e-3, 20e-6)])
+def test_station_with_clock_ahead_or_behind_completes_all_its_exchanges(monkeypatch, offset_s, drift):
+    import stations.sim as sim_mod
+
+    scn = load("seed000", seed=2)
+    orig = sim_mod.station_clock
+
+    def clock_of(scn_, sid, seed=None):
+        return Clock(offset_s, drift) if sid == 5 else orig(scn_, sid, seed)
+
+    monkeypatch.setattr(sim_mod, "station_clock", clock_of)
+    sim = Simulator(scn)
+    r = sim.run(40.0, [40.0])
+    c5 = r.counters[5]
+    assert c5["requests"] >= 39 and c5["responses"] == c5["requests"] and c5["late"] == 0
+    assert all(c["lost"] == 0 and c["late"] == 0 and c["ignored"] == 0 for c in r.counters.values())
+    # its requests go out at its slot start on network time (to well under the slot guard)
+    core = sim.cores[scn.ids.index(5)]
+    t_req = sim.clocks[scn.ids.index(5)].to_true(core.next_request_s())
+    T_req = t_req + sim.ref_clock.error_s(t_req)
+    assert abs(T_req - round(T_req / scn.tdma.slot_s) * scn.tdma.slot_s) < 1e-6
+    assert abs(r.clock_err_s[-1, scn.ids.index(5)]) < 3e-9
+
+
+def test_aircraft_pseudorange_error_equals_the_station_sync_error_times_c():
+    from aircraft.config import from_scenario
+    from aircraft.node import AircraftCore
+    from net.channel import draw_clock, station_rng
+
+    scn = load("seed003", aircraft={"sigma_m": 0.0})
+    ac = from_scenario(scn)
+    net_clock = draw_clock(scn.clock, station_rng(scn.seed, 1, 0))
+    st_clock = draw_clock(scn.clock, station_rng(scn.seed, 5, 0))
+    core = AircraftCore(ac, ("ekf-pr",), "ac1", np.random.default_rng(0), net_clock=net_clock)
+    rng = np.random.default_rng(1)
+    for tau_tx in (3.0, 40.0, 400.0):
+        t_tx = st_clock.to_local(tau_tx)
+        true_theta = st_clock.error_s(tau_tx) - net_clock.error_s(tau_tx)
+        sync_err = rng.normal(0, 2e-9)
+        f_hat = st_clock.freq_at(tau_tx) - net_clock.freq_at(tau_tx)
+        # the station's broadcast correction, referenced 0.3 s before the transmission
+        corr = [t_tx - 0.3, true_theta + sync_err - 0.3 * f_hat, f_hat, 4e-18, 1e-19, 1e-20]
+        msg = {"t_tx_s": t_tx, "clock": corr}
+        phy = {"pos_m": scn.true_pos(5).tolist(), "t_true_s": tau_tx}
+        t_rx, rho, p = core.measure(phy, msg)
+        r = np.linalg.norm(p - scn.true_pos(5))
+        err = rho - r - ac.clock.bias_m(t_rx)
+        # c x the residual sync error; network time runs at station 1's rate (r x its ppm-level drift)
+        assert err == pytest.approx(C * sync_err, abs=r * 1e-5 + 1e-6)
+        assert core.clock_var_m2(msg) == pytest.approx(C**2 * (4e-18 + 2 * 0.3 * 1e-19 + 0.09 * 1e-20))
