@@ -41,6 +41,8 @@ def register(sub) -> None:
     p.add_argument("--duration", type=float, default=60.0, help="simulated seconds per trial (default 60)")
     p.add_argument("--scenario", default="seed000", help="scenario name or TOML path (default seed000)")
     p.add_argument("--seed", type=int, default=1, help="base seed; trial k uses seed + k (default 1)")
+    p.add_argument("--clock", default=None, metavar="MODEL",
+                   help="station oscillators: perfect, tcxo, ocxo (default: the scenario's [clock])")
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: all cores)")
     p.add_argument("--no-map", action="store_true", help="skip the centralized batch MAP yardstick")
     p.add_argument("--json", metavar="FILE", help="write the results as JSON")
@@ -56,8 +58,9 @@ def _trial(job: tuple) -> dict:
     from net.scenario import load
     from stations.sim import Simulator
 
-    scenario, estimator, sigma_d, n, seed, duration, table_times, with_map = job
-    scn = load(scenario, seed=seed, channel={"sigma_d_m": sigma_d}, layout={"n": n})
+    scenario, estimator, sigma_d, n, seed, duration, table_times, with_map, clock = job
+    scn = load(scenario, seed=seed, channel={"sigma_d_m": sigma_d}, layout={"n": n},
+               **({"clock": {"model": clock}} if clock else {}))
     sim = Simulator(scn, estimator=estimator)
     times = np.arange(1.0, duration + 1e-9, 1.0)
     r = sim.run(duration, times)
@@ -224,7 +227,7 @@ def main(args) -> int:
         for est in args.estimator:
             for sd in args.sigma_d:
                 jobs = [(args.scenario, est, sd, args.stations, args.seed + k, args.duration, table_times,
-                         not args.no_map) for k in range(args.trials)]
+                         not args.no_map, getattr(args, "clock", None)) for k in range(args.trials)]
                 t0 = time.perf_counter()
                 bar = Progress(len(jobs), f"survey {est} sigma_d={sd}")
                 results = []

@@ -63,11 +63,12 @@ def transition(dt_s: float, q_wf_s: float, q_rw_per_s: float) -> tuple[np.ndarra
 
 def predict_correction(corr, t_s: float, model: ClockModel) -> tuple[float, float]:
     """A broadcast clock correction ``[t_ref, theta, f, P_tt, P_tf, P_ff]`` evaluated at ``t_s`` (same
-    clock as ``t_ref``): offset (s) and its variance (s^2), process noise of ``model`` included."""
+    clock as ``t_ref``): offset (s) and its variance (s^2), process noise of ``model`` included (twice:
+    the station's oscillator and network time's, station 1's, both wander)."""
     t_ref, th, f, ptt, ptf, pff = (float(v) for v in corr)
     dt = t_s - t_ref
     _, Q = transition(dt, model.q_wf_s, model.q_rw_per_s)
-    var = ptt + 2.0 * dt * ptf + dt * dt * pff + Q[0, 0]
+    var = ptt + 2.0 * dt * ptf + dt * dt * pff + 2.0 * Q[0, 0]
     return th + f * dt, max(var, 0.0)
 
 
@@ -77,7 +78,9 @@ class ClockEstimator:
     in or hears in the nav broadcasts, plus coarse one-way nav timing while a clock is unknown.
 
     States are functions of network time ``T``; the station converts its local time with its own
-    estimate, ``T = t - theta_me(T)``. Station 1 (``theta = f = 0``) is not a state.
+    estimate, ``T = t - theta_me(T)``. Station 1 (``theta = f = 0``) is not a state. Network time is
+    itself an oscillator: ``theta_k = x_k - x_1`` wanders with its own noise and station 1's, which
+    all stations share, so the process noise is ``Q(dt) (x) (I + 1 1^T)``.
 
     Parameters
     ----------
@@ -158,7 +161,7 @@ class ClockEstimator:
         _, _, ptt, ptf, pff = self._own()
         dt = self.network_time(t_local_s) - self.T_s
         _, Q = transition(dt, self.model.q_wf_s, self.model.q_rw_per_s)
-        return float(ptt + 2 * dt * ptf + dt * dt * pff + (Q[0, 0] if dt > 0 else 0.0))
+        return float(ptt + 2 * dt * ptf + dt * dt * pff + (2.0 * Q[0, 0] if dt > 0 else 0.0))
 
     def correction(self, t_local_s: float) -> list[float]:
         """Broadcast clock correction at local time ``t_s``: ``[t_ref, theta, f, P_tt, P_tf, P_ff]``."""
@@ -185,6 +188,11 @@ class ClockEstimator:
         _, Q = transition(dt, self.model.q_wf_s, self.model.q_rw_per_s)
         n = len(x) // 2
         i = np.arange(n) * 2
+        # network time's (station 1's) own wander, common to every station's offset
+        P[0::2, 0::2] += Q[0, 0]
+        P[0::2, 1::2] += Q[0, 1]
+        P[1::2, 0::2] += Q[1, 0]
+        P[1::2, 1::2] += Q[1, 1]
         P[i, i] += Q[0, 0]
         P[i, i + 1] += Q[0, 1]
         P[i + 1, i] += Q[1, 0]

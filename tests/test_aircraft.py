@@ -350,7 +350,7 @@ def test_aircraft_node_shell_drops_garbage_and_publishes_valid_messages():
         def publish(self, key, data):
             self.sent.append((key, data))
 
-    scn = load("seed003")
+    scn = load("seed003", clock={"model": "perfect"})  # hand-made navs stamped on true time
     bus = FakeBus()
     node = AircraftNode(scn, AircraftOptions(algos=("ukf-pr", "lsq-pr"), duration_s=60.0), bus)
     node._ingest("larns/station/2/nav", b"\xc1garbage")

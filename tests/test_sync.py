@@ -90,7 +90,7 @@ def _explicit_kf(n, prior, q, events, var_z, t_end):
     t = 0.0
     for te, a, b, z in events:
         F1, Q1 = transition(te - t, *q)
-        F, Q = np.kron(np.eye(n), F1), np.kron(np.eye(n), Q1)
+        F, Q = np.kron(np.eye(n), F1), np.kron(np.eye(n) + np.ones((n, n)), Q1)  # + station 1's wander
         x, P = F @ x, F @ P @ F.T + Q
         t = te
         H = np.zeros(2 * n)
@@ -103,7 +103,7 @@ def _explicit_kf(n, prior, q, events, var_z, t_end):
         x = x + K * (z - H @ x)
         P = (np.eye(2 * n) - np.outer(K, H)) @ P @ (np.eye(2 * n) - np.outer(K, H)).T + var_z * np.outer(K, K)
     F1, Q1 = transition(t_end - t, *q)
-    F, Q = np.kron(np.eye(n), F1), np.kron(np.eye(n), Q1)
+    F, Q = np.kron(np.eye(n), F1), np.kron(np.eye(n) + np.ones((n, n)), Q1)
     return F @ x, F @ P @ F.T + Q
 
 
