@@ -53,6 +53,8 @@ class StationView:
     t_s: float = math.nan
     dropped: int = 0
     n_estimates: int = 0
+    clock_est: dict = field(default_factory=dict)   # estimate stamp -> estimated clock offset, s
+    sync_ns: float = math.nan                       # estimated minus true offset vs network time, ns
 
     @property
     def err_m(self) -> float:
@@ -91,7 +93,14 @@ class Monitor:
             v = self.views.setdefault(msg["src"], StationView(msg["src"]))
             if msg["kind"] == "truth":
                 v.truth_m = msg["pos_m"]
+                est = v.clock_est.pop(msg["stamp_s"], None)
+                if est is not None and "clock_error_s" in msg:
+                    v.sync_ns = (est - msg["clock_error_s"]) * 1e9
             else:
+                if "clock_offset_s" in msg:  # matched with the truth of the same stamp
+                    v.clock_est[msg["stamp_s"]] = msg["clock_offset_s"]
+                    while len(v.clock_est) > 8:
+                        v.clock_est.pop(next(iter(v.clock_est)))
                 v.pos_m = msg["pos_m"]
                 v.n_updates = msg["n_updates"]
                 v.state = msg["state"]
@@ -108,7 +117,7 @@ class Monitor:
 
     def snapshot(self) -> list[StationView]:
         with self.lock:
-            return [StationView(**vars(v)) for _, v in sorted(self.views.items())]
+            return [StationView(**{**vars(v), "clock_est": {}}) for _, v in sorted(self.views.items())]
 
     def aircraft_lines(self) -> list[str]:
         """One line per (aircraft, algorithm): estimate error against the truth sample nearest in time."""
@@ -128,11 +137,12 @@ class Monitor:
 def format_table(views: list[StationView], t_s: float, n_alive: int | None = None) -> str:
     head = f"fleet time {t_s:7.1f} s" + (f"   processes alive: {n_alive}" if n_alive is not None else "")
     lines = [head, f"{'station':>7} {'state':>9} {'slot':>4} {'updates':>7} {'x m':>9} {'y m':>9} "
-                   f"{'z m':>8} {'sigma m':>8} {'error m':>8} {'drops':>5}"]
+                   f"{'z m':>8} {'sigma m':>8} {'error m':>8} {'drops':>5} {'sync ns':>8}"]
     for v in views:
         p = v.pos_m or [math.nan] * 3
         lines.append(f"{v.id:>7} {v.state:>9} {'-' if v.slot is None else v.slot:>4} {v.n_updates:>7} "
-                     f"{p[0]:>9.2f} {p[1]:>9.2f} {p[2]:>8.2f} {v.sigma_m:>8.2f} {v.err_m:>8.2f} {v.dropped:>5}")
+                     f"{p[0]:>9.2f} {p[1]:>9.2f} {p[2]:>8.2f} {v.sigma_m:>8.2f} {v.err_m:>8.2f} {v.dropped:>5} "
+                     f"{v.sync_ns:>8.2f}")
     errs = [v.err_m for v in views if v.state != "frame" and not math.isnan(v.err_m)]
     if errs:
         rms = math.sqrt(sum(e * e for e in errs) / len(errs))

@@ -94,8 +94,15 @@ def summarize(paths: Sequence[str | Path], logs=None) -> dict[str, Any]:
                          slot=msg.get("slot"), dropped=msg.get("dropped"), last_t_s=msg["t_s"],
                          sigma_m=math.sqrt(max(sum(msg["cov_m2"][i][i] for i in range(3)), 0.0)),
                          pos_m=msg["pos_m"])
+                if "clock_offset_s" in msg:
+                    s.setdefault("_clk", {})[msg["stamp_s"]] = (msg["t_s"], msg["clock_offset_s"])
             elif kind == "truth":
                 s["truth_m"] = msg["pos_m"]
+                if "clock_error_s" in msg:
+                    s.setdefault("_clk_true", {})[msg["stamp_s"]] = msg["clock_error_s"]
+            elif kind == "nav":
+                s["navs"] = s.get("navs", 0) + 1
+                s["ranges"] = s.get("ranges", 0) + len(msg["ranges"])
             elif kind in ("core_init", "core_input"):
                 s["journal"] = True
         else:
@@ -106,6 +113,9 @@ def summarize(paths: Sequence[str | Path], logs=None) -> dict[str, Any]:
     for s in stations.values():
         if "pos_m" in s and "truth_m" in s:
             s["err_m"] = math.dist(s["pos_m"], s["truth_m"])
+        sync_summary(s, s.pop("_clk", {}), s.pop("_clk_true", {}))
+        if s.get("navs"):
+            s["exchanges_pct"] = 100.0 * s["ranges"] / s["navs"]  # own slots whose exchange completed
     for a in aircraft.values():
         a["algos"] = sorted(a["algos"])
     for name, t in topics.items():
@@ -173,11 +183,13 @@ def format_info(s: dict[str, Any]) -> str:
     if st:
         L.append(f"Stations:          {len(st)}  ids {','.join(map(str, st))}")
         L.append(f"  {'id':>5} {'state':>9} {'estimator':>9} {'updates':>7} {'sigma m':>8} {'error m':>8} "
-                 f"{'journal':>7} {'dropped':>7}")
+                 f"{'journal':>7} {'dropped':>7} {'xchg %':>7} {'sync ns':>8} {'max60 ns':>8}")
         for sid, v in st.items():
             L.append(f"  {sid:>5} {v.get('state', '-'):>9} {v.get('estimator', '-'):>9} {v.get('n_updates', 0):>7} "
                      f"{v.get('sigma_m', math.nan):>8.2f} {v.get('err_m', math.nan):>8.2f} "
-                     f"{'yes' if v.get('journal') else 'no':>7} {v.get('dropped') if v.get('dropped') is not None else '-':>7}")
+                     f"{'yes' if v.get('journal') else 'no':>7} {v.get('dropped') if v.get('dropped') is not None else '-':>7} "
+                     f"{v.get('exchanges_pct', math.nan):>7.1f} {v.get('sync_ns', math.nan):>8.2f} "
+                     f"{v.get('sync_max_ns_after_60s', math.nan):>8.2f}")
     ac = s["aircraft"]
     L.append(f"Aircraft:          {len(ac)}" + ("  " + ", ".join(f"{k} ({', '.join(v['algos']) or 'no estimates'})"
                                                                for k, v in ac.items()) if ac else ""))
@@ -232,3 +244,16 @@ def register(sub) -> None:
     p.add_argument("files", nargs="+", help="MCAP file(s); several are merged by log time")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=cmd_info)
+
+
+def sync_summary(s: dict, est: dict, true: dict, after_s: float = 60.0) -> None:
+    """Clock sync error of one station from its ``estimate`` and ``truth`` of the same stamp: the last
+    (``sync_ns``), the RMS and the largest magnitude after ``after_s`` fleet seconds, in ns."""
+    pairs = sorted((est[k][0], (est[k][1] - true[k]) * 1e9) for k in est.keys() & true.keys())
+    if not pairs:
+        return
+    s["sync_ns"] = pairs[-1][1]
+    late = [e for t, e in pairs if t >= after_s]
+    if late:
+        s["sync_max_ns_after_60s"] = max(abs(e) for e in late)
+        s["sync_rms_ns_after_60s"] = math.sqrt(sum(e * e for e in late) / len(late))

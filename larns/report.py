@@ -17,7 +17,9 @@ Figures (``DIR/*.png``):
   CRLB (seed 003 eq. 7, ``nav.pcrb``) along the true track (if aircraft topics are present);
 * ``tdma_timeline.png`` - who ranged whom when (first cycles; green = answered, red = no reply
   recorded) and the exchange count matrix over the whole run;
-* ``network.png`` - message loss per kind (sequence gaps) and latency distributions per kind.
+* ``network.png`` - message loss per kind (sequence gaps) and latency distributions per kind;
+* ``sync_errors.png`` - each station's clock error against network time (estimate minus truth of the
+  same stamp, ns) vs time with the RMS over the stations and the mean 1-sigma bound (docs/sync.md).
 
 ``DIR/report.md`` summarizes the numbers and embeds the figures; ``DIR/report.json`` holds them.
 """
@@ -434,6 +436,72 @@ def _aircraft_config(logs, scenario: str | None):
         return None
 
 
+def sync_series(logs) -> dict[int, np.ndarray]:
+    """Per station: rows ``[t_s, error_ns, sigma_ns]`` of its clock estimate against the truth of the
+    same stamp (the estimate's ``clock_offset_s`` minus the truth's ``clock_error_s``)."""
+    from net import messages as M
+
+    from .mcaputil import merge
+
+    est: dict[int, dict[float, tuple[float, float, float]]] = defaultdict(dict)
+    tru: dict[int, dict[float, float]] = defaultdict(dict)
+    for m in merge(logs):
+        if m.encoding != "msgpack" or not (m.topic.endswith("/estimate") or m.topic.endswith("/truth")):
+            continue
+        try:
+            msg, _ = M.decode(m.data)
+        except M.MessageError:
+            continue
+        if msg["kind"] == "estimate" and "clock_offset_s" in msg:
+            est[msg["src"]][msg["stamp_s"]] = (msg["t_s"], msg["clock_offset_s"], msg.get("clock_offset_sd_s", 0.0))
+        elif msg["kind"] == "truth" and "clock_error_s" in msg:
+            tru[msg["src"]][msg["stamp_s"]] = msg["clock_error_s"]
+    out = {}
+    for sid, e in est.items():
+        rows = sorted((e[k][0], (e[k][1] - tru[sid][k]) * 1e9, e[k][2] * 1e9) for k in e.keys() & tru[sid].keys())
+        if rows:
+            out[sid] = np.array(rows)
+    return out
+
+
+def fig_sync(series: dict[int, np.ndarray], path: Path, after_s: float = 60.0) -> dict[str, Any]:
+    """Sync-error figure (survey-convergence style) and its numbers."""
+    st = {k: v for k, v in series.items() if k != 1}
+    if not st:
+        return {}
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for sid, r in sorted(st.items()):
+        ax.plot(r[:, 0], np.abs(r[:, 1]), lw=0.7, alpha=0.6)
+    t_end = max(r[-1, 0] for r in st.values())
+    t_beg = min(r[0, 0] for r in st.values())
+    grid = np.linspace(t_beg, t_end, 200)
+    E = np.full((len(st), grid.size), np.nan)
+    S = np.full((len(st), grid.size), np.nan)
+    for i, r in enumerate(st.values()):
+        k = np.searchsorted(r[:, 0], grid, side="right") - 1
+        ok = k >= 0
+        E[i, ok], S[i, ok] = r[k[ok], 1], r[k[ok], 2]
+    with np.errstate(all="ignore"):
+        rms = np.sqrt(np.nanmean(E**2, axis=0))
+        sig = np.nanmean(S, axis=0)
+    ax.plot(grid, rms, "k", lw=1.5, label="RMS over the stations")
+    ax.plot(grid, sig, "k--", lw=1.0, label="mean 1-sigma (own covariance)")
+    ax.set_yscale("log")
+    ax.set_xlabel("fleet time, s")
+    ax.set_ylabel("|clock error| vs network time, ns")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    ax.set_title(f"Network time: clock error of {len(st)} stations (station 1 = network time)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    late = np.concatenate([r[r[:, 0] >= after_s, 1] for r in st.values()])
+    return {"final_rms_ns": float(rms[-1]), "stations": len(st),
+            "max_abs_ns_after_60s": float(np.max(np.abs(late))) if late.size else None,
+            "rms_ns_after_60s": float(np.sqrt(np.mean(late**2))) if late.size else None}
+
+
 def make_report(paths: Sequence[str | Path], outdir: str | Path, scenario: str | None = None,
                 sigma_m: float | None = None) -> dict[str, Any]:
     from .info import summarize
@@ -459,6 +527,9 @@ def make_report(paths: Sequence[str | Path], outdir: str | Path, scenario: str |
         res["histograms"] = fig_histograms(d, out / "survey_histograms.png")
         if res["histograms"]:
             figs.append(("Error histograms", "survey_histograms.png"))
+        res["sync"] = fig_sync(sync_series(logs), out / "sync_errors.png")
+        if res["sync"]:
+            figs.append(("Network time: clock errors", "sync_errors.png"))
     if d["aircraft"]:
         acfg = _aircraft_config(logs, scenario)
         sig = sigma_m if sigma_m is not None else (acfg.sigma_m if acfg is not None else None)
@@ -520,6 +591,10 @@ def markdown(res: dict, info: dict, figs: list[tuple[str, str]]) -> str:
         L.append(f"Survey: final mean horizontal error {_fmt(c['final_mean_horizontal_m'])} m, max "
                  f"{_fmt(c['final_max_horizontal_m'])} m; mean error below sigma_d = {_fmt(c['sigma_d_m'])} m "
                  f"from t = {_fmt(c['time_mean_below_sigma_d_s'], 1)} s on.")
+    sy = res.get("sync") or {}
+    if sy:
+        L.append(f"Network time: final RMS clock error {_fmt(sy['final_rms_ns'])} ns over {sy['stations']} stations; "
+                 f"after 60 s RMS {_fmt(sy['rms_ns_after_60s'])} ns, largest {_fmt(sy['max_abs_ns_after_60s'])} ns.")
     h = res.get("histograms") or {}
     if h:
         L.append(f"Second half of the run: horizontal RMS {_fmt(h['horizontal_rms_m'])} m, vertical RMS "

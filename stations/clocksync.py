@@ -226,13 +226,22 @@ class ClockEstimator:
         self.n_updates += 1
         return nu * nu / S
 
-    def on_exchange(self, a: int, b: int, T_s: float, dtheta_s: float) -> float | None:
-        """Two-way time transfer ``theta_a - theta_b = dtheta_s`` at network time ``T_s``; the NIS."""
+    def on_exchange(self, a: int, b: int, T_s: float, dtheta_s: float, t_var_s2: float = 0.0) -> float | None:
+        """Two-way time transfer ``theta_a - theta_b = dtheta_s`` at network time ``T_s``; the NIS.
+
+        ``t_var_s2``: variance of ``T_s`` itself (it comes from a clock estimate): an error ``e`` in the
+        time of the measurement shifts it by ``(f_a - f_b) e``, charged as ``E[(f_a - f_b)^2] t_var``
+        (matters only before a station's first fine sync)."""
         if self.exact or (a == 1 and b == 1):
             return None
         self.predict(T_s)
         h = self._row(T_s, [(a, 1.0), (b, -1.0)])
-        return self._update(h, dtheta_s, self.var_z)
+        r = self.var_z
+        if t_var_s2 > 0:
+            hf = np.zeros(len(self.x))
+            hf[1::2] = h[0::2]  # f_a - f_b
+            r += (float(hf @ self.x) ** 2 + float(hf @ self.P @ hf)) * t_var_s2
+        return self._update(h, dtheta_s, r)
 
     def on_nav(self, src: int, t_rx_s: float, t_tx_src_s: float, corr) -> bool:
         """Coarse one-way timing of a nav from ``src`` (``t_tx`` on its clock, ``corr`` its broadcast

@@ -301,7 +301,8 @@ class StationCore:
                 dtheta = 0.5 * ((t_rx_s - t3) - (t2 - t_tx))
                 t_mid = 0.5 * (t_tx + t_rx_s)
                 entry = [src, float(range_m), float(t_mid), float(dtheta)]
-                if self.clk.on_exchange(self.id, src, self.clk.network_time(t_mid), dtheta) is not None:
+                if self.clk.on_exchange(self.id, src, self.clk.network_time(t_mid), dtheta,
+                                        self.clk.offset_var_s2) is not None:
                     self.counters["sync_in"] += 1
             self.ranges_out.append(entry)
             self.est.on_range(src, range_m, t_rx_s, True, pos, cov)
@@ -330,7 +331,8 @@ class StationCore:
                 if len(r) == 4 and corr is not None and 0.0 < range_m < self.cfg.max_range_m:
                     # every exchange the network makes refines the network clock filter: ours (the
                     # responder's end) and the others' alike
-                    if self.clk.on_exchange(src, peer, self.clk.peer_network_time(corr, r[2]), float(r[3])) is not None:
+                    if self.clk.on_exchange(src, peer, self.clk.peer_network_time(corr, r[2]), float(r[3]),
+                                            corr[3]) is not None:
                         self.counters["sync_in"] += 1
                 if peer == self.id and 0.0 < range_m < self.cfg.max_range_m:
                     self.counters["ranges_in"] += 1
