@@ -44,6 +44,11 @@ def register(sub) -> None:
     p.add_argument("--quick", action="store_true", help="small smoke-test version (few runs, short, 2 points each)")
     p.add_argument("--no-sweep", action="store_true", help="skip the height sweep")
     p.add_argument("--no-speed", action="store_true", help="skip the filterpy speed comparison")
+    p.add_argument("--sync-ns", type=float, default=0.0, metavar="NS",
+                   help="station clocks on: residual sync error of each station after the broadcast correction "
+                        "(1 sigma, ns); the filters and the PCRB carry (c NS)^2 as range variance (default 0)")
+    p.add_argument("--sync-tau", type=float, default=0.0, metavar="S",
+                   help="correlation time of the residual sync errors (first-order Gauss-Markov; 0 = white)")
     p.set_defaults(func=run)
 
 
@@ -60,9 +65,26 @@ def setup(scenario: str):
     return sc, from_scenario(sc)
 
 
+def sync_errors_m(shape: tuple[int, int, int], sync_m: float, tau_s: float, dt_s: float,
+                  rng: np.random.Generator) -> np.ndarray:
+    """Residual station clock errors after the broadcast correction, as ranges (T, M, m): stationary
+    first-order Gauss-Markov with sigma ``sync_m`` and correlation time ``tau_s`` (0: white)."""
+    w = rng.standard_normal(shape)
+    if tau_s <= 0:
+        return sync_m * w
+    a = np.exp(-dt_s / tau_s)
+    b = np.empty(shape)
+    b[0] = w[0]
+    for k in range(1, shape[0]):
+        b[k] = a * b[k - 1] + np.sqrt(1 - a * a) * w[k]
+    return sync_m * b
+
+
 def run_point(ac, kind: str, dist_m: float, runs: int, duration_s: float, warmup_s: float,
-              height_m: float | None, rng: np.random.Generator, algos=ALGOS, lsq_stride: int = 4) -> dict:
-    """All algorithms at one point; returns rmse, pcrb (filters), nees/nis means, height, samples, timings."""
+              height_m: float | None, rng: np.random.Generator, algos=ALGOS, lsq_stride: int = 4,
+              sync_m: float = 0.0, sync_tau_s: float = 0.0) -> dict:
+    """All algorithms at one point; returns rmse, pcrb (filters), nees/nis means, height, samples, timings.
+    ``sync_m``: residual station clock error (range sigma, m) carried as station covariance ``sync_m^2 I``."""
     from aircraft import sim, trajectory
 
     dt = 1.0 / ac.rate_hz
@@ -70,6 +92,10 @@ def run_point(ac, kind: str, dist_m: float, runs: int, duration_s: float, warmup
     cfg = dict(ac.trajectories.get(kind, {}), kind=kind, distance_m=dist_m)
     track = trajectory.from_config(cfg, t, ac.centre_m, height_m)
     rho = sim.pseudoranges(track, ac.stations_m, ac.clock, ac.sigma_m, runs, rng)
+    st_cov = None
+    if sync_m > 0:
+        rho = rho + sync_errors_m(rho.shape, sync_m, sync_tau_s, dt, rng)
+        st_cov = np.broadcast_to(sync_m**2 * np.eye(3), (ac.stations_m.shape[0], 3, 3)).copy()
     win = t >= warmup_s
     out = {"height_m": float(track.pos_m[0, 2] - ac.centre_m[2]), "samples": int(runs * win.sum()),
            "rmse_m": {}, "pcrb_m": {}, "nees": {}, "nis": {}, "sec_per_update_run": {}, "samples_by_algo": {},
@@ -79,7 +105,8 @@ def run_point(ac, kind: str, dist_m: float, runs: int, duration_s: float, warmup
         method, model = algo.split("-")
         t0 = time.perf_counter()
         stride = lsq_stride if method == "lsq" else 1
-        res = sim.run_algo(algo, track, ac.stations_m, rho, ac.tuning, ac.clock, rng, lsq_stride=stride)
+        res = sim.run_algo(algo, track, ac.stations_m, rho, ac.tuning, ac.clock, rng, station_cov_m2=st_cov,
+                           lsq_stride=stride)
         el = time.perf_counter() - t0
         w = win[::stride]
         out["rmse_m"][algo] = sim.rms_total(res.err_m[:, w])
@@ -92,7 +119,7 @@ def run_point(ac, kind: str, dist_m: float, runs: int, duration_s: float, warmup
         out["sec_per_update_run"][algo] = el / (res.err_m.shape[1] * runs)
         if method != "lsq":
             if model not in pc_cache:
-                P = sim.pcrb_track(model, track, ac.stations_m, ac.tuning, ac.clock)
+                P = sim.pcrb_track(model, track, ac.stations_m, ac.tuning, ac.clock, station_cov_m2=st_cov)
                 pc_cache[model] = float(np.sqrt(np.mean(np.trace(P[win], axis1=1, axis2=2))))
             out["pcrb_m"][algo] = pc_cache[model]
             out["nees"][algo] = float(np.mean(res.nees[:, win]))
@@ -199,7 +226,8 @@ def run(args) -> int:
     points = [("hover", d) for d in hover_d] + [("turn", d) for d in turn_d]
     for i, (kind, d) in enumerate(points):
         _progress(f"{i + 1}/{len(points)} {kind} {d:g} m ({runs} runs x {duration:g} s)")
-        res[kind][f"{d:g}"] = run_point(ac, kind, d, runs, duration, warmup, args.height, rng)
+        res[kind][f"{d:g}"] = run_point(ac, kind, d, runs, duration, warmup, args.height, rng,
+                                        sync_m=args.sync_ns * 0.299792458, sync_tau_s=args.sync_tau)
     sweep = {}
     if not args.no_sweep:
         for j, h in enumerate(sweep_h):

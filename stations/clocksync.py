@@ -258,6 +258,24 @@ class ClockEstimator:
         self.n_coarse += 1
         return True
 
+    def peer_time(self, sid: int, t_peer_s: float, corr=None) -> tuple[float, float]:
+        """Network time at station ``sid``'s local time ``t_peer_s`` and its variance, from this filter's
+        own (prior) estimate of that clock; a station not in the filter yet: from its broadcast."""
+        if sid == 1:
+            return float(t_peer_s), 0.0
+        k = self.index.get(sid)
+        if k is None:
+            if corr is None:
+                return float(t_peer_s), self.model.offset_sigma_s**2
+            th, var = predict_correction(corr, t_peer_s, self.model)
+            return t_peer_s - th, var
+        a, f = self.x[2 * k], self.x[2 * k + 1]
+        T = (t_peer_s - a + f * self.T_s) / (1.0 + f)
+        dt = T - self.T_s
+        P = self.P
+        var = P[2 * k, 2 * k] + 2 * dt * P[2 * k, 2 * k + 1] + dt * dt * P[2 * k + 1, 2 * k + 1]
+        return float(T), float(max(var, 0.0))
+
     def peer_network_time(self, corr, t_peer_s: float) -> float:
         """Network time at a peer's local time, from its broadcast correction."""
         th, _ = predict_correction(corr, t_peer_s, ClockModel())

@@ -331,8 +331,8 @@ class StationCore:
                 if len(r) == 4 and corr is not None and 0.0 < range_m < self.cfg.max_range_m:
                     # every exchange the network makes refines the network clock filter: ours (the
                     # responder's end) and the others' alike
-                    if self.clk.on_exchange(src, peer, self.clk.peer_network_time(corr, r[2]), float(r[3]),
-                                            corr[3]) is not None:
+                    T_mid, T_var = self.clk.peer_time(src, r[2], corr)  # our prior view of src's clock
+                    if self.clk.on_exchange(src, peer, T_mid, float(r[3]), T_var) is not None:
                         self.counters["sync_in"] += 1
                 if peer == self.id and 0.0 < range_m < self.cfg.max_range_m:
                     self.counters["ranges_in"] += 1

@@ -1,0 +1,68 @@
+"""Network time end to end: real station processes over Zenoh (TCXO clocks) make the same exchanges
+as the in-process simulator of the same world, and the MCAP alone shows the sync error."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from scenario_text import five_stations
+
+pytestmark = pytest.mark.e2e
+
+PY = sys.executable
+DURATION = 12.0
+
+
+def exchanges(navs, slot_s: float, cycle_s: float, nav_offset_s: float = 0.005) -> set[tuple[int, int, int]]:
+    """(initiator, responder, cycle) of every exchange reported in a nav; ``navs``: (src, t_true_tx, ranges)."""
+    out = set()
+    for src, t_true, ranges in navs:
+        cycle = round((t_true - (src - 1) * slot_s - nav_offset_s) / cycle_s)
+        for r in ranges:
+            out.add((src, int(r[0]), cycle))
+    return out
+
+
+def test_fleet_and_simulator_make_the_same_exchanges_and_sync(tmp_path):
+    from larns.mcaputil import read_log
+    from net import messages as M
+    from net.scenario import load
+    from stations.sim import Simulator
+
+    scn_path = tmp_path / "sync_e2e.toml"
+    scn_path.write_text(five_stations("sync_e2e", 3, extra='\n[clock]\nmodel = "tcxo"\n'))
+    rec = tmp_path / "run.mcap"
+    r = subprocess.run([PY, "-m", "larns", "fleet", "--scenario", str(scn_path), "--duration", str(DURATION),
+                        "--record", str(rec), "--no-table"], capture_output=True, text=True, timeout=180)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    scn = load(scn_path)
+    navs = []
+    for m in read_log(rec).messages:
+        if m.topic.endswith("/nav"):
+            msg, phy = M.decode(m.data)
+            navs.append((msg["src"], phy["t_true_s"], msg["ranges"]))
+    live = exchanges(navs, scn.tdma.slot_s, scn.tdma.cycle_s)
+    sim = Simulator(scn)
+    sim.run(DURATION, [DURATION])
+    ref = exchanges(((scn.ids[k], t, [[scn.ids[j]]]) for t, k, j, _ in sim.range_log), scn.tdma.slot_s,
+                    scn.tdma.cycle_s)
+    cycles = range(2, int(DURATION / scn.tdma.cycle_s) - 2)  # away from the power-on and the end
+    live_c = {e for e in live if e[2] in cycles}
+    ref_c = {e for e in ref if e[2] in cycles}
+    assert len(ref_c) == len(scn.ids) * len(cycles)  # every station, every cycle
+    assert live_c == ref_c, (sorted(ref_c - live_c)[:10], sorted(live_c - ref_c)[:10])
+    # the recording alone: every station's clock error against network time, in ns
+    info = json.loads(subprocess.run([PY, "-m", "larns", "info", str(rec), "--json"], capture_output=True,
+                                     text=True, timeout=60, check=True).stdout)
+    for sid, st in info["stations"].items():
+        if int(sid) == 1:
+            assert st["sync_ns"] == 0.0
+            continue
+        assert abs(st["sync_ns"]) < 5.0, (sid, st)
+        assert st["exchanges_pct"] > 90.0, (sid, st)
+    assert np.isfinite([st["sync_ns"] for st in info["stations"].values()]).all()
