@@ -159,14 +159,14 @@ class StationNode:
             if self.core is None or self._stop.is_set():
                 return
             core = self.core
-            sched = (core.slot, core.state)  # a message only re-schedules the core via these
+            sched = (core.slot, core.state, len(core.pending))  # a message re-schedules the core via these
             self._ingest(recv, key, data)
             if self._pending:
                 now = time.time()
                 while self._pending and self._pending[0][0] <= now:
                     _, _, msg, phy = heapq.heappop(self._pending)
                     self._deliver(msg, phy)
-            if self._pending or (core.slot, core.state) != sched:
+            if self._pending or (core.slot, core.state, len(core.pending)) != sched:
                 self._wake.set()  # the main loop re-computes when to wake up (else: <= 0.1 s anyway)
 
     def _drain_every_s(self) -> float:
@@ -265,11 +265,10 @@ class StationNode:
             self.stats["air_lost"] += 1
             return
         self.stats["rx_" + msg["kind"]] += 1
-        if t_rx_local < self._last_input_s:
-            self.stats["host_late"] += 1  # behind the core's clock: handed over anyway, the core decides
-            if msg["kind"] in ("range_req", "range_rsp"):
-                self.stats["late"] += 1
-        self._last_input_s = max(self._last_input_s, t_rx_local)
+        if msg["kind"] in ("range_req", "range_rsp"):  # (navs are fed in batches by design)
+            if t_rx_local < self._last_input_s:
+                self.stats["host_late"] += 1  # behind the core's clock: handed over anyway, the core decides
+            self._last_input_s = max(self._last_input_s, t_rx_local)
         lost = self.core.counters["ignored"] + self.core.counters["late"]
         outs = self.core.on_message(msg, t_rx_local)  # phy stripped: the core sees msg only
         if self.core.counters["ignored"] + self.core.counters["late"] != lost:
@@ -445,7 +444,7 @@ class StationNode:
         err = float(np.linalg.norm(np.asarray(est.pos_m) - self.true_pos)) if est.pos_m is not None else math.nan
         print(f"[station {self.id}] t={t:7.1f}s state={self.core.state} slot={self.core.slot} "
               f"updates={est.n_updates} err={err:.2f} m drops={self.drops.total} "
-              f"late={self.stats['late']} missed={self.stats['missed_slots']} "
+              f"late={self.stats['core_late']} host_late={self.stats['host_late']} missed={self.stats['missed_slots']} "
               f"sync={self._sync_ns():.2f} ns", file=sys.stderr, flush=True)
 
     def _sync_ns(self) -> float:
@@ -525,7 +524,7 @@ class StationNode:
             "n_updates": int(est.n_updates), "pos_m": pos.tolist(),
             "err_m": float(np.linalg.norm(pos - self.true_pos)),
             "slots": int(self.stats["slots"]), "missed_slots": int(self.stats["missed_slots"]),
-            "late": int(self.stats["late"]), "duplicates": int(self.stats["duplicates"]),
+            "late": int(self.stats["core_late"]), "duplicates": int(self.stats["duplicates"]),
             "range_delay_ms": ({f"p{q}": float(np.percentile(self._wire_delay_s, q)) * 1e3 for q in (50, 90, 99)}
                                if self._wire_delay_s else {}),
             "air_lost": int(self.stats["air_lost"]), "max_lateness_ms": self.max_lateness_s * 1e3,
@@ -644,7 +643,8 @@ def main_args(args: argparse.Namespace) -> int:
         print(json.dumps(rep), flush=True)
     if not args.quiet:
         print(f"[station {args.id}] stopped: updates={rep['n_updates']} err={rep['err_m']:.2f} m "
-              f"drops={rep['drops']['total']} late={rep['late']} missed_slots={rep['missed_slots']} "
+              f"drops={rep['drops']['total']} late={rep['late']} host_late={rep['host_late']} "
+              f"lost={rep['counters'].get('lost', 0)} missed_slots={rep['missed_slots']} sync={rep['sync_err_ns']:.2f} ns "
               f"range delay ms {' '.join(f'{k}={v:.1f}' for k, v in rep['range_delay_ms'].items())}",
               file=sys.stderr, flush=True)
     return 0
