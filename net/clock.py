@@ -92,11 +92,13 @@ def clock_params(raw: dict | None, legacy_offset_s: float = 0.0, legacy_drift_pp
 
 
 def transition(dt_s: float, q_wf_s: float, q_rw_per_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """Exact discrete two-state model over ``dt_s``: ``F`` (2, 2), ``Q`` (2, 2)."""
+    """Exact discrete two-state model over ``dt_s``: ``F`` (2, 2), ``Q`` (2, 2). A negative step (back
+    in time) gets ``F(dt)`` and the noise of ``|dt|`` (what a late input needs)."""
     h = float(dt_s)
+    a = abs(h)
     F = np.array([[1.0, h], [0.0, 1.0]])
-    Q = np.array([[q_wf_s * h + q_rw_per_s * h**3 / 3.0, q_rw_per_s * h**2 / 2.0],
-                  [q_rw_per_s * h**2 / 2.0, q_rw_per_s * h]])
+    Q = np.array([[q_wf_s * a + q_rw_per_s * a**3 / 3.0, q_rw_per_s * a * h / 2.0],
+                  [q_rw_per_s * a * h / 2.0, q_rw_per_s * a]])
     return F, Q
 
 

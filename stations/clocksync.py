@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from nav.geometry import SPEED_OF_LIGHT_M_S
+from net.clock import transition
 
 C = SPEED_OF_LIGHT_M_S
 
@@ -49,16 +50,6 @@ class ClockModel:
     q_rw_per_s: float = 0.0
     offset_sigma_s: float = 0.0
     freq_sigma: float = 0.0
-
-
-def transition(dt_s: float, q_wf_s: float, q_rw_per_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """Two-state clock model over ``dt_s`` (may be negative: then no process noise)."""
-    h = float(dt_s)
-    F = np.array([[1.0, h], [0.0, 1.0]])
-    a = abs(h)
-    Q = np.array([[q_wf_s * a + q_rw_per_s * a**3 / 3.0, q_rw_per_s * a * h / 2.0],
-                  [q_rw_per_s * a * h / 2.0, q_rw_per_s * a]])
-    return F, Q
 
 
 def predict_correction(corr, t_s: float, model: ClockModel) -> tuple[float, float]:
