@@ -183,12 +183,13 @@ def format_info(s: dict[str, Any]) -> str:
     if st:
         L.append(f"Stations:          {len(st)}  ids {','.join(map(str, st))}")
         L.append(f"  {'id':>5} {'state':>9} {'estimator':>9} {'updates':>7} {'sigma m':>8} {'error m':>8} "
-                 f"{'journal':>7} {'dropped':>7} {'xchg %':>7} {'sync ns':>8} {'max60 ns':>8}")
+                 f"{'journal':>7} {'dropped':>7} {'xchg %':>7} {'sync ns':>8} {'rms60 ns':>8} {'max60 ns':>8}")
         for sid, v in st.items():
             L.append(f"  {sid:>5} {v.get('state', '-'):>9} {v.get('estimator', '-'):>9} {v.get('n_updates', 0):>7} "
                      f"{v.get('sigma_m', math.nan):>8.2f} {v.get('err_m', math.nan):>8.2f} "
                      f"{'yes' if v.get('journal') else 'no':>7} {v.get('dropped') if v.get('dropped') is not None else '-':>7} "
                      f"{v.get('exchanges_pct', math.nan):>7.1f} {v.get('sync_ns', math.nan):>8.2f} "
+                     f"{v.get('sync_rms_ns_after_60s', math.nan):>8.2f} "
                      f"{v.get('sync_max_ns_after_60s', math.nan):>8.2f}")
     ac = s["aircraft"]
     L.append(f"Aircraft:          {len(ac)}" + ("  " + ", ".join(f"{k} ({', '.join(v['algos']) or 'no estimates'})"
