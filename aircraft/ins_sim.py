@@ -61,6 +61,7 @@ class InsResult:
     wall_s: float
     flight_s: float
     runs: int
+    cpu_s: float = 0.0  # process CPU time of the loop (the machine may be shared)
 
     def rmse_h(self) -> np.ndarray:
         return np.sqrt(np.mean(np.sum(self.err_m[..., :2] ** 2, axis=-1), axis=0))
@@ -139,6 +140,7 @@ def simulate(fld: Field, motion: Motion, preset: ImuPreset, cfg: InsRun, tuning:
     j = 0  # next measurement
     i_rec = 0
     w0 = time.perf_counter()
+    c0_cpu = time.process_time()
     sl9 = np.r_[0:9]
     for c0 in range(0, n_imu, chunk):
         n = min(chunk, n_imu - c0)
@@ -174,7 +176,7 @@ def simulate(fld: Field, motion: Motion, preset: ImuPreset, cfg: InsRun, tuning:
         if progress:
             progress(f"{(c0 + n) * dt:.0f}/{cfg.duration_s:.0f} s")
     wall = time.perf_counter() - w0
-    return InsResult(t_rec, err, Pp, nees, pcrb, wall, cfg.duration_s, M)
+    return InsResult(t_rec, err, Pp, nees, pcrb, wall, cfg.duration_s, M, time.process_time() - c0_cpu)
 
 
 def open_loop_drift(fld: Field, motion: Motion, preset: ImuPreset, duration_s: float, runs: int = 64,

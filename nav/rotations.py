@@ -11,29 +11,30 @@ from __future__ import annotations
 import numpy as np
 
 
+_SKEW_BASIS = np.zeros((3, 9))
+_SKEW_BASIS[0, [7, 5]] = 1.0, -1.0  # K[2,1] = w0, K[1,2] = -w0
+_SKEW_BASIS[1, [2, 6]] = 1.0, -1.0  # K[0,2] = w1, K[2,0] = -w1
+_SKEW_BASIS[2, [3, 1]] = 1.0, -1.0  # K[1,0] = w2, K[0,1] = -w2
+
+
 def skew(w: np.ndarray) -> np.ndarray:
     """Skew matrices (..., 3, 3) of vectors (..., 3)."""
     w = np.asarray(w, dtype=float)
-    S = np.zeros(w.shape[:-1] + (3, 3))
-    S[..., 0, 1], S[..., 0, 2] = -w[..., 2], w[..., 1]
-    S[..., 1, 0], S[..., 1, 2] = w[..., 2], -w[..., 0]
-    S[..., 2, 0], S[..., 2, 1] = -w[..., 1], w[..., 0]
-    return S
+    return (w @ _SKEW_BASIS).reshape(w.shape[:-1] + (3, 3))
 
 
 def exp_so3(phi: np.ndarray) -> np.ndarray:
     """Rodrigues: rotation matrices (..., 3, 3) of rotation vectors (..., 3).
 
-    ``exp([phi x]) = I + a [phi x] + b [phi x]^2`` with ``a = sin t / t``, ``b = (1 - cos t)/t^2``,
-    ``t = |phi|``; Taylor series below ``t = 1e-4`` (relative error < 1e-17).
+    ``exp([phi x]) = I + a [phi x] + b [phi x]^2`` with ``a = sin t / t`` and
+    ``b = (1 - cos t) / t^2 = (sin(t/2) / (t/2))^2 / 2``, ``t = |phi|`` (no cancellation for small
+    angles; ``t`` floored at 1e-300, where both ratios are exactly their limits 1 and 1/2).
     """
     phi = np.asarray(phi, dtype=float)
-    t2 = np.einsum("...i,...i->...", phi, phi)
-    t = np.sqrt(t2)
-    small = t < 1e-4
-    ts = np.where(small, 1.0, t)
-    a = np.where(small, 1.0 - t2 / 6.0 + t2 * t2 / 120.0, np.sin(ts) / ts)
-    b = np.where(small, 0.5 - t2 / 24.0 + t2 * t2 / 720.0, (1.0 - np.cos(ts)) / (ts * ts))
+    t = np.maximum(np.sqrt(np.einsum("...i,...i->...", phi, phi)), 1e-300)
+    a = np.sin(t) / t
+    h = 0.5 * t
+    b = 0.5 * (np.sin(h) / h) ** 2
     K = skew(phi)
     return np.eye(3) + a[..., None, None] * K + b[..., None, None] * (K @ K)
 

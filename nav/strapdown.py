@@ -27,11 +27,13 @@ from .rotations import exp_so3
 G0_M_S2 = 9.80665  # standard gravity
 
 
+_I1 = np.array([1, 2, 0])
+_I2 = np.array([2, 0, 1])
+
+
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Cross product over the last axis (cheaper than np.cross for small batches)."""
-    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
-                     a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
-                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
+    return a[..., _I1] * b[..., _I2] - a[..., _I2] * b[..., _I1]
 
 
 @dataclass
@@ -54,8 +56,9 @@ def coning_sculling(dth_prev, dv_prev, dth, dv):
     All arguments (..., 3) in the body frame. Returns ``phi`` (..., 3), ``dv_body`` (..., 3) expressed
     in the body frame at the *start* of the interval.
     """
-    phi = dth + _cross(dth_prev, dth) / 12.0
-    dvr = dv + 0.5 * _cross(dth, dv) + (_cross(dth_prev, dv) + _cross(dv_prev, dth)) / 12.0
+    x = _cross(np.stack([dth_prev, dth, dth_prev, dv_prev]), np.stack([dth, dv, dv, dth]))
+    phi = dth + x[0] / 12.0
+    dvr = dv + 0.5 * x[1] + (x[2] + x[3]) / 12.0
     return phi, dvr
 
 

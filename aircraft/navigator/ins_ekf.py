@@ -170,6 +170,7 @@ class InsEkf:
         F = es.f_matrix(L, Cm, fm, Gt, tn.tc_a_s, tn.tc_g_s)
         Phi, Qd = es.discretize(F, self.Qc, T)
         self.P = es.propagate(self.P, Phi, Qd)
+        self.last_phi = Phi
         self.clk[:, 0] += self.clk[:, 1] * T
         self.ba *= np.exp(-T / tn.tc_a_s)
         self.bg *= np.exp(-T / tn.tc_g_s)
@@ -182,40 +183,25 @@ class InsEkf:
             self.propagate()
 
     # -- measurements ---------------------------------------------------------------------------
+    def position_at(self, t_s: float) -> np.ndarray:
+        """Nominal position (M, 3) at ``t_s`` inside the last IMU step (constant acceleration per step)."""
+        T = self.t_s - t_s
+        a = (self.v - self.v_prev) / self.tn.dt_s
+        return self.p - self.v * T + 0.5 * a * T * T
+
     def predict_range(self, t_rx_s: float, station_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Predicted pseudorange (M,) at ``t_rx`` (within the last IMU step) and its Jacobian (M, n)."""
-        L = self.L
-        T = self.t_s - t_rx_s
-        a = (self.v - self.v_prev) / self.tn.dt_s
-        p_rx = self.p - self.v * T + 0.5 * a * T * T
-        d = p_rx - station_m
-        r = np.sqrt(np.einsum("...i,...i->...", d, d))
-        u = d / r[:, None]
-        H = np.zeros((self.M, L.n))
-        H[:, L.P] = u
-        H[:, L.V] = -T * u
-        pred = r
-        if L.clock:
-            c = L.CLK.start
-            H[:, c] = 1.0
-            H[:, c + 1] = -T
-            pred = r + self.clk[:, 0] - self.clk[:, 1] * T
-        return pred, H
+        return Pseudorange(np.asarray(station_m, dtype=float), t_rx_s).predict(self)
 
-    def pseudorange(self, t_rx_s: float, station_m, rho_m: np.ndarray, var_m2=None,
-                    active: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Scalar update with pseudoranges ``rho_m`` (M,) received at ``t_rx`` (in the last IMU step).
-
-        ``var_m2``: range variance (scalar or (M,)), default ``sigma_range^2``. ``active`` (M,) bool:
-        runs that use this measurement (others unchanged). Returns the innovation and its variance.
-        """
-        if not (self.t_s - self.tn.dt_s - 1e-9 <= t_rx_s <= self.t_s + 1e-9):
-            raise ValueError(f"reception time {t_rx_s} not inside the last IMU step ending {self.t_s}")
+    def update(self, model, z: np.ndarray, var_m2, active: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
+        """Scalar update with a measurement model object (``model.predict(ekf) -> (pred (M,), H (M, n))``),
+        measured values ``z`` (M,), variance ``var_m2`` (scalar or (M,)); ``active`` (M,) bool selects the
+        runs that use it. Returns the innovation and its variance."""
         self.propagate()
-        pred, H = self.predict_range(t_rx_s, np.asarray(station_m, dtype=float))
-        var = self.tn.sigma_range_m**2 if var_m2 is None else var_m2
-        nu = np.asarray(rho_m, dtype=float) - pred
-        dx, Pn, s = es.scalar_update(self.P, H, var, nu)
+        pred, H = model.predict(self)
+        nu = np.asarray(z, dtype=float) - pred
+        dx, Pn, s = es.scalar_update(self.P, H, var_m2, nu)
         if active is not None:
             dx = np.where(active[:, None], dx, 0.0)
             Pn = np.where(active[:, None, None], Pn, self.P)
@@ -223,6 +209,17 @@ class InsEkf:
         self.inject(dx)
         self.n_updates += 1
         return nu, s
+
+    def pseudorange(self, t_rx_s: float, station_m, rho_m: np.ndarray, var_m2=None,
+                    active: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Scalar update with pseudoranges ``rho_m`` (M,) received at ``t_rx`` (in the last IMU step).
+
+        ``var_m2``: range variance (scalar or (M,)), default ``sigma_range^2``.
+        """
+        if not (self.t_s - self.tn.dt_s - 1e-9 <= t_rx_s <= self.t_s + 1e-9):
+            raise ValueError(f"reception time {t_rx_s} not inside the last IMU step ending {self.t_s}")
+        var = self.tn.sigma_range_m**2 if var_m2 is None else var_m2
+        return self.update(Pseudorange(np.asarray(station_m, dtype=float), t_rx_s), rho_m, var, active)
 
     def inject(self, dx: np.ndarray) -> None:
         """Closed loop: add the error estimate (M, n) to the nominal state and reset it to zero."""
@@ -250,3 +247,46 @@ class InsEkf:
         return {"t_s": self.t_s, "pos_m": self.p.copy(), "vel_m_s": self.v.copy(),
                 "att_rad": euler_from_dcm(self.C), "cov_pos_m2": self.P[:, L.P, L.P].copy(),
                 "clock_m": self.clk[:, 0].copy() if L.clock else None, "tilt": self.tau.copy()}
+
+
+@dataclass(frozen=True)
+class Pseudorange:
+    """Pseudorange to a station received at ``t_rx_s``: ``|p(t_rx) - s| + b(t_rx)`` (seed 002 eq. 6,
+    seed 001 eq. 13). Jacobian ``[u, -T u, 0 ..., 1, -T]`` with ``T = t_k - t_rx``."""
+
+    station_m: np.ndarray
+    t_rx_s: float
+
+    def predict(self, ekf: "InsEkf") -> tuple[np.ndarray, np.ndarray]:
+        L = ekf.L
+        T = ekf.t_s - self.t_rx_s
+        d = ekf.position_at(self.t_rx_s) - self.station_m
+        r = np.sqrt(np.einsum("...i,...i->...", d, d))
+        u = d / r[:, None]
+        H = np.zeros((ekf.M, L.n))
+        H[:, L.P] = u
+        H[:, L.V] = -T * u
+        pred = r
+        if L.clock:
+            c = L.CLK.start
+            H[:, c] = 1.0
+            H[:, c + 1] = -T
+            pred = r + ekf.clk[:, 0] - ekf.clk[:, 1] * T
+        return pred, H
+
+
+@dataclass(frozen=True)
+class PositionComponent:
+    """A linear position measurement ``e^T p(t_s)`` (a height from a barometer along the up
+    direction ``e``, or one axis of an external fix); Jacobian ``[e, -T e, 0 ...]``."""
+
+    e: np.ndarray
+    t_s: float
+
+    def predict(self, ekf: "InsEkf") -> tuple[np.ndarray, np.ndarray]:
+        L = ekf.L
+        T = ekf.t_s - self.t_s
+        H = np.zeros((ekf.M, L.n))
+        H[:, L.P] = self.e
+        H[:, L.V] = -T * self.e
+        return ekf.position_at(self.t_s) @ self.e, H
