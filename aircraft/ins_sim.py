@@ -70,6 +70,50 @@ class InsResult:
         return np.sqrt(self.pcrb_pos[:, 0, 0] + self.pcrb_pos[:, 1, 1])
 
 
+@dataclass
+class Start:
+    """Emulated initial fix and alignment (nominal states (M, ...)), prior, and the truth at t0."""
+
+    p: np.ndarray
+    v: np.ndarray
+    C: np.ndarray
+    tau: np.ndarray
+    P0: np.ndarray
+    sign: float
+    p_true: np.ndarray
+    v_true: np.ndarray
+    C_true: np.ndarray
+    tau_true: np.ndarray
+
+
+def emulated_start(fld: Field, motion: Motion, tn: InsTuning, L: es.ErrorLayout, rng: np.random.Generator,
+                   M: int, tilt: str = "estimate", t0_s: float = 0.0) -> Start:
+    """World-side emulation of the navigator's start (module doc): an initial LARNS fix (position,
+    velocity drawn from the prior around the truth), a levelling + track-heading alignment against
+    the assumed-level frame (its level error is the frame's true tilt plus a drawn alignment error),
+    the tilt prior at zero (``tilt="estimate"``/``"ignore"``) or at the truth (``"oracle"``, a
+    yardstick only). Which way +Z points is decided from the fix (the aircraft is above the stations).
+    """
+    p0, v0, C0 = (x[0] for x in fld.truth(motion, np.array([t0_s])))
+    up_true = fld.up_n
+    sign = 1.0 if up_true[2] > 0 else -1.0
+    tau_true = sign * up_true[:2]
+    tau_nom = np.zeros(2) if tilt != "oracle" else tau_true.copy()
+    P0 = initial_covariance(L, tn, tau_nom, sign)
+    J = tilt_attitude_jacobian(tau_nom, sign)
+    Ls = es.ErrorLayout(turn_on=True, tilt=True, clock=True)
+    P0s = initial_covariance(Ls, tn, tau_nom, sign)
+    A = P0s[Ls.ATT, Ls.ATT] - J @ (tn.p0_tilt_rad**2 * np.eye(2)) @ J.T  # alignment part only
+    d_pos = rng.standard_normal((M, 3)) * tn.p0_pos_m
+    d_vel = rng.standard_normal((M, 3)) * tn.p0_vel_m_s
+    phi_al = rng.standard_normal((M, 3)) @ np.linalg.cholesky(A + 1e-30 * np.eye(3)).T
+    phi0 = phi_al + (J @ (tau_true - tau_nom))[None, :]
+    p_hat = p0 - d_pos
+    nav_sign = float(np.sign(np.median(p_hat[:, 2]) - np.mean(fld.stations_n[:, 2])))
+    return Start(p_hat, v0 - d_vel, exp_so3(-phi0) @ C0, np.broadcast_to(tau_nom, (M, 2)).copy(), P0, nav_sign,
+                 p0, v0, C0, tau_true)
+
+
 def _in_outage(t: float, outages) -> bool:
     return any(a <= t < a + L for a, L in outages)
 
@@ -86,28 +130,11 @@ def simulate(fld: Field, motion: Motion, preset: ImuPreset, cfg: InsRun, tuning:
     L = es.ErrorLayout(turn_on=True, tilt=(cfg.tilt == "estimate"), clock=True)
     dt = tn.dt_s
     # --- world: truth at t = 0, true tilt, emulated initial fix/alignment -------------------------
-    p0, v0, C0 = (x[0] for x in fld.truth(motion, np.array([0.0])))
+    start = emulated_start(fld, motion, tn, L, rng, M, cfg.tilt)
+    p_hat, v_hat, C_hat, tau0, P0, nav_sign = start.p, start.v, start.C, start.tau, start.P0, start.sign
+    p0, v0, C0, tau_true = start.p_true, start.v_true, start.C_true, start.tau_true
     ns = fld.stations_n
-    up_true = fld.up_n
-    sign = 1.0 if up_true[2] > 0 else -1.0  # world-side truth; the navigator's own sign is below
-    tau_true = sign * up_true[:2]
-    tau_nom = np.zeros(2) if cfg.tilt != "oracle" else tau_true.copy()
-    P0 = initial_covariance(L, tn, tau_nom, sign)
-    Ls = es.ErrorLayout(turn_on=True, tilt=True, clock=True)
-    P0s = initial_covariance(Ls, tn, tau_nom, sign)  # alignment prior (tilt part used for phi below)
-    J = tilt_attitude_jacobian(tau_nom, sign)
-    d_pos = rng.standard_normal((M, 3)) * tn.p0_pos_m
-    d_vel = rng.standard_normal((M, 3)) * tn.p0_vel_m_s
-    A = P0s[Ls.ATT, Ls.ATT] - J @ (tn.p0_tilt_rad**2 * np.eye(2)) @ J.T  # alignment part only
-    phi_al = rng.standard_normal((M, 3)) @ np.linalg.cholesky(A + 1e-30 * np.eye(3)).T
-    phi0 = phi_al + (J @ (tau_true - tau_nom))[None, :]
-    p_hat = p0 - d_pos
-    v_hat = v0 - d_vel
-    C_hat = exp_so3(-phi0) @ C0
-    # which way is +Z: the aircraft's own fix is above the stations (navigator-side decision)
-    nav_sign = np.sign(np.median(p_hat[:, 2]) - np.mean(ns[:, 2]))
     imu = ImuEmulator(preset, M, rng)
-    tau0 = np.broadcast_to(tau_nom, (M, 2))
     if cfg.pcrb:
         p_hat = np.vstack([p_hat, p0])
         v_hat = np.vstack([v_hat, v0])
