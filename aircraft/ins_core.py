@@ -10,6 +10,12 @@ the broadcast (estimated) station positions and covariances only.
 The IMU runs on its own fixed grid ``k / rate``: :meth:`advance_to` integrates every step up to a time
 (the node calls it continuously with the fleet time, and before each measurement with its reception
 time), so no step is skipped whatever the message timing; ``imu_steps`` counts them.
+
+Determinism (exact offline re-flight, ``larns replay --offline --algo ins-ekf``): the IMU samples are
+emulated in fixed blocks of ``BLOCK`` steps, block ``b`` from its own generator
+``(seed, "imu", aircraft, b)``, so sample ``k`` does not depend on how the node's loop chunked time; the
+channel noise comes from another stream, one draw per measurement. Given the same sequence of nav
+broadcasts (the aircraft's ``ac_truth`` topic identifies it), the estimates are reproduced bit for bit.
 """
 
 from __future__ import annotations
@@ -57,8 +63,10 @@ class InsAircraftCore:
 
     lag_s = 0.25
 
+    BLOCK = 100
+
     def __init__(self, sc, ac, name: str, rng: np.random.Generator, imu: str = "adis16480",
-                 height_m: float | None = None):
+                 height_m: float | None = None, seed: int | None = None):
         self.name = name
         self.ac = ac
         self.field = Field.from_scenario(sc)
@@ -71,6 +79,9 @@ class InsAircraftCore:
         L = es.ErrorLayout()
         st = emulated_start(self.field, self.motion, self.tn, L, rng, 1)
         self.imu = ImuEmulator(self.preset, 1, rng)
+        self._imu_seed = [int(sc.seed if seed is None else seed), 0x1B0, sum(map(ord, name))]
+        self._block_id = -1
+        self._block: tuple[np.ndarray, np.ndarray] | None = None
         self.ekf = InsEkf(self.tn, L, st.p, st.v, st.C, np.zeros((1, 2)), st.P0, st.tau, st.sign)
         self.imu_steps = 0
         self.seq: Counter[str] = Counter()
@@ -82,12 +93,17 @@ class InsAircraftCore:
         n = int(np.floor(t_s / dt + 1e-9)) - self.imu_steps
         if n <= 0:
             return 0
-        dth, dv = self.motion.increments(self.imu_steps * dt, dt, n)
-        g, a = self.imu.measure(dth, dv)
-        for i in range(n):
+        for _ in range(n):
+            b, i = divmod(self.imu_steps, self.BLOCK)
+            if b != self._block_id:
+                dth, dv = self.motion.increments(b * self.BLOCK * dt, dt, self.BLOCK)
+                self.imu.rng = np.random.default_rng(self._imu_seed + [b])
+                self._block = self.imu.measure(dth, dv)
+                self._block_id = b
+            g, a = self._block
             self.ekf.imu(g[i], a[i])
             self.ekf.maybe_propagate()
-        self.imu_steps += n
+            self.imu_steps += 1
         return n
 
     def truth_n(self, t_s: float):

@@ -159,7 +159,8 @@ class AircraftNode:
             from .ins_core import InsAircraftCore
 
             self.ins = InsAircraftCore(scn, self.ac, opts.name, np.random.default_rng([int(seed), 0x1A5,
-                                       sum(map(ord, opts.name))]), imu=opts.imu, height_m=opts.height_m)
+                                       sum(map(ord, opts.name))]), imu=opts.imu, height_m=opts.height_m,
+                                       seed=int(seed))
             self.ins.seq = self.core.seq  # one sequence per (aircraft, kind)
         self.drops = M.DropCounter(f"aircraft {opts.name}")
         self._inbox: queue.SimpleQueue = queue.SimpleQueue()
