@@ -264,6 +264,7 @@ class AircraftNode:
         if self.ins is not None:
             e = self.ins.ekf
             pt = self.ins.truth_n(e.t_s)[0]
+            out["measurements"] = int(self.ins.stats["measurements"])
             out["estimates"]["ins-ekf"] = {"t_s": e.t_s, "err_m": float(np.linalg.norm(e.p[0] - pt)),
                                            "n_updates": e.n_updates, "imu_steps": self.ins.imu_steps,
                                            "imu_steps_expected": int(np.floor(e.t_s * self.ins.preset.rate_hz + 1e-9))}
