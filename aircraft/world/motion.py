@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nav.rotations import log_so3
+from nav.rotations import exp_so3, log_so3
 from nav.strapdown import G0_M_S2
 
 G_L = np.array([0.0, 0.0, -G0_M_S2])
@@ -124,8 +124,17 @@ class Ellipse(Motion):
         return p, v, acc
 
 
+class AtRest(Motion):
+    """Test motions at a fixed point (subclasses give the attitude)."""
+
+    def pva(self, t_s):
+        t_s = np.asarray(t_s, dtype=float)
+        z = np.zeros((t_s.size, 3))
+        return z, z.copy(), z.copy()
+
+
 @dataclass
-class Coning(Motion):
+class Coning(AtRest):
     """Classical coning at a fixed point (test motion): ``C_Lb(t) = exp([a (cos wt, sin wt, 0) x])``
     with half-angle ``a`` and frequency ``w``; the body sits at rest (specific force ``-C^T g``).
 
@@ -135,14 +144,7 @@ class Coning(Motion):
     half_angle_rad: float
     freq_rad_s: float
 
-    def pva(self, t_s):
-        t_s = np.asarray(t_s, dtype=float)
-        z = np.zeros((t_s.size, 3))
-        return z, z.copy(), z.copy()
-
     def attitude(self, t_s):
-        from nav.rotations import exp_so3
-
         t_s = np.asarray(t_s, dtype=float)
         ph = self.half_angle_rad * np.column_stack([np.cos(self.freq_rad_s * t_s), np.sin(self.freq_rad_s * t_s),
                                                     np.zeros(t_s.size)])
@@ -150,21 +152,14 @@ class Coning(Motion):
 
 
 @dataclass
-class ConstantRate(Motion):
+class ConstantRate(AtRest):
     """Rotation at a constant body rate ``w_b`` about a fixed axis, at rest (test motion):
     ``C_Lb(t) = C0 exp([w t x])``."""
 
     rate_rad_s: np.ndarray
     C0: np.ndarray | None = None
 
-    def pva(self, t_s):
-        t_s = np.asarray(t_s, dtype=float)
-        z = np.zeros((t_s.size, 3))
-        return z, z.copy(), z.copy()
-
     def attitude(self, t_s):
-        from nav.rotations import exp_so3
-
         t_s = np.asarray(t_s, dtype=float)
         C0 = np.eye(3) if self.C0 is None else self.C0
         return C0 @ exp_so3(np.asarray(self.rate_rad_s, float) * t_s[:, None])
