@@ -62,6 +62,7 @@ class InsResult:
     flight_s: float
     runs: int
     cpu_s: float = 0.0  # process CPU time of the loop (the machine may be shared)
+    nsq: np.ndarray | None = None  # (M, K, 9) squared errors of [p, v, phi] over their variances
 
     def rmse_h(self) -> np.ndarray:
         return np.sqrt(np.mean(np.sum(self.err_m[..., :2] ** 2, axis=-1), axis=0))
@@ -162,6 +163,7 @@ def simulate(fld: Field, motion: Motion, preset: ImuPreset, cfg: InsRun, tuning:
     err = np.empty((M, n_rec, 3))
     Pp = np.empty((M, n_rec, 3, 3))
     nees = np.empty((M, n_rec))
+    nsq = np.empty((M, n_rec, 9))
     pcrb = np.empty((n_rec, 3, 3)) if cfg.pcrb else None
     chunk = max(int(round(cfg.chunk_s / dt)), rec_every)
     j = 0  # next measurement
@@ -197,13 +199,14 @@ def simulate(fld: Field, motion: Motion, preset: ImuPreset, cfg: InsRun, tuning:
                 d = np.concatenate([-e_p, vt - ekf.v[:M], log_so3(Ct @ np.swapaxes(ekf.C[:M], -1, -2))], axis=-1)
                 P9 = ekf.P[:M][:, sl9][:, :, sl9]
                 nees[:, i_rec] = np.einsum("mi,mi->m", d, np.linalg.solve(P9, d[..., None])[..., 0])
+                nsq[:, i_rec] = d**2 / np.einsum("mii->mi", P9)
                 if cfg.pcrb:
                     pcrb[i_rec] = ekf.P[M, :3, :3]
                 i_rec += 1
         if progress:
             progress(f"{(c0 + n) * dt:.0f}/{cfg.duration_s:.0f} s")
     wall = time.perf_counter() - w0
-    return InsResult(t_rec, err, Pp, nees, pcrb, wall, cfg.duration_s, M, time.process_time() - c0_cpu)
+    return InsResult(t_rec, err, Pp, nees, pcrb, wall, cfg.duration_s, M, time.process_time() - c0_cpu, nsq)
 
 
 def open_loop_drift(fld: Field, motion: Motion, preset: ImuPreset, duration_s: float, runs: int = 64,

@@ -156,7 +156,7 @@ def run(args) -> int:
 
     h_out = 1000.0
     dur = duration or mo0.lap_s
-    starts = [dur * f for f in (0.3, 0.55, 0.8)]
+    starts = [float(round(dur * f)) for f in (0.3, 0.55, 0.8)]  # whole seconds: a record falls on each end
     outs = list(zip(starts, OUTAGES))
     res_o, wall, fld, mo = ins_mc(args.scenario, h_out, pre, runs, dur, args.seed + 1, outages=outs)
     mc_wall += wall
@@ -167,7 +167,7 @@ def run(args) -> int:
     doc["outage_drift_h_m"], doc["outage_pcrb_h_m"], doc["outage_reconverge_s"] = {}, {}, {}
     doc["outage_open_loop_h_m"] = {}
     for (a, L) in outs:
-        i_end = int(np.searchsorted(res_o.t_s, a + L - 1e-6))
+        i_end = int(np.searchsorted(res_o.t_s, a + L + 1e-6)) - 1  # last record before the broadcasts return
         pre_i = (res_o.t_s >= a - 60.0) & (res_o.t_s < a)
         level = float(np.sqrt(np.mean(rh[pre_i] ** 2)))
         after = np.nonzero((res_o.t_s > a + L))[0]

@@ -375,3 +375,22 @@ def test_ins_core_is_independent_of_loop_timing():
         outs.append(got)
     assert len(outs[0]) == len(outs[1]) == 200
     assert all(a == b for a, b in zip(*outs))
+
+
+@pytest.mark.slow
+def test_bench_ins_quick_writes_the_keys(tmp_path):
+    """`larns bench ins --quick` runs end to end and writes the issue's JSON keys."""
+    import json
+
+    from larns.cli import main
+
+    js = tmp_path / "ins.json"
+    assert main(["bench", "ins", "--quick", "--no-tilt-cost", "--no-speed", "--json", str(js),
+                 "--png", str(tmp_path / "ins.png")]) == 0
+    d = json.loads(js.read_text())
+    for k in ("paper_fig6_max_sigma_h_m", "paper_fig7_max_sigma_v_m"):
+        assert set(d[k]) == {"250", "500", "1000"}
+    assert set(d["ins_rmse_h_m"]) == set(d["ins_pcrb_h_m"]) == {"1000"}
+    assert set(d["outage_drift_h_m"]) == {"10", "30", "60"}
+    assert d["speed"]["batched_x_real_time"] > 0
+    assert (tmp_path / "ins.png").stat().st_size > 10_000
