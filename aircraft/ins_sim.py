@@ -63,6 +63,9 @@ class InsResult:
     runs: int
     cpu_s: float = 0.0  # process CPU time of the loop (the machine may be shared)
     nsq: np.ndarray | None = None  # (M, K, 9) squared errors of [p, v, phi] over their variances
+    nees8: np.ndarray | None = None  # (M, K) NEES of [p, v, phi_x, phi_y] (8 dof, without the heading)
+    var9: np.ndarray | None = None  # (M, K, 9) the filter's variances of [p, v, phi]
+    pcrb9: np.ndarray | None = None  # (K, 9) the bound's variances of [p, v, phi]
 
     def rmse_h(self) -> np.ndarray:
         return np.sqrt(np.mean(np.sum(self.err_m[..., :2] ** 2, axis=-1), axis=0))
@@ -164,6 +167,9 @@ def simulate(fld: Field, motion: Motion, preset: ImuPreset, cfg: InsRun, tuning:
     Pp = np.empty((M, n_rec, 3, 3))
     nees = np.empty((M, n_rec))
     nsq = np.empty((M, n_rec, 9))
+    nees8 = np.empty((M, n_rec))
+    var9 = np.empty((M, n_rec, 9))
+    pcrb9 = np.empty((n_rec, 9)) if cfg.pcrb else None
     pcrb = np.empty((n_rec, 3, 3)) if cfg.pcrb else None
     chunk = max(int(round(cfg.chunk_s / dt)), rec_every)
     j = 0  # next measurement
@@ -199,14 +205,18 @@ def simulate(fld: Field, motion: Motion, preset: ImuPreset, cfg: InsRun, tuning:
                 d = np.concatenate([-e_p, vt - ekf.v[:M], log_so3(Ct @ np.swapaxes(ekf.C[:M], -1, -2))], axis=-1)
                 P9 = ekf.P[:M][:, sl9][:, :, sl9]
                 nees[:, i_rec] = np.einsum("mi,mi->m", d, np.linalg.solve(P9, d[..., None])[..., 0])
-                nsq[:, i_rec] = d**2 / np.einsum("mii->mi", P9)
+                var9[:, i_rec] = np.einsum("mii->mi", P9)
+                d8 = d[:, :8]
+                nees8[:, i_rec] = np.einsum("mi,mi->m", d8, np.linalg.solve(P9[:, :8, :8], d8[..., None])[..., 0])
+                nsq[:, i_rec] = d**2 / var9[:, i_rec]
                 if cfg.pcrb:
                     pcrb[i_rec] = ekf.P[M, :3, :3]
+                    pcrb9[i_rec] = np.diag(ekf.P[M])[:9]
                 i_rec += 1
         if progress:
             progress(f"{(c0 + n) * dt:.0f}/{cfg.duration_s:.0f} s")
     wall = time.perf_counter() - w0
-    return InsResult(t_rec, err, Pp, nees, pcrb, wall, cfg.duration_s, M, time.process_time() - c0_cpu, nsq)
+    return InsResult(t_rec, err, Pp, nees, pcrb, wall, cfg.duration_s, M, time.process_time() - c0_cpu, nsq, nees8, var9, pcrb9)
 
 
 def open_loop_drift(fld: Field, motion: Motion, preset: ImuPreset, duration_s: float, runs: int = 64,
