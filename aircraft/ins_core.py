@@ -66,9 +66,10 @@ class InsAircraftCore:
     BLOCK = 100
 
     def __init__(self, sc, ac, name: str, rng: np.random.Generator, imu: str = "adis16480",
-                 height_m: float | None = None, seed: int | None = None):
+                 height_m: float | None = None, seed: int | None = None, t0_s: float = 0.0):
         self.name = name
         self.ac = ac
+        self.t0_s = float(t0_s)  # fleet time of the aircraft's start (motion time 0, first IMU step)
         self.field = Field.from_scenario(sc)
         self.motion = motion_from_config(ac.trajectory, height_m if height_m is not None else ac.height_m)
         self.preset = preset(imu)
@@ -82,7 +83,7 @@ class InsAircraftCore:
         self._imu_seed = [int(sc.seed if seed is None else seed), 0x1B0, sum(map(ord, name))]
         self._block_id = -1
         self._block: tuple[np.ndarray, np.ndarray] | None = None
-        self.ekf = InsEkf(self.tn, L, st.p, st.v, st.C, np.zeros((1, 2)), st.P0, st.tau, st.sign)
+        self.ekf = InsEkf(self.tn, L, st.p, st.v, st.C, np.zeros((1, 2)), st.P0, st.tau, st.sign, t0_s=self.t0_s)
         self.imu_steps = 0
         self.seq: Counter[str] = Counter()
         self.stats: Counter[str] = Counter()
@@ -90,7 +91,7 @@ class InsAircraftCore:
     def advance_to(self, t_s: float) -> int:
         """Integrate every IMU step that ends at or before ``t_s``; returns how many were run."""
         dt = self.tn.dt_s
-        n = int(np.floor(t_s / dt + 1e-9)) - self.imu_steps
+        n = int(np.floor((t_s - self.t0_s) / dt + 1e-9)) - self.imu_steps
         if n <= 0:
             return 0
         for _ in range(n):
@@ -107,7 +108,7 @@ class InsAircraftCore:
         return n
 
     def truth_n(self, t_s: float):
-        p, v, C = self.field.truth(self.motion, np.array([t_s]))
+        p, v, C = self.field.truth(self.motion, np.array([t_s - self.t0_s]))
         return p[0], v[0], C[0]
 
     def measure(self, phy: dict) -> tuple[float, float]:
@@ -152,7 +153,7 @@ class InsAircraftCore:
         e = self.ekf
         roll, pitch, yaw = euler_from_dcm(e.C[0])
         extra = {"roll_rad": float(roll), "pitch_rad": float(pitch), "yaw_rad": float(yaw),
-                 "clock_m": float(e.clk[0, 0]), "imu_steps": float(self.imu_steps)}
+                 "clock_m": float(e.clk[0, 0]), "imu_steps": float(self.imu_steps), "t0_s": self.t0_s}
         if e.L.tilt:
             extra.update(tilt_1=float(e.tau[0, 0]), tilt_2=float(e.tau[0, 1]))
         self.seq["ac_estimate"] += 1

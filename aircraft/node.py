@@ -160,7 +160,7 @@ class AircraftNode:
 
             self.ins = InsAircraftCore(scn, self.ac, opts.name, np.random.default_rng([int(seed), 0x1A5,
                                        sum(map(ord, opts.name))]), imu=opts.imu, height_m=opts.height_m,
-                                       seed=int(seed))
+                                       seed=int(seed), t0_s=max(0.0, math.floor(self.fleet_now())))
             self.ins.seq = self.core.seq  # one sequence per (aircraft, kind)
         self.drops = M.DropCounter(f"aircraft {opts.name}")
         self._inbox: queue.SimpleQueue = queue.SimpleQueue()
@@ -267,7 +267,8 @@ class AircraftNode:
             out["measurements"] = int(self.ins.stats["measurements"])
             out["estimates"]["ins-ekf"] = {"t_s": e.t_s, "err_m": float(np.linalg.norm(e.p[0] - pt)),
                                            "n_updates": e.n_updates, "imu_steps": self.ins.imu_steps,
-                                           "imu_steps_expected": int(np.floor(e.t_s * self.ins.preset.rate_hz + 1e-9))}
+                                           "imu_steps_expected": int(np.floor((e.t_s - self.ins.t0_s)
+                                                                               * self.ins.preset.rate_hz + 1e-9))}
         return out
 
 
@@ -311,13 +312,18 @@ def main_args(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     scn = load(args.scenario, **({"layout": {"n": int(args.n_stations)}} if args.n_stations else {}))
     ac = from_scenario(scn)
-    opts = AircraftOptions(name=args.name or ac.name, algos=tuple(args.algo or ac.algos), speed=args.speed,
+    algos = args.algo or (("ins-ekf",) if args.imu else ac.algos)
+    opts = AircraftOptions(name=args.name or ac.name, algos=tuple(algos), speed=args.speed,
                            epoch_unix_s=args.epoch, duration_s=args.duration, seed=args.seed,
                            height_m=args.height, status_every_s=args.status_every, quiet=args.quiet,
                            imu=args.imu or ac.imu)
     bus = Bus(**bus_kwargs(args))
     try:
-        node = AircraftNode(scn, opts, bus)
+        try:
+            node = AircraftNode(scn, opts, bus)
+        except ValueError as e:  # bad options (algorithm mix, IMU preset, trajectory kind): a clear error
+            print(f"error: {e}", file=sys.stderr)
+            return 2
         signal.signal(signal.SIGINT, node.stop)
         signal.signal(signal.SIGTERM, node.stop)
         rep = node.run()

@@ -516,13 +516,6 @@ def reestimate_ins(logs: Sequence[LogFile], msgs: Sequence[Msg], scenario: str |
 
     md, scn, ac, name, seed = _aircraft_world(logs, scenario, name, seed)
     rng = np.random.default_rng([int(seed), 0x1A5, sum(map(ord, name))])  # as aircraft.node.AircraftNode
-    core = InsAircraftCore(scn, ac, name, rng, imu=imu or ac.imu or "adis16480", height_m=height_m, seed=int(seed))
-    ep = logs[0].epoch_unix_s if logs else None
-    speed = logs[0].speed if logs else 1.0
-    navs, order = aircraft_nav_sequence(msgs, name)
-    truth, flown = _refly(core, navs, ep, speed)
-    est = [rec for _o, rec in flown]
-    err = [float(np.linalg.norm(np.asarray(o["pos_m"]) - core.truth_n(o["t_s"])[0])) for o, _rec in flown]
     recorded = []
     for m in msgs:
         if m.encoding == "msgpack" and m.topic == f"larns/aircraft/{name}/estimate/ins-ekf":
@@ -530,6 +523,15 @@ def reestimate_ins(logs: Sequence[LogFile], msgs: Sequence[Msg], scenario: str |
                 recorded.append(M.decode(m.data)[0])
             except M.MessageError:
                 continue
+    t0 = float(recorded[0].get("extra", {}).get("t0_s", 0.0)) if recorded else 0.0  # the aircraft's start
+    core = InsAircraftCore(scn, ac, name, rng, imu=imu or ac.imu or "adis16480", height_m=height_m, seed=int(seed),
+                           t0_s=t0)
+    ep = logs[0].epoch_unix_s if logs else None
+    speed = logs[0].speed if logs else 1.0
+    navs, order = aircraft_nav_sequence(msgs, name)
+    truth, flown = _refly(core, navs, ep, speed)
+    est = [rec for _o, rec in flown]
+    err = [float(np.linalg.norm(np.asarray(o["pos_m"]) - core.truth_n(o["t_s"])[0])) for o, _rec in flown]
     new = [M.decode(x.data)[0] for x in est]
     keys = ("t_s", "pos_m", "cov_m2", "vel_m_s", "n_updates", "extra")
     rec_by_n = {y.get("n_updates"): y for y in recorded}
