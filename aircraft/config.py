@@ -11,7 +11,7 @@ from .estimators import ALGOS, Tuning
 from .models import ReceiverClock
 
 _KNOWN = {"name", "algos", "rate_hz", "sync", "sigma_m", "df_hz", "lambda_m", "tau0_s", "height_m",
-          "trajectory", "tuning", "turn", "hover", "bench", "crlb", "init_sigma_m"}
+          "trajectory", "tuning", "turn", "hover", "bench", "crlb", "init_sigma_m", "imu"}
 
 
 @dataclass
@@ -31,6 +31,7 @@ class AircraftConfig:
     bench: dict[str, Any] = field(default_factory=dict)
     crlb: dict[str, Any] = field(default_factory=dict)
     init_sigma_m: float | None = None  # coarse external fix of the start point (node); None: LSQ start
+    imu: str | None = None  # IMU preset of the inertial aircraft (ins-ekf, docs/ins.md)
 
 
 def from_scenario(sc) -> AircraftConfig:
@@ -40,7 +41,7 @@ def from_scenario(sc) -> AircraftConfig:
     if unknown:
         raise ValueError(f"unknown keys in [aircraft]: {sorted(unknown)}; known: {sorted(_KNOWN)}")
     algos = list(a.get("algos", ["ukf-pr"]))
-    bad = [x for x in algos if x not in ALGOS]
+    bad = [x for x in algos if x not in ALGOS + ("ins-ekf",)]
     if bad:
         raise ValueError(f"unknown algorithms {bad}; choose from {ALGOS}")
     sigma = float(a.get("sigma_m", sc.channel.sigma_d_m))
@@ -67,4 +68,5 @@ def from_scenario(sc) -> AircraftConfig:
         bench=dict(a.get("bench", {})),
         crlb=dict(a.get("crlb", {})),
         init_sigma_m=None if a.get("init_sigma_m") is None else float(a["init_sigma_m"]),
+        imu=None if a.get("imu") is None else str(a["imu"]),
     )

@@ -55,6 +55,7 @@ class AircraftOptions:
     height_m: float | None = None
     status_every_s: float = 5.0
     quiet: bool = False
+    imu: str | None = None  # IMU preset: fly the 6-DOF world with an IMU and run ins-ekf (docs/ins.md)
 
 
 class AircraftCore:
@@ -177,8 +178,17 @@ class AircraftNode:
         from net.channel import draw_clock, station_rng
 
         net_clock = None if scn.clock.perfect else draw_clock(scn.clock, station_rng(seed, scn.ids[0], 0))
+        ins_algos, opts.algos = _split_ins(opts)
         self.core = AircraftCore(self.ac, opts.algos, opts.name, rng, opts.height_m, horizon_s=horizon,
                                  net_clock=net_clock)
+        self.ins = None
+        if ins_algos:  # the inertial aircraft: own world (6-DOF, IMU) and ins-ekf (aircraft/ins_core.py)
+            from .ins_core import InsAircraftCore
+
+            self.ins = InsAircraftCore(scn, self.ac, opts.name, np.random.default_rng([int(seed), 0x1A5,
+                                       sum(map(ord, opts.name))]), imu=opts.imu, height_m=opts.height_m,
+                                       seed=int(seed), t0_s=max(0.0, math.floor(self.fleet_now())))
+            self.ins.seq = self.core.seq  # one sequence per (aircraft, kind)
         self.drops = M.DropCounter(f"aircraft {opts.name}")
         self._inbox: queue.SimpleQueue = queue.SimpleQueue()
         self._stop = threading.Event()
@@ -205,11 +215,17 @@ class AircraftNode:
             self.drops.drop("key", f"{msg['kind']} on {key}")
             return
         try:
-            outs = self.core.on_nav(msg, phy)
+            outs = self.core.on_nav(msg, phy) if self.ins is None else []
         except Exception as e:  # an estimator failure must not kill the node
             log.exception("aircraft %s: estimator failed on nav from %s", self.opts.name, msg.get("src"))
             self.drops.drop("estimator", type(e).__name__)
             return
+        if self.ins is not None:
+            try:
+                outs = outs + self.ins.on_nav(msg, phy)
+            except Exception as e:
+                log.exception("aircraft %s: ins-ekf failed on nav from %s", self.opts.name, msg.get("src"))
+                self.drops.drop("estimator", type(e).__name__)
         for m in outs:
             try:
                 self.bus.publish(M.key_for(m), M.encode(m))
@@ -220,6 +236,14 @@ class AircraftNode:
         if self.opts.quiet or self.opts.status_every_s <= 0 or t - self._last_status < self.opts.status_every_s:
             return
         self._last_status = t
+        if self.ins is not None:
+            e = self.ins.ekf
+            pt = self.ins.truth_n(e.t_s)[0]
+            print(f"[aircraft {self.opts.name}] t={t:7.1f}s imu={self.ins.preset.name} steps={self.ins.imu_steps} "
+                  f"t_ins={e.t_s:.2f}s pos=({pt[0]:.0f},{pt[1]:.0f},{pt[2]:.0f}) meas={self.ins.stats['measurements']} "
+                  f"err ins-ekf={np.linalg.norm(e.p[0] - pt):.1f}m late={self.ins.stats['nav_bad_or_late']} "
+                  f"drops={self.drops.total}", file=sys.stderr, flush=True)
+            return
         p, _ = self.core.track.at(max(t, 0.0))
         parts = []
         for a, est in self.core.estimators.items():
@@ -246,8 +270,10 @@ class AircraftNode:
             if t >= end:
                 break
             self._status(t)
+            if self.ins is not None:  # integrate behind fleet time so delayed broadcasts still fit
+                self.ins.advance_to(t - self.ins.lag_s * self.opts.speed)
             try:
-                item = self._inbox.get(timeout=0.1)
+                item = self._inbox.get(timeout=0.1 if self.ins is None else self.ins.tn.dt_s)
             except queue.Empty:
                 continue
             self._ingest(*item)
@@ -262,6 +288,14 @@ class AircraftNode:
                 pt, _ = self.core.track.at(e["t_s"])
                 out["estimates"][a] = {"t_s": e["t_s"], "err_m": float(np.linalg.norm(np.asarray(e["pos_m"]) - pt)),
                                        "n_updates": e["n_updates"]}
+        if self.ins is not None:
+            e = self.ins.ekf
+            pt = self.ins.truth_n(e.t_s)[0]
+            out["measurements"] = int(self.ins.stats["measurements"])
+            out["estimates"]["ins-ekf"] = {"t_s": e.t_s, "err_m": float(np.linalg.norm(e.p[0] - pt)),
+                                           "n_updates": e.n_updates, "imu_steps": self.ins.imu_steps,
+                                           "imu_steps_expected": int(np.floor((e.t_s - self.ins.t0_s)
+                                                                               * self.ins.preset.rate_hz + 1e-9))}
         return out
 
 
@@ -273,7 +307,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
     from .models import ALGOS
 
     p.add_argument("--scenario", default="seed003", help="scenario name or TOML path (default seed003)")
-    p.add_argument("--algo", action="append", choices=ALGOS, default=None,
+    p.add_argument("--algo", action="append", choices=ALGOS + ("ins-ekf",), default=None,
                    help="estimator to run (repeatable; default: the scenario's [aircraft] algos)")
     p.add_argument("--name", default=None, help="aircraft name (default: scenario's, ac1)")
     p.add_argument("--speed", type=float, default=1.0, help="run K times faster than real time (default 1)")
@@ -288,6 +322,8 @@ def add_args(p: argparse.ArgumentParser) -> None:
                              "subscription is not faulted - the stations' links are)")
     for flag in ("--net-delay", "--net-jitter", "--net-loss", "--net-dup"):
         g.add_argument(flag, type=float, default=None, help=argparse.SUPPRESS)
+    p.add_argument("--imu", default=None, metavar="PRESET",
+                   help="fly with an IMU (adis16480, tactical, navigation) and run ins-ekf (docs/ins.md)")
     p.add_argument("--status-every", type=float, default=5.0, help="fleet seconds between status lines")
     p.add_argument("--report-json", action="store_true", help="print a JSON report on stdout at exit")
     p.add_argument("-q", "--quiet", action="store_true")
@@ -303,12 +339,18 @@ def main_args(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     scn = load(args.scenario, **({"layout": {"n": int(args.n_stations)}} if args.n_stations else {}))
     ac = from_scenario(scn)
-    opts = AircraftOptions(name=args.name or ac.name, algos=tuple(args.algo or ac.algos), speed=args.speed,
+    algos = args.algo or (("ins-ekf",) if args.imu else ac.algos)
+    opts = AircraftOptions(name=args.name or ac.name, algos=tuple(algos), speed=args.speed,
                            epoch_unix_s=args.epoch, duration_s=args.duration, seed=args.seed,
-                           height_m=args.height, status_every_s=args.status_every, quiet=args.quiet)
+                           height_m=args.height, status_every_s=args.status_every, quiet=args.quiet,
+                           imu=args.imu or ac.imu)
     bus = Bus(**bus_kwargs(args))
     try:
-        node = AircraftNode(scn, opts, bus)
+        try:
+            node = AircraftNode(scn, opts, bus)
+        except ValueError as e:  # bad options (algorithm mix, IMU preset, trajectory kind): a clear error
+            print(f"error: {e}", file=sys.stderr)
+            return 2
         signal.signal(signal.SIGINT, node.stop)
         signal.signal(signal.SIGTERM, node.stop)
         rep = node.run()
@@ -316,11 +358,29 @@ def main_args(args: argparse.Namespace) -> int:
         bus.close()
     if args.report_json:
         print(json.dumps(rep), flush=True)
+    if not args.quiet and "ins-ekf" in rep["estimates"]:
+        v = rep["estimates"]["ins-ekf"]
+        print(f"[aircraft {opts.name}] ins-ekf: IMU steps {v['imu_steps']} of {v['imu_steps_expected']} "
+              f"expected at t = {v['t_s']:.2f} s", file=sys.stderr, flush=True)
     if not args.quiet:
         print(f"[aircraft {opts.name}] stopped: measurements={rep['measurements']} "
               + " ".join(f"{a}: {v['err_m']:.1f} m" for a, v in rep["estimates"].items()),
               file=sys.stderr, flush=True)
     return 0
+
+
+def _split_ins(opts: AircraftOptions) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """(inertial algorithms, the others). ``--imu`` without ``ins-ekf`` adds it; ``ins-ekf`` without
+    ``--imu`` uses the adis16480 preset."""
+    ins = tuple(a for a in opts.algos if a == "ins-ekf")
+    if opts.imu and not ins:
+        ins = ("ins-ekf",)
+    if ins and not opts.imu:
+        opts.imu = "adis16480"
+    rest = tuple(a for a in opts.algos if a != "ins-ekf")
+    if ins and rest:  # one world per aircraft: the 6-DOF one of --imu (its own truth and channel)
+        raise ValueError(f"ins-ekf runs alone in its 6-DOF world; drop {list(rest)} or run another aircraft")
+    return ins, rest
 
 
 def build_parser() -> argparse.ArgumentParser:

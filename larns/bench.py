@@ -14,6 +14,7 @@ BENCHES: list[str] = [
     "larns.bench_net",
     "larns.bench_replay",
     "larns.bench_sync",
+    "larns.bench_ins",
 ]
 
 

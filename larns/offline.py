@@ -402,6 +402,38 @@ def aircraft_nav_sequence(msgs: Sequence[Msg], name: str) -> tuple[list[tuple[Ms
     return seq + rest, f"aircraft up to measurement {k - 1}, then recorder"
 
 
+def _aircraft_world(logs, scenario, name, seed):
+    """(recording metadata, scenario, [aircraft] config, aircraft name, world seed) for a re-flight."""
+    from aircraft.config import from_scenario
+    from net.scenario import load
+
+    md = logs[0].larns_meta if logs else {}
+    scn_name = scenario or md.get("scenario")
+    if not scn_name:
+        raise ValueError("aircraft re-estimation needs the scenario: pass --scenario")
+    scn = load(scn_name)
+    ac = from_scenario(scn)
+    return md, scn, ac, name or ac.name, scn.seed if seed is None else seed
+
+
+def _refly(core, navs, ep: float | None, speed: float) -> tuple[list[Msg], list[tuple[dict, Msg]]]:
+    """Feed the nav broadcasts to an aircraft core: its ``ac_truth`` records and (estimate, record)
+    pairs, stamped like the live process would have published them."""
+    from net import messages as M
+
+    truth: list[Msg] = []
+    flown: list[tuple[dict, Msg]] = []
+    for m, msg, phy in navs:
+        for o in core.on_nav(msg, phy):
+            pub = m.log_time if ep is None else int(round((ep + o["stamp_s"] / speed) * 1e9))
+            rec = Msg(M.key_for(o), m.log_time, pub, o["seq"], M.encode(o))
+            if o["kind"] == "ac_truth":
+                truth.append(rec)
+            else:
+                flown.append((o, rec))
+    return truth, flown
+
+
 def reestimate_aircraft(logs: Sequence[LogFile], msgs: Sequence[Msg], algos: Sequence[str],
                         scenario: str | None = None, name: str | None = None, seed: int | None = None,
                         height_m: float | None = None) -> dict[str, dict]:
@@ -417,19 +449,12 @@ def reestimate_aircraft(logs: Sequence[LogFile], msgs: Sequence[Msg], algos: Seq
     """
     import numpy as np
 
-    from aircraft.config import from_scenario
     from aircraft.node import AircraftCore
     from net import messages as M
-    from net.scenario import load
 
-    md = logs[0].larns_meta if logs else {}
-    scn_name = scenario or md.get("scenario")
-    if not scn_name:
-        raise ValueError("aircraft re-estimation needs the scenario: pass --scenario")
-    scn = load(scn_name)
-    ac = from_scenario(scn)
-    name = name or ac.name
-    seed = scn.seed if seed is None else seed
+    if "ins-ekf" in algos:
+        return reestimate_ins(logs, msgs, scenario, name, seed, height_m)
+    md, scn, ac, name, seed = _aircraft_world(logs, scenario, name, seed)
     horizon = float(md.get("duration_s", 7200.0)) + 10.0
     rng = np.random.default_rng([int(seed), 0xA1C, sum(map(ord, name))])  # as aircraft.node.AircraftNode
     from net.channel import draw_clock, station_rng
@@ -439,19 +464,13 @@ def reestimate_aircraft(logs: Sequence[LogFile], msgs: Sequence[Msg], algos: Seq
     ep = logs[0].epoch_unix_s if logs else None
     speed = logs[0].speed if logs else 1.0
     out: dict[str, dict] = {a: {"estimates": [], "truth": [], "err": []} for a in algos}
-    truth: list[Msg] = []
     navs, order = aircraft_nav_sequence(msgs, name)
-    for m, msg, phy in navs:
-        for o in core.on_nav(msg, phy):
-            pub = m.log_time if ep is None else int(round((ep + o["stamp_s"] / speed) * 1e9))
-            rec = Msg(M.key_for(o), m.log_time, pub, o["seq"], M.encode(o))
-            if o["kind"] == "ac_truth":
-                truth.append(rec)
-            else:
-                d = out[o["algo"]]
-                d["estimates"].append(rec)
-                p_true, _ = core.track.at(o["t_s"])
-                d["err"].append(float(np.linalg.norm(np.asarray(o["pos_m"]) - p_true)))
+    truth, flown = _refly(core, navs, ep, speed)
+    for o, rec in flown:
+        d = out[o["algo"]]
+        d["estimates"].append(rec)
+        p_true, _ = core.track.at(o["t_s"])
+        d["err"].append(float(np.linalg.norm(np.asarray(o["pos_m"]) - p_true)))
     # the recorded estimates of the same algorithms, in order (the aircraft core is deterministic given
     # the world seed and the sequence of broadcasts it measured)
     recorded: dict[str, list[dict]] = {a: [] for a in algos}
@@ -480,6 +499,52 @@ def reestimate_aircraft(logs: Sequence[LogFile], msgs: Sequence[Msg], algos: Seq
                   "recorded": len(recorded[a]), "compared": len(same), "equal": int(sum(same)),
                   "equal_prefix": prefix, "sequence": order, "estimates": d["estimates"], "truth": truth}
     return {name: res}
+
+
+def reestimate_ins(logs: Sequence[LogFile], msgs: Sequence[Msg], scenario: str | None = None,
+                   name: str | None = None, seed: int | None = None, height_m: float | None = None,
+                   imu: str | None = None) -> dict[str, dict]:
+    """Re-fly the inertial aircraft (``ins-ekf``, aircraft/ins_core.py) over the recorded broadcasts.
+
+    The core is rebuilt with the live node's seeds and fed the nav broadcasts it measured, in its
+    order (:func:`aircraft_nav_sequence`); its IMU samples do not depend on the live loop's timing,
+    so the estimates are reproduced bit for bit (``equal == compared``). Same result layout as
+    :func:`reestimate_aircraft`.
+    """
+    import numpy as np
+
+    from aircraft.ins_core import InsAircraftCore
+    from net import messages as M
+
+    md, scn, ac, name, seed = _aircraft_world(logs, scenario, name, seed)
+    rng = np.random.default_rng([int(seed), 0x1A5, sum(map(ord, name))])  # as aircraft.node.AircraftNode
+    recorded = []
+    for m in msgs:
+        if m.encoding == "msgpack" and m.topic == f"larns/aircraft/{name}/estimate/ins-ekf":
+            try:
+                recorded.append(M.decode(m.data)[0])
+            except M.MessageError:
+                continue
+    t0 = float(recorded[0].get("extra", {}).get("t0_s", 0.0)) if recorded else 0.0  # the aircraft's start
+    core = InsAircraftCore(scn, ac, name, rng, imu=imu or ac.imu or "adis16480", height_m=height_m, seed=int(seed),
+                           t0_s=t0)
+    ep = logs[0].epoch_unix_s if logs else None
+    speed = logs[0].speed if logs else 1.0
+    navs, order = aircraft_nav_sequence(msgs, name)
+    truth, flown = _refly(core, navs, ep, speed)
+    est = [rec for _o, rec in flown]
+    err = [float(np.linalg.norm(np.asarray(o["pos_m"]) - core.truth_n(o["t_s"])[0])) for o, _rec in flown]
+    new = [M.decode(x.data)[0] for x in est]
+    keys = ("t_s", "pos_m", "cov_m2", "vel_m_s", "n_updates", "extra")
+    rec_by_n = {y.get("n_updates"): y for y in recorded}
+    same = [all(x.get(k) == rec_by_n[x["n_updates"]].get(k) for k in keys) for x in new if x["n_updates"] in rec_by_n]
+    prefix = same.index(False) if False in same else len(same)
+    e = np.asarray(err)
+    tail = e[len(e) // 10:] if e.size else e
+    return {name: {"ins-ekf": {"n": int(e.size), "final_err_m": float(e[-1]) if e.size else math.nan,
+                               "rms_err_m": float(np.sqrt(np.mean(tail**2))) if tail.size else math.nan,
+                               "recorded": len(recorded), "compared": len(same), "equal": int(sum(same)),
+                               "equal_prefix": prefix, "sequence": order, "estimates": est, "truth": truth}}}
 
 
 def format_result(res: OfflineResult, compare: bool = True) -> str:

@@ -1,0 +1,163 @@
+"""Sans-I/O inertial aircraft for the live process (``--imu PRESET``, algorithm ``ins-ekf``).
+
+World side: the 6-DOF motion (:mod:`aircraft.world.motion`, from the scenario's
+``[aircraft.trajectory]`` in the scenario's physical coordinates), the field geometry, the IMU
+emulator (seeded per aircraft) and the radio channel (reception time from the sender's true position
+and transmit time, pseudorange with the receiver clock and timing noise). Navigator side: one
+:class:`aircraft.navigator.ins_ekf.InsEkf` that sees IMU increments, reception times, pseudoranges and
+the broadcast (estimated) station positions and covariances only.
+
+The IMU runs on its own fixed grid ``k / rate``: :meth:`advance_to` integrates every step up to a time
+(the node calls it continuously with the fleet time, and before each measurement with its reception
+time), so no step is skipped whatever the message timing; ``imu_steps`` counts them.
+
+Determinism (exact offline re-flight, ``larns replay --offline --algo ins-ekf``): the IMU samples are
+emulated in fixed blocks of ``BLOCK`` steps, block ``b`` from its own generator
+``(seed, "imu", aircraft, b)``, so sample ``k`` does not depend on how the node's loop chunked time; the
+channel noise comes from another stream, one draw per measurement. Given the same sequence of nav
+broadcasts (the aircraft's ``ac_truth`` topic identifies it), the estimates are reproduced bit for bit.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from typing import Any
+
+import numpy as np
+
+from nav import errorstate as es
+from nav.geometry import SPEED_OF_LIGHT_M_S
+from nav.rotations import euler_from_dcm
+
+from .ins_sim import emulated_start
+from .navigator.ins_ekf import InsEkf, InsTuning
+from .world import clock as wclock
+from .world.field import Field
+from .world.imu import ImuEmulator, preset
+from .world.motion import Ellipse, Hover, Motion
+
+INS_ALGOS = ("ins-ekf",)
+
+
+def motion_from_config(cfg: dict, height_m: float | None = None) -> Motion:
+    """6-DOF motion from an ``[aircraft.trajectory]`` table (physical coordinates of the scenario)."""
+    kind = cfg.get("kind", "hover")
+    if kind == "ellipse":
+        return Ellipse(tuple(cfg.get("centre_m", (0.0, 0.0))), tuple(cfg["semi_axes_m"]),
+                       float(height_m if height_m is not None else cfg.get("height_m", 1000.0)),
+                       float(cfg.get("speed_m_s", 50.0)), np.radians(float(cfg.get("start_angle_deg", 180.0))),
+                       float(cfg.get("climb_amp_m", 0.0)), float(cfg.get("climb_period_s", 600.0)))
+    if kind == "hover":
+        pt = np.asarray(cfg.get("point_m", (0.0, 0.0, height_m if height_m is not None else 1000.0)), dtype=float)
+        return Hover(pt, np.radians(float(cfg.get("heading_deg", 0.0))))
+    raise ValueError(f"trajectory kind {kind!r} has no 6-DOF model for --imu (ellipse, hover)")
+
+
+class InsAircraftCore:
+    """Pure apart from its own seeded generator: ``advance_to(t)`` and ``on_nav(msg, phy)``.
+
+    ``lag_s``: the node integrates the IMU this far behind fleet time, so that a broadcast delayed by
+    the network (up to ``lag_s``) still falls into an IMU step not yet integrated; later ones are
+    counted (``nav_bad_or_late``) and dropped.
+    """
+
+    lag_s = 0.25
+
+    BLOCK = 100
+
+    def __init__(self, sc, ac, name: str, rng: np.random.Generator, imu: str = "adis16480",
+                 height_m: float | None = None, seed: int | None = None, t0_s: float = 0.0):
+        self.name = name
+        self.ac = ac
+        self.t0_s = float(t0_s)  # fleet time of the aircraft's start (motion time 0, first IMU step)
+        self.field = Field.from_scenario(sc)
+        self.motion = motion_from_config(ac.trajectory, height_m if height_m is not None else ac.height_m)
+        self.preset = preset(imu)
+        self.rng = rng
+        cm = wclock.ClockModel()
+        self.tn = InsTuning.from_preset(self.preset, sigma_range_m=ac.sigma_m, q_b=cm.q_b_m2_s, q_d=cm.q_d_m2_s3,
+                                        p0_clock_m=cm.b0_sigma_m, p0_drift_m_s=cm.d0_sigma_m_s)
+        L = es.ErrorLayout()
+        st = emulated_start(self.field, self.motion, self.tn, L, rng, 1)
+        self.imu = ImuEmulator(self.preset, 1, rng)
+        self._imu_seed = [int(sc.seed if seed is None else seed), 0x1B0, sum(map(ord, name))]
+        self._block_id = -1
+        self._block: tuple[np.ndarray, np.ndarray] | None = None
+        self.ekf = InsEkf(self.tn, L, st.p, st.v, st.C, np.zeros((1, 2)), st.P0, st.tau, st.sign, t0_s=self.t0_s)
+        self.imu_steps = 0
+        self.seq: Counter[str] = Counter()
+        self.stats: Counter[str] = Counter()
+
+    def advance_to(self, t_s: float) -> int:
+        """Integrate every IMU step that ends at or before ``t_s``; returns how many were run."""
+        dt = self.tn.dt_s
+        n = int(np.floor((t_s - self.t0_s) / dt + 1e-9)) - self.imu_steps
+        if n <= 0:
+            return 0
+        for _ in range(n):
+            b, i = divmod(self.imu_steps, self.BLOCK)
+            if b != self._block_id:
+                dth, dv = self.motion.increments(b * self.BLOCK * dt, dt, self.BLOCK)
+                self.imu.rng = np.random.default_rng(self._imu_seed + [b])
+                self._block = self.imu.measure(dth, dv)
+                self._block_id = b
+            g, a = self._block
+            self.ekf.imu(g[i], a[i])
+            self.ekf.maybe_propagate()
+            self.imu_steps += 1
+        return n
+
+    def truth_n(self, t_s: float):
+        p, v, C = self.field.truth(self.motion, np.array([t_s - self.t0_s]))
+        return p[0], v[0], C[0]
+
+    def measure(self, phy: dict) -> tuple[float, float]:
+        """Channel layer: true reception time and pseudorange (receiver clock of the scenario)."""
+        p_tx = np.asarray(phy["pos_m"], float)
+        t_tx = float(phy["t_true_s"])
+        t_rx = t_tx
+        for _ in range(2):
+            p, _, _ = self.truth_n(t_rx)
+            t_rx = t_tx + float(np.linalg.norm(p - p_tx)) / SPEED_OF_LIGHT_M_S
+        p, _, _ = self.truth_n(t_rx)
+        rho = float(np.linalg.norm(p - p_tx)) + float(self.ac.clock.bias_m(t_rx)) \
+            + self.ac.sigma_m * float(self.rng.standard_normal())
+        return t_rx, rho
+
+    def on_nav(self, msg: dict, phy: dict) -> list[dict]:
+        """One nav broadcast -> the ``ac_estimate`` of ``ins-ekf`` (with attitude in ``extra``)."""
+        if msg.get("state") not in ("frame", "surveying"):
+            self.stats["nav_unusable_state"] += 1
+            return []
+        t_rx, rho = self.measure(phy)
+        s = np.asarray(msg["pos_m"], dtype=float)
+        if not (np.all(np.isfinite(s)) and np.isfinite(t_rx) and np.isfinite(rho)) or t_rx < self.ekf.t_s - self.tn.dt_s:
+            self.stats["nav_bad_or_late"] += 1
+            return []
+        self.advance_to(t_rx + self.tn.dt_s)  # the step that contains t_rx
+        if self.ekf.t_s < t_rx:
+            self.advance_to(self.ekf.t_s + self.tn.dt_s)
+        d = self.ekf.position_at(t_rx)[0] - s
+        u = d / np.linalg.norm(d)
+        cov = np.asarray(msg.get("cov_m2", np.zeros((3, 3))), dtype=float)
+        var = self.tn.sigma_range_m**2 + float(u @ cov @ u)
+        self.ekf.pseudorange(t_rx, s, np.array([rho]), var)
+        self.stats["measurements"] += 1
+        pt, vt, _ = self.truth_n(t_rx)
+        self.seq["ac_truth"] += 1
+        truth = {"kind": "ac_truth", "src": self.name, "seq": self.seq["ac_truth"], "stamp_s": t_rx, "t_s": t_rx,
+                 "pos_m": pt.tolist(), "vel_m_s": vt.tolist()}
+        return [truth, self.estimate_msg()]
+
+    def estimate_msg(self) -> dict[str, Any]:
+        e = self.ekf
+        roll, pitch, yaw = euler_from_dcm(e.C[0])
+        extra = {"roll_rad": float(roll), "pitch_rad": float(pitch), "yaw_rad": float(yaw),
+                 "clock_m": float(e.clk[0, 0]), "imu_steps": float(self.imu_steps), "t0_s": self.t0_s}
+        if e.L.tilt:
+            extra.update(tilt_1=float(e.tau[0, 0]), tilt_2=float(e.tau[0, 1]))
+        self.seq["ac_estimate"] += 1
+        return {"kind": "ac_estimate", "src": self.name, "seq": self.seq["ac_estimate"], "stamp_s": float(e.t_s),
+                "t_s": float(e.t_s), "pos_m": e.p[0].tolist(), "cov_m2": e.P[0, :3, :3].tolist(),
+                "vel_m_s": e.v[0].tolist(), "vel_cov": e.P[0, 3:6, 3:6].tolist(), "algo": "ins-ekf",
+                "n_updates": int(e.n_updates), "extra": extra}
