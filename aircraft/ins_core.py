@@ -30,6 +30,7 @@ from nav.geometry import SPEED_OF_LIGHT_M_S
 from nav.rotations import euler_from_dcm
 
 from .ins_sim import emulated_start
+from .models import broadcast_clock_var_m2, broadcast_time_error_s
 from .navigator.ins_ekf import InsEkf, InsTuning
 from .world import clock as wclock
 from .world.field import Field
@@ -66,8 +67,9 @@ class InsAircraftCore:
     BLOCK = 100
 
     def __init__(self, sc, ac, name: str, rng: np.random.Generator, imu: str = "adis16480",
-                 height_m: float | None = None, seed: int | None = None, t0_s: float = 0.0):
+                 height_m: float | None = None, seed: int | None = None, t0_s: float = 0.0, net_clock=None):
         self.name = name
+        self.net_clock = net_clock  # station 1's oscillator: network time (None: perfect clocks)
         self.ac = ac
         self.t0_s = float(t0_s)  # fleet time of the aircraft's start (motion time 0, first IMU step)
         self.field = Field.from_scenario(sc)
@@ -111,8 +113,10 @@ class InsAircraftCore:
         p, v, C = self.field.truth(self.motion, np.array([t_s - self.t0_s]))
         return p[0], v[0], C[0]
 
-    def measure(self, phy: dict) -> tuple[float, float]:
-        """Channel layer: true reception time and pseudorange (receiver clock of the scenario)."""
+    def measure(self, phy: dict, msg: dict | None = None) -> tuple[float, float]:
+        """Channel layer: true reception time and pseudorange from the station-stamped transmit time
+        corrected by the broadcast clock correction (:func:`aircraft.models.broadcast_time_error_s`),
+        read on the receiver clock of the scenario."""
         p_tx = np.asarray(phy["pos_m"], float)
         t_tx = float(phy["t_true_s"])
         t_rx = t_tx
@@ -120,7 +124,9 @@ class InsAircraftCore:
             p, _, _ = self.truth_n(t_rx)
             t_rx = t_tx + float(np.linalg.norm(p - p_tx)) / SPEED_OF_LIGHT_M_S
         p, _, _ = self.truth_n(t_rx)
-        rho = float(np.linalg.norm(p - p_tx)) + float(self.ac.clock.bias_m(t_rx)) \
+        rho = float(np.linalg.norm(p - p_tx)) \
+            + SPEED_OF_LIGHT_M_S * broadcast_time_error_s(msg, t_tx, t_rx, self.net_clock) \
+            + float(self.ac.clock.bias_m(t_rx)) \
             + self.ac.sigma_m * float(self.rng.standard_normal())
         return t_rx, rho
 
@@ -129,7 +135,7 @@ class InsAircraftCore:
         if msg.get("state") not in ("frame", "surveying"):
             self.stats["nav_unusable_state"] += 1
             return []
-        t_rx, rho = self.measure(phy)
+        t_rx, rho = self.measure(phy, msg)
         s = np.asarray(msg["pos_m"], dtype=float)
         if not (np.all(np.isfinite(s)) and np.isfinite(t_rx) and np.isfinite(rho)) or t_rx < self.ekf.t_s - self.tn.dt_s:
             self.stats["nav_bad_or_late"] += 1
@@ -140,7 +146,7 @@ class InsAircraftCore:
         d = self.ekf.position_at(t_rx)[0] - s
         u = d / np.linalg.norm(d)
         cov = np.asarray(msg.get("cov_m2", np.zeros((3, 3))), dtype=float)
-        var = self.tn.sigma_range_m**2 + float(u @ cov @ u)
+        var = self.tn.sigma_range_m**2 + float(u @ cov @ u) + broadcast_clock_var_m2(msg)
         self.ekf.pseudorange(t_rx, s, np.array([rho]), var)
         self.stats["measurements"] += 1
         pt, vt, _ = self.truth_n(t_rx)

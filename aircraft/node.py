@@ -38,6 +38,8 @@ import numpy as np
 
 from nav.geometry import SPEED_OF_LIGHT_M_S
 
+from .models import broadcast_clock_var_m2, broadcast_time_error_s
+
 
 log = logging.getLogger("larns.aircraft")
 
@@ -102,14 +104,7 @@ class AircraftCore:
         t_rx = t_tx + np.linalg.norm(p - p_tx) / SPEED_OF_LIGHT_M_S
         p, _ = self.track.at(t_rx)  # one fixed-point step is exact to micrometres at aircraft speeds
         r = float(np.linalg.norm(p - p_tx))
-        # time terms as small differences (float resolution): network time minus true time at
-        # reception, station stamp minus true time at transmission, the broadcast offset
-        dt_s = self.net_clock.error_s(t_rx) if self.net_clock is not None else 0.0
-        if msg is not None and "t_tx_s" in msg:
-            dt_s -= float(msg["t_tx_s"]) - t_tx
-            corr = msg.get("clock")
-            if corr is not None:
-                dt_s += corr[1] + corr[2] * (float(msg["t_tx_s"]) - corr[0])
+        dt_s = broadcast_time_error_s(msg, t_tx, t_rx, self.net_clock)
         rho = r + SPEED_OF_LIGHT_M_S * dt_s + float(self.ac.clock.bias_m(t_rx)) \
             + self.ac.sigma_m * float(self.rng.standard_normal())
         return t_rx, rho, p
@@ -117,11 +112,7 @@ class AircraftCore:
     @staticmethod
     def clock_var_m2(msg: dict) -> float:
         """Broadcast clock variance at the transmit time as a range variance, m^2."""
-        corr = msg.get("clock")
-        if corr is None:
-            return 0.0
-        dt = float(msg["t_tx_s"]) - corr[0]
-        return SPEED_OF_LIGHT_M_S**2 * max(corr[3] + 2 * dt * corr[4] + dt * dt * corr[5], 0.0)
+        return broadcast_clock_var_m2(msg)
 
     def on_nav(self, msg: dict, phy: dict) -> list[dict]:
         """One station nav broadcast -> ``ac_truth`` + one ``ac_estimate`` per algorithm that has one."""
@@ -187,7 +178,8 @@ class AircraftNode:
 
             self.ins = InsAircraftCore(scn, self.ac, opts.name, np.random.default_rng([int(seed), 0x1A5,
                                        sum(map(ord, opts.name))]), imu=opts.imu, height_m=opts.height_m,
-                                       seed=int(seed), t0_s=max(0.0, math.floor(self.fleet_now())))
+                                       seed=int(seed), t0_s=max(0.0, math.floor(self.fleet_now())),
+                                       net_clock=net_clock)
             self.ins.seq = self.core.seq  # one sequence per (aircraft, kind)
         self.drops = M.DropCounter(f"aircraft {opts.name}")
         self._inbox: queue.SimpleQueue = queue.SimpleQueue()

@@ -526,8 +526,11 @@ def reestimate_ins(logs: Sequence[LogFile], msgs: Sequence[Msg], scenario: str |
             except M.MessageError:
                 continue
     t0 = float(recorded[0].get("extra", {}).get("t0_s", 0.0)) if recorded else 0.0  # the aircraft's start
+    from net.channel import draw_clock, station_rng
+
+    net_clock = None if scn.clock.perfect else draw_clock(scn.clock, station_rng(seed, scn.ids[0], 0))
     core = InsAircraftCore(scn, ac, name, rng, imu=imu or ac.imu or "adis16480", height_m=height_m, seed=int(seed),
-                           t0_s=t0)
+                           t0_s=t0, net_clock=net_clock)
     ep = logs[0].epoch_unix_s if logs else None
     speed = logs[0].speed if logs else 1.0
     navs, order = aircraft_nav_sequence(msgs, name)
