@@ -156,6 +156,10 @@ class AircraftNode:
         self._inbox: queue.SimpleQueue = queue.SimpleQueue()
         self._stop = threading.Event()
         self._last_status = -math.inf
+        # (key, bytes) -> (msg, phy); --secure: rate limit, signature, replay first (net/security.py)
+        sec = getattr(bus, "security", None)
+        self._decode = (lambda key, data: M.decode(data)) if sec is None else \
+            sec.aircraft_guard(scn.tdma.cycle_s, self.fleet_now).decode
 
     def fleet_now(self) -> float:
         return (time.time() - self.epoch) * self.opts.speed
@@ -169,7 +173,7 @@ class AircraftNode:
     def _ingest(self, key: str, data: bytes) -> None:
         M = self.M
         try:
-            msg, phy = M.decode(data)
+            msg, phy = self._decode(key, data)
         except M.MessageError as e:
             self.drops.drop_error(e)
             return
@@ -279,7 +283,14 @@ def main_args(args: argparse.Namespace) -> int:
     opts = AircraftOptions(name=args.name or ac.name, algos=tuple(args.algo or ac.algos), speed=args.speed,
                            epoch_unix_s=args.epoch, duration_s=args.duration, seed=args.seed,
                            height_m=args.height, status_every_s=args.status_every, quiet=args.quiet)
-    bus = Bus(**bus_kwargs(args))
+    args.secure_cn = f"aircraft-{opts.name}"
+    try:
+        bus = Bus(**bus_kwargs(args))
+    except Exception as e:  # net.security.KeystoreError: credentials that cannot be loaded
+        if type(e).__name__ != "KeystoreError":
+            raise
+        print(f"aircraft {opts.name}: --secure: {e}", file=sys.stderr)
+        return 2
     try:
         node = AircraftNode(scn, opts, bus)
         signal.signal(signal.SIGINT, node.stop)

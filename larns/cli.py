@@ -28,6 +28,7 @@ COMMANDS: list[str] = [
     "larns.foxglove",
     "larns.report",
     "larns.aircraft_cmd",
+    "larns.keys",
 ]
 
 
