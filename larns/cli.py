@@ -29,6 +29,7 @@ COMMANDS: list[str] = [
     "larns.report",
     "larns.aircraft_cmd",
     "larns.keys",
+    "larns.attack",
 ]
 
 

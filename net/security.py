@@ -261,6 +261,14 @@ def secure_endpoint(ep: str) -> str:
 
 # --------------------------------------------------------------------------- flood guard (Zenoh)
 
+def rate_limits_on() -> bool:
+    """``LARNS_RATE_LIMITS=off`` switches the flood guard and the per-source budgets off (tests
+    that must see every hostile payload reach the decoder; debugging). On by default."""
+    import os
+
+    return os.environ.get("LARNS_RATE_LIMITS", "on").lower() not in ("off", "0", "no", "false")
+
+
 def flood_guard(cycle_s: float, slot_s: float, speed: float = 1.0) -> list[dict]:
     """Zenoh ``downsampling`` for a peer's or the router's ingress. Zenoh keeps one state per rule
     *and per link*, and peers link directly to each other (a client only to its router), so on a
@@ -270,6 +278,8 @@ def flood_guard(cycle_s: float, slot_s: float, speed: float = 1.0) -> list[dict]
     everyone's traffic (the router caps it per client). The journal (``.../input``, sent in bursts
     of chunks) and the aircraft's keys are not capped here (the receivers' :class:`RateLimiter`
     counts them)."""
+    if not rate_limits_on():
+        return []
     per_cycle = 4.0 * speed / cycle_s       # Hz, wall: 4 per cycle
     per_slot = 2.0 * speed / slot_s         # Hz, wall: 2 per slot
     rules = [{"key_expr": f"larns/station/*/{k}", "freq": per_cycle}
@@ -520,7 +530,8 @@ class Security:
     def guard(self, now_s: Callable[[], float], rate_per_s: float | None, burst: float,
               window_s: float | None) -> ReceiveGuard:
         """A receive guard; ``now_s`` is the receiver's fleet clock (stamps are fleet seconds)."""
-        return ReceiveGuard(self.verifier, RateLimiter(rate_per_s, burst) if rate_per_s else None,
+        on = rate_limits_on()
+        return ReceiveGuard(self.verifier, RateLimiter(rate_per_s, burst) if rate_per_s and on else None,
                             ReplayGuard(window_s) if window_s else None, now_s)
 
     def station_guard(self, cycle_s: float, now_s: Callable[[], float]) -> ReceiveGuard:
