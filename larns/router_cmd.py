@@ -73,13 +73,20 @@ def cmd_router(args: argparse.Namespace) -> int:
     secure = None
     if args.secure:
         from net import scenario as S
-        from net.security import flood_guard
+        from net.security import Keystore, KeystoreError, flood_guard
 
         if args.secure == "auto":
             print("[router] --secure needs a keystore DIR (larns keys init DIR)", file=sys.stderr)
             return 2
         tdma = S.load(args.scenario).tdma  # the flood guard's budget: the fleet's TDMA
-        secure = (args.secure, "router", flood_guard(tdma.cycle_s, tdma.slot_s, args.speed))
+        try:
+            ks = Keystore(args.secure)
+        except KeystoreError as e:
+            print(f"[router] --secure: {e}", file=sys.stderr)
+            return 2
+        issued = sorted(e["id"] for e in ks.enclaves.values() if e.get("role") == "station")
+        secure = (args.secure, "router", flood_guard(tdma.cycle_s, tdma.slot_s, args.speed, ks.reserved,
+                                                     None, issued))
     default = "tls/127.0.0.1:7447" if secure else "tcp/127.0.0.1:7447"
     return run_router(args.listen or [default], args.connect or [], args.zenoh_config,
                       args.duration, args.quiet, args.nice, args.slice_us, secure)

@@ -269,22 +269,44 @@ def rate_limits_on() -> bool:
     return os.environ.get("LARNS_RATE_LIMITS", "on").lower() not in ("off", "0", "no", "false")
 
 
-def flood_guard(cycle_s: float, slot_s: float, speed: float = 1.0) -> list[dict]:
+def flood_guard(cycle_s: float, slot_s: float, speed: float = 1.0, ids=(), me: int | None = None,
+                pair_ids=()) -> list[dict]:
     """Zenoh ``downsampling`` for a peer's or the router's ingress. Zenoh keeps one state per rule
     *and per link*, and peers link directly to each other (a client only to its router), so on a
     peer and on the router each rule caps one remote process. A LARNS station sends each of these
     keys at most once per cycle (a reply once per requesting slot); the caps leave 4x headroom and
     drop the rest in Rust, before any Python runs. Not for clients: their one link carries
-    everyone's traffic (the router caps it per client). The journal (``.../input``, sent in bursts
-    of chunks) and the aircraft's keys are not capped here (the receivers' :class:`RateLimiter`
-    counts them)."""
+    everyone's traffic (the router caps it per client).
+
+    The installed Zenoh (1.10) matches a rule only on its exact key (a rule with a ``*`` inside
+    did not match our keys in our experiment), so the rules are spelled out for each station id in
+    ``ids``: a station ``me`` caps what it subscribes to (nav, requests and replies addressed to it);
+    the router (``me`` None) caps every id's nav, estimate, truth and init, and the requests and
+    replies between the ids in ``pair_ids``. The journal (``.../input``, sent in bursts of chunks)
+    and the aircraft's keys are not capped here (the receivers' :class:`RateLimiter` counts them)."""
     if not rate_limits_on():
         return []
     per_cycle = 4.0 * speed / cycle_s       # Hz, wall: 4 per cycle
     per_slot = 2.0 * speed / slot_s         # Hz, wall: 2 per slot
-    rules = [{"key_expr": f"larns/station/*/{k}", "freq": per_cycle}
-             for k in ("nav", "range/req/*", "estimate", "truth", "init")]
-    rules.append({"key_expr": "larns/station/*/range/rsp/*", "freq": per_slot})
+    rules: list[dict] = []
+    for k in ids:
+        if me is not None:
+            if k == me:
+                continue
+            rules += [{"key_expr": f"larns/station/{k}/nav", "freq": per_cycle},
+                      {"key_expr": f"larns/station/{k}/range/req/{me}", "freq": per_cycle},
+                      {"key_expr": f"larns/station/{k}/range/rsp/{me}", "freq": per_cycle}]
+        else:
+            rules += [{"key_expr": f"larns/station/{k}/{x}", "freq": per_cycle}
+                      for x in ("nav", "estimate", "truth", "init")]
+    if me is None:
+        for k in pair_ids:
+            for j in pair_ids:
+                if j != k:
+                    rules += [{"key_expr": f"larns/station/{k}/range/req/{j}", "freq": per_cycle},
+                              {"key_expr": f"larns/station/{k}/range/rsp/{j}", "freq": per_slot}]
+    if not rules:
+        return []
     return [{"id": "larns-flood-guard", "flows": ["ingress"], "messages": ["put"], "rules": rules}]
 
 

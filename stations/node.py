@@ -627,12 +627,13 @@ def main_args(args: argparse.Namespace) -> int:
 def _secure_bus(Bus, bus_kwargs, args: argparse.Namespace, scn: Scenario):
     """The station's bus; with ``--secure`` its credentials (exit 2 with the reason if they cannot
     be loaded) and the Zenoh ingress flood guard for this scenario's TDMA (net/security.py)."""
-    from net.security import KeystoreError, flood_guard
+    from net.security import Keystore, KeystoreError, flood_guard
 
-    kw = bus_kwargs(args)
-    if "secure" in kw:
-        kw["secure"] = (*kw["secure"], flood_guard(scn.tdma.cycle_s, scn.tdma.slot_s, args.speed))
     try:
+        kw = bus_kwargs(args)
+        if "secure" in kw:
+            ids = sorted(set(Keystore(kw["secure"][0]).reserved) | set(scn.ids))
+            kw["secure"] = (*kw["secure"], flood_guard(scn.tdma.cycle_s, scn.tdma.slot_s, args.speed, ids, args.id))
         return Bus(**kw)
     except KeystoreError as e:
         print(f"station {args.id}: --secure: {e}", file=sys.stderr)

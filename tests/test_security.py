@@ -173,3 +173,130 @@ def test_signature_cost_is_measured(ks):
     t_sign = min(timeit.repeat(lambda: s.seal("larns/station/3/nav", env), number=200, repeat=3)) / 200
     t_ver = min(timeit.repeat(lambda: v.open("larns/station/3/nav", fr), number=200, repeat=3)) / 200
     assert t_sign < 5e-3 and t_ver < 5e-3, (t_sign, t_ver)
+
+
+# --------------------------------------------------------------------------- real processes
+
+PY = sys.executable
+
+
+def _station(ks, sid, ports, epoch, duration, seeds, env=None, extra=()):
+    cmd = [PY, "-m", "larns", "station", "--id", str(sid), "--scenario", "seed000", "--epoch", repr(epoch),
+           "--duration", repr(duration), "--quiet", "--report-json", "--secure", str(ks),
+           "--listen", f"tcp/127.0.0.1:{ports[sid]}", *extra]
+    for s in seeds:
+        if s != sid:
+            cmd += ["--connect", f"tcp/127.0.0.1:{ports[s]}"]
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, **(env or {})})
+
+
+def _attack(ks, name, ports, seeds, *args, epoch=None):
+    cmd = [PY, "-m", "larns", "attack", name, "--link-wait", "8", *args]
+    if ks:
+        cmd += ["--secure", str(ks)]
+    if epoch is not None:
+        cmd += ["--epoch", repr(epoch)]
+    for s in seeds:
+        cmd += ["--connect", f"tcp/127.0.0.1:{ports[s]}" if name == "nocred" else f"tls/127.0.0.1:{ports[s]}"]
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _report(p, timeout=90) -> dict:
+    out, err = p.communicate(timeout=timeout)
+    assert p.returncode == 0, err[-2000:]
+    assert "Traceback" not in err, err[-2000:]
+    return json.loads(out.strip().splitlines()[-1])
+
+
+_WATCH = """
+import json, sys, time
+from net.bus import Bus
+from net import messages as M
+b = Bus(listen=["tls/127.0.0.1:0"], connect=sys.argv[3:], secure=(sys.argv[1], "monitor"))
+seqs = []
+b.subscribe("larns/station/5/nav", lambda k, d: seqs.append(M.decode(d)[0]["seq"]))
+time.sleep(float(sys.argv[2]))
+print(json.dumps({"navs": len(seqs), "forged": sum(1 for s in seqs if s >= 10**6)}))
+b.close()
+"""
+
+
+@pytest.mark.e2e
+@pytest.mark.timeout(180)
+def test_adversaries_against_secure_stations(ks):
+    """Four secure stations (1, 2, 3, 5) for 22 s with three attackers: no credentials, station 3's
+    credentials forging station 5 (its key, its own key, unsigned, bad signature), and station 5's
+    stolen key replaying 5's navs. A watcher with the monitor's credentials sees only genuine navs on
+    larns/station/5/nav; the stations count every attack by reason; nothing crashes."""
+    ids = [1, 2, 3, 5]
+    ports = dict(zip(ids, free_tcp_ports(len(ids))))
+    epoch = time.time() + 6.0
+    dur = 22.0
+    procs = {s: _station(ks, s, ports, epoch, dur, [1, 2]) for s in ids}
+    watch = subprocess.Popen([PY, "-c", _WATCH, str(ks), str(dur + 4), *[f"tls/127.0.0.1:{ports[s]}" for s in ids]],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    time.sleep(8.0)
+    atk = [_attack(None, "nocred", ports, [1, 5], "--duration", "3"),
+           _attack(ks, "forge", ports, [1, 2, 5], "--as", "3", "--victim", "5", "--duration", "10",
+                   epoch=epoch),
+           _attack(ks, "replay", ports, [1, 2], "--as", "5", "--delay", "1", "--duration", "10", epoch=epoch)]
+    res = [_report(a) for a in atk]
+    reps = {s: _report(p) for s, p in procs.items()}
+    w = _report(watch)
+    assert res[0]["tcp"]["links"] == 0 and res[0]["tls"]["links"] == 0        # no credentials: no link
+    assert res[1]["sent"]["victim_key"] > 10 and res[2]["sent"] > 3
+    assert w["navs"] >= 10 and w["forged"] == 0                              # 3 cannot speak as 5
+    for s in (1, 2, 5):
+        r = reps[s]["drops"]["by_reason"]
+        assert r.get("unsigned", 0) > 0 and r.get("bad_signature", 0) > 0, (s, r)
+        assert r.get("signer_mismatch", 0) > 0, (s, r)
+        assert r.get("replayed", 0) + r.get("stale", 0) > 0, (s, r)
+    for s in (2, 3, 5):  # (station 1 is the origin: no updates)
+        assert reps[s]["n_updates"] > 5, reps[s]
+        assert reps[s]["err_m"] < 20.0, reps[s]   # the forged navs (30 m shift) never reached a core
+
+
+@pytest.mark.e2e
+@pytest.mark.timeout(180)
+def test_fuzz_from_credentialed_process_all_counted(ks):
+    """10,000 malformed payloads, each validly signed by station 3, at station 5 with its budgets
+    off (LARNS_RATE_LIMITS=off, so that every payload reaches the decoder): the station survives
+    and counts every one by reason."""
+    ports = dict(zip([3, 5], free_tcp_ports(2)))
+    epoch = time.time() + 3.0
+    st = _station(ks, 5, ports, epoch, 40.0, [], env={"LARNS_RATE_LIMITS": "off"})
+    time.sleep(3.0)
+    a = _attack(ks, "fuzz", ports, [5], "--as", "3", "--count", "10000", "--period", "0", "--duration", "60")
+    res = _report(a, timeout=120)
+    time.sleep(8.0)  # the station reads navs in one batch per cycle: let it work through the backlog
+    st.send_signal(signal.SIGINT)
+    rep = _report(st)
+    assert res["sent"] == 10000
+    # every payload counted (seen: 10,000-10,002; the one or two extra drops are not explained yet)
+    assert 10000 <= rep["drops"]["total"] <= 10005, rep["drops"]
+    assert len(rep["drops"]["by_reason"]) >= 4, rep["drops"]
+
+
+@pytest.mark.e2e
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_flood_from_station_9_leaves_other_slots_intact(ks):
+    """Stations 1-5 and 9 for 40 s; from 10 s to 30 s a second process with station 9's credentials
+    floods navs and range requests at 20,000 msg/s. Every other station completes >= 95 % of its
+    own exchanges (replies received / own slots after start-up) and counts the excess as ``rate``."""
+    ids = [1, 2, 3, 4, 5, 9]
+    ports = dict(zip(ids, free_tcp_ports(len(ids))))
+    epoch = time.time() + 6.0
+    procs = {s: _station(ks, s, ports, epoch, 40.0, [1, 2]) for s in ids}
+    time.sleep(6.0 + 10.0)
+    a = _attack(ks, "flood", ports, ids, "--as", "9", "--rate", "20000", "--duration", "20",
+                "--victims", "1,2,3,4,5")
+    res = _report(a, timeout=120)
+    reps = {s: _report(p) for s, p in procs.items()}
+    assert res["rate_per_s"] >= 15000, res
+    for s in (1, 2, 3, 4, 5):
+        r = reps[s]
+        done = r["rx"].get("range_rsp", 0) / max(1, r["slots"] - 2)
+        assert done >= 0.95, (s, r)
+        assert r["drops"]["by_reason"].get("rate", 0) > 0, (s, r["drops"])
