@@ -300,3 +300,30 @@ def test_flood_from_station_9_leaves_other_slots_intact(ks):
         done = r["rx"].get("range_rsp", 0) / max(1, r["slots"] - 2)
         assert done >= 0.95, (s, r)
         assert r["drops"]["by_reason"].get("rate", 0) > 0, (s, r["drops"])
+
+
+def test_recording_keeps_signatures_and_replay_verifies(ks, tmp_path):
+    """The recorder keeps signed frames as they are; `larns replay --secure DIR` checks them
+    (exit 1 and counts by reason when one was tampered with or unsigned)."""
+    from larns.keys import verify_recording
+    from larns.record import McapSink
+
+    s3 = S.Security(ks, "station-3")
+    key = "larns/station/3/nav"
+    sink = McapSink(tmp_path / "r.mcap", epoch_unix_s=0.0, foxglove=False)
+    good = [s3.seal(key, M.encode(_nav(3, i, float(i)), {"pos_m": [0.0, 0.0, 0.0], "t_true_s": float(i)}))
+            for i in range(1, 6)]
+    for i, f in enumerate(good):
+        sink.write(key, f, i * 1000)
+    bad = bytearray(good[0])
+    bad[-3] ^= 0x40
+    sink.write(key, bytes(bad), 9000)
+    sink.write(key, M.encode(_nav(3, 9, 9.0)), 9500)
+    sink.write("larns/station/5/nav", good[1], 9900)      # moved to another key
+    sink.finish()
+    res = verify_recording(S.Keystore(ks), [tmp_path / "r.mcap"])
+    assert res["checked"] == 8 and res["by_signer"] == {"station-3": 5}
+    assert res["by_reason"] == {"bad_signature": 1, "unsigned": 1, "signer_mismatch": 1}
+    p = subprocess.run([PY, "-m", "larns", "replay", "--secure", str(ks), str(tmp_path / "r.mcap")],
+                       capture_output=True, text=True, timeout=60)
+    assert p.returncode == 1 and '"valid": 5' in p.stdout, p.stderr
