@@ -82,9 +82,9 @@ def attack_nocred(args) -> dict:
         eps = [proto + e[3:] for e in (args.connect or [])]
         from net.bus import Bus
 
-        # (no certificate: it can only listen on tcp; it dials the victims over tcp and over tls)
-        b = Bus(listen=[], connect=eps, mode="client") if args.zenoh_mode == "client" \
-            else Bus(listen=["tcp/127.0.0.1:0"], connect=eps)
+        # (no certificate: it can only listen on tcp; it dials the victims over tcp and over tls, as
+        # a peer: a client would block in open until a router accepts it, i.e. forever)
+        b = Bus(listen=["tcp/127.0.0.1:0"], connect=eps)
         linked = _wait_linked(b, args.link_wait)
         sent = 0
         for i in range(50):

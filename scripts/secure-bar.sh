@@ -31,7 +31,7 @@ for run in clean attacked; do
   [ "$run" = attacked ] && wait "$APID" || true
   kill -INT "$RPID" 2>/dev/null || true; wait "$RPID" 2>/dev/null || true
   "$L" report "$OUT/$run.mcap" -o "$OUT/$run.report" > "$OUT/$run.report.txt" 2>&1 || true
-  echo "== $run: $(grep -m1 'final mean horizontal' "$OUT/$run.report.txt" || echo 'no report line')"
+  echo "== $run: $(grep -h -m2 "horizontal" "$OUT/$run.report/report.md" | tr "\n" " " || echo "no report")"
   grep -h "stopped:" "$OUT/$run.mcap.logs"/station_*.log | sed 's/^/   /' || true
 done
 echo "== attacks sent:"; cat "$OUT/attack.jsonl" 2>/dev/null || true
