@@ -319,9 +319,3 @@ def register(sub) -> None:
     p.add_argument("--link-wait", type=float, default=5.0, help="seconds to wait for a link")
     p.set_defaults(func=cmd_attack)
 
-
-if __name__ == "__main__":
-    ap = argparse.ArgumentParser(prog="python -m larns.attack")
-    register(ap.add_subparsers(dest="cmd", required=True))
-    a = ap.parse_args(["attack", *sys.argv[1:]])
-    sys.exit(a.func(a))

@@ -152,6 +152,10 @@ def test_receive_guard_replay_stale_rate(ks):
         except M.MessageError as e:
             out.append(e.reason)
     assert out[:8] == ["unsigned"] * 8 and out[8:] == ["rate"] * 4
+    # its own samples (local delivery, however late) are decoded, never counted
+    s5 = S.Security(ks, "station-5")
+    own = s5.seal("larns/station/5/nav", M.encode(_nav(5, 1, 1.0), {"pos_m": [0.0, 0.0, 0.0], "t_true_s": 1.0}))
+    assert rx.decode("larns/station/5/nav", own)[0]["src"] == 5
 
 
 def test_rate_limiter_refills():
