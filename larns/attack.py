@@ -277,6 +277,8 @@ def attack_all(args) -> list[dict]:
             a.period = a.duration / max(1, a.count)
         if name == "replay":
             a.as_id = args.victim
+        if name == "nocred":
+            a.link_wait = min(args.link_wait, 2.0)
         r = ATTACKS[name](a)
         print(json.dumps(r), flush=True)
         out.append(r)
