@@ -203,7 +203,8 @@ def fleet(larns_image, tmp_path_factory) -> FleetRun:
               f"all stations running after {start - t0:.1f} s", file=sys.stderr)
         at = lambda dt_fleet: start + dt_fleet / SPEED  # noqa: E731  fleet seconds after start -> wall
 
-        _sleep_until(at(T_JOIN - 5.0))   # the hot-joiner's credentials first (secure by default)
+        # the hot-joiner's credentials, issued while the fleet runs (secure by default): first thing,
+        # so that a slow `compose run` on a loaded machine does not shift the timeline
         run.keys_add = dc("run", "--rm", "keys", "add", "/keys", "--station", str(JOINER)).stdout
         _sleep_until(at(T_JOIN))
         run.events["join"] = time.time()
