@@ -484,6 +484,7 @@ class RateLimiter:
         return True
 
 
+STALE_S = 60.0  # fleet seconds: a stamp further than this from the receiver's clock is stale
 RECORDER_BUDGET = (200.0, 400.0)  # per source: messages per wall second, burst
 
 
@@ -562,9 +563,12 @@ class Security:
 
     def station_guard(self, cycle_s: float, now_s: Callable[[], float]) -> ReceiveGuard:
         """A station hears from each peer at most a nav, a request and a reply per cycle: budget 4
-        per cycle, burst 8; stamps older or newer than 3 cycles (at least 2 s) are stale."""
-        return self.guard(now_s, 4.0 / cycle_s, 8.0, max(2.0, 3.0 * cycle_s))
+        per cycle, burst 8; stamps more than :data:`STALE_S` (or 20 cycles) away from our fleet
+        clock are stale. The window is wide on purpose: replays inside it are caught by the
+        ``(stamp, seq)`` order, and a nav delivered seconds late on a loaded machine (speed 5: a
+        second of wall time is 5 fleet seconds) is still one the core would use."""
+        return self.guard(now_s, 4.0 / cycle_s, 8.0, max(STALE_S, 20.0 * cycle_s))
 
     def aircraft_guard(self, cycle_s: float, now_s: Callable[[], float]) -> ReceiveGuard:
         """The aircraft hears one nav per station and cycle: budget 2 per cycle, burst 4."""
-        return self.guard(now_s, 2.0 / cycle_s, 4.0, max(2.0, 3.0 * cycle_s))
+        return self.guard(now_s, 2.0 / cycle_s, 4.0, max(STALE_S, 20.0 * cycle_s))
