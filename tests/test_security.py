@@ -255,7 +255,8 @@ def test_adversaries_against_secure_stations(ks):
         r = reps[s]["drops"]["by_reason"]
         assert r.get("unsigned", 0) > 0 and r.get("bad_signature", 0) > 0, (s, r)
         assert r.get("signer_mismatch", 0) > 0, (s, r)
-        assert r.get("replayed", 0) + r.get("stale", 0) > 0, (s, r)
+        if s != 5:  # (station 5 ignores samples of its own, replayed or not)
+            assert r.get("replayed", 0) + r.get("stale", 0) > 0, (s, r)
     for s in (2, 3, 5):  # (station 1 is the origin: no updates)
         assert reps[s]["n_updates"] > 5, reps[s]
         assert reps[s]["err_m"] < 20.0, reps[s]   # the forged navs (30 m shift) never reached a core
@@ -277,8 +278,10 @@ def test_fuzz_from_credentialed_process_all_counted(ks):
     st.send_signal(signal.SIGINT)
     rep = _report(st)
     assert res["sent"] == 10000
-    # every payload counted (seen: 10,000-10,002; the one or two extra drops are not explained yet)
-    assert 10000 <= rep["drops"]["total"] <= 10005, rep["drops"]
+    # every payload is counted by reason, or (a bit flip that leaves a valid nav) delivered as a
+    # nav; seen: 9,999-10,002 drops (the one or two above 10,000 are not explained yet)
+    got = rep["drops"]["total"] + rep["rx"].get("nav", 0)
+    assert 10000 <= got <= 10005 and rep["drops"]["total"] >= 9990, (rep["drops"], rep["rx"])
     assert len(rep["drops"]["by_reason"]) >= 4, rep["drops"]
 
 
