@@ -283,12 +283,12 @@ def main_args(args: argparse.Namespace) -> int:
     opts = AircraftOptions(name=args.name or ac.name, algos=tuple(args.algo or ac.algos), speed=args.speed,
                            epoch_unix_s=args.epoch, duration_s=args.duration, seed=args.seed,
                            height_m=args.height, status_every_s=args.status_every, quiet=args.quiet)
+    from net.security import KeystoreError
+
     args.secure_cn = f"aircraft-{opts.name}"
     try:
         bus = Bus(**bus_kwargs(args))
-    except Exception as e:  # net.security.KeystoreError: credentials that cannot be loaded
-        if type(e).__name__ != "KeystoreError":
-            raise
+    except KeystoreError as e:  # credentials that cannot be loaded
         print(f"aircraft {opts.name}: --secure: {e}", file=sys.stderr)
         return 2
     try:
