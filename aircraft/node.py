@@ -185,6 +185,10 @@ class AircraftNode:
         self._inbox: queue.SimpleQueue = queue.SimpleQueue()
         self._stop = threading.Event()
         self._last_status = -math.inf
+        # (key, bytes) -> (msg, phy); --secure: rate limit, signature, replay first (net/security.py)
+        sec = getattr(bus, "security", None)
+        self._decode = (lambda key, data: M.decode(data)) if sec is None else \
+            sec.aircraft_guard(scn.tdma.cycle_s, self.fleet_now).decode
 
     def fleet_now(self) -> float:
         return (time.time() - self.epoch) * self.opts.speed
@@ -198,7 +202,7 @@ class AircraftNode:
     def _ingest(self, key: str, data: bytes) -> None:
         M = self.M
         try:
-            msg, phy = M.decode(data)
+            msg, phy = self._decode(key, data)
         except M.MessageError as e:
             self.drops.drop_error(e)
             return
@@ -336,7 +340,14 @@ def main_args(args: argparse.Namespace) -> int:
                            epoch_unix_s=args.epoch, duration_s=args.duration, seed=args.seed,
                            height_m=args.height, status_every_s=args.status_every, quiet=args.quiet,
                            imu=args.imu or ac.imu)
-    bus = Bus(**bus_kwargs(args))
+    from net.security import KeystoreError
+
+    args.secure_cn = f"aircraft-{opts.name}"
+    try:
+        bus = Bus(**bus_kwargs(args))
+    except KeystoreError as e:  # credentials that cannot be loaded
+        print(f"aircraft {opts.name}: --secure: {e}", file=sys.stderr)
+        return 2
     try:
         try:
             node = AircraftNode(scn, opts, bus)

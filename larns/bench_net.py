@@ -157,7 +157,7 @@ def _proc_stats(pid: int) -> tuple[float, int]:
 
 def run_scale_once(n: int, duration_s: float, warmup_s: float = 4.0, quiet: bool = False,
                    nice: int = 0, topology: str = "peer", journal: bool = True, router_nice: int = 0,
-                   slice_us: float | None = None) -> dict:
+                   slice_us: float | None = None, secure: str | None = None) -> dict:
     """N station processes at speed 1 for ``duration_s`` (fleet time after warm-up).
 
     ``topology`` "peer": full mesh by gossip from two seed stations; "router": one ``larns router``
@@ -175,7 +175,8 @@ def run_scale_once(n: int, duration_s: float, warmup_s: float = 4.0, quiet: bool
         router = subprocess.Popen([sys.executable, "-m", "larns.router_cmd", "--listen", router_ep, "--quiet",
                                    "--duration", str(duration_s + warmup_s + 0.5 * n + 30),
                                    "--nice", str(router_nice)]
-                                  + ([] if slice_us is None else ["--slice-us", str(slice_us)]))
+                                  + ([] if slice_us is None else ["--slice-us", str(slice_us)])
+                                  + (["--secure", secure, "--scenario", "seed000"] if secure else []))
         time.sleep(1.0)
     start = time.time()
     epoch = start + warmup_s + 0.5 * n
@@ -189,6 +190,8 @@ def run_scale_once(n: int, duration_s: float, warmup_s: float = 4.0, quiet: bool
             cmd += ["--no-journal"]
         if slice_us is not None:
             cmd += ["--slice-us", str(slice_us)]
+        if secure:  # TLS/mTLS, access control, signed messages, receive guards (docs/security.md)
+            cmd += ["--secure", secure]
         if topology == "router":
             cmd += ["--zenoh-mode", "client", "--connect", router_ep]
         else:
@@ -263,9 +266,19 @@ def cmd_bench_scale(args: argparse.Namespace) -> int:
     print(f"larns bench scale: N station processes, real time, {args.duration:.0f} s each, "
           f"topology {args.topology}")
     runs, best = [], 0
+    secure = None
+    if args.secure:  # one keystore for the largest N (a temporary one unless given)
+        import tempfile
+
+        from larns.keys import init_keystore
+
+        secure = str(Path(tempfile.mkdtemp(prefix="larns-bench-keys-")) / "keys")
+        init_keystore(secure, list(range(1, max(ns) + 1)), [], recorder=False)
+        print(f"--secure: keystore {secure} (TLS/mTLS, access control, signed messages)")
     for n in ns:
         r = run_scale_once(n, args.duration, nice=args.nice, topology=args.topology,
-                           journal=not args.no_journal, router_nice=args.router_nice, slice_us=args.slice_us)
+                           journal=not args.no_journal, router_nice=args.router_nice, slice_us=args.slice_us,
+                           secure=secure)
         runs.append(r)
         if r["ok"]:
             best = max(best, n)
@@ -284,7 +297,8 @@ def cmd_bench_scale(args: argparse.Namespace) -> int:
           "load: 1-min load average before/after)")
     print(f"largest N with zero missed slots: {best} (goal >= 50), topology {args.topology}")
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.json).write_text(json.dumps({"best_n": best, "topology": args.topology, "runs": runs}, indent=2))
+    Path(args.json).write_text(json.dumps({"best_n": best, "topology": args.topology, "secure": bool(secure),
+                                           "runs": runs}, indent=2))
     print(f"wrote {args.json}")
     return 0
 
@@ -312,6 +326,8 @@ def register(sub) -> None:
                    help="stations do not publish their core journal (less traffic; not the default setup)")
     s.add_argument("--slice-us", type=float, default=None, metavar="US",
                    help="--slice-us for every station and the router (default: theirs, 100; 0 = kernel default)")
+    s.add_argument("--secure", action="store_true",
+                   help="run secure (a temporary keystore: TLS/mTLS, access control, signed messages)")
     s.add_argument("--json", default="runs/bench_scale.json", help="JSON output")
     s.set_defaults(func=cmd_bench_scale)
 

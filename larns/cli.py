@@ -28,6 +28,8 @@ COMMANDS: list[str] = [
     "larns.foxglove",
     "larns.report",
     "larns.aircraft_cmd",
+    "larns.keys",
+    "larns.attack",
 ]
 
 

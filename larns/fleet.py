@@ -249,6 +249,7 @@ def run_fleet(args: argparse.Namespace) -> int:
         if sid not in scn.ids:
             raise SystemExit(f"--join {sid}: no such station in scenario {scn.name} (ids {scn.ids})")
     initial = [i for i in scn.ids if i not in join_ids]
+    secure = _fleet_keystore(args, scn) if getattr(args, "secure", None) else None
     n_proc = len(scn.ids) + (1 if args.record else 0) + 2
     ports = free_tcp_ports(n_proc)
     eps = [f"tcp/127.0.0.1:{p}" for p in ports]
@@ -288,8 +289,10 @@ def run_fleet(args: argparse.Namespace) -> int:
     if mode == "client":
         seeds = list(args.connect) if args.connect else [router_ep]
         if not args.connect:
-            children.append(Child("router", [py, "-m", "larns", "router", "--listen", router_ep, "-q"],
-                                  logdir / "router.log" if logdir else None))
+            rcmd = [py, "-m", "larns", "router", "--listen", router_ep, "-q"]
+            if secure:
+                rcmd += ["--secure", secure, "--scenario", args.scenario, "--speed", repr(args.speed)]
+            children.append(Child("router", rcmd, logdir / "router.log" if logdir else None))
     else:
         seeds = list(args.connect) if args.connect else [station_ep[scn.ids[0]], station_ep[scn.ids[1]]]
     if args.record:
@@ -298,7 +301,7 @@ def run_fleet(args: argparse.Namespace) -> int:
                "--epoch", repr(epoch), "--speed", repr(args.speed),
                "--meta", f"stations={','.join(map(str, scn.ids))}", "--meta", f"seed={scn.seed}",
                "--meta", f"duration_s={args.duration}"]
-        cmd += bus_argv([rec_ep], seeds, args.zenoh_config, mode)
+        cmd += bus_argv([rec_ep], seeds, args.zenoh_config, mode, secure)
         children.append(Child("recorder", cmd, logdir / "recorder.log" if logdir else None))
     for sid in scn.ids:
         cmd = [py, "-m", "stations", "--id", str(sid), *common, "--status-every", "10"]
@@ -312,7 +315,8 @@ def run_fleet(args: argparse.Namespace) -> int:
             cmd += ["--join", "--start-at", repr(t_join)]
             # spawn early enough to be up at t_join (it sleeps until then)
             start_wall = max(0.0, epoch + t_join / args.speed - margin)
-        cmd += bus_argv([station_ep[sid]], [s for s in seeds if s != station_ep[sid]], args.zenoh_config, mode)
+        cmd += bus_argv([station_ep[sid]], [s for s in seeds if s != station_ep[sid]], args.zenoh_config, mode,
+                        secure)
         children.append(Child(f"station {sid}", cmd, logdir / f"station_{sid}.log" if logdir else None,
                               start_wall=start_wall))
     children.sort(key=lambda c: (c.name != "router", c.name != "recorder"))
@@ -324,7 +328,7 @@ def run_fleet(args: argparse.Namespace) -> int:
             cmd = [py, "-m", "aircraft", *common]
             if args.duration:
                 cmd += ["--duration", repr(args.duration)]
-            cmd += bus_argv(["tcp/127.0.0.1:0"], seeds, args.zenoh_config, mode)
+            cmd += bus_argv(["tcp/127.0.0.1:0"], seeds, args.zenoh_config, mode, secure)
             children.append(Child("aircraft", cmd, logdir / "aircraft.log" if logdir else None))
 
     stop = threading.Event()
@@ -348,7 +352,7 @@ def run_fleet(args: argparse.Namespace) -> int:
                 _spawn(c)
         # the launcher observes like any peer (spawned children first: no fork of a live runtime)
         bus = Bus(listen=[] if mode == "client" else [monitor_ep], connect=seeds, config_file=args.zenoh_config,
-                  mode=mode)
+                  mode=mode, secure=(secure, "monitor") if secure else None)
         bus.subscribe("larns/station/*/estimate", monitor.on_sample)
         bus.subscribe("larns/station/*/truth", monitor.on_sample)
         if args.aircraft:
@@ -450,7 +454,44 @@ def register(sub) -> None:
     p.add_argument("--logs", default=None, help="folder for per-process logs (default FILE.mcap.logs/)")
     p.add_argument("--json", default=None, help="write the final table as JSON")
     add_bus_args(p)
-    p.set_defaults(func=lambda a: run_fleet(_fix(a)))
+    p.set_defaults(func=lambda a: _run_checked(_fix(a)))
+
+
+def _run_checked(args: argparse.Namespace) -> int:
+    from net.security import KeystoreError
+
+    try:
+        return run_fleet(args)
+    except KeystoreError as e:
+        print(f"[fleet] --secure: {e}", file=sys.stderr)
+        return 2
+
+
+def _fleet_keystore(args: argparse.Namespace, scn) -> str:
+    """``--secure DIR`` (checked: every process's credentials must be there) or, with a bare
+    ``--secure``, a fresh temporary keystore for this scenario's stations, its aircraft, the
+    recorder, the router and the monitor."""
+    from net.security import Keystore, KeystoreError, aircraft_cn, station_cn
+
+    if args.secure != "auto":
+        ks = Keystore(args.secure)
+        need = [station_cn(i) for i in scn.ids] + ["monitor"]
+        need += ["recorder"] if args.record else []
+        need += ["router"] if args.topology == "router" and not args.connect else []
+        for cn in need:
+            ks.check_enclave(cn)
+        return str(args.secure)
+    import tempfile
+
+    from larns.keys import init_keystore
+
+    root = Path(tempfile.mkdtemp(prefix="larns-keys-")) / "keys"
+    name = str(scn.aircraft.get("name", "ac1")) if isinstance(getattr(scn, "aircraft", None), dict) else "ac1"
+    init_keystore(root, list(scn.ids), [name], recorder=True)
+    print(f"[fleet] --secure: temporary keystore {root}", file=sys.stderr)
+    if not root.is_dir():
+        raise KeystoreError(f"cannot create {root}")
+    return str(root)
 
 
 def _fix(a: argparse.Namespace) -> argparse.Namespace:

@@ -135,9 +135,19 @@ def run_recorder(out: str, bus_kw: dict, keyexpr: str = "larns/**", duration_s: 
     signal.signal(signal.SIGTERM, on_signal)
 
     q: queue.SimpleQueue = queue.SimpleQueue()
+    bus = Bus(**bus_kw)  # first: credentials that cannot be loaded fail before the file is created
     sink = McapSink(out, metadata=metadata, epoch_unix_s=epoch_unix_s, speed=speed, foxglove=foxglove)
-    bus = Bus(**bus_kw)
-    bus.subscribe(keyexpr, lambda k, d: q.put((time.time_ns(), k, d)))
+    on_sample = lambda k, d: q.put((time.time_ns(), k, d))  # noqa: E731
+    limiter = None
+    if bus.security is not None:  # --secure: a per-source budget (signed frames are kept as they are)
+        from net.security import RECORDER_BUDGET, RateLimiter, source_of
+
+        limiter = RateLimiter(*RECORDER_BUDGET)
+
+        def on_sample(k, d):  # noqa: F811
+            if limiter.allow(source_of(k), time.monotonic()):
+                q.put((time.time_ns(), k, d))
+    bus.subscribe(keyexpr, on_sample)
     bus.declare_token("larns/alive/recorder/" + str(int(time.time() * 1e3) % 10**9))
     if not quiet:
         print(f"[record] writing {keyexpr} to {out} (Ctrl-C to stop)", file=sys.stderr, flush=True)
@@ -168,6 +178,8 @@ def run_recorder(out: str, bus_kw: dict, keyexpr: str = "larns/**", duration_s: 
             sink.write(k, d, r)
         sink.finish()
     stats = {"file": out, "messages": sink.count, "bytes": sink.bytes, "channels": len(sink.channels)}
+    if limiter is not None:
+        stats["throttled"] = dict(limiter.throttled)
     if not quiet:
         print(f"[record] finished {out}: {sink.count} messages on {len(sink.channels)} channels",
               file=sys.stderr, flush=True)
@@ -184,10 +196,17 @@ def cmd_record(args: argparse.Namespace) -> int:
         md[k] = v
     if args.scenario:
         md["scenario"] = args.scenario
-    stats = run_recorder(args.output, bus_kwargs(args), keyexpr=args.keyexpr,
-                         duration_s=args.duration, flush_s=args.flush, metadata=md,
-                         epoch_unix_s=args.epoch, speed=args.speed, quiet=args.quiet,
-                         foxglove=not args.no_foxglove)
+    from net.security import KeystoreError
+
+    args.secure_cn = "recorder"
+    try:
+        stats = run_recorder(args.output, bus_kwargs(args), keyexpr=args.keyexpr,
+                             duration_s=args.duration, flush_s=args.flush, metadata=md,
+                             epoch_unix_s=args.epoch, speed=args.speed, quiet=args.quiet,
+                             foxglove=not args.no_foxglove)
+    except KeystoreError as e:
+        print(f"larns record: --secure: {e}", file=sys.stderr)
+        return 2
     if args.json:
         print(json.dumps(stats))
     return 0

@@ -220,6 +220,10 @@ def _wait_for(bus, keyexpr: str, timeout_s: float) -> bool:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
+    if getattr(args, "secure", None):  # check the recording's signatures (docs/security.md)
+        from larns.keys import cmd_verify_recordings
+
+        return cmd_verify_recordings(args.secure, args.files, args.topics, args.exclude)
     if args.offline:
         return cmd_offline(args)
     from net.bus import Bus, bus_kwargs

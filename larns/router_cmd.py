@@ -8,6 +8,9 @@ It is also the natural multi-host setup (one router per host, routers connected 
     larns router --listen tcp/127.0.0.1:7447
     larns station --id 5 --scenario seed000 --zenoh-mode client --connect tcp/127.0.0.1:7447
 
+Secure (docs/security.md): ``larns router --secure DIR --listen tls/127.0.0.1:7447`` and the clients
+with ``--secure DIR --connect tls/127.0.0.1:7447``.
+
 SIGINT / SIGTERM: clean exit. The router holds no LARNS state; its clients lose connectivity while
 it is down and reconnect when it comes back.
 """
@@ -25,7 +28,7 @@ from net.procsched import add_sched_args
 
 def run_router(listen: list[str], connect: list[str], config_file: str | None = None,
                duration_s: float | None = None, quiet: bool = False, nice: int = 0,
-               slice_us: float = 0.0) -> int:
+               slice_us: float = 0.0, secure: tuple | None = None) -> int:
     import os
 
     from net.bus import Bus
@@ -43,7 +46,13 @@ def run_router(listen: list[str], connect: list[str], config_file: str | None = 
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    bus = Bus(listen=listen, connect=connect, config_file=config_file, mode="router")
+    from net.security import KeystoreError
+
+    try:
+        bus = Bus(listen=listen, connect=connect, config_file=config_file, mode="router", secure=secure)
+    except KeystoreError as e:
+        print(f"[router] --secure: {e}", file=sys.stderr)
+        return 2
     if not quiet:
         print(f"[router] zid {bus.session.info.zid()} listening on {', '.join(listen)}",
               file=sys.stderr, flush=True)
@@ -61,8 +70,26 @@ def run_router(listen: list[str], connect: list[str], config_file: str | None = 
 
 
 def cmd_router(args: argparse.Namespace) -> int:
-    return run_router(args.listen or ["tcp/127.0.0.1:7447"], args.connect or [], args.zenoh_config,
-                      args.duration, args.quiet, args.nice, args.slice_us)
+    secure = None
+    if args.secure:
+        from net import scenario as S
+        from net.security import Keystore, KeystoreError, flood_guard
+
+        if args.secure == "auto":
+            print("[router] --secure needs a keystore DIR (larns keys init DIR)", file=sys.stderr)
+            return 2
+        tdma = S.load(args.scenario).tdma  # the flood guard's budget: the fleet's TDMA
+        try:
+            ks = Keystore(args.secure)
+        except KeystoreError as e:
+            print(f"[router] --secure: {e}", file=sys.stderr)
+            return 2
+        issued = sorted(e["id"] for e in ks.enclaves.values() if e.get("role") == "station")
+        secure = (args.secure, "router", flood_guard(tdma.cycle_s, tdma.slot_s, args.speed, ks.reserved,
+                                                     None, issued))
+    default = "tls/127.0.0.1:7447" if secure else "tcp/127.0.0.1:7447"
+    return run_router(args.listen or [default], args.connect or [], args.zenoh_config,
+                      args.duration, args.quiet, args.nice, args.slice_us, secure)
 
 
 def register(sub) -> None:
@@ -74,6 +101,11 @@ def register(sub) -> None:
                    help="other routers to connect to (multi-host; repeatable)")
     p.add_argument("--zenoh-config", default=None, metavar="FILE",
                    help="full Zenoh JSON5 config instead of the built-in router defaults")
+    p.add_argument("--secure", default=None, nargs="?", const="auto", metavar="DIR",
+                   help="keystore (larns keys init): TLS/mTLS only, certificate `router`, access control per "
+                        "client and a per-client flood guard sized for --scenario's TDMA at --speed")
+    p.add_argument("--scenario", default="seed000", help="scenario whose TDMA sizes the flood guard (--secure)")
+    p.add_argument("--speed", type=float, default=1.0, help="fleet speed factor (--secure flood guard)")
     p.add_argument("--duration", type=float, default=None, help="exit after S seconds (default: run until signalled)")
     p.add_argument("--nice", type=int, default=0, metavar="N",
                    help="niceness change (negative = ahead of the stations on a busy machine; needs privileges)")

@@ -55,18 +55,35 @@ def add_bus_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--zenoh-mode", choices=("peer", "client"), default="peer",
                    help="peer (default: full mesh via gossip) or client (connect only to the router(s) "
                         "given with --connect, e.g. one started with `larns router`)")
+    g.add_argument("--secure", default=None, metavar="DIR", nargs="?", const="auto",
+                   help="keystore made by `larns keys init`: TLS/mTLS links only, this process's own "
+                        "certificate, access control and signed messages (docs/security.md)")
 
 
 def bus_kwargs(args: argparse.Namespace) -> dict:
     return {"listen": args.listen or (), "connect": args.connect or (),
             "config_file": args.zenoh_config, "multicast": bool(getattr(args, "multicast", False)),
-            "mode": getattr(args, "zenoh_mode", None) or "peer"}
+            "mode": getattr(args, "zenoh_mode", None) or "peer",
+            **({"secure": secure_identity(args)} if getattr(args, "secure", None) else {})}
+
+
+def secure_identity(args: argparse.Namespace) -> tuple[str, str]:
+    """``(keystore DIR, common name)`` of a ``--secure`` process (``args.secure_cn`` set by the command)."""
+    from net.security import KeystoreError
+
+    cn = getattr(args, "secure_cn", None)
+    if args.secure == "auto":
+        raise KeystoreError("--secure needs a keystore DIR here (only `larns fleet --secure` makes a "
+                            "temporary one); make one with `larns keys init DIR`")
+    if not cn:
+        raise KeystoreError("--secure: this command has no identity of its own in the keystore")
+    return str(args.secure), cn
 
 
 def bus_argv(listen: Iterable[str] = (), connect: Iterable[str] = (),
-             config_file: str | None = None, mode: str = "peer") -> list[str]:
+             config_file: str | None = None, mode: str = "peer", secure: str | None = None) -> list[str]:
     """Command-line flags reproducing a bus setup (for launchers). A client does not listen."""
-    out: list[str] = []
+    out: list[str] = ["--secure", str(secure)] if secure else []
     if mode != "peer":
         out += ["--zenoh-mode", mode]
         listen = () if mode == "client" else listen
@@ -119,9 +136,20 @@ _MODE_SETTINGS: dict[str, dict[str, str]] = {
 
 
 def make_config(listen: Sequence[str] = (), connect: Sequence[str] = (),
-                config_file: str | None = None, multicast: bool = False, mode: str = "peer"):
+                config_file: str | None = None, multicast: bool = False, mode: str = "peer",
+                secure: tuple[str, str] | None = None):
     """Build a ``zenoh.Config``: a pass-through file, or our defaults for ``mode`` (peer, client of
-    a router, router), plus endpoints."""
+    a router, router), plus endpoints; ``secure=(keystore DIR, common name)`` adds that enclave's
+    TLS/mTLS and access control (:func:`net.security.apply_security`)."""
+    conf = _make_config(listen, connect, config_file, multicast, mode)
+    if secure is not None:
+        from net.security import apply_security
+
+        apply_security(conf, *secure)
+    return conf
+
+
+def _make_config(listen, connect, config_file, multicast, mode):
     import zenoh
 
     if mode not in MODES:
@@ -175,15 +203,22 @@ class Bus:
 
     def __init__(self, listen: Sequence[str] = (), connect: Sequence[str] = (),
                  config_file: str | None = None, multicast: bool = False, express: bool = True,
-                 mode: str = "peer", lean_runtime: bool | None = None):
+                 mode: str = "peer", lean_runtime: bool | None = None,
+                 secure: tuple[str, str] | None = None):
         lean = mode != "router" if lean_runtime is None else lean_runtime
         set_env = lean and use_lean_runtime()
         import zenoh
 
         self._z = zenoh
         self.mode = mode
+        # --secure: credentials first (a clear KeystoreError before any Zenoh start); publish signs
+        self.security = None
+        if secure is not None:
+            from net.security import Security
+
+            self.security = Security(*secure[:2])
         try:
-            self.session = zenoh.open(make_config(listen, connect, config_file, multicast, mode))
+            self.session = zenoh.open(make_config(listen, connect, config_file, multicast, mode, secure))
         finally:
             if set_env:  # read once, when the first session starts Zenoh's runtimes
                 os.environ.pop("ZENOH_RUNTIME", None)
@@ -210,6 +245,8 @@ class Bus:
                         priority=self._z.Priority.REAL_TIME if "/range/" in key
                         else self._z.Priority.DATA)
                     self._pubs[(key, block)] = pub
+        if self.security is not None:
+            data = self.security.seal(key, data)
         pub.put(data)
 
     # ------------------------------------------------------------------ subscribe

@@ -349,6 +349,8 @@ def decode(data: bytes | bytearray | memoryview) -> tuple[dict[str, Any], dict[s
         raise MessageError("type", "payload must be bytes")
     if len(data) > MAX_PAYLOAD_BYTES:
         raise MessageError("size", f"{len(data)} bytes > {MAX_PAYLOAD_BYTES}")
+    if data[:1] == SIGNED_MARK:  # a signed frame (net/security.py): the envelope inside, unverified
+        data = _strip_signature(data)
     try:
         env = msgpack.unpackb(
             bytes(data), raw=False, strict_map_key=True, use_list=True,
@@ -370,9 +372,20 @@ def decode(data: bytes | bytearray | memoryview) -> tuple[dict[str, Any], dict[s
     return msg, phy
 
 
+SIGNED_MARK = b"\xc1"  # never the first byte of a msgpack value
+
+
+def _strip_signature(data: bytes) -> bytes:
+    from net.security import strip_signature  # (net.security does not import this module at load)
+
+    return strip_signature(bytes(data))
+
+
 def peek_stamp(data: bytes) -> float | None:
     """The sender's ``stamp_s`` from raw bytes without full validation (for the recorder)."""
     try:
+        if data[:1] == SIGNED_MARK:
+            data = _strip_signature(data)
         env = msgpack.unpackb(data, raw=False, strict_map_key=False, max_bin_len=0, max_ext_len=0)
         s = env["msg"]["stamp_s"]
         if isinstance(s, (int, float)) and not isinstance(s, bool) and math.isfinite(s):

@@ -131,6 +131,10 @@ class StationNode:
         self._wire_delay_s: deque = deque(maxlen=10000)  # recent range message delivery delays
         self._nav_sub = None
         self._last_drain = -math.inf
+        # (key, bytes) -> (msg, phy); --secure: rate limit, signature, replay first (net/security.py)
+        sec = getattr(bus, "security", None)
+        self._decode = (lambda key, data: M.decode(data)) if sec is None else \
+            sec.station_guard(self.cycle_s, self.fleet_now).decode
 
     # ------------------------------------------------------------------ time
     def fleet_now(self) -> float:
@@ -229,7 +233,7 @@ class StationNode:
 
     def _ingest(self, recv_wall: float, key: str, data: bytes) -> None:
         try:
-            msg, phy = M.decode(data)
+            msg, phy = self._decode(key, data)
         except M.MessageError as e:
             self.drops.drop_error(e)
             return
@@ -612,7 +616,8 @@ def main_args(args: argparse.Namespace) -> int:
                        status_every_s=args.status_every, quiet=args.quiet,
                        journal=not getattr(args, "no_journal", False),
                        lookahead_s=getattr(args, "lookahead", 0.05))
-    bus = Bus(**bus_kwargs(args))
+    args.secure_cn = f"station-{args.id}"
+    bus = _secure_bus(Bus, bus_kwargs, args, scn)
     try:
         node = StationNode(scn, opts, bus)
         signal.signal(signal.SIGINT, node.stop)
@@ -648,6 +653,22 @@ def main_args(args: argparse.Namespace) -> int:
               f"range delay ms {' '.join(f'{k}={v:.1f}' for k, v in rep['range_delay_ms'].items())}",
               file=sys.stderr, flush=True)
     return 0
+
+
+def _secure_bus(Bus, bus_kwargs, args: argparse.Namespace, scn: Scenario):
+    """The station's bus; with ``--secure`` its credentials (exit 2 with the reason if they cannot
+    be loaded) and the Zenoh ingress flood guard for this scenario's TDMA (net/security.py)."""
+    from net.security import Keystore, KeystoreError, flood_guard
+
+    try:
+        kw = bus_kwargs(args)
+        if "secure" in kw:
+            ids = sorted(set(Keystore(kw["secure"][0]).reserved) | set(scn.ids))
+            kw["secure"] = (*kw["secure"], flood_guard(scn.tdma.cycle_s, scn.tdma.slot_s, args.speed, ids, args.id))
+        return Bus(**kw)
+    except KeystoreError as e:
+        print(f"station {args.id}: --secure: {e}", file=sys.stderr)
+        raise SystemExit(2) from None
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -117,6 +117,7 @@ class FleetRun:
     recorder_rc: int | None = None
     logs: Path | None = None
     summary: dict = field(default_factory=dict)
+    keys_add: str = ""                                       # output of `compose run keys add`
 
     def fleet_t(self, wall_s: float) -> float:
         return (wall_s - self.epoch) * SPEED
@@ -202,9 +203,12 @@ def fleet(larns_image, tmp_path_factory) -> FleetRun:
               f"all stations running after {start - t0:.1f} s", file=sys.stderr)
         at = lambda dt_fleet: start + dt_fleet / SPEED  # noqa: E731  fleet seconds after start -> wall
 
+        # the hot-joiner's credentials, issued while the fleet runs (secure by default): first thing,
+        # so that a slow `compose run` on a loaded machine does not shift the timeline
+        run.keys_add = dc("run", "--rm", "keys", "add", "/keys", "--station", str(JOINER)).stdout
         _sleep_until(at(T_JOIN))
         run.events["join"] = time.time()
-        dc("--profile", "hotjoin", "up", "-d", f"station{JOINER}")
+        dc("--profile", "hotjoin", "up", "-d", "--no-deps", f"station{JOINER}")  # epoch, keys: done
 
         _sleep_until(at(T_KILL))
         st = dc.containers()
@@ -381,6 +385,28 @@ def test_network_disconnect_station_recovers_others_undisturbed(fleet):
         assert s["n_updates"][_at(s, t_back)] - s["n_updates"][_at(s, t_cut)] >= 10, sid
     # ... and were not shaken when it came back
     _assert_not_disturbed(fleet, _first_nav_after(fleet.mcap, CUT, t_back), others)
+
+
+def test_compose_runs_secure_by_default(fleet):
+    """Every station's navs in the recording are signed frames, each by its own station; the
+    hot-joiner's credentials came from `docker compose run --rm keys add /keys --station 11` while
+    the fleet ran. (The signatures themselves are checked by the receiving stations.)"""
+    from mcap.reader import make_reader
+
+    from net import security as S
+
+    assert "station-11" in fleet.keys_add or "keystore /keys" in fleet.keys_add, fleet.keys_add
+    signers: dict[int, set] = {}
+    with open(fleet.mcap, "rb") as f:
+        for _schema, ch, m in make_reader(f).iter_messages():
+            if not ch.topic.endswith("/nav"):
+                continue
+            parts = S.split_signed(m.data)
+            assert parts is not None, f"unsigned nav on {ch.topic}"
+            signers.setdefault(int(ch.topic.split("/")[2]), set()).add(parts[0])
+    assert set(signers) >= set(IDS) | {JOINER}, sorted(signers)
+    for sid, cns in signers.items():
+        assert cns == {f"station-{sid}"}, (sid, cns)
 
 
 def test_compose_down_leaves_a_valid_mcap(fleet):
