@@ -65,7 +65,8 @@ def forged_nav(src: int, seq: int, t_s: float, pos_m, shift_m: float = 30.0, len
                ranges=None) -> dict:
     """A nav claiming to be ``src``: position shifted, ranges lengthened (the issue's attack)."""
     p = np.asarray(pos_m, float) + np.array([shift_m, 0.0, 0.0])
-    rs = [[int(k), float(r) + lengthen_m, float(t)] for k, r, t in (ranges or [])]
+    # entries [peer, range_m, t_s] or, with two-way time transfer, [peer, range_m, t_s, dtheta_s]
+    rs = [[int(e[0]), float(e[1]) + lengthen_m, *map(float, e[2:])] for e in (ranges or [])]
     return {"kind": "nav", "src": int(src), "seq": int(seq), "stamp_s": float(t_s), "cycle": int(t_s),
             "slot": int(src) - 1, "t_tx_s": float(t_s), "pos_m": p.tolist(),
             "cov_m2": (np.eye(3) * 0.01).tolist(), "n_updates": 100, "state": "surveying",
@@ -290,13 +291,20 @@ def cmd_attack(args: argparse.Namespace) -> int:
         print("larns attack: loopback endpoints only", file=sys.stderr)
         return 2
     args.victims = [int(v) for v in (args.victims or "1,2,3,4,5,6,7,8,10").split(",")]
-    if args.attack == "all":
-        attack_all(args)
-        return 0
-    if args.attack != "nocred" and not args.secure:
+    if args.attack != "all" and args.attack != "nocred" and not args.secure:
         print(f"larns attack {args.attack}: needs --secure DIR (the credentials it abuses)", file=sys.stderr)
         return 2
-    print(json.dumps(ATTACKS[args.attack](args)), flush=True)
+    try:
+        if args.attack == "all":
+            attack_all(args)
+        else:
+            print(json.dumps(ATTACKS[args.attack](args)), flush=True)
+    except Exception:  # an open Zenoh session would keep the process alive: report and leave
+        import traceback
+
+        traceback.print_exc()
+        sys.stderr.flush()
+        os._exit(1)
     return 0
 
 
