@@ -44,6 +44,9 @@ def register(sub) -> None:
     p.add_argument("--quick", action="store_true", help="small smoke-test version (few runs, short, 2 points each)")
     p.add_argument("--no-sweep", action="store_true", help="skip the height sweep")
     p.add_argument("--no-speed", action="store_true", help="skip the filterpy speed comparison")
+    p.add_argument("--envelope", action="store_true",
+                   help="flight envelope instead: heights x distances x bearings, hover and turn, the four "
+                        "filters vs their PCRB (table, JSON `envelope`, heat maps; --quick: 8 points)")
     p.set_defaults(func=run)
 
 
@@ -178,6 +181,10 @@ def speed_vs_filterpy(ac, steps: int = 400, runs: int = 64) -> dict:
 
 def run(args) -> int:
     sc, ac = setup(args.scenario)
+    if getattr(args, "envelope", False):
+        from . import bench_aircraft_envelope
+
+        return bench_aircraft_envelope.main(ac, args, _progress)
     b = ac.bench
     runs = args.trials or int(b.get("runs", 64))
     duration = args.duration or float(b.get("duration_s", 30.0))
