@@ -201,9 +201,11 @@ class CvTracker:
     ----------
     kind : "ekf" or "ukf". model : "pr" or "tdoa". x0 : (M, n) initial means. tuning : :class:`Tuning`.
     t0_s : time of ``x0``. base : TDOA base station index within each batch.
+    P0 : (n, n) or (M, n, n) initial covariance; None = the tuning's prior ``tuning.p0``.
     """
 
-    def __init__(self, kind: str, model: str, x0: np.ndarray, tuning: Tuning, t0_s: float = 0.0, base: int = 0):
+    def __init__(self, kind: str, model: str, x0: np.ndarray, tuning: Tuning, t0_s: float = 0.0, base: int = 0,
+                 P0: np.ndarray | None = None):
         if kind not in ("ekf", "ukf"):
             raise ValueError(f"unknown filter {kind!r} (ekf or ukf)")
         self.kind = kind
@@ -213,7 +215,8 @@ class CvTracker:
         if x0.shape[-1] != self.layout.n:
             raise ValueError(f"x0 must have {self.layout.n} states for {model}, got {x0.shape}")
         self.x = x0.copy()
-        self.P = np.broadcast_to(tuning.p0(self.layout), x0.shape[:-1] + (self.layout.n,) * 2).copy()
+        P0 = tuning.p0(self.layout) if P0 is None else np.asarray(P0, dtype=float)
+        self.P = np.broadcast_to(P0, x0.shape[:-1] + (self.layout.n,) * 2).copy()
         self.t_s = float(t0_s)
         self.base = base
         self.params = SigmaParams.scaled(alpha=tuning.alpha, beta=2.0, kappa=0.0)
@@ -444,6 +447,8 @@ class EstimatorConfig:
     # where one epoch's fix is off by kilometres)
     guess_sigma_m: float | None = None
     max_batch_age_s: float = 5.0  # TDMA: measurements older than this are dropped from a batch
+    # start from the broadcasts alone (aircraft/initializer.py): snapshot fix or wide prior
+    init: "InitConfig | None" = None
 
 
 class AircraftEstimator:
@@ -470,6 +475,7 @@ class AircraftEstimator:
         self.n_dropped = 0
         self.n_resets = 0
         self.last_nis: float | None = None
+        self.init = None  # the InitResult of the latest start (broadcast initializer)
 
     # -- input
     def on_epoch(self, t_s: float, station_pos_m, station_cov_m2, rho_m) -> None:
@@ -526,6 +532,18 @@ class AircraftEstimator:
         tu = self.cfg.tuning
         var = tu.sigma_m**2
         if self.tracker is None:
+            if self.cfg.guess_sigma_m is None and (self.fix is None or self.method != "lsq"):
+                # start from the broadcasts alone: multi-start snapshot fix (or a wide prior)
+                from .initializer import initial_state
+
+                init = initial_state(self.model, tu, pos, cov, rho, self.cfg.init)
+                self.fix = init.fix.copy()
+                self.init = init
+                self.t_s = t_s
+                self.n_updates += 1
+                if self.method != "lsq":
+                    self.tracker = CvTracker(self.method, self.model, init.x0, tu, t0_s=t_s, P0=init.P0)
+                return
             first = self.fix is None
             if first:
                 self.fix = np.append(self.guess, 0.0) if self.model == "pr" else self.guess.copy()
@@ -540,23 +558,22 @@ class AircraftEstimator:
             self.n_updates += 1
             if self.method == "lsq":
                 return
-            # filter start: the fix with its own covariance (H^T W H)^-1, velocity from the tuning's prior
-            C = lsq_cov(self.fix[None], pos, var, self.model, cov)[0]
+            # external coarse fix (guess_sigma_m): start from the guess with that sigma; the clock from
+            # the ranges to the guessed position
             gs = self.cfg.guess_sigma_m
-            if gs is not None:
-                # start from the coarse fix instead; the clock from the ranges to the guessed position
-                self.fix[:3] = self.guess
-                C = np.diag([gs**2] * 3 + ([(tu.p0_clock_m + gs) ** 2] if self.model == "pr" else []))
-                if self.model == "pr":
-                    self.fix[3] = float(np.mean(rho - np.linalg.norm(self.guess - pos, axis=1)))
+            self.fix[:3] = self.guess
+            C = np.diag([gs**2] * 3 + ([(tu.p0_clock_m + gs) ** 2] if self.model == "pr" else []))
+            if self.model == "pr":
+                self.fix[3] = float(np.mean(rho - np.linalg.norm(self.guess - pos, axis=1)))
             x0 = np.concatenate([self.fix[:3], np.zeros(3)])
             if self.model == "pr":
                 x0 = np.append(x0, self.fix[3])
                 if tu.drift_state:
                     x0 = np.append(x0, 0.0)
-            self.tracker = CvTracker(self.method, self.model, x0, tu, t0_s=t_s)
+            P0 = tu.p0(self.tracker_layout())
             idx = [0, 1, 2, 6] if self.model == "pr" else [0, 1, 2]
-            self.tracker.P[np.ix_(idx, idx)] = C
+            P0[np.ix_(idx, idx)] = C
+            self.tracker = CvTracker(self.method, self.model, x0, tu, t0_s=t_s, P0=P0)
             return
         try:
             self.tracker.predict_to(t_s)
@@ -574,6 +591,9 @@ class AircraftEstimator:
         self.last_nis = float(nu @ chol_solve(S, nu[:, None])[:, 0])
         self.t_s = t_s
         self.n_updates += 1
+
+    def tracker_layout(self) -> mdl.StateLayout:
+        return mdl.StateLayout(self.model, drift=self.cfg.tuning.drift_state and self.model == "pr")
 
     def _reset(self) -> None:
         """A filter whose covariance lost positive definiteness restarts from the next batch's fix."""
