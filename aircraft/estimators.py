@@ -22,6 +22,7 @@ from scipy.special import erfcx
 from nav.kalman import chol_solve, ekf_update, kf_predict, kf_update, symmetrize, ukf_update
 from nav.ut import SigmaParams, unscented_transform
 
+from . import coords as crd
 from . import models as mdl
 
 ALGOS = mdl.ALGOS
@@ -184,6 +185,16 @@ class Tuning:
     # 0.5 tr(M_j P) and innovation covariance 0.5 tr(M_i P M_j P). Close to a transmitter the range's
     # curvature biases a first-order EKF (the UKF captures it through its sigma points).
     ekf_second_order: bool = True
+    # filter coordinates: "inverse" = position inverted through the unit sphere about the broadcast
+    # station centroid and the clock carried as b + range to it (aircraft/coords.py: straightens the
+    # height/clock and range/clock ridges of a small-base system); "cartesian" = [p, v, b, bdot]
+    coords: str = "cartesian"
+    # ... per run, only while the position is known well relative to its distance from the reference:
+    # sqrt(tr P_pos) < inverse_max_rel * |p - c| (back to Cartesian above three times that; near the
+    # array the inversion of a wide Gaussian is itself far from Gaussian). Checked every
+    # ``switch_every`` updates.
+    inverse_max_rel: float = 0.15
+    switch_every: int = 10
 
     def p0(self, layout: mdl.StateLayout) -> np.ndarray:
         d = [self.p0_pos_m] * 3 + [self.p0_vel_m_s] * 3
@@ -202,10 +213,17 @@ class CvTracker:
     kind : "ekf" or "ukf". model : "pr" or "tdoa". x0 : (M, n) initial means. tuning : :class:`Tuning`.
     t0_s : time of ``x0``. base : TDOA base station index within each batch.
     P0 : (n, n) or (M, n, n) initial covariance; None = the tuning's prior ``tuning.p0``.
+    ref_m : (3,) reference point of the inverse-range coordinates (``tuning.coords == "inverse"``):
+        :func:`aircraft.coords.reference_point` of the broadcast stations; None = that of the first
+        update's stations.
+
+    ``x`` and ``P`` are always Cartesian (``[p, v (, b (, bdot))]``); with inverse coordinates the
+    filter works on ``(q, v, beta, bdot)`` internally and converts on access (covariance to first
+    order, ``T P T^T``).
     """
 
     def __init__(self, kind: str, model: str, x0: np.ndarray, tuning: Tuning, t0_s: float = 0.0, base: int = 0,
-                 P0: np.ndarray | None = None):
+                 P0: np.ndarray | None = None, ref_m: np.ndarray | None = None):
         if kind not in ("ekf", "ukf"):
             raise ValueError(f"unknown filter {kind!r} (ekf or ukf)")
         self.kind = kind
@@ -214,9 +232,18 @@ class CvTracker:
         x0 = np.asarray(x0, dtype=float)  # (M, n) batched, or (n,) for one run (faster small-matrix path)
         if x0.shape[-1] != self.layout.n:
             raise ValueError(f"x0 must have {self.layout.n} states for {model}, got {x0.shape}")
-        self.x = x0.copy()
+        if tuning.coords not in ("inverse", "cartesian"):
+            raise ValueError(f"unknown coords {tuning.coords!r} (inverse or cartesian)")
+        self._x = x0.copy()
         P0 = tuning.p0(self.layout) if P0 is None else np.asarray(P0, dtype=float)
-        self.P = np.broadcast_to(P0, x0.shape[:-1] + (self.layout.n,) * 2).copy()
+        self._P = np.broadcast_to(P0, x0.shape[:-1] + (self.layout.n,) * 2).copy()
+        self._clock = self.layout.kind == "pr"
+        self._ref: np.ndarray | None = None  # reference point of the inverse-range coordinates
+        self._inv = np.zeros(x0.shape[:-1], dtype=bool)  # runs whose internal state is inverse-range
+        self._n_upd = 0
+        if tuning.coords == "inverse" and ref_m is not None:
+            self._ref = np.asarray(ref_m, dtype=float)
+            self._switch()
         self.t_s = float(t0_s)
         self.base = base
         self.params = SigmaParams.scaled(alpha=tuning.alpha, beta=2.0, kappa=0.0)
@@ -225,6 +252,76 @@ class CvTracker:
         self._last_fq: tuple[np.ndarray, np.ndarray] | None = None
         self._r_key: tuple | None = None
         self._r: np.ndarray | None = None
+
+    # -- coordinates
+    def _mask(self, X: np.ndarray, extra: int) -> np.ndarray:
+        """The inverse-coordinate run mask shaped to broadcast against X (runs[, sigma], n[, n])."""
+        return self._inv.reshape(self._inv.shape + (1,) * (X.ndim - self._x.ndim + extra))
+
+    def _cart(self, X: np.ndarray) -> np.ndarray:
+        """Internal-coordinate states X (runs[, sigma points], n) -> Cartesian."""
+        if not self._inv.any():
+            return X
+        with np.errstate(all="ignore"):
+            return np.where(self._mask(X, 1), crd.to_cartesian(X, self._ref, self._clock), X)
+
+    def _T(self, X: np.ndarray) -> np.ndarray | None:
+        """dx/ds at internal-coordinate states X (..., n, n); None = identity for every run."""
+        if not self._inv.any():
+            return None
+        with np.errstate(all="ignore"):
+            return np.where(self._mask(X, 2), crd.jac_to_cartesian(X, self._clock), np.eye(X.shape[-1]))
+
+    @property
+    def x(self) -> np.ndarray:
+        """Cartesian state (..., n)."""
+        return self._cart(self._x)
+
+    @x.setter
+    def x(self, value: np.ndarray) -> None:
+        value = np.asarray(value, dtype=float)
+        if self._inv.any():
+            with np.errstate(all="ignore"):
+                value = np.where(self._mask(value, 1), crd.to_inverse(value, self._ref, self._clock), value)
+        self._x = value
+
+    @property
+    def P(self) -> np.ndarray:
+        """Cartesian covariance (..., n, n) (first-order conversion ``T P T^T`` for inverse-coordinate runs)."""
+        T = self._T(self._x)
+        if T is None:
+            return self._P
+        return symmetrize(T @ self._P @ np.swapaxes(T, -1, -2))
+
+    @P.setter
+    def P(self, value: np.ndarray) -> None:
+        value = np.asarray(value, dtype=float)
+        if self._inv.any():
+            with np.errstate(all="ignore"):
+                G = np.where(self._mask(self._x, 2), crd.jac_to_inverse(self.x, self._ref, self._clock),
+                             np.eye(value.shape[-1]))
+            value = symmetrize(G @ value @ np.swapaxes(G, -1, -2))
+        self._P = value
+
+    def _switch(self) -> None:
+        """Move runs between Cartesian and inverse-range coordinates: inverse while
+        ``sqrt(tr P_pos) < inverse_max_rel |p - c|``, back to Cartesian above three times that."""
+        X, P = self.x, self.P
+        d = X[..., :3] - self._ref
+        r = np.sqrt(np.einsum("...i,...i->...", d, d))
+        sp = np.sqrt(np.einsum("...ii->...", P[..., :3, :3]))
+        k = self.tuning.inverse_max_rel
+        new = np.where(self._inv, sp < 3.0 * k * r, sp < k * r)
+        ch = new != self._inv
+        if not np.any(ch):
+            return
+        with np.errstate(all="ignore"):
+            G = crd.jac_to_inverse(X, self._ref, self._clock)
+            xs = np.where(new[..., None], crd.to_inverse(X, self._ref, self._clock), X)
+            Ps = np.where(new[..., None, None], symmetrize(G @ P @ np.swapaxes(G, -1, -2)), P)
+        self._x = np.where(ch[..., None], xs, self._x)
+        self._P = np.where(ch[..., None, None], Ps, self._P)
+        self._inv = new
 
     def _FQ(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         if dt == self._last_dt:  # synchronous epochs: the same step every time
@@ -245,7 +342,19 @@ class CvTracker:
         if dt <= 0.0:
             return
         F, Q = self._FQ(dt)
-        self.x, self.P = kf_predict(self.x, self.P, F, Q)
+        if not self._inv.any():
+            self._x, self._P = kf_predict(self._x, self._P, F, Q)
+        else:
+            # the CV step in Cartesian coordinates, carried to the inverse-range runs by its Jacobian
+            # G1 F T (T = dx/ds before, G1 = ds/dx after); the process noise enters through G1
+            ref, clk = self._ref, self._clock
+            T = self._T(self._x)
+            x1 = self._cart(self._x) @ F.T
+            with np.errstate(all="ignore"):
+                G1 = np.where(self._mask(self._x, 2), crd.jac_to_inverse(x1, ref, clk), np.eye(F.shape[-1]))
+                self._x = np.where(self._mask(self._x, 1), crd.to_inverse(x1, ref, clk), x1)
+            Fs = G1 @ F @ T
+            self._P = symmetrize(Fs @ self._P @ np.swapaxes(Fs, -1, -2) + G1 @ Q @ np.swapaxes(G1, -1, -2))
         self.t_s = float(t_s)
 
     def update(
@@ -258,12 +367,15 @@ class CvTracker:
         TDOA: the batch is differenced against ``self.base`` (needs m >= 2). Returns (nu, S).
         """
         stations_m = np.asarray(stations_m, dtype=float)
+        if self._ref is None and self.tuning.coords == "inverse":
+            self._ref = crd.reference_point(stations_m)
+            self._switch()
         sig = self.tuning.sigma_m if sigma_m is None else sigma_m
         if self.layout.kind == "pr":
             if station_cov_m2 is None and np.ndim(sig) == 0:  # R does not depend on the state: cache it
-                key = (stations_m.shape[0], float(sig), self.x.shape[:-1])
+                key = (stations_m.shape[0], float(sig), self._x.shape[:-1])
                 if self._r_key != key:
-                    self._r_key, self._r = key, mdl.r_pr(mdl.range_var(self.x, stations_m, None, sig))
+                    self._r_key, self._r = key, mdl.r_pr(mdl.range_var(self._x, stations_m, None, sig))
                 R = self._r
             else:
                 R = mdl.r_pr(mdl.range_var(self.x, stations_m, station_cov_m2, sig, dt_s))
@@ -283,7 +395,17 @@ class CvTracker:
                 return (mdl.jac_pr(X, stations_m, dt_s) if self.layout.kind == "pr"
                         else mdl.jac_tdoa(X, stations_m, self.base, dt_s))
 
+            if self._inv.any():  # measurement model and Jacobian in the runs' own coordinates
+                hc, jc = h, jac
+
+                def h(X):
+                    return hc(self._cart(X))
+
+                def jac(X):
+                    return jc(self._cart(X)) @ self._T(X)
+
             if self.tuning.ekf_second_order:
+                # Gaussian second-order terms of the ranges, from the Cartesian moments
                 c2, S2 = self._second_order(stations_m, dt_s)
                 if self.layout.kind == "tdoa":
                     G = mdl.g_matrix(stations_m.shape[0], self.base)
@@ -293,7 +415,7 @@ class CvTracker:
                 def h(X):
                     return h1(X) + c2
 
-            x1, P1, nu, S = ekf_update(self.x, self.P, z, h, jac(self.x), R)
+            x1, P1, nu, S = ekf_update(self._x, self._P, z, h, jac(self._x), R)
             if self.tuning.iterations > 1:
                 mask = self._needs_iteration(R, lambda: self._om_ekf(stations_m, dt_s))
                 if np.any(mask):
@@ -302,26 +424,36 @@ class CvTracker:
                         xi, Pi = self._iekf_step(xi, z, h, jac, R)
                     x1, P1 = self._select(mask, xi, Pi, x1, P1)
         else:
-            x1, P1, nu, S = ukf_update(self.x, self.P, z, h, R, self.params)
+            if self._inv.any():
+                hc = h
+
+                def h(X):
+                    return hc(self._cart(X))
+
+            x1, P1, nu, S = ukf_update(self._x, self._P, z, h, R, self.params)
             if self.tuning.iterations > 1:
                 def om():
-                    ut = unscented_transform(h, self.x, self.P, self.params)
-                    return ut.cov - np.swapaxes(ut.cross, -1, -2) @ chol_solve(self.P, ut.cross)
+                    ut = unscented_transform(h, self._x, self._P, self.params)
+                    return ut.cov - np.swapaxes(ut.cross, -1, -2) @ chol_solve(self._P, ut.cross)
                 mask = self._needs_iteration(R, om)
                 if np.any(mask):
                     xi, Pi = x1, P1
                     for _ in range(self.tuning.iterations - 1):
                         xi, Pi = self._iplf_step(xi, Pi, z, h, R)
                     x1, P1 = self._select(mask, xi, Pi, x1, P1)
-        self.x, self.P = x1, P1
+        self._x, self._P = x1, P1
         self._truncate_floor()
+        if self._ref is not None:
+            self._n_upd += 1
+            if self._n_upd % max(self.tuning.switch_every, 1) == 0:
+                self._switch()
         return nu, S  # innovation and its covariance of the first (plain) linearization
 
     def _needs_iteration(self, R, omega):
         """Runs whose linearization error over the prior is large: ``tr(R^-1 Omega) > threshold``."""
         th = self.tuning.iterate_threshold
         if th <= 0:
-            return np.ones(self.x.shape[:-1], dtype=bool)
+            return np.ones(self._x.shape[:-1], dtype=bool)
         Om = omega()
         return np.einsum("...ii->...", chol_solve(R, Om)) > th
 
@@ -343,15 +475,16 @@ class CvTracker:
         ``c_j = 0.5 tr(M_j C_jj)`` (..., m) and covariance ``0.5 tr(M_i C_ij M_j C_ji)`` (..., m, m), with
         ``M_j = (I - u_j u_j^T) / r_j`` the Hessian of range j in the position at its measurement time
         and ``C_ij`` the covariance of those positions (``p + v dt``)."""
-        r, u = mdl.los(self.x, stations_m, dt_s)  # (..., m), (..., m, 3)
+        X, P = self.x, self.P  # Cartesian moments (converted once with inverse coordinates)
+        r, u = mdl.los(X, stations_m, dt_s)  # (..., m), (..., m, 3)
         Mh = (np.eye(3) - u[..., :, None] * u[..., None, :]) / r[..., None, None]  # (..., m, 3, 3)
-        Ppp = self.P[..., None, None, 0:3, 0:3]
+        Ppp = P[..., None, None, 0:3, 0:3]
         if dt_s is None:
             C = np.broadcast_to(Ppp, Mh.shape[:-3] + (Mh.shape[-3],) * 2 + (3, 3))
         else:
             d = np.asarray(dt_s, dtype=float)
-            Ppv = self.P[..., None, None, 0:3, 3:6]
-            Pvv = self.P[..., None, None, 3:6, 3:6]
+            Ppv = P[..., None, None, 0:3, 3:6]
+            Pvv = P[..., None, None, 3:6, 3:6]
             di, dj = d[:, None, None, None], d[None, :, None, None]
             C = Ppp + Ppv * dj + np.swapaxes(Ppv, -1, -2) * di + Pvv * (di * dj)
         MC = Mh[..., :, None, :, :] @ C  # M_i C_ij: (..., m, m, 3, 3)
@@ -364,7 +497,7 @@ class CvTracker:
         current iterate ``xi`` and update the prior ``(x, P)`` with ``z - h(xi) - H (x - xi)``."""
         H = jac(xi)
         hxi = h(xi)
-        x, P = self.x, self.P
+        x, P = self._x, self._P
 
         def h_lin(X):
             return hxi + np.einsum("...ij,...j->...i", H, X - xi)
@@ -384,7 +517,7 @@ class CvTracker:
         Om = symmetrize(ut.cov - A @ ut.cross)  # Py - A Pi A^T
         w, V = np.linalg.eigh(Om)  # >= 0 in exact arithmetic; the scaled set's negative W0c can break it
         Om = (V * np.maximum(w, 0.0)[..., None, :]) @ np.swapaxes(V, -1, -2)
-        x1, P1, _, _ = kf_update(self.x, self.P, z - b, A, R + Om)
+        x1, P1, _, _ = kf_update(self._x, self._P, z - b, A, R + Om)
         return x1, P1
 
     def update_sequential(
@@ -417,11 +550,16 @@ class CvTracker:
         if fz is None:
             return
         n = self.layout.n
-        x = self.x.reshape(-1, n)  # views: in-place edits reach self.x / self.P
-        P = self.P.reshape(-1, n, n)
+        x = self._x.reshape(-1, n)  # views: in-place edits reach self._x / self._P
+        P = self._P.reshape(-1, n, n)
         s2 = P[:, 2, 2]
         s = np.sqrt(s2)
         a = (fz - x[:, 2]) / s
+        if self._inv.any():
+            # inverse coordinates: z >= floor  <=>  q_z >= (floor - c_z) |q|^2 / L^2 (linear if the
+            # reference point lies on the floor; the right side is taken at the mean)
+            ai = ((fz - self._ref[2]) * np.einsum("ki,ki->k", x[:, :3], x[:, :3]) / crd.SCALE_M**2 - x[:, 2]) / s
+            a = np.where(self._inv.reshape(-1), ai, a)
         act = a > -self.tuning.trunc_sigma  # 6 sigma: mass below the floor > 1e-9
         if not np.any(act):
             return
@@ -542,7 +680,8 @@ class AircraftEstimator:
                 self.t_s = t_s
                 self.n_updates += 1
                 if self.method != "lsq":
-                    self.tracker = CvTracker(self.method, self.model, init.x0, tu, t0_s=t_s, P0=init.P0)
+                    self.tracker = CvTracker(self.method, self.model, init.x0, tu, t0_s=t_s, P0=init.P0,
+                                             ref_m=crd.reference_point(pos))
                 return
             first = self.fix is None
             if first:
@@ -573,7 +712,7 @@ class AircraftEstimator:
             P0 = tu.p0(self.tracker_layout())
             idx = [0, 1, 2, 6] if self.model == "pr" else [0, 1, 2]
             P0[np.ix_(idx, idx)] = C
-            self.tracker = CvTracker(self.method, self.model, x0, tu, t0_s=t_s, P0=P0)
+            self.tracker = CvTracker(self.method, self.model, x0, tu, t0_s=t_s, P0=P0, ref_m=crd.reference_point(pos))
             return
         try:
             self.tracker.predict_to(t_s)

@@ -120,7 +120,7 @@ def speed_vs_filterpy(ac, steps: int = 400, runs: int = 64) -> dict:
     from aircraft.estimators import CvTracker
 
     # filterpy's UKF is the plain one: compare the same algorithm (no iterated update)
-    tun = replace(ac.tuning, floor_z_m=None, iterations=1)
+    tun = replace(ac.tuning, floor_z_m=None, iterations=1, coords="cartesian")
     dt = 1.0 / ac.rate_hz
     t = np.arange(steps) * dt
     track = trajectory.from_config({"kind": "hover", "distance_m": 1000.0}, t, ac.centre_m)

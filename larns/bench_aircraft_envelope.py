@@ -83,6 +83,20 @@ def _pcrb(model: str, tracks, ac, win: np.ndarray) -> np.ndarray:
     return np.sqrt(np.mean(tr, axis=0))
 
 
+def _nees(e: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """NEES per run (M,); a run whose covariance is not positive definite gets inf (over-confident)."""
+    from nav.kalman import nees as nees_fn
+
+    try:
+        return nees_fn(e, P)
+    except np.linalg.LinAlgError:
+        w, V = np.linalg.eigh(P)
+        y = np.einsum("...ji,...j->...i", V, e)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out = np.sum(y**2 / w, axis=-1)
+        return np.where(np.all(w > 0, axis=-1), out, np.inf)
+
+
 def run_chunk(ac, pts: list[Point], runs: int, duration_s: float, warmup_s: float, rng: np.random.Generator,
               algos=FILTERS, nees_stride: int = 5) -> list[dict]:
     """All filters at the points ``pts`` (one batched filter per algorithm: K points x runs).
@@ -92,8 +106,6 @@ def run_chunk(ac, pts: list[Point], runs: int, duration_s: float, warmup_s: floa
     from aircraft import models as mdl
     from aircraft import sim
     from aircraft.estimators import CvTracker
-    from nav.kalman import nees as nees_fn
-
     dt = 1.0 / ac.rate_hz
     t = np.arange(0.0, duration_s, dt)
     win = t >= warmup_s
@@ -123,7 +135,7 @@ def run_chunk(ac, pts: list[Point], runs: int, duration_s: float, warmup_s: floa
                 e = trk.x - xt[:, k]
                 sse += np.einsum("mi,mi->m", e[:, :3], e[:, :3])
                 if k % nees_stride == 0:
-                    nees_sum += nees_fn(e, trk.P)
+                    nees_sum += _nees(e, trk.P)
                     n_nees += 1
         el = time.perf_counter() - t0
         mse = (sse / win.sum()).reshape(K, runs)
