@@ -190,11 +190,9 @@ class Tuning:
     # height/clock and range/clock ridges of a small-base system); "cartesian" = [p, v, b, bdot]
     coords: str = "cartesian"
     # ... per run, only while the position is known well relative to its distance from the reference:
-    # sqrt(tr P_pos) < inverse_max_rel * |p - c| (back to Cartesian above three times that; near the
-    # array the inversion of a wide Gaussian is itself far from Gaussian). Checked every
-    # ``switch_every`` updates.
+    # sqrt(tr P_pos) < inverse_max_rel * |p - c| (back to Cartesian above twice that; near the
+    # array the inversion of a wide Gaussian is itself far from Gaussian). Checked after every update.
     inverse_max_rel: float = 0.15
-    switch_every: int = 10
 
     def p0(self, layout: mdl.StateLayout) -> np.ndarray:
         d = [self.p0_pos_m] * 3 + [self.p0_vel_m_s] * 3
@@ -240,7 +238,6 @@ class CvTracker:
         self._clock = self.layout.kind == "pr"
         self._ref: np.ndarray | None = None  # reference point of the inverse-range coordinates
         self._inv = np.zeros(x0.shape[:-1], dtype=bool)  # runs whose internal state is inverse-range
-        self._n_upd = 0
         if tuning.coords == "inverse" and ref_m is not None:
             self._ref = np.asarray(ref_m, dtype=float)
             self._switch()
@@ -304,24 +301,35 @@ class CvTracker:
         self._P = value
 
     def _switch(self) -> None:
-        """Move runs between Cartesian and inverse-range coordinates: inverse while
-        ``sqrt(tr P_pos) < inverse_max_rel |p - c|``, back to Cartesian above three times that."""
-        X, P = self.x, self.P
-        d = X[..., :3] - self._ref
-        r = np.sqrt(np.einsum("...i,...i->...", d, d))
-        sp = np.sqrt(np.einsum("...ii->...", P[..., :3, :3]))
+        """Move runs between Cartesian and inverse-range coordinates: inverse while the relative
+        position uncertainty ``sqrt(tr P_pos) / |p - c|`` is below ``inverse_max_rel``, back to
+        Cartesian above twice that (checked on the runs' own coordinates: in inverse ones
+        ``sqrt(tr P_qq) / |q|`` is the same ratio to first order)."""
+        n = self._x.shape[-1]
+        x = self._x.reshape(-1, n)
+        P = self._P.reshape(-1, n, n)
+        inv = self._inv.reshape(-1)
         k = self.tuning.inverse_max_rel
-        new = np.where(self._inv, sp < 3.0 * k * r, sp < k * r)
-        ch = new != self._inv
+        d = np.where(inv[:, None], x[:, :3], x[:, :3] - self._ref)
+        with np.errstate(all="ignore"):
+            rel = np.sqrt(np.einsum("kii->k", P[:, :3, :3]) / np.einsum("ki,ki->k", d, d))
+        new = np.where(inv, rel < 2.0 * k, rel < k)
+        ch = new != inv
         if not np.any(ch):
             return
+        X = self._cart(self._x).reshape(-1, n)[ch]
+        T = self._T(self._x)
+        Pc = P[ch] if T is None else symmetrize(T @ self._P @ np.swapaxes(T, -1, -2)).reshape(-1, n, n)[ch]
+        to_inv = new[ch]
         with np.errstate(all="ignore"):
             G = crd.jac_to_inverse(X, self._ref, self._clock)
-            xs = np.where(new[..., None], crd.to_inverse(X, self._ref, self._clock), X)
-            Ps = np.where(new[..., None, None], symmetrize(G @ P @ np.swapaxes(G, -1, -2)), P)
-        self._x = np.where(ch[..., None], xs, self._x)
-        self._P = np.where(ch[..., None, None], Ps, self._P)
-        self._inv = new
+            xs = np.where(to_inv[:, None], crd.to_inverse(X, self._ref, self._clock), X)
+            Ps = np.where(to_inv[:, None, None], symmetrize(G @ Pc @ np.swapaxes(G, -1, -2)), Pc)
+        x2, P2 = x.copy(), P.copy()
+        x2[ch], P2[ch] = xs, Ps
+        self._x = x2.reshape(self._x.shape)
+        self._P = P2.reshape(self._P.shape)
+        self._inv = new.reshape(self._inv.shape)
 
     def _FQ(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         if dt == self._last_dt:  # synchronous epochs: the same step every time
@@ -444,9 +452,7 @@ class CvTracker:
         self._x, self._P = x1, P1
         self._truncate_floor()
         if self._ref is not None:
-            self._n_upd += 1
-            if self._n_upd % max(self.tuning.switch_every, 1) == 0:
-                self._switch()
+            self._switch()
         return nu, S  # innovation and its covariance of the first (plain) linearization
 
     def _needs_iteration(self, R, omega):
