@@ -37,6 +37,12 @@ def reference_point(stations_m: np.ndarray) -> np.ndarray:
     return np.asarray(stations_m, dtype=float).reshape(-1, 3).mean(axis=0)
 
 
+def array_radius(stations_m: np.ndarray) -> float:
+    """RMS distance (m) of the stations (m, 3) from their centroid."""
+    st = np.asarray(stations_m, dtype=float).reshape(-1, 3)
+    return float(np.sqrt(np.mean(np.sum((st - st.mean(axis=0)) ** 2, axis=1))))
+
+
 def _householder(a: np.ndarray) -> np.ndarray:
     """``I - 2 a a^T / |a|^2`` over leading axes; a (..., 3) -> (..., 3, 3)."""
     a2 = np.einsum("...i,...i->...", a, a)

@@ -188,11 +188,14 @@ class Tuning:
     # filter coordinates: "inverse" = position inverted through the unit sphere about the broadcast
     # station centroid and the clock carried as b + range to it (aircraft/coords.py: straightens the
     # height/clock and range/clock ridges of a small-base system); "cartesian" = [p, v, b, bdot]
-    coords: str = "cartesian"
+    coords: str = "inverse"
     # ... per run, only while the position is known well relative to its distance from the reference:
     # sqrt(tr P_pos) < inverse_max_rel * |p - c| (back to Cartesian above twice that; near the
     # array the inversion of a wide Gaussian is itself far from Gaussian). Checked after every update.
     inverse_max_rel: float = 0.15
+    # ... and only beyond this many array radii (RMS station distance from the centroid) from the
+    # reference: close to the array the ranges to single stations dominate the nonlinearity
+    inverse_min_radii: float = 3.0
 
     def p0(self, layout: mdl.StateLayout) -> np.ndarray:
         d = [self.p0_pos_m] * 3 + [self.p0_vel_m_s] * 3
@@ -213,7 +216,8 @@ class CvTracker:
     P0 : (n, n) or (M, n, n) initial covariance; None = the tuning's prior ``tuning.p0``.
     ref_m : (3,) reference point of the inverse-range coordinates (``tuning.coords == "inverse"``):
         :func:`aircraft.coords.reference_point` of the broadcast stations; None = that of the first
-        update's stations.
+        update's stations. ref_radius_m : RMS distance of the stations from ``ref_m``
+        (:func:`aircraft.coords.array_radius`).
 
     ``x`` and ``P`` are always Cartesian (``[p, v (, b (, bdot))]``); with inverse coordinates the
     filter works on ``(q, v, beta, bdot)`` internally and converts on access (covariance to first
@@ -221,7 +225,8 @@ class CvTracker:
     """
 
     def __init__(self, kind: str, model: str, x0: np.ndarray, tuning: Tuning, t0_s: float = 0.0, base: int = 0,
-                 P0: np.ndarray | None = None, ref_m: np.ndarray | None = None):
+                 P0: np.ndarray | None = None, ref_m: np.ndarray | None = None,
+                 ref_radius_m: float | None = None):
         if kind not in ("ekf", "ukf"):
             raise ValueError(f"unknown filter {kind!r} (ekf or ukf)")
         self.kind = kind
@@ -238,8 +243,10 @@ class CvTracker:
         self._clock = self.layout.kind == "pr"
         self._ref: np.ndarray | None = None  # reference point of the inverse-range coordinates
         self._inv = np.zeros(x0.shape[:-1], dtype=bool)  # runs whose internal state is inverse-range
+        self._radius = 0.0  # RMS distance of the stations from the reference point
         if tuning.coords == "inverse" and ref_m is not None:
             self._ref = np.asarray(ref_m, dtype=float)
+            self._radius = float(ref_radius_m) if ref_radius_m is not None else 0.0
             self._switch()
         self.t_s = float(t0_s)
         self.base = base
@@ -313,7 +320,11 @@ class CvTracker:
         d = np.where(inv[:, None], x[:, :3], x[:, :3] - self._ref)
         with np.errstate(all="ignore"):
             rel = np.sqrt(np.einsum("kii->k", P[:, :3, :3]) / np.einsum("ki,ki->k", d, d))
-        new = np.where(inv, rel < 2.0 * k, rel < k)
+        with np.errstate(all="ignore"):
+            r = np.sqrt(np.einsum("ki,ki->k", d, d))
+            r = np.where(inv, crd.SCALE_M**2 / r, r)
+        far = r > self.tuning.inverse_min_radii * self._radius
+        new = np.where(inv, rel < 2.0 * k, rel < k) & far
         ch = new != inv
         if not np.any(ch):
             return
@@ -377,6 +388,7 @@ class CvTracker:
         stations_m = np.asarray(stations_m, dtype=float)
         if self._ref is None and self.tuning.coords == "inverse":
             self._ref = crd.reference_point(stations_m)
+            self._radius = crd.array_radius(stations_m)
             self._switch()
         sig = self.tuning.sigma_m if sigma_m is None else sigma_m
         if self.layout.kind == "pr":
@@ -687,7 +699,8 @@ class AircraftEstimator:
                 self.n_updates += 1
                 if self.method != "lsq":
                     self.tracker = CvTracker(self.method, self.model, init.x0, tu, t0_s=t_s, P0=init.P0,
-                                             ref_m=crd.reference_point(pos))
+                                             ref_m=crd.reference_point(pos),
+                                             ref_radius_m=crd.array_radius(pos))
                 return
             first = self.fix is None
             if first:
@@ -718,7 +731,8 @@ class AircraftEstimator:
             P0 = tu.p0(self.tracker_layout())
             idx = [0, 1, 2, 6] if self.model == "pr" else [0, 1, 2]
             P0[np.ix_(idx, idx)] = C
-            self.tracker = CvTracker(self.method, self.model, x0, tu, t0_s=t_s, P0=P0, ref_m=crd.reference_point(pos))
+            self.tracker = CvTracker(self.method, self.model, x0, tu, t0_s=t_s, P0=P0, ref_m=crd.reference_point(pos),
+                                             ref_radius_m=crd.array_radius(pos))
             return
         try:
             self.tracker.predict_to(t_s)

@@ -300,9 +300,9 @@ def main(ac, args, progress) -> int:
         kw = dict(heights=tuple(float(x) for x in b.get("envelope_heights_m", HEIGHTS_M)),
                   dists=tuple(float(x) for x in b.get("envelope_dists_m", DISTANCES_M)),
                   bearings=tuple(float(x) for x in b.get("envelope_bearings_deg", BEARINGS_DEG)))
-        runs = args.trials or int(b.get("envelope_runs", 16))
-        duration = args.duration or float(b.get("envelope_duration_s", 20.0))
-        warmup = args.warmup if args.warmup is not None else float(b.get("envelope_warmup_s", 8.0))
+        runs = args.trials or int(b.get("envelope_runs", 12))
+        duration = args.duration or float(b.get("envelope_duration_s", 16.0))
+        warmup = args.warmup if args.warmup is not None else float(b.get("envelope_warmup_s", 6.0))
     if warmup >= duration:
         print("error: --warmup must be shorter than --duration", file=sys.stderr)
         return 2
