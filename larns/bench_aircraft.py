@@ -218,14 +218,19 @@ def run(args) -> int:
 
     out = _assemble(res, sweep, speed, runs, duration, warmup, args, ac, wall)
     _print_table(out)
+    write_outputs(out, args, _plots)
+    return 0
+
+
+def write_outputs(doc: dict, args, plots) -> None:
+    """``--json`` and ``--png-dir`` of an aircraft bench: the document and ``plots(doc, dir)``."""
     if args.json:
         with open(args.json, "w") as f:
-            json.dump(out, f, indent=1)
+            json.dump(doc, f, indent=1)
         _progress(f"wrote {args.json}")
     if args.png_dir:
-        for p in _plots(out, args.png_dir):
+        for p in plots(doc, args.png_dir):
             _progress(f"wrote {p}")
-    return 0
 
 
 def _assemble(res, sweep, speed, runs, duration, warmup, args, ac, wall) -> dict:

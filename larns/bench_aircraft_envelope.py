@@ -12,7 +12,6 @@ run-to-run spread (delta method on the per-run mean squared error), the mean NEE
 
 from __future__ import annotations
 
-import json
 import os
 import sys
 import time
@@ -310,11 +309,7 @@ def main(ac, args, progress) -> int:
     doc["settings"]["scenario"] = args.scenario
     doc["settings"]["quick"] = bool(args.quick)
     print_table(doc)
-    if args.json:
-        with open(args.json, "w") as f:
-            json.dump(doc, f, indent=1)
-        progress(f"wrote {args.json}")
-    if args.png_dir:
-        for p in heatmaps(doc, args.png_dir):
-            progress(f"wrote {p}")
+    from .bench_aircraft import write_outputs
+
+    write_outputs(doc, args, heatmaps)
     return 0
