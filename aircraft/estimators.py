@@ -437,7 +437,9 @@ class CvTracker:
 
             x1, P1, nu, S = ekf_update(self._x, self._P, z, h, jac(self._x), R)
             if self.tuning.iterations > 1:
-                mask = self._needs_iteration(R, lambda: self._om_ekf(stations_m, dt_s))
+                om = ((lambda: S2) if self.tuning.ekf_second_order  # already computed above
+                      else (lambda: self._om_ekf(stations_m, dt_s)))
+                mask = self._needs_iteration(R, om)
                 if np.any(mask):
                     xi, Pi = x1, P1
                     for _ in range(self.tuning.iterations - 1):
