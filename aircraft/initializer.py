@@ -7,7 +7,8 @@ covariance.
 * **Snapshot** where the geometry allows it: a multi-start Gauss-Newton LSQ fix (starts spread around
   the *broadcast* station centroid at several heights, bearings and distances; the fix with the lowest
   weighted residual wins, reflected above the station plane), with its own covariance
-  ``(H^T W H)^-1`` (seed 001 eqs. 14-16/18).
+  ``(H^T W H)^-1`` (seed 001 eqs. 14-16/18), standard deviations doubled (one epoch, linearized at
+  the fix).
 * **Wide prior** where it does not (the fix's position standard deviation above ``max_fix_sigma_m``,
   e.g. in the far field of a small-base system where one epoch's fix is off by kilometres): the fix as
   the mean with an isotropic covariance of ``wide_sigma_m`` (never smaller than the fix's own) for the
@@ -33,10 +34,12 @@ from .estimators import Tuning, lsq_cov, lsq_pr, lsq_tdoa
 @dataclass(frozen=True)
 class InitConfig:
     """How the start is formed. ``max_fix_sigma_m``: a snapshot fix is used with its own covariance
-    only if its position standard deviation ``sqrt(tr C_pos)`` is at most this; ``wide_sigma_m``: the
-    position / clock standard deviation of the wide prior; ``vel_sigma_m_s``: the velocity prior."""
+    (standard deviations scaled by ``fix_inflation``: one epoch, linearized at the fix) only if its
+    position standard deviation ``sqrt(tr C_pos)`` is at most this; ``wide_sigma_m``: the position /
+    clock standard deviation of the wide prior; ``vel_sigma_m_s``: the velocity prior."""
 
-    max_fix_sigma_m: float = 50.0
+    max_fix_sigma_m: float = 300.0
+    fix_inflation: float = 2.0
     wide_sigma_m: float = 2000.0
     vel_sigma_m_s: float = 30.0
 
@@ -126,7 +129,9 @@ def initial_state(
     sig = float(np.sqrt(np.trace(C[:3, :3]))) if np.all(np.isfinite(C)) else np.inf
     snapshot = bool(np.isfinite(sig) and sig <= cfg.max_fix_sigma_m)
     k = fix.size  # 4 (pr: x y z b) or 3
-    if not snapshot:
+    if snapshot:
+        C = C * cfg.fix_inflation**2
+    else:
         w2 = max(cfg.wide_sigma_m, sig if np.isfinite(sig) else 0.0) ** 2
         C = np.eye(k) * w2
     n = layout.n
