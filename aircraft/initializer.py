@@ -8,7 +8,8 @@ covariance.
   the *broadcast* station centroid at several heights, bearings and distances; the fix with the lowest
   weighted residual wins, reflected above the station plane), with its own covariance
   ``(H^T W H)^-1`` (seed 001 eqs. 14-16/18), standard deviations doubled (one epoch, linearized at
-  the fix).
+  the fix), where that is at most ``max_fix_sigma_m`` and no other root fits as well farther than
+  three of those standard deviations.
 * **Wide prior** where it does not (the fix's position standard deviation above ``max_fix_sigma_m``,
   e.g. in the far field of a small-base system where one epoch's fix is off by kilometres): the fix as
   the mean with an isotropic covariance of ``wide_sigma_m`` (never smaller than the fix's own) for the
@@ -60,14 +61,14 @@ class InitResult:
 
 def start_points(pos_m: np.ndarray) -> np.ndarray:
     """Multi-start positions (k, 3) around the broadcast station centroid: heights of 1, 5 and 30
-    station spreads above it, straight above and at 8 bearings at 5 and 30 spreads."""
+    station spreads above it, straight above and at 8 bearings at 5, 30 and 100 spreads."""
     pos_m = np.asarray(pos_m, dtype=float)
     c = pos_m.mean(axis=0)
     spread = max(float(np.sqrt(np.mean(np.sum((pos_m - c) ** 2, axis=1)))), 10.0)
     pts = []
     for hz in (1.0, 5.0, 30.0):
         pts.append(c + [0.0, 0.0, hz * spread])
-        for rad in (5.0, 30.0):
+        for rad in (5.0, 30.0, 100.0):
             for az in np.radians(np.arange(0.0, 360.0, 45.0)):
                 pts.append(c + [rad * spread * np.cos(az), rad * spread * np.sin(az), hz * spread])
     return np.array(pts)
@@ -76,9 +77,11 @@ def start_points(pos_m: np.ndarray) -> np.ndarray:
 def snapshot_fix(
     model: str, pos_m: np.ndarray, cov_m2: np.ndarray | None, rho_m: np.ndarray, sigma_m: float,
     floor_z_m: float | None = 0.0,
-) -> tuple[np.ndarray, np.ndarray, float]:
-    """Multi-start LSQ fix of one batch. Returns ``(fix, C, cost)``: fix (4,) ``[x y z b]`` for pr,
-    (3,) for tdoa, its covariance ``(H^T W H)^-1`` and the weighted residual sum of squares."""
+) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """Multi-start LSQ fix of one batch. Returns ``(fix, C, cost, ambiguity_m)``: fix (4,)
+    ``[x y z b]`` for pr, (3,) for tdoa, its covariance ``(H^T W H)^-1``, the weighted residual sum of
+    squares and the largest distance from the fix to another start's solution that fits as well
+    (cost within 4 of the best): other roots of a batch without redundancy."""
     pos_m = np.asarray(pos_m, dtype=float)
     rho_m = np.asarray(rho_m, dtype=float)
     m = pos_m.shape[0]
@@ -104,11 +107,14 @@ def snapshot_fix(
     cost = np.where(np.all(np.isfinite(x), axis=1), cost, np.inf)
     i = int(np.argmin(cost))
     fix = x[i]
+    # other solutions that fit as well (no redundancy: 4 pseudoranges for 4 unknowns have several)
+    alike = cost <= cost[i] + 4.0
+    amb = float(np.max(np.linalg.norm(x[alike, :3] - fix[:3], axis=1)))
     try:
         C = lsq_cov(fix[None], pos_m, var, model, cov_m2)[0]
     except np.linalg.LinAlgError:
         C = np.full((fix.size, fix.size), np.inf)
-    return fix, C, float(cost[i])
+    return fix, C, float(cost[i]), amb
 
 
 def initial_state(
@@ -125,14 +131,14 @@ def initial_state(
     """
     cfg = config or InitConfig()
     layout = mdl.StateLayout(model, drift=tuning.drift_state and model == "pr")
-    fix, C, cost = snapshot_fix(model, pos_m, cov_m2, rho_m, tuning.sigma_m, tuning.floor_z_m)
+    fix, C, cost, amb = snapshot_fix(model, pos_m, cov_m2, rho_m, tuning.sigma_m, tuning.floor_z_m)
     sig = float(np.sqrt(np.trace(C[:3, :3]))) if np.all(np.isfinite(C)) else np.inf
-    snapshot = bool(np.isfinite(sig) and sig <= cfg.max_fix_sigma_m)
+    snapshot = bool(np.isfinite(sig) and sig <= cfg.max_fix_sigma_m and amb <= 3.0 * cfg.fix_inflation * sig)
     k = fix.size  # 4 (pr: x y z b) or 3
     if snapshot:
         C = C * cfg.fix_inflation**2
     else:
-        w2 = max(cfg.wide_sigma_m, sig if np.isfinite(sig) else 0.0) ** 2
+        w2 = max(cfg.wide_sigma_m, sig if np.isfinite(sig) else 0.0, amb) ** 2
         C = np.eye(k) * w2
     n = layout.n
     x0 = np.zeros(n)
