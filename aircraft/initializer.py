@@ -8,8 +8,8 @@ covariance.
   the *broadcast* station centroid at several heights, bearings and distances; the fix with the lowest
   weighted residual wins, reflected above the station plane), with its own covariance
   ``(H^T W H)^-1`` (seed 001 eqs. 14-16/18), standard deviations doubled (one epoch, linearized at
-  the fix), where that is at most ``max_fix_sigma_m`` and no other root fits as well farther than
-  three of those standard deviations.
+  the fix) plus the spread of the other roots that fit as well, where that position standard
+  deviation is at most ``max_fix_sigma_m``.
 * **Wide prior** where it does not (the fix's position standard deviation above ``max_fix_sigma_m``,
   e.g. in the far field of a small-base system where one epoch's fix is off by kilometres): the fix as
   the mean with an isotropic covariance of ``wide_sigma_m`` (never smaller than the fix's own) for the
@@ -81,7 +81,8 @@ def snapshot_fix(
     """Multi-start LSQ fix of one batch. Returns ``(fix, C, cost, ambiguity_m)``: fix (4,)
     ``[x y z b]`` for pr, (3,) for tdoa, its covariance ``(H^T W H)^-1``, the weighted residual sum of
     squares and the largest distance from the fix to another start's solution that fits as well
-    (cost within 4 of the best): other roots of a batch without redundancy."""
+    (cost within 4 of the best: other roots of a batch with little redundancy). Those roots are
+    added to ``C`` (their second moment about the fix), so the start covers them."""
     pos_m = np.asarray(pos_m, dtype=float)
     rho_m = np.asarray(rho_m, dtype=float)
     m = pos_m.shape[0]
@@ -109,11 +110,14 @@ def snapshot_fix(
     fix = x[i]
     # other solutions that fit as well (no redundancy: 4 pseudoranges for 4 unknowns have several)
     alike = cost <= cost[i] + 4.0
-    amb = float(np.max(np.linalg.norm(x[alike, :3] - fix[:3], axis=1)))
+    dev = x[alike] - fix  # (j, k) other roots relative to the fix
+    amb = float(np.max(np.linalg.norm(dev[:, :3], axis=1)))
     try:
         C = lsq_cov(fix[None], pos_m, var, model, cov_m2)[0]
     except np.linalg.LinAlgError:
         C = np.full((fix.size, fix.size), np.inf)
+    # roots that fit as well enter the covariance (second moment about the fix): the start covers them
+    C = C + dev.T @ dev / max(len(dev), 1)
     return fix, C, float(cost[i]), amb
 
 
@@ -133,7 +137,7 @@ def initial_state(
     layout = mdl.StateLayout(model, drift=tuning.drift_state and model == "pr")
     fix, C, cost, amb = snapshot_fix(model, pos_m, cov_m2, rho_m, tuning.sigma_m, tuning.floor_z_m)
     sig = float(np.sqrt(np.trace(C[:3, :3]))) if np.all(np.isfinite(C)) else np.inf
-    snapshot = bool(np.isfinite(sig) and sig <= cfg.max_fix_sigma_m and amb <= 3.0 * cfg.fix_inflation * sig)
+    snapshot = bool(np.isfinite(sig) and sig <= cfg.max_fix_sigma_m)
     k = fix.size  # 4 (pr: x y z b) or 3
     if snapshot:
         C = C * cfg.fix_inflation**2
