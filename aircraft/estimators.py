@@ -22,6 +22,7 @@ from scipy.special import erfcx
 from nav.kalman import chol_solve, ekf_update, kf_predict, kf_update, symmetrize, ukf_update
 from nav.ut import SigmaParams, unscented_transform
 
+from . import coords as crd
 from . import models as mdl
 
 ALGOS = mdl.ALGOS
@@ -184,6 +185,17 @@ class Tuning:
     # 0.5 tr(M_j P) and innovation covariance 0.5 tr(M_i P M_j P). Close to a transmitter the range's
     # curvature biases a first-order EKF (the UKF captures it through its sigma points).
     ekf_second_order: bool = True
+    # filter coordinates: "inverse" = position inverted through the unit sphere about the broadcast
+    # station centroid and the clock carried as b + range to it (aircraft/coords.py: straightens the
+    # height/clock and range/clock ridges of a small-base system); "cartesian" = [p, v, b, bdot]
+    coords: str = "inverse"
+    # ... per run, only while the position is known well relative to its distance from the reference:
+    # sqrt(tr P_pos) < inverse_max_rel * |p - c| (back to Cartesian above twice that; near the
+    # array the inversion of a wide Gaussian is itself far from Gaussian). Checked after every update.
+    inverse_max_rel: float = 0.15
+    # ... and only beyond this many array radii (RMS station distance from the centroid) from the
+    # reference: close to the array the ranges to single stations dominate the nonlinearity
+    inverse_min_radii: float = 3.0
 
     def p0(self, layout: mdl.StateLayout) -> np.ndarray:
         d = [self.p0_pos_m] * 3 + [self.p0_vel_m_s] * 3
@@ -201,9 +213,20 @@ class CvTracker:
     ----------
     kind : "ekf" or "ukf". model : "pr" or "tdoa". x0 : (M, n) initial means. tuning : :class:`Tuning`.
     t0_s : time of ``x0``. base : TDOA base station index within each batch.
+    P0 : (n, n) or (M, n, n) initial covariance; None = the tuning's prior ``tuning.p0``.
+    ref_m : (3,) reference point of the inverse-range coordinates (``tuning.coords == "inverse"``):
+        :func:`aircraft.coords.reference_point` of the broadcast stations; None = that of the first
+        update's stations. ref_radius_m : RMS distance of the stations from ``ref_m``
+        (:func:`aircraft.coords.array_radius`).
+
+    ``x`` and ``P`` are always Cartesian (``[p, v (, b (, bdot))]``); with inverse coordinates the
+    filter works on ``(q, v, beta, bdot)`` internally and converts on access (covariance to first
+    order, ``T P T^T``).
     """
 
-    def __init__(self, kind: str, model: str, x0: np.ndarray, tuning: Tuning, t0_s: float = 0.0, base: int = 0):
+    def __init__(self, kind: str, model: str, x0: np.ndarray, tuning: Tuning, t0_s: float = 0.0, base: int = 0,
+                 P0: np.ndarray | None = None, ref_m: np.ndarray | None = None,
+                 ref_radius_m: float | None = None):
         if kind not in ("ekf", "ukf"):
             raise ValueError(f"unknown filter {kind!r} (ekf or ukf)")
         self.kind = kind
@@ -212,8 +235,19 @@ class CvTracker:
         x0 = np.asarray(x0, dtype=float)  # (M, n) batched, or (n,) for one run (faster small-matrix path)
         if x0.shape[-1] != self.layout.n:
             raise ValueError(f"x0 must have {self.layout.n} states for {model}, got {x0.shape}")
-        self.x = x0.copy()
-        self.P = np.broadcast_to(tuning.p0(self.layout), x0.shape[:-1] + (self.layout.n,) * 2).copy()
+        if tuning.coords not in ("inverse", "cartesian"):
+            raise ValueError(f"unknown coords {tuning.coords!r} (inverse or cartesian)")
+        self._x = x0.copy()
+        P0 = tuning.p0(self.layout) if P0 is None else np.asarray(P0, dtype=float)
+        self._P = np.broadcast_to(P0, x0.shape[:-1] + (self.layout.n,) * 2).copy()
+        self._clock = self.layout.kind == "pr"
+        self._ref: np.ndarray | None = None  # reference point of the inverse-range coordinates
+        self._inv = np.zeros(x0.shape[:-1], dtype=bool)  # runs whose internal state is inverse-range
+        self._radius = 0.0  # RMS distance of the stations from the reference point
+        if tuning.coords == "inverse" and ref_m is not None:
+            self._ref = np.asarray(ref_m, dtype=float)
+            self._radius = float(ref_radius_m) if ref_radius_m is not None else 0.0
+            self._switch()
         self.t_s = float(t0_s)
         self.base = base
         self.params = SigmaParams.scaled(alpha=tuning.alpha, beta=2.0, kappa=0.0)
@@ -222,6 +256,91 @@ class CvTracker:
         self._last_fq: tuple[np.ndarray, np.ndarray] | None = None
         self._r_key: tuple | None = None
         self._r: np.ndarray | None = None
+
+    # -- coordinates
+    def _mask(self, X: np.ndarray, extra: int) -> np.ndarray:
+        """The inverse-coordinate run mask shaped to broadcast against X (runs[, sigma], n[, n])."""
+        return self._inv.reshape(self._inv.shape + (1,) * (X.ndim - self._x.ndim + extra))
+
+    def _cart(self, X: np.ndarray) -> np.ndarray:
+        """Internal-coordinate states X (runs[, sigma points], n) -> Cartesian."""
+        if not self._inv.any():
+            return X
+        with np.errstate(all="ignore"):
+            return np.where(self._mask(X, 1), crd.to_cartesian(X, self._ref, self._clock), X)
+
+    def _T(self, X: np.ndarray) -> np.ndarray | None:
+        """dx/ds at internal-coordinate states X (..., n, n); None = identity for every run."""
+        if not self._inv.any():
+            return None
+        with np.errstate(all="ignore"):
+            return np.where(self._mask(X, 2), crd.jac_to_cartesian(X, self._clock), np.eye(X.shape[-1]))
+
+    @property
+    def x(self) -> np.ndarray:
+        """Cartesian state (..., n)."""
+        return self._cart(self._x)
+
+    @x.setter
+    def x(self, value: np.ndarray) -> None:
+        value = np.asarray(value, dtype=float)
+        if self._inv.any():
+            with np.errstate(all="ignore"):
+                value = np.where(self._mask(value, 1), crd.to_inverse(value, self._ref, self._clock), value)
+        self._x = value
+
+    @property
+    def P(self) -> np.ndarray:
+        """Cartesian covariance (..., n, n) (first-order conversion ``T P T^T`` for inverse-coordinate runs)."""
+        T = self._T(self._x)
+        if T is None:
+            return self._P
+        return symmetrize(T @ self._P @ np.swapaxes(T, -1, -2))
+
+    @P.setter
+    def P(self, value: np.ndarray) -> None:
+        value = np.asarray(value, dtype=float)
+        if self._inv.any():
+            with np.errstate(all="ignore"):
+                G = np.where(self._mask(self._x, 2), crd.jac_to_inverse(self.x, self._ref, self._clock),
+                             np.eye(value.shape[-1]))
+            value = symmetrize(G @ value @ np.swapaxes(G, -1, -2))
+        self._P = value
+
+    def _switch(self) -> None:
+        """Move runs between Cartesian and inverse-range coordinates: inverse while the relative
+        position uncertainty ``sqrt(tr P_pos) / |p - c|`` is below ``inverse_max_rel``, back to
+        Cartesian above twice that (checked on the runs' own coordinates: in inverse ones
+        ``sqrt(tr P_qq) / |q|`` is the same ratio to first order)."""
+        n = self._x.shape[-1]
+        x = self._x.reshape(-1, n)
+        P = self._P.reshape(-1, n, n)
+        inv = self._inv.reshape(-1)
+        k = self.tuning.inverse_max_rel
+        d = np.where(inv[:, None], x[:, :3], x[:, :3] - self._ref)
+        with np.errstate(all="ignore"):
+            rel = np.sqrt(np.einsum("kii->k", P[:, :3, :3]) / np.einsum("ki,ki->k", d, d))
+        with np.errstate(all="ignore"):
+            r = np.sqrt(np.einsum("ki,ki->k", d, d))
+            r = np.where(inv, crd.SCALE_M**2 / r, r)
+        far = r > self.tuning.inverse_min_radii * self._radius
+        new = np.where(inv, rel < 2.0 * k, rel < k) & far
+        ch = new != inv
+        if not np.any(ch):
+            return
+        X = self._cart(self._x).reshape(-1, n)[ch]
+        T = self._T(self._x)
+        Pc = P[ch] if T is None else symmetrize(T @ self._P @ np.swapaxes(T, -1, -2)).reshape(-1, n, n)[ch]
+        to_inv = new[ch]
+        with np.errstate(all="ignore"):
+            G = crd.jac_to_inverse(X, self._ref, self._clock)
+            xs = np.where(to_inv[:, None], crd.to_inverse(X, self._ref, self._clock), X)
+            Ps = np.where(to_inv[:, None, None], symmetrize(G @ Pc @ np.swapaxes(G, -1, -2)), Pc)
+        x2, P2 = x.copy(), P.copy()
+        x2[ch], P2[ch] = xs, Ps
+        self._x = x2.reshape(self._x.shape)
+        self._P = P2.reshape(self._P.shape)
+        self._inv = new.reshape(self._inv.shape)
 
     def _FQ(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         if dt == self._last_dt:  # synchronous epochs: the same step every time
@@ -242,7 +361,19 @@ class CvTracker:
         if dt <= 0.0:
             return
         F, Q = self._FQ(dt)
-        self.x, self.P = kf_predict(self.x, self.P, F, Q)
+        if not self._inv.any():
+            self._x, self._P = kf_predict(self._x, self._P, F, Q)
+        else:
+            # the CV step in Cartesian coordinates, carried to the inverse-range runs by its Jacobian
+            # G1 F T (T = dx/ds before, G1 = ds/dx after); the process noise enters through G1
+            ref, clk = self._ref, self._clock
+            T = self._T(self._x)
+            x1 = self._cart(self._x) @ F.T
+            with np.errstate(all="ignore"):
+                G1 = np.where(self._mask(self._x, 2), crd.jac_to_inverse(x1, ref, clk), np.eye(F.shape[-1]))
+                self._x = np.where(self._mask(self._x, 1), crd.to_inverse(x1, ref, clk), x1)
+            Fs = G1 @ F @ T
+            self._P = symmetrize(Fs @ self._P @ np.swapaxes(Fs, -1, -2) + G1 @ Q @ np.swapaxes(G1, -1, -2))
         self.t_s = float(t_s)
 
     def update(
@@ -255,12 +386,16 @@ class CvTracker:
         TDOA: the batch is differenced against ``self.base`` (needs m >= 2). Returns (nu, S).
         """
         stations_m = np.asarray(stations_m, dtype=float)
+        if self._ref is None and self.tuning.coords == "inverse":
+            self._ref = crd.reference_point(stations_m)
+            self._radius = crd.array_radius(stations_m)
+            self._switch()
         sig = self.tuning.sigma_m if sigma_m is None else sigma_m
         if self.layout.kind == "pr":
             if station_cov_m2 is None and np.ndim(sig) == 0:  # R does not depend on the state: cache it
-                key = (stations_m.shape[0], float(sig), self.x.shape[:-1])
+                key = (stations_m.shape[0], float(sig), self._x.shape[:-1])
                 if self._r_key != key:
-                    self._r_key, self._r = key, mdl.r_pr(mdl.range_var(self.x, stations_m, None, sig))
+                    self._r_key, self._r = key, mdl.r_pr(mdl.range_var(self._x, stations_m, None, sig))
                 R = self._r
             else:
                 R = mdl.r_pr(mdl.range_var(self.x, stations_m, station_cov_m2, sig, dt_s))
@@ -280,7 +415,17 @@ class CvTracker:
                 return (mdl.jac_pr(X, stations_m, dt_s) if self.layout.kind == "pr"
                         else mdl.jac_tdoa(X, stations_m, self.base, dt_s))
 
+            if self._inv.any():  # measurement model and Jacobian in the runs' own coordinates
+                hc, jc = h, jac
+
+                def h(X):
+                    return hc(self._cart(X))
+
+                def jac(X):
+                    return jc(self._cart(X)) @ self._T(X)
+
             if self.tuning.ekf_second_order:
+                # Gaussian second-order terms of the ranges, from the Cartesian moments
                 c2, S2 = self._second_order(stations_m, dt_s)
                 if self.layout.kind == "tdoa":
                     G = mdl.g_matrix(stations_m.shape[0], self.base)
@@ -290,35 +435,45 @@ class CvTracker:
                 def h(X):
                     return h1(X) + c2
 
-            x1, P1, nu, S = ekf_update(self.x, self.P, z, h, jac(self.x), R)
+            x1, P1, nu, S = ekf_update(self._x, self._P, z, h, jac(self._x), R)
             if self.tuning.iterations > 1:
-                mask = self._needs_iteration(R, lambda: self._om_ekf(stations_m, dt_s))
+                om = ((lambda: S2) if self.tuning.ekf_second_order  # already computed above
+                      else (lambda: self._om_ekf(stations_m, dt_s)))
+                mask = self._needs_iteration(R, om)
                 if np.any(mask):
                     xi, Pi = x1, P1
                     for _ in range(self.tuning.iterations - 1):
                         xi, Pi = self._iekf_step(xi, z, h, jac, R)
                     x1, P1 = self._select(mask, xi, Pi, x1, P1)
         else:
-            x1, P1, nu, S = ukf_update(self.x, self.P, z, h, R, self.params)
+            if self._inv.any():
+                hc = h
+
+                def h(X):
+                    return hc(self._cart(X))
+
+            x1, P1, nu, S = ukf_update(self._x, self._P, z, h, R, self.params)
             if self.tuning.iterations > 1:
                 def om():
-                    ut = unscented_transform(h, self.x, self.P, self.params)
-                    return ut.cov - np.swapaxes(ut.cross, -1, -2) @ chol_solve(self.P, ut.cross)
+                    ut = unscented_transform(h, self._x, self._P, self.params)
+                    return ut.cov - np.swapaxes(ut.cross, -1, -2) @ chol_solve(self._P, ut.cross)
                 mask = self._needs_iteration(R, om)
                 if np.any(mask):
                     xi, Pi = x1, P1
                     for _ in range(self.tuning.iterations - 1):
                         xi, Pi = self._iplf_step(xi, Pi, z, h, R)
                     x1, P1 = self._select(mask, xi, Pi, x1, P1)
-        self.x, self.P = x1, P1
+        self._x, self._P = x1, P1
         self._truncate_floor()
+        if self._ref is not None:
+            self._switch()
         return nu, S  # innovation and its covariance of the first (plain) linearization
 
     def _needs_iteration(self, R, omega):
         """Runs whose linearization error over the prior is large: ``tr(R^-1 Omega) > threshold``."""
         th = self.tuning.iterate_threshold
         if th <= 0:
-            return np.ones(self.x.shape[:-1], dtype=bool)
+            return np.ones(self._x.shape[:-1], dtype=bool)
         Om = omega()
         return np.einsum("...ii->...", chol_solve(R, Om)) > th
 
@@ -340,15 +495,16 @@ class CvTracker:
         ``c_j = 0.5 tr(M_j C_jj)`` (..., m) and covariance ``0.5 tr(M_i C_ij M_j C_ji)`` (..., m, m), with
         ``M_j = (I - u_j u_j^T) / r_j`` the Hessian of range j in the position at its measurement time
         and ``C_ij`` the covariance of those positions (``p + v dt``)."""
-        r, u = mdl.los(self.x, stations_m, dt_s)  # (..., m), (..., m, 3)
+        X, P = self.x, self.P  # Cartesian moments (converted once with inverse coordinates)
+        r, u = mdl.los(X, stations_m, dt_s)  # (..., m), (..., m, 3)
         Mh = (np.eye(3) - u[..., :, None] * u[..., None, :]) / r[..., None, None]  # (..., m, 3, 3)
-        Ppp = self.P[..., None, None, 0:3, 0:3]
+        Ppp = P[..., None, None, 0:3, 0:3]
         if dt_s is None:
             C = np.broadcast_to(Ppp, Mh.shape[:-3] + (Mh.shape[-3],) * 2 + (3, 3))
         else:
             d = np.asarray(dt_s, dtype=float)
-            Ppv = self.P[..., None, None, 0:3, 3:6]
-            Pvv = self.P[..., None, None, 3:6, 3:6]
+            Ppv = P[..., None, None, 0:3, 3:6]
+            Pvv = P[..., None, None, 3:6, 3:6]
             di, dj = d[:, None, None, None], d[None, :, None, None]
             C = Ppp + Ppv * dj + np.swapaxes(Ppv, -1, -2) * di + Pvv * (di * dj)
         MC = Mh[..., :, None, :, :] @ C  # M_i C_ij: (..., m, m, 3, 3)
@@ -361,7 +517,7 @@ class CvTracker:
         current iterate ``xi`` and update the prior ``(x, P)`` with ``z - h(xi) - H (x - xi)``."""
         H = jac(xi)
         hxi = h(xi)
-        x, P = self.x, self.P
+        x, P = self._x, self._P
 
         def h_lin(X):
             return hxi + np.einsum("...ij,...j->...i", H, X - xi)
@@ -381,7 +537,7 @@ class CvTracker:
         Om = symmetrize(ut.cov - A @ ut.cross)  # Py - A Pi A^T
         w, V = np.linalg.eigh(Om)  # >= 0 in exact arithmetic; the scaled set's negative W0c can break it
         Om = (V * np.maximum(w, 0.0)[..., None, :]) @ np.swapaxes(V, -1, -2)
-        x1, P1, _, _ = kf_update(self.x, self.P, z - b, A, R + Om)
+        x1, P1, _, _ = kf_update(self._x, self._P, z - b, A, R + Om)
         return x1, P1
 
     def update_sequential(
@@ -414,11 +570,16 @@ class CvTracker:
         if fz is None:
             return
         n = self.layout.n
-        x = self.x.reshape(-1, n)  # views: in-place edits reach self.x / self.P
-        P = self.P.reshape(-1, n, n)
+        x = self._x.reshape(-1, n)  # views: in-place edits reach self._x / self._P
+        P = self._P.reshape(-1, n, n)
         s2 = P[:, 2, 2]
         s = np.sqrt(s2)
         a = (fz - x[:, 2]) / s
+        if self._inv.any():
+            # inverse coordinates: z >= floor  <=>  q_z >= (floor - c_z) |q|^2 / L^2 (linear if the
+            # reference point lies on the floor; the right side is taken at the mean)
+            ai = ((fz - self._ref[2]) * np.einsum("ki,ki->k", x[:, :3], x[:, :3]) / crd.SCALE_M**2 - x[:, 2]) / s
+            a = np.where(self._inv.reshape(-1), ai, a)
         act = a > -self.tuning.trunc_sigma  # 6 sigma: mass below the floor > 1e-9
         if not np.any(act):
             return
@@ -444,6 +605,8 @@ class EstimatorConfig:
     # where one epoch's fix is off by kilometres)
     guess_sigma_m: float | None = None
     max_batch_age_s: float = 5.0  # TDMA: measurements older than this are dropped from a batch
+    # start from the broadcasts alone (aircraft/initializer.py): snapshot fix or wide prior
+    init: "InitConfig | None" = None
 
 
 class AircraftEstimator:
@@ -470,6 +633,7 @@ class AircraftEstimator:
         self.n_dropped = 0
         self.n_resets = 0
         self.last_nis: float | None = None
+        self.init = None  # the InitResult of the latest start (broadcast initializer)
 
     # -- input
     def on_epoch(self, t_s: float, station_pos_m, station_cov_m2, rho_m) -> None:
@@ -526,6 +690,20 @@ class AircraftEstimator:
         tu = self.cfg.tuning
         var = tu.sigma_m**2
         if self.tracker is None:
+            if self.cfg.guess_sigma_m is None and (self.fix is None or self.method != "lsq"):
+                # start from the broadcasts alone: multi-start snapshot fix (or a wide prior)
+                from .initializer import initial_state
+
+                init = initial_state(self.model, tu, pos, cov, rho, self.cfg.init)
+                self.fix = init.fix.copy()
+                self.init = init
+                self.t_s = t_s
+                self.n_updates += 1
+                if self.method != "lsq":
+                    self.tracker = CvTracker(self.method, self.model, init.x0, tu, t0_s=t_s, P0=init.P0,
+                                             ref_m=crd.reference_point(pos),
+                                             ref_radius_m=crd.array_radius(pos))
+                return
             first = self.fix is None
             if first:
                 self.fix = np.append(self.guess, 0.0) if self.model == "pr" else self.guess.copy()
@@ -540,23 +718,23 @@ class AircraftEstimator:
             self.n_updates += 1
             if self.method == "lsq":
                 return
-            # filter start: the fix with its own covariance (H^T W H)^-1, velocity from the tuning's prior
-            C = lsq_cov(self.fix[None], pos, var, self.model, cov)[0]
+            # external coarse fix (guess_sigma_m): start from the guess with that sigma; the clock from
+            # the ranges to the guessed position
             gs = self.cfg.guess_sigma_m
-            if gs is not None:
-                # start from the coarse fix instead; the clock from the ranges to the guessed position
-                self.fix[:3] = self.guess
-                C = np.diag([gs**2] * 3 + ([(tu.p0_clock_m + gs) ** 2] if self.model == "pr" else []))
-                if self.model == "pr":
-                    self.fix[3] = float(np.mean(rho - np.linalg.norm(self.guess - pos, axis=1)))
+            self.fix[:3] = self.guess
+            C = np.diag([gs**2] * 3 + ([(tu.p0_clock_m + gs) ** 2] if self.model == "pr" else []))
+            if self.model == "pr":
+                self.fix[3] = float(np.mean(rho - np.linalg.norm(self.guess - pos, axis=1)))
             x0 = np.concatenate([self.fix[:3], np.zeros(3)])
             if self.model == "pr":
                 x0 = np.append(x0, self.fix[3])
                 if tu.drift_state:
                     x0 = np.append(x0, 0.0)
-            self.tracker = CvTracker(self.method, self.model, x0, tu, t0_s=t_s)
+            P0 = tu.p0(self.tracker_layout())
             idx = [0, 1, 2, 6] if self.model == "pr" else [0, 1, 2]
-            self.tracker.P[np.ix_(idx, idx)] = C
+            P0[np.ix_(idx, idx)] = C
+            self.tracker = CvTracker(self.method, self.model, x0, tu, t0_s=t_s, P0=P0, ref_m=crd.reference_point(pos),
+                                             ref_radius_m=crd.array_radius(pos))
             return
         try:
             self.tracker.predict_to(t_s)
@@ -574,6 +752,9 @@ class AircraftEstimator:
         self.last_nis = float(nu @ chol_solve(S, nu[:, None])[:, 0])
         self.t_s = t_s
         self.n_updates += 1
+
+    def tracker_layout(self) -> mdl.StateLayout:
+        return mdl.StateLayout(self.model, drift=self.cfg.tuning.drift_state and self.model == "pr")
 
     def _reset(self) -> None:
         """A filter whose covariance lost positive definiteness restarts from the next batch's fix."""

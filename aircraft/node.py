@@ -79,15 +79,14 @@ class AircraftCore:
         h = height_m if height_m is not None else ac.height_m
         self.track = trajectory.from_config(dict(ac.trajectories.get(ac.trajectory.get("kind"), {}), **ac.trajectory),
                                             t, ac.centre_m, h)
-        p0, _ = self.track.at(0.0)
-        sig0 = ac.init_sigma_m
-        if sig0:  # coarse external fix of the start point (emulator side: truth + noise)
-            guess = p0 + rng.normal(0.0, sig0, 3)
-        else:
-            guess = ac.centre_m + np.array([0.0, 0.0, 1000.0])
-            sig0 = None
-        cfg = EstimatorConfig(tuning=ac.tuning, guess_sigma_m=sig0)
-        self.estimators = {a: AircraftEstimator(a, cfg, x0_guess_m=guess) for a in algos}
+        # the filters start from the broadcasts alone (aircraft/initializer.py), never from the truth
+        # or the scenario's station positions; init_sigma_m only widens the wide prior
+        from .initializer import InitConfig
+
+        init = InitConfig() if not ac.init_sigma_m else InitConfig(
+            wide_sigma_m=max(InitConfig.wide_sigma_m, float(ac.init_sigma_m)))
+        cfg = EstimatorConfig(tuning=ac.tuning, init=init)
+        self.estimators = {a: AircraftEstimator(a, cfg) for a in algos}
         self.net_clock = net_clock  # station 1's oscillator: network time (None: perfect clocks)
         self.seq: Counter[str] = Counter()
         self.stats: Counter[str] = Counter()

@@ -49,6 +49,9 @@ def register(sub) -> None:
                         "(1 sigma, ns); the filters and the PCRB carry (c NS)^2 as range variance (default 0)")
     p.add_argument("--sync-tau", type=float, default=0.0, metavar="S",
                    help="correlation time of the residual sync errors (first-order Gauss-Markov; 0 = white)")
+    p.add_argument("--envelope", action="store_true",
+                   help="flight envelope instead: heights x distances x bearings, hover and turn, the four "
+                        "filters vs their PCRB (table, JSON `envelope`, heat maps; --quick: 8 points)")
     p.set_defaults(func=run)
 
 
@@ -144,7 +147,7 @@ def speed_vs_filterpy(ac, steps: int = 400, runs: int = 64) -> dict:
     from aircraft.estimators import CvTracker
 
     # filterpy's UKF is the plain one: compare the same algorithm (no iterated update)
-    tun = replace(ac.tuning, floor_z_m=None, iterations=1)
+    tun = replace(ac.tuning, floor_z_m=None, iterations=1, coords="cartesian")
     dt = 1.0 / ac.rate_hz
     t = np.arange(steps) * dt
     track = trajectory.from_config({"kind": "hover", "distance_m": 1000.0}, t, ac.centre_m)
@@ -205,6 +208,10 @@ def speed_vs_filterpy(ac, steps: int = 400, runs: int = 64) -> dict:
 
 def run(args) -> int:
     sc, ac = setup(args.scenario)
+    if getattr(args, "envelope", False):
+        from . import bench_aircraft_envelope
+
+        return bench_aircraft_envelope.main(ac, args, _progress)
     b = ac.bench
     runs = args.trials or int(b.get("runs", 64))
     duration = args.duration or float(b.get("duration_s", 30.0))
@@ -239,14 +246,19 @@ def run(args) -> int:
 
     out = _assemble(res, sweep, speed, runs, duration, warmup, args, ac, wall)
     _print_table(out)
+    write_outputs(out, args, _plots)
+    return 0
+
+
+def write_outputs(doc: dict, args, plots) -> None:
+    """``--json`` and ``--png-dir`` of an aircraft bench: the document and ``plots(doc, dir)``."""
     if args.json:
         with open(args.json, "w") as f:
-            json.dump(out, f, indent=1)
+            json.dump(doc, f, indent=1)
         _progress(f"wrote {args.json}")
     if args.png_dir:
-        for p in _plots(out, args.png_dir):
+        for p in plots(doc, args.png_dir):
             _progress(f"wrote {p}")
-    return 0
 
 
 def _assemble(res, sweep, speed, runs, duration, warmup, args, ac, wall) -> dict:

@@ -85,22 +85,24 @@ def pcrb_linear_gaussian(
 
     Parameters
     ----------
-    P0 : (n, n) prior covariance of the initial state (the bound at k = 0 before any measurement).
+    P0 : (n, n) or (..., n, n) prior covariance of the initial state (the bound at k = 0 before any
+        measurement).
     F, Q : (n, n) transition and process noise per step (a step precedes every measurement batch).
-    H_seq : (T, m, n) measurement Jacobians at the true states. R_seq : (T, m, m) or (m, m).
+    H_seq : (T, ..., m, n) measurement Jacobians at the true states (``...``: independent
+        trajectories bounded at once). R_seq : (T, ..., m, m) or anything broadcastable to it.
 
     Returns
     -------
-    P : (T, n, n) the bound after the measurement batch of each step.
+    P : (T, ..., n, n) the bound after the measurement batch of each step.
     """
     T = H_seq.shape[0]
-    R_seq = np.broadcast_to(R_seq, (T,) + R_seq.shape[-2:])
+    R_seq = np.broadcast_to(R_seq, H_seq.shape[:-2] + R_seq.shape[-2:])
     # information contributed by each batch: H^T R^-1 H, all steps at once
     RiH = chol_solve(R_seq, H_seq)
     Jz = symmetrize(np.swapaxes(H_seq, -1, -2) @ RiH)
-    n = P0.shape[-1]
-    out = np.empty((T, n, n))
-    P = np.asarray(P0, dtype=float)
+    n = H_seq.shape[-1]
+    out = np.empty(Jz.shape)
+    P = np.broadcast_to(np.asarray(P0, dtype=float), Jz.shape[1:])
     eye = np.eye(n)
     for k in range(T):
         Pp = symmetrize(F @ P @ F.T + Q)
@@ -108,3 +110,16 @@ def pcrb_linear_gaussian(
         P = symmetrize(np.linalg.solve(eye + Pp @ Jz[k], Pp))
         out[k] = P
     return out
+
+
+def prior_before_first_step(P0: np.ndarray, F: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """The covariance one step before ``t0`` that :func:`pcrb_linear_gaussian` predicts to ``P0``.
+
+    A filter measures its first batch at ``t0`` without a preceding prediction; the recursion always
+    predicts first, so it starts from ``F^-1 (P0 - Q) F^-T`` (or ``P0`` if ``P0 - Q`` is not positive
+    definite).
+    """
+    if np.all(np.linalg.eigvalsh(P0 - Q) > 0):
+        Finv = np.linalg.inv(F)
+        return Finv @ (P0 - Q) @ Finv.T
+    return np.asarray(P0, dtype=float)

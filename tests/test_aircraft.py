@@ -407,7 +407,7 @@ def test_estimator_resets_a_broken_filter_instead_of_raising():
     for k, tk in enumerate(t):
         j = k % len(ac.stations_m)
         if k == 80:
-            e.tracker.P[:] = -np.eye(e.tracker.layout.n)  # corrupt: not positive definite
+            e.tracker.P = -np.eye(e.tracker.layout.n)  # corrupt: not positive definite
         rho = np.linalg.norm(tr.pos_m[k] - ac.stations_m[j]) + ac.clock.bias_m(tk) + 0.9 * rng.standard_normal()
         e.on_measurement(tk, j + 1, ac.stations_m[j], None, rho)
     assert e.n_resets == 1
@@ -486,3 +486,126 @@ def test_ekf_second_order_terms_match_finite_difference_hessians():
         np.testing.assert_allclose(c2, 0.5 * np.einsum("jik,ki->j", Hs, P), rtol=1e-4, atol=1e-7)
         S2_fd = 0.5 * np.einsum("iab,bc,jcd,da->ij", Hs, P, Hs, P)
         np.testing.assert_allclose(S2, S2_fd, rtol=1e-4, atol=1e-7)
+
+
+# ----------------------------------------------------------------------------- envelope, initializer
+def test_bench_aircraft_envelope_quick(tmp_path):
+    """`larns bench aircraft --envelope --quick`: one JSON entry per point and filter with the bound,
+    the ratio and its interval, the NEES and its band; heat maps per filter."""
+    from larns.bench_aircraft_envelope import FILTERS, QUICK
+    from larns.cli import main
+
+    js = tmp_path / "env.json"
+    rc = main(["bench", "aircraft", "--envelope", "--quick", "--json", str(js), "--png-dir", str(tmp_path)])
+    assert rc == 0
+    doc = json.loads(js.read_text())
+    env = doc["envelope"]
+    n_pts = len(QUICK["heights"]) * len(QUICK["dists"]) * len(QUICK["trajs"])
+    assert len(env) == n_pts * len(FILTERS)
+    keys = {"height_m", "dist_m", "traj", "algo", "rmse_m", "pcrb_m", "ratio", "ratio_ci", "nees_mean"}
+    for e in env:
+        assert keys <= set(e)
+        assert e["ratio"] == pytest.approx(e["rmse_m"] / e["pcrb_m"])
+        assert e["ratio_ci"][0] <= e["ratio"] <= e["ratio_ci"][1]
+        assert np.isfinite(e["rmse_m"]) and e["pcrb_m"] > 0 and e["nees_mean"] > 0
+    assert {(e["traj"], e["height_m"], e["dist_m"]) for e in env} == {
+        (t, h, d) for t in QUICK["trajs"] for h in QUICK["heights"] for d in QUICK["dists"]}
+    assert set(doc["bar"]) >= {"violations", "significant", "nees_above_band", "pass"}
+    for a in FILTERS:
+        assert (tmp_path / f"aircraft_envelope_{a}.png").stat().st_size > 1000
+
+
+def test_envelope_pcrb_matches_the_per_track_bound():
+    """The batched envelope bound equals sim.pcrb_track of each track."""
+    from larns.bench_aircraft_envelope import Point, _pcrb, _tracks
+
+    ac = from_scenario(load("seed001"))
+    t = np.arange(0.0, 3.0, 0.01)
+    pts = [Point("hover", 300.0, 0.0, 225.0), Point("turn", 100.0, 500.0, 180.0)]
+    trs = _tracks(ac, pts, t)
+    win = t >= 1.0
+    for model in ("pr", "tdoa"):
+        got = _pcrb(model, trs, ac, win)
+        for i, tr in enumerate(trs):
+            P = sim.pcrb_track(model, tr, ac.stations_m, ac.tuning, ac.clock)
+            assert got[i] == pytest.approx(np.sqrt(np.mean(np.trace(P[win], axis1=1, axis2=2))), rel=1e-9)
+
+
+@pytest.mark.parametrize("point", [("hover", 300.0, 0.0, 225.0), ("hover", 50.0, 1000.0, 225.0)],
+                         ids=["overhead", "near-station-plane"])
+def test_pr_filters_nees_in_band_overhead_and_near_the_station_plane(point):
+    """Seeded: mean NEES of the pseudorange EKF/UKF (8 states) at or below the upper end of its 95 %
+    band, right above the stations (height and clock nearly collinear) and 50 m above the station
+    plane 1 km out (mirror solution, range and clock nearly collinear)."""
+    from larns.bench_aircraft_envelope import Point, run_chunk
+
+    ac = from_scenario(load("seed001"))
+    out = run_chunk(ac, [Point(*point)], runs=24, duration_s=12.0, warmup_s=4.0,
+                    rng=np.random.default_rng(21), algos=("ekf-pr", "ukf-pr"))
+    for e in out:
+        assert e["nees_mean"] <= e["nees_band"][1], e
+        assert e["rmse_m"] < 3.0 * e["pcrb_m"], e
+
+
+def test_initializer_never_reads_the_world():
+    """Import boundary: the initializer (and the estimators it uses) load without the world side
+    (trajectory, simulator, scenarios, nodes); its inputs are broadcasts only."""
+    import subprocess
+    import sys
+
+    code = ("import sys, aircraft.initializer; bad = [m for m in ('aircraft.trajectory', 'aircraft.sim', "
+            "'aircraft.node', 'aircraft.config', 'net.scenario') if m in sys.modules]; print(bad); "
+            "sys.exit(1 if bad else 0)")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert r.returncode == 0, r.stdout + r.stderr
+    import inspect
+
+    from aircraft import initializer
+
+    params = set(inspect.signature(initializer.initial_state).parameters)
+    assert params == {"model", "tuning", "pos_m", "cov_m2", "rho_m", "config"}
+
+
+def test_estimator_start_does_not_depend_on_a_guess_and_node_ignores_the_truth():
+    """The message-level estimator starts from the broadcasts: a different (even absurd) position
+    guess gives bit-identical estimates; the node's estimators carry no guess from the truth."""
+    ac = from_scenario(load("seed001"))
+    p = ac.centre_m + np.array([70.0, -40.0, 120.0])
+    rng = np.random.default_rng(5)
+    rho = [np.linalg.norm(p - ac.stations_m, axis=1) + 0.6 * k * 0.01 + 0.5 * rng.standard_normal(4)
+           for k in range(50)]
+    outs = []
+    for guess in (p, p + [5000.0, -3000.0, 900.0]):
+        e = AircraftEstimator("ukf-pr", EstimatorConfig(tuning=ac.tuning), x0_guess_m=guess)
+        for k in range(50):
+            e.on_epoch(k * 0.01, ac.stations_m, None, rho[k])
+        outs.append(e.estimate()["pos_m"])
+        assert e.init is not None and e.init.snapshot
+    assert outs[0] == outs[1]
+    assert np.linalg.norm(np.array(outs[0]) - p) < 5.0
+    from aircraft.node import AircraftCore
+
+    core = AircraftCore(ac, ["ukf-pr", "lsq-pr"], "ac1", np.random.default_rng(1))
+    for est in core.estimators.values():
+        assert est.cfg.guess_sigma_m is None  # no external fix (it was the truth plus noise)
+
+
+def test_initializer_snapshot_where_geometry_allows_wide_prior_where_not():
+    from aircraft.initializer import InitConfig, initial_state
+
+    rng = np.random.default_rng(8)
+    for stations, p, snap in ((S001, np.array([60.0, 20.0, 40.0]), True),
+                              (S001, np.array([2000.0, 300.0, 50.0]), False),
+                              (S003, np.array([12000.0, 9000.0, 1000.0]), True)):
+        ac_tu = Tuning(sigma_m=0.5)
+        rho = np.linalg.norm(p - stations, axis=1) + 17.0 + 0.5 * rng.standard_normal(len(stations))
+        for model in ("pr", "tdoa"):
+            r = initial_state(model, ac_tu, stations, None, rho)
+            assert r.snapshot == snap, (model, p, r.fix_sigma_m)
+            e = r.x0[:3] - p
+            C = r.P0[:3, :3]
+            assert e @ np.linalg.solve(C, e) < 25.0, (model, p, e, r.fix_sigma_m)  # within 5 sigma
+            if not snap:
+                assert np.sqrt(np.trace(C)) >= np.sqrt(3) * InitConfig().wide_sigma_m - 1e-6
+            if model == "pr":
+                assert r.x0.size == 8 and r.P0[7, 7] == pytest.approx(ac_tu.p0_drift_m_s**2)
