@@ -278,7 +278,7 @@ class StationCore:
             for peer, range_m, _t in msg.get("ranges", ()):
                 if peer == self.id and 0.0 < range_m < self.cfg.max_range_m:
                     self.counters["ranges_in"] += 1
-                    if self.est.name == "dmap":
+                    if self.est.name.startswith("dmap"):  # dmap, dmap-ls: ranges used at both ends
                         self.est.on_range(src, float(range_m), t_rx_s, False, pos, cov)
             self._refresh_state()
             return []
