@@ -178,7 +178,8 @@ class DistributedMap:
                  no_fix_sigma_m: float = 1000.0, min_peers_to_init: int = 4, extrinsic: bool = True,
                  peer_corr: float = 2.0, peer_corr_est: float = 0.5, extrinsic_est: bool = False,
                  robust: str | None = "tukey", tukey_c: float = 4.685, huber_k: float = 2.0,
-                 min_inlier_frac: float = 0.5, keep_per_link: int = 256):
+                 min_inlier_frac: float = 0.5, keep_per_link: int = 256, link_consensus: bool = True, consensus_gate: float = 5.0,
+                 restart_from_prior: bool = True, restart_iter: int = 6):
         self.id = station_id
         self.free = free_mask(station_id)
         self.nf = int(self.free.sum())
@@ -199,6 +200,10 @@ class DistributedMap:
         self.tukey_c = tukey_c
         self.huber_k = huber_k
         self.min_inlier_frac = min_inlier_frac
+        self.link_consensus = link_consensus
+        self.consensus_gate = consensus_gate
+        self.restart_from_prior = restart_from_prior
+        self.restart_iter = restart_iter
         self.keep_per_link = keep_per_link
         self.n_updates = 0
         self.excluded: set[int] = set()  # peers excluded by integrity monitoring (not used in the solve)
@@ -319,6 +324,18 @@ class DistributedMap:
                 sel[k] = False
         return sel
 
+    def _z(self, x: np.ndarray) -> np.ndarray:
+        """(nr,) normalized innovation of every kept range against the range predicted at ``x``:
+        ``(d - |x - c_j|) / s``, ``s^2 = sigma_d^2 + u^T (P + C_j) u``."""
+        nr = self._nr
+        rk, rv = self._rk[:nr], self._rv[:nr]
+        m = len(self._index)
+        diff = x - self._pos[:m]
+        r = np.sqrt(np.einsum("ki,ki->k", diff, diff))
+        u = diff / np.maximum(r, 1e-9)[:, None]
+        s2 = self.sigma_d_m**2 + np.einsum("ki,kij,kj->k", u, self._cov[:m] + self.cov_m2, u)
+        return (rv - r[rk]) / np.sqrt(s2[rk])
+
     def _weights(self, x: np.ndarray, robust: bool) -> np.ndarray:
         """(nr,) robust weight of every kept range at own position ``x``."""
         nr = self._nr
@@ -326,15 +343,29 @@ class DistributedMap:
         if not robust or self.robust is None:
             return np.ones(nr)
         m = len(self._index)
-        diff = x - self._pos[:m]
-        r = np.sqrt(np.einsum("ki,ki->k", diff, diff))
-        u = diff / np.maximum(r, 1e-9)[:, None]
-        s2 = self.sigma_d_m**2 + np.einsum("ki,kij,kj->k", u, self._cov[:m] + self.cov_m2, u)
-        z = (rv - r[rk]) / np.sqrt(s2[rk])
+        z = self._z(x)
         w = tukey_weight(z, self.tukey_c)
+        if self.link_consensus:
+            # within-link consensus, independent of any geometry: distance to the link's centre
+            # (median; of two ranges that disagree, the shorter, since NLOS only lengthens a range)
+            centre = np.empty(m)
+            gap = 3.0 * np.sqrt(2.0) * self.sigma_d_m
+            for k in range(m):
+                v = rv[rk == k]
+                centre[k] = (v.min() if len(v) == 2 and np.ptp(v) > gap else np.median(v)) if len(v) else 0.0
+            w = w * (np.abs(rv - centre[rk]) <= self.consensus_gate * self.sigma_d_m)
         if w.sum() < self.min_inlier_frac * nr:
             w = huber_weight(z, self.huber_k)  # far from everything: convex start (MM scheme)
         return w
+
+    def robust_cost(self, x: np.ndarray) -> float:
+        """Robust MAP objective at ``x``: prior Mahalanobis term + sum of Tukey losses
+        ``rho(z) = c^2/3 (1 - (1 - (z/c)^2)^3)`` (``~ z^2`` near 0, ``c^2/3`` for a rejected range)."""
+        c = self.tukey_c
+        z = self._z(x)
+        q = np.clip(1.0 - (z / c) ** 2, 0.0, None)
+        d0 = x[self.free] - self.prior_mean
+        return float(d0 @ self.prior_info @ d0 + (c * c / 3.0 * (1.0 - q**3)).sum())
 
     def _arrays(self, w: np.ndarray):
         """Per-link (effective count, weighted mean range, peer estimate, peer covariance, slots)."""
@@ -386,30 +417,14 @@ class DistributedMap:
         d0 = x[self.free] - self.prior_mean
         return float(d0 @ self.prior_info @ d0 + wl @ (dbar - r) ** 2)
 
-    def solve(self) -> bool:
-        if self._nr == 0 and not (self._n > 0).any():
-            return False
-        iters = self.max_iter
-        robust = self.initialized
-        if not self.initialized:
-            arr = self._arrays(np.ones(self._nr))
-            if arr is None or len(arr[0]) < self.min_peers_to_init:
-                return False
-            Pj = arr[2]
-            # weak prior at the peers' centroid: fixes the mirror ambiguity of a flat network
-            self.prior_mean = Pj.mean(axis=0)[self.free]
-            self.prior_info = np.eye(self.nf) / self.no_fix_sigma_m**2
-            self.pos_m = Pj.mean(axis=0)
-            self.pos_m[~self.free] = 0.0
-            iters = 50
-        x = self.pos_m.copy()
+    def _irls(self, x: np.ndarray, iters: int, robust: bool) -> np.ndarray | None:
+        """Iteratively re-weighted, backtracked Gauss-Newton from ``x`` (3,); None if no usable link."""
         f = self.free
-        A = self.prior_info
         for _ in range(iters):
             w = self._weights(x, robust)
             arr = self._arrays(w)
             if arr is None:
-                return False
+                return None
             n, dbar, Pj, Cj = arr
             Ce = self._extrinsic(x, n, Pj, Cj) if self.extrinsic_est and self.initialized else Cj
             A, b, wl = self._normal(x, n, dbar, Pj, Ce, self.peer_corr_est)
@@ -427,6 +442,38 @@ class DistributedMap:
             x = xt
             if np.max(np.abs(dx)) < self.tol_m:
                 break
+        return x
+
+    def solve(self) -> bool:
+        if self._nr == 0 and not (self._n > 0).any():
+            return False
+        iters = self.max_iter
+        robust = self.initialized
+        if not self.initialized:
+            arr = self._arrays(np.ones(self._nr))
+            if arr is None or len(arr[0]) < self.min_peers_to_init:
+                return False
+            Pj = arr[2]
+            # weak prior at the peers' centroid: fixes the mirror ambiguity of a flat network
+            self.prior_mean = Pj.mean(axis=0)[self.free]
+            self.prior_info = np.eye(self.nf) / self.no_fix_sigma_m**2
+            self.pos_m = Pj.mean(axis=0)
+            self.pos_m[~self.free] = 0.0
+            iters = 50
+        f = self.free
+        x = self._irls(self.pos_m.copy(), iters, robust)
+        if x is None:
+            return False
+        if robust and self.robust is not None and self.restart_from_prior and self.prior_mean is not None:
+            # second start from the coarse fix: IRLS with a redescending loss only finds a local
+            # minimum, and early NLOS ranges (not yet separable from a 10 m fix error) can drag the
+            # weakly observed height into a wrong basin that later clean ranges keep consistent.
+            # Keep whichever start has the lower robust objective.
+            x0 = self.pos_m.copy()
+            x0[f] = self.prior_mean
+            x2 = self._irls(x0, self.restart_iter, robust)
+            if x2 is not None and self.robust_cost(x2) < self.robust_cost(x):
+                x = x2
         w = self._weights(x, robust)
         arr = self._arrays(w)
         if arr is None:
