@@ -35,6 +35,7 @@ import numpy as np
 from nav.geometry import SPEED_OF_LIGHT_M_S
 
 from .estimators import SurveyEstimator, make_estimator
+from .integrity import StationIntegrity
 from .tdma import TdmaPlan
 
 
@@ -85,6 +86,7 @@ class StationCore:
         self.est: SurveyEstimator = make_estimator(cfg.estimator, cfg.id, init_pos_m, init_cov_m2,
                                                    cfg.sigma_d_m, cfg.ranges_per_update)
         self.peers: dict[int, PeerInfo] = {}
+        self.integrity = StationIntegrity(cfg.id, cfg.sigma_d_m)  # peer consistency tests (issue 14)
         self.known: dict[int, float] = {p: start_s for p in cfg.known_ids if p != cfg.id}
         self.seq = {"range_req": 0, "range_rsp": 0, "nav": 0, "estimate": 0}
         self.pending: dict[int, tuple[int, float, float]] = {}  # req seq -> (dst, t_tx, slot end)
@@ -182,6 +184,7 @@ class StationCore:
             self._claim_slot(t_s)
         if t_s >= self._nav_s - 1e-12:
             self._nav_s = float("inf")
+            out += self._integrity(t_s)
             self.est.refresh()
             self._refresh_state()
             out.append(self._nav_msg(t_s))
@@ -258,6 +261,7 @@ class StationCore:
             self._update_peer(src, msg, t_rx_s)
             self.ranges_out.append([src, float(range_m), float(t_rx_s)])
             self.est.on_range(src, range_m, t_rx_s, True, pos, cov)
+            self.integrity.on_range(src, range_m, t_rx_s)
             self._refresh_state()
             return []
         if kind == "nav":
@@ -280,9 +284,27 @@ class StationCore:
                     self.counters["ranges_in"] += 1
                     if self.est.name.startswith("dmap"):  # dmap, dmap-ls: ranges used at both ends
                         self.est.on_range(src, float(range_m), t_rx_s, False, pos, cov)
+                    self.integrity.on_range(src, float(range_m), t_rx_s)
             self._refresh_state()
             return []
         return []
+
+    def _integrity(self, t_s: float) -> list[dict]:
+        """Test the peers (``stations/integrity.py``); excluded peers leave the survey solve."""
+        if not self.est.initialized:
+            return []
+        peers = {p: (i.pos_m, i.cov_m2) for p, i in self.peers.items()}
+        out = []
+        for body in self.integrity.evaluate(t_s, self.est.pos_m, self.est.cov_m2, peers):
+            self.seq.setdefault("integrity", 0)
+            m = self._base("integrity", t_s)
+            m.update(body)
+            out.append(m)
+        if hasattr(self.est, "excluded"):
+            self.est.excluded = self.integrity.excluded
+            if out:
+                self.est._dirty = self.est.nf > 0
+        return out
 
     def _refresh_state(self) -> None:
         if self.state == "joining" and self.slot is not None and self.est.initialized:
