@@ -76,6 +76,8 @@ class StationIntegrity:
         d = np.array([r for _, r in st.ranges])
         if len(d) >= 3:
             d = d[np.abs(d - np.median(d)) <= self.gate * self.sigma_d_m]
+            if not len(d):  # no consensus in the window (an even count split by NLOS): inconclusive
+                return None
         diff = np.asarray(pos_m, float) - np.asarray(peer_pos_m, float)
         pred = float(np.linalg.norm(diff))
         if pred <= 0.0:
