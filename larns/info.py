@@ -98,6 +98,8 @@ def summarize(paths: Sequence[str | Path], logs=None) -> dict[str, Any]:
                 s["truth_m"] = msg["pos_m"]
             elif kind in ("core_init", "core_input"):
                 s["journal"] = True
+            elif kind == "integrity":  # the peers this station excludes now (its latest decision)
+                s["excludes"] = sorted(msg.get("excluded", []))
         else:
             a = aircraft.setdefault(src, {"messages": 0, "algos": set()})
             a["messages"] += 1
@@ -106,6 +108,10 @@ def summarize(paths: Sequence[str | Path], logs=None) -> dict[str, Any]:
     for s in stations.values():
         if "pos_m" in s and "truth_m" in s:
             s["err_m"] = math.dist(s["pos_m"], s["truth_m"])
+    for sid, s in stations.items():  # integrity: which stations exclude this one
+        by = [o for o, v in stations.items() if sid in v.get("excludes", ())]
+        if by:
+            s["excluded_by"] = by
     for a in aircraft.values():
         a["algos"] = sorted(a["algos"])
     for name, t in topics.items():
@@ -178,6 +184,9 @@ def format_info(s: dict[str, Any]) -> str:
             L.append(f"  {sid:>5} {v.get('state', '-'):>9} {v.get('estimator', '-'):>9} {v.get('n_updates', 0):>7} "
                      f"{v.get('sigma_m', math.nan):>8.2f} {v.get('err_m', math.nan):>8.2f} "
                      f"{'yes' if v.get('journal') else 'no':>7} {v.get('dropped') if v.get('dropped') is not None else '-':>7}")
+        for sid, v in st.items():
+            if v.get("excluded_by"):
+                L.append(f"  integrity: station {sid} EXCLUDED by {','.join(map(str, v['excluded_by']))}")
     ac = s["aircraft"]
     L.append(f"Aircraft:          {len(ac)}" + ("  " + ", ".join(f"{k} ({', '.join(v['algos']) or 'no estimates'})"
                                                                for k, v in ac.items()) if ac else ""))
