@@ -178,7 +178,8 @@ class DistributedMap:
                  no_fix_sigma_m: float = 1000.0, min_peers_to_init: int = 4, extrinsic: bool = True,
                  peer_corr: float = 2.0, peer_corr_est: float = 0.5, extrinsic_est: bool = False,
                  robust: str | None = "tukey", tukey_c: float = 4.685, huber_k: float = 2.0,
-                 min_inlier_frac: float = 0.5, keep_per_link: int = 256, link_consensus: bool = True, consensus_gate: float = 5.0,
+                 min_inlier_frac: float = 0.5, keep_per_link: int = 256, link_consensus: bool = True,
+                 consensus_gate: float = 5.0,
                  restart_from_prior: bool = True, restart_iter: int = 6):
         self.id = station_id
         self.free = free_mask(station_id)
