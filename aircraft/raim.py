@@ -51,9 +51,8 @@ def _wls(S: np.ndarray, rho: np.ndarray, w: np.ndarray, x0: np.ndarray, iters: i
         r = np.linalg.norm(d, axis=1)
         H = np.hstack([d / r[:, None], np.ones((len(S), 1))])
         res = rho - (r + x[3])
-        A = (H.T * w) @ H
-        L = np.linalg.cholesky(A)
-        dx = np.linalg.solve(L.T, np.linalg.solve(L, (H.T * w) @ res))
+        sw = np.sqrt(w)[:, None]
+        dx = np.linalg.lstsq(H * sw, res * sw[:, 0], rcond=None)[0]  # QR/SVD: safe on poor geometry
         x += dx
         if np.max(np.abs(dx)) < 1e-4:
             break

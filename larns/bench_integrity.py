@@ -43,14 +43,86 @@ def register(sub) -> None:
                      "station-hour."),
     )
     p.add_argument("--trials", type=int, default=20, help="trials per case (default 20)")
-    p.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES), help="cases (default: all)")
+    p.add_argument("--cases", nargs="*", default=list(CASES), choices=list(CASES), help="cases (default: all)")
     p.add_argument("--estimator", default="dmap", choices=["dmap", "dmap-ls", "seed-ukf"])
     p.add_argument("--duration", type=float, default=60.0, help="simulated seconds per trial (default 60)")
     p.add_argument("--seed", type=int, default=1, help="base seed; trial k uses seed + k (default 1)")
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: all cores)")
     p.add_argument("--json", metavar="FILE", help="write the results as JSON")
     p.add_argument("--png-dir", metavar="DIR", default="bench-out/integrity", help="PNG directory ('' to skip)")
+    p.add_argument("--aircraft", nargs="*", metavar="SCENARIO", default=None,
+                   help="also run aircraft RAIM/FDE on these scenarios' [aircraft] worlds (default when given "
+                        "without names: seed001 seed003): one station biased by 30 m from t = 20 s, and clean")
+    p.add_argument("--ac-runs", type=int, default=40, help="aircraft Monte Carlo runs per world (default 40)")
     p.set_defaults(func=main)
+
+
+AC_BIAS_M = 30.0
+AC_ONSET_S = 20.0
+AC_RATE_HZ = 2.0  # snapshot RAIM epochs per second
+AC_P_FA = 1e-3
+AC_P_MD = 1e-3
+
+
+def aircraft_raim(scenario: str, runs: int, seed: int, duration_s: float = 40.0) -> dict:
+    """Snapshot RAIM/FDE (``aircraft/raim.py``) along the scenario's aircraft track, one station's
+    pseudoranges biased by ``AC_BIAS_M`` from ``AC_ONSET_S``; the same epochs without the fault for the
+    false-alarm and protection-level statistics. Station positions are the true ones (seed 001 setup)."""
+    from aircraft import sim, trajectory
+    from aircraft.config import from_scenario
+    from aircraft.raim import raim_fde
+    from net.scenario import load
+
+    sc = load(scenario)
+    ac = from_scenario(sc)
+    t = np.arange(0.0, duration_s, 1.0 / AC_RATE_HZ)
+    track = trajectory.from_config(dict(ac.trajectory), t, ac.centre_m, ac.height_m)
+    rng = np.random.default_rng([seed, 14])
+    rho = sim.pseudoranges(track, ac.stations_m, ac.clock, ac.sigma_m, runs, rng)  # (T, M, m)
+    m = ac.stations_m.shape[0]
+    ids = list(sc.ids)
+    bad = m // 2  # a station in the middle of the list
+    out = {"scenario": scenario, "stations": m, "runs": runs, "faulty_station": ids[bad], "bias_m": AC_BIAS_M,
+           "p_fa": AC_P_FA, "p_md": AC_P_MD, "epochs_per_s": AC_RATE_HZ}
+    if m < 6:
+        out["note"] = (f"{m} stations: a snapshot pseudorange fix has {m - 4} redundant measurement(s); "
+                       "detection needs >= 5 stations and exclusion >= 6")
+    after = t >= AC_ONSET_S
+    det_t, alarms, exceed_h, exceed_v, n_clean, err_ex, crlb = [], 0, 0, 0, 0, [], []
+    keep = np.arange(m) != bad
+    for k in range(runs):
+        x0 = np.r_[track.pos_m[0] + 50.0, 0.0]
+        first = None
+        for i in range(len(t)):
+            clean = raim_fde(ids, ac.stations_m, rho[i, k], ac.sigma_m, x0, p_fa=AC_P_FA, p_md=AC_P_MD)
+            x0 = np.r_[clean.pos_m, clean.clock_m]
+            n_clean += 1
+            alarms += clean.fault
+            e = clean.pos_m - track.pos_m[i]
+            exceed_h += np.hypot(e[0], e[1]) > clean.hpl_m
+            exceed_v += abs(e[2]) > clean.vpl_m
+            if after[i]:
+                r = rho[i, k].copy()
+                r[bad] += AC_BIAS_M
+                f = raim_fde(ids, ac.stations_m, r, ac.sigma_m, x0, p_fa=AC_P_FA, p_md=AC_P_MD)
+                if first is None and f.excluded == [ids[bad]]:
+                    first = t[i] - AC_ONSET_S
+                if t[i] >= AC_ONSET_S + 5.0 and m >= 6:
+                    err_ex.append(np.sum((f.pos_m - track.pos_m[i]) ** 2))
+                    if k == 0 and keep.sum() >= 5:  # snapshot CRLB of the position without the faulty station
+                        d = track.pos_m[i] - ac.stations_m[keep]
+                        H = np.hstack([d / np.linalg.norm(d, axis=1)[:, None], np.ones((keep.sum(), 1))])
+                        crlb.append(np.trace(np.linalg.inv(H.T @ H)[:3, :3]) * ac.sigma_m**2)
+        det_t.append(first)
+    found = [d for d in det_t if d is not None]
+    out.update(
+        detect_exclude_prob_5s=float(np.mean([d is not None and d <= 5.0 for d in det_t])),
+        detect_exclude_time_s=float(np.median(found)) if found else None,
+        rmse_after_exclusion_m=float(np.sqrt(np.mean(err_ex))) if err_ex else None,
+        crlb_without_station_m=float(np.sqrt(np.mean(crlb))) if crlb else None,
+        false_alarm_rate=alarms / n_clean, hpl_exceed_rate=exceed_h / n_clean, vpl_exceed_rate=exceed_v / n_clean,
+    )
+    return out
 
 
 def fault_metrics(sim, faults, duration_s: float) -> dict:
@@ -177,6 +249,8 @@ def main(args) -> int:
     from .progress import Progress
 
     rows = []
+    if not args.cases:
+        args.cases = []
     ctx = mp.get_context("fork")
     with ctx.Pool(max(1, args.jobs)) as pool:
         for case in args.cases:
@@ -194,11 +268,31 @@ def main(args) -> int:
             rows.append(row)
     print(f"\nestimator={args.estimator}  trials/case={args.trials}  faulty station={FAULTY}  "
           f"(FE/st-h: false exclusions per station-hour by non-faulty stations)")
-    print_table(rows)
-    if args.png_dir:
+    if rows:
+        print_table(rows)
+    if args.png_dir and rows:
         print(f"wrote {plot(rows, Path(args.png_dir))}")
+    ac_rows = []
+    if args.aircraft is not None:
+        for scn in args.aircraft or ["seed001", "seed003"]:
+            ac_rows.append(aircraft_raim(scn, args.ac_runs, args.seed))
+        print(f"\naircraft snapshot RAIM/FDE (p_fa = {AC_P_FA:g} per epoch, p_md = {AC_P_MD:g}; {AC_RATE_HZ:g} epochs/s; "
+              f"station biased {AC_BIAS_M:g} m from t = {AC_ONSET_S:g} s)")
+        hdr = ("world", "stations", "P_det+exc5s", "t_det_s", "rmse_exc_m", "crlb_m", "ratio", "FA_rate",
+               "HPL_exceed", "VPL_exceed")
+        print("  ".join(f"{h:>11}" for h in hdr))
+        for r in ac_rows:
+            ratio = (r["rmse_after_exclusion_m"] / r["crlb_without_station_m"]
+                     if r["rmse_after_exclusion_m"] and r["crlb_without_station_m"] else None)
+            vals = [r["detect_exclude_prob_5s"], r["detect_exclude_time_s"], r["rmse_after_exclusion_m"],
+                    r["crlb_without_station_m"], ratio, r["false_alarm_rate"], r["hpl_exceed_rate"], r["vpl_exceed_rate"]]
+            print(f"{r['scenario']:>11}  {r['stations']:>11}  " + "  ".join(
+                f"{'-':>11}" if v is None else f"{v:11.4f}" for v in vals))
+            if "note" in r:
+                print(f"  note: {r['note']}")
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps({"estimator": args.estimator, "runs": rows}, indent=1))
+        Path(args.json).write_text(json.dumps({"estimator": args.estimator, "runs": rows, "aircraft": ac_rows},
+                                              indent=1))
         print(f"wrote {args.json}")
     return 0

@@ -4,8 +4,8 @@ Each station tests every peer once per own cycle: is the link's recent ranging c
 own estimate and the peer's broadcast estimate, given both covariances?
 
 For peer ``j``, with the ranges ``d_k`` of the link measured (by either end) in the last
-``window_s`` seconds, after a within-link consensus gate (ranges more than ``gate * sigma_d`` from
-the window's median are NLOS-like one-offs and left out when the window holds >= 3 ranges),
+``window_s`` seconds (at least ``min_ranges`` of them), after a within-link consensus gate (ranges
+more than ``gate * sigma_d`` from the window's median are NLOS-like one-offs and left out),
 
     T_j = (dbar - |c - c_j|)^2 / (sigma_d^2 / n + u^T (P + C_j) u),     u = (c - c_j) / |c - c_j|,
 
@@ -13,7 +13,9 @@ which is chi-square with 1 degree of freedom when both estimates and the ranges 
 claim (the range noise, our error and the peer's error are independent and Gaussian). A peer whose
 ``T_j`` exceeds the ``1 - p_fa`` quantile in ``fail_to_exclude`` consecutive tests is *excluded*
 (the survey estimator stops using it); an excluded peer passing ``pass_to_readmit`` consecutive
-tests is *re-admitted*. Each decision is announced as an ``integrity`` message.
+tests is *re-admitted*. Each decision is announced as an ``integrity`` message. When more than half
+of the peers tested fail at once, the common factor is this station itself (a biased antenna, a
+jumped clock): it excludes nobody new (``self_suspect``).
 
 Both estimates were partly built from this very link, which makes the residual smaller than the
 formula says, and the survey's covariance is conservative (NEES below its band): on clean data the
@@ -44,8 +46,8 @@ class PeerTest:
 class StationIntegrity:
     """Chi-square consistency test of each peer, exclusion and re-admission (see module docstring)."""
 
-    def __init__(self, station_id: int, sigma_d_m: float, *, p_fa: float = 1e-4, window_s: float = 10.0,
-                 fail_to_exclude: int = 2, pass_to_readmit: int = 5, gate: float = 5.0):
+    def __init__(self, station_id: int, sigma_d_m: float, *, p_fa: float = 1e-4, window_s: float = 20.0,
+                 fail_to_exclude: int = 2, pass_to_readmit: int = 5, gate: float = 5.0, min_ranges: int = 3):
         self.id = station_id
         self.sigma_d_m = float(sigma_d_m)
         self.p_fa = float(p_fa)
@@ -54,6 +56,8 @@ class StationIntegrity:
         self.fail_to_exclude = int(fail_to_exclude)
         self.pass_to_readmit = int(pass_to_readmit)
         self.gate = float(gate)
+        self.min_ranges = int(min_ranges)
+        self.self_suspect = False  # most peers look inconsistent: the fault is probably ours
         self.peers: dict[int, PeerTest] = {}
         self.events: list[tuple[float, int, str, float]] = []  # (t_s, suspect, decision, statistic)
 
@@ -71,13 +75,12 @@ class StationIntegrity:
             return None
         while st.ranges and st.ranges[0][0] < t_s - self.window_s:
             st.ranges.popleft()
-        if not st.ranges:
+        if len(st.ranges) < self.min_ranges:  # one or two ranges cannot tell an NLOS one-off from a fault
             return None
         d = np.array([r for _, r in st.ranges])
-        if len(d) >= 3:
-            d = d[np.abs(d - np.median(d)) <= self.gate * self.sigma_d_m]
-            if not len(d):  # no consensus in the window (an even count split by NLOS): inconclusive
-                return None
+        d = d[np.abs(d - np.median(d)) <= self.gate * self.sigma_d_m]
+        if not len(d):  # no consensus in the window (an even count split by NLOS): inconclusive
+            return None
         diff = np.asarray(pos_m, float) - np.asarray(peer_pos_m, float)
         pred = float(np.linalg.norm(diff))
         if pred <= 0.0:
@@ -90,10 +93,16 @@ class StationIntegrity:
         """Test every peer with a range in the window. ``peers``: {id: (pos_m (3,), cov_m2 (3, 3))}
         from their latest broadcasts. Returns the decisions taken now (``integrity`` message bodies)."""
         out = []
+        stats = {}
         for pid, (ppos, pcov) in peers.items():
             T = self.statistic(pid, t_s, pos_m, cov_m2, ppos, pcov)
-            if T is None:
-                continue
+            if T is not None:
+                stats[pid] = T
+        # if most of the peers tested fail, the common factor is this station (its own antenna, clock
+        # or fix): exclude nobody new this round
+        n_fail = sum(T > self.threshold for T in stats.values())
+        self.self_suspect = len(stats) >= 4 and n_fail > len(stats) / 2
+        for pid, T in stats.items():
             st = self.peers[pid]
             st.statistic = T
             st.n_tests += 1
@@ -105,7 +114,7 @@ class StationIntegrity:
                 st.passes += 1
                 st.fails = 0
             decision = None
-            if not st.excluded and st.fails >= self.fail_to_exclude:
+            if not st.excluded and st.fails >= self.fail_to_exclude and not self.self_suspect:
                 st.excluded, decision = True, "exclude"
             elif st.excluded and st.passes >= self.pass_to_readmit:
                 st.excluded, decision = False, "readmit"
