@@ -12,9 +12,10 @@ more than ``gate * sigma_d`` from the window's median are NLOS-like one-offs and
 which is chi-square with 1 degree of freedom when both estimates and the ranges are what they
 claim (the range noise, our error and the peer's error are independent and Gaussian). A peer whose
 ``T_j`` exceeds the ``1 - p_fa`` quantile in ``fail_to_exclude`` consecutive tests is *excluded*
-(the survey estimator stops using it); an excluded peer passing ``pass_to_readmit`` consecutive
-tests is *re-admitted*. Each decision is announced as an ``integrity`` message. When more than half
-of the peers tested fail at once, the common factor is this station itself (a biased antenna, a
+(the survey estimator stops using it); an excluded peer whose ``T_j`` stays below the ``1 - readmit_p``
+quantile (hysteresis: a faulty station's estimate partly absorbs its fault, so merely passing is not
+enough) in ``pass_to_readmit`` consecutive tests is *re-admitted*. Each decision is announced as an
+``integrity`` message. When more than half of the peers tested fail at once, the common factor is this station itself (a biased antenna, a
 jumped clock): it excludes nobody new (``self_suspect``).
 
 Both estimates were partly built from this very link, which makes the residual smaller than the
@@ -47,11 +48,13 @@ class StationIntegrity:
     """Chi-square consistency test of each peer, exclusion and re-admission (see module docstring)."""
 
     def __init__(self, station_id: int, sigma_d_m: float, *, p_fa: float = 1e-4, window_s: float = 20.0,
-                 fail_to_exclude: int = 2, pass_to_readmit: int = 5, gate: float = 5.0, min_ranges: int = 3):
+                 fail_to_exclude: int = 2, pass_to_readmit: int = 10, readmit_p: float = 0.1, gate: float = 5.0,
+                 min_ranges: int = 3):
         self.id = station_id
         self.sigma_d_m = float(sigma_d_m)
         self.p_fa = float(p_fa)
         self.threshold = float(chi2.ppf(1.0 - p_fa, 1))
+        self.readmit_threshold = float(chi2.ppf(1.0 - readmit_p, 1))  # hysteresis: re-admit on clear passes
         self.window_s = float(window_s)
         self.fail_to_exclude = int(fail_to_exclude)
         self.pass_to_readmit = int(pass_to_readmit)
@@ -111,8 +114,8 @@ class StationIntegrity:
                 st.fails += 1
                 st.passes = 0
             else:
-                st.passes += 1
                 st.fails = 0
+                st.passes = st.passes + 1 if T <= self.readmit_threshold or not st.excluded else 0
             decision = None
             if not st.excluded and st.fails >= self.fail_to_exclude and not self.self_suspect:
                 st.excluded, decision = True, "exclude"
