@@ -215,3 +215,21 @@ def test_station_chi_square_false_alarm_rate_on_clean_data():
     assert len(stats) > 150
     assert np.mean(stats > chi2.ppf(0.99, 1)) <= 0.02
     assert 0.2 < stats.mean() < 1.3  # chi-square(1) has mean 1; conservative covariances give less
+
+
+def test_info_shows_a_station_excluded_by_its_neighbours(tmp_path):
+    from larns.info import format_info, summarize
+    from larns.mcaputil import LogWriter
+
+    p = tmp_path / "i.mcap"
+    with LogWriter(p) as w:
+        for src, seq in ((3, 1), (4, 1)):
+            m = {"kind": "integrity", "src": src, "seq": seq, "stamp_s": 21.0, "t_s": 21.0, "suspect": 6,
+                 "statistic": 99.0, "threshold": 15.1, "dof": 1, "p_fa": 1e-4, "decision": "exclude", "excluded": [6]}
+            w.write(M.key_for(m), M.encode(m), log_time=10**9 * (20 + src))
+        est = {"kind": "estimate", "src": 6, "seq": 1, "stamp_s": 22.0, "t_s": 22.0, "pos_m": [1.0, 2.0, 3.0],
+               "cov_m2": np.eye(3).tolist(), "n_updates": 3, "estimator": "dmap", "state": "surveying"}
+        w.write(M.key_for(est), M.encode(est), log_time=10**9 * 25)
+    s = summarize([p])
+    assert s["stations"][6]["excluded_by"] == [3, 4]
+    assert "station 6 EXCLUDED by 3,4" in format_info(s)
