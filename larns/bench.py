@@ -15,6 +15,7 @@ BENCHES: list[str] = [
     "larns.bench_replay",
     "larns.bench_sync",
     "larns.bench_ins",
+    "larns.bench_integrity",
 ]
 
 

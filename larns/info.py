@@ -105,6 +105,8 @@ def summarize(paths: Sequence[str | Path], logs=None) -> dict[str, Any]:
                 s["ranges"] = s.get("ranges", 0) + len(msg["ranges"])
             elif kind in ("core_init", "core_input"):
                 s["journal"] = True
+            elif kind == "integrity":  # the peers this station excludes now (its latest decision)
+                s["excludes"] = sorted(msg.get("excluded", []))
         else:
             a = aircraft.setdefault(src, {"messages": 0, "algos": set()})
             a["messages"] += 1
@@ -116,6 +118,10 @@ def summarize(paths: Sequence[str | Path], logs=None) -> dict[str, Any]:
         sync_summary(s, s.pop("_clk", {}), s.pop("_clk_true", {}))
         if s.get("navs"):
             s["exchanges_pct"] = 100.0 * s["ranges"] / s["navs"]  # own slots whose exchange completed
+    for sid, s in stations.items():  # integrity: which stations exclude this one
+        by = [o for o, v in stations.items() if sid in v.get("excludes", ())]
+        if by:
+            s["excluded_by"] = by
     for a in aircraft.values():
         a["algos"] = sorted(a["algos"])
     for name, t in topics.items():
@@ -191,6 +197,9 @@ def format_info(s: dict[str, Any]) -> str:
                      f"{v.get('exchanges_pct', math.nan):>7.1f} {v.get('sync_ns', math.nan):>8.2f} "
                      f"{v.get('sync_rms_ns_after_60s', math.nan):>8.2f} "
                      f"{v.get('sync_max_ns_after_60s', math.nan):>8.2f}")
+        for sid, v in st.items():
+            if v.get("excluded_by"):
+                L.append(f"  integrity: station {sid} EXCLUDED by {','.join(map(str, v['excluded_by']))}")
     ac = s["aircraft"]
     L.append(f"Aircraft:          {len(ac)}" + ("  " + ", ".join(f"{k} ({', '.join(v['algos']) or 'no estimates'})"
                                                                for k, v in ac.items()) if ac else ""))

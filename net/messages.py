@@ -252,6 +252,26 @@ SCHEMAS: dict[str, tuple[dict[str, Callable], dict[str, Callable]]] = {
     "ac_truth": ({**_COMMON_AIRCRAFT, "t_s": _num, "pos_m": _vec3},
                  {"vel_m_s": _vec3, "extra": _extra}),
 }
+DECISIONS = ("exclude", "readmit")
+
+
+def _decision(v: Any, name: str) -> str:
+    if v not in DECISIONS:
+        raise MessageError("bad_field", f"{name} must be one of {DECISIONS}")
+    return v
+
+
+def _prob(v: Any, name: str) -> float:
+    x = _num(v, name)
+    if not 0.0 < x < 1.0:
+        raise MessageError("bad_field", f"{name} must be a probability in (0, 1)")
+    return x
+
+
+# integrity (issue 14): a station's conclusion about a peer (docs/protocol.md)
+SCHEMAS["integrity"] = ({**_COMMON_STATION, "t_s": _num, "suspect": _station_id, "statistic": _nonneg,
+                         "threshold": _nonneg, "dof": _count, "p_fa": _prob, "decision": _decision},
+                        {"excluded": _members})
 KINDS = tuple(SCHEMAS)
 PHY_SCHEMA: dict[str, Callable] = {"pos_m": _vec3, "t_true_s": _num}
 
@@ -423,6 +443,8 @@ def key_for(msg: dict[str, Any]) -> str:
         return station_key(src, "init")
     if kind == "core_input":
         return station_key(src, "input")
+    if kind == "integrity":
+        return station_key(src, "integrity")
     if kind == "ac_estimate":
         return aircraft_key(src, "estimate", msg["algo"])
     if kind == "ac_truth":

@@ -121,6 +121,8 @@ class Scenario:
     aircraft: dict[str, Any] = field(default_factory=dict)
     raw: dict[str, Any] = field(default_factory=dict)
     clock: ClockParams = field(default_factory=ClockParams)  # station oscillators ([clock])
+    links: list["LinkOverride"] = field(default_factory=list)  # per-link / per-station channel
+    faults: list["StationFault"] = field(default_factory=list)  # [[faults]]: faulty or lying stations
 
     def index(self, station_id: int) -> int:
         return self.ids.index(station_id)
@@ -263,4 +265,147 @@ def from_dict(raw: dict[str, Any]) -> Scenario:
         aircraft=dict(raw.get("aircraft", {})),
         raw=raw,
         clock=clock_params(raw.get("clock"), channel.clock_offset_s, channel.clock_drift_ppm),
+        links=parse_links(raw.get("links", []), ids),
+        faults=parse_faults(raw.get("faults", []), ids),
     )
+
+
+# ---------------------------------------------------------------- per-link channel and station faults
+class ScenarioError(ValueError):
+    """A scenario entry is invalid; the message names the key (e.g. ``faults[1].offset_m``)."""
+
+
+@dataclass(frozen=True)
+class LinkOverride:
+    """``[[links]]``: channel of the links of one station (``station``) or of one pair (``stations``).
+
+    Unset fields (None) keep the ``[channel]`` value. ``bias_m`` is a constant two-way range bias
+    (half on each leg), e.g. a longer antenna cable; NLOS and loss act per leg like ``[channel]``.
+    """
+
+    ids: tuple[int, ...]
+    nlos_prob: float | None = None
+    nlos_bias_m: float | None = None
+    loss_prob: float | None = None
+    bias_m: float = 0.0
+
+    def applies(self, a: int, b: int) -> bool:
+        return (a in self.ids and b in self.ids) if len(self.ids) == 2 else self.ids[0] in (a, b)
+
+
+FAULT_KEYS = {
+    "liar": {"offset_m": "vec3", "from_s": "float"},
+    "range_bias": {"bias_m": "float", "from_s": "float"},
+    "clock_jump": {"jump_s": "float", "at_s": "float"},
+    "bad_fix": {"offset_m": "vec3", "sigma0_m": "float"},
+}
+FAULT_OPTIONAL = {"from_s": 0.0, "at_s": 0.0}
+
+
+@dataclass(frozen=True)
+class StationFault:
+    """``[[faults]]`` entry; applied in the station's shell (simulator and node alike), never in its
+    estimator. ``liar``: broadcasts (nav, range answers) carry ``pos_m + offset_m`` from ``from_s``;
+    ``range_bias``: every range of ``station`` is ``bias_m`` long from ``from_s``; ``clock_jump``: its
+    clock steps by ``jump_s`` at true time ``at_s``; ``bad_fix``: its coarse fix is off by ``offset_m``
+    while it claims ``sigma0_m`` (default: the scenario's)."""
+
+    kind: str
+    station: int
+    offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    from_s: float = 0.0
+    bias_m: float = 0.0
+    jump_s: float = 0.0
+    at_s: float = 0.0
+    sigma0_m: float | None = None
+
+    @property
+    def onset_s(self) -> float:
+        return self.at_s if self.kind == "clock_jump" else (0.0 if self.kind == "bad_fix" else self.from_s)
+
+
+def _num(v: Any, where: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+        raise ScenarioError(f"{where}: expected a finite number, got {v!r}")
+    return float(v)
+
+
+def _station(v: Any, where: str, ids: list[int]) -> int:
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise ScenarioError(f"{where}: expected a station id (integer), got {v!r}")
+    if v not in ids:
+        raise ScenarioError(f"{where}: no station {v} in this scenario (ids {ids[0]}..{ids[-1]})")
+    return v
+
+
+def parse_faults(entries: Any, ids: list[int]) -> list[StationFault]:
+    if not isinstance(entries, list):
+        raise ScenarioError("faults: expected an array of tables ([[faults]])")
+    out = []
+    for i, e in enumerate(entries):
+        w = f"faults[{i}]"
+        if not isinstance(e, dict):
+            raise ScenarioError(f"{w}: expected a table")
+        kind = e.get("kind")
+        if kind not in FAULT_KEYS:
+            raise ScenarioError(f"{w}.kind: expected one of {sorted(FAULT_KEYS)}, got {kind!r}")
+        if "station" not in e:
+            raise ScenarioError(f"{w}.station: missing (the faulty station's id)")
+        spec = FAULT_KEYS[kind]
+        unknown = set(e) - set(spec) - {"kind", "station"}
+        if unknown:
+            raise ScenarioError(f"{w}.{sorted(unknown)[0]}: unknown key for kind {kind!r} "
+                                f"(keys: kind, station, {', '.join(spec)})")
+        kw: dict[str, Any] = {"kind": kind, "station": _station(e["station"], f"{w}.station", ids)}
+        for key, typ in spec.items():
+            if key not in e:
+                if key in FAULT_OPTIONAL or (kind == "bad_fix" and key == "sigma0_m"):
+                    continue
+                raise ScenarioError(f"{w}.{key}: missing (required for kind {kind!r})")
+            v = e[key]
+            if typ == "vec3":
+                if not isinstance(v, list) or len(v) != 3:
+                    raise ScenarioError(f"{w}.{key}: expected 3 numbers [x, y, z] in metres, got {v!r}")
+                kw[key] = tuple(_num(x, f"{w}.{key}") for x in v)
+            else:
+                kw[key] = _num(v, f"{w}.{key}")
+        if kw.get("sigma0_m", 1.0) is not None and kw.get("sigma0_m", 1.0) < 0:
+            raise ScenarioError(f"{w}.sigma0_m: must be >= 0")
+        out.append(StationFault(**kw))
+    return out
+
+
+def parse_links(entries: Any, ids: list[int]) -> list[LinkOverride]:
+    if not isinstance(entries, list):
+        raise ScenarioError("links: expected an array of tables ([[links]])")
+    out = []
+    for i, e in enumerate(entries):
+        w = f"links[{i}]"
+        if not isinstance(e, dict):
+            raise ScenarioError(f"{w}: expected a table")
+        unknown = set(e) - {"station", "stations", "nlos_prob", "nlos_bias_m", "loss_prob", "bias_m"}
+        if unknown:
+            raise ScenarioError(f"{w}.{sorted(unknown)[0]}: unknown key (keys: station or stations, "
+                                "nlos_prob, nlos_bias_m, loss_prob, bias_m)")
+        if ("station" in e) == ("stations" in e):
+            raise ScenarioError(f"{w}.station: give exactly one of station = id or stations = [a, b]")
+        if "station" in e:
+            sel = (_station(e["station"], f"{w}.station", ids),)
+        else:
+            v = e["stations"]
+            if not isinstance(v, list) or len(v) != 2 or v[0] == v[1]:
+                raise ScenarioError(f"{w}.stations: expected two different station ids [a, b], got {v!r}")
+            sel = tuple(_station(x, f"{w}.stations", ids) for x in v)
+        kw: dict[str, Any] = {}
+        for key in ("nlos_prob", "loss_prob"):
+            if key in e:
+                kw[key] = _num(e[key], f"{w}.{key}")
+                if not 0.0 <= kw[key] <= 1.0:
+                    raise ScenarioError(f"{w}.{key}: must be a probability in [0, 1]")
+        for key in ("nlos_bias_m", "bias_m"):
+            if key in e:
+                kw[key] = _num(e[key], f"{w}.{key}")
+        if kw.get("nlos_bias_m", 0.0) < 0:
+            raise ScenarioError(f"{w}.nlos_bias_m: must be >= 0")
+        out.append(LinkOverride(sel, **kw))
+    return out

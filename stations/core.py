@@ -36,6 +36,7 @@ from nav.geometry import SPEED_OF_LIGHT_M_S
 
 from .clocksync import ClockEstimator, ClockModel
 from .estimators import SurveyEstimator, make_estimator
+from .integrity import StationIntegrity
 from .tdma import TdmaPlan
 
 
@@ -93,6 +94,7 @@ class StationCore:
         self.clk = ClockEstimator(cfg.id, ClockModel(cfg.clock_q_wf_s, cfg.clock_q_rw_per_s, cfg.clock_offset_sigma_s,
                                                      cfg.clock_freq_sigma), start_s, cfg.sigma_d_m)
         self.peers: dict[int, PeerInfo] = {}
+        self.integrity = StationIntegrity(cfg.id, cfg.sigma_d_m)  # peer consistency tests (issue 14)
         self.known: dict[int, float] = {p: start_s for p in cfg.known_ids if p != cfg.id}
         self.seq = {"range_req": 0, "range_rsp": 0, "nav": 0, "estimate": 0}
         self.pending: dict[int, tuple[int, float, float]] = {}  # req seq -> (dst, t_tx, slot end)
@@ -209,6 +211,7 @@ class StationCore:
             self._claim_slot(t_s)
         if t_s >= self._nav_s - 1e-12:
             self._nav_s = float("inf")
+            out += self._integrity(t_s)
             self.est.refresh()
             self._refresh_state()
             out.append(self._nav_msg(t_s))
@@ -306,6 +309,7 @@ class StationCore:
                     self.counters["sync_in"] += 1
             self.ranges_out.append(entry)
             self.est.on_range(src, range_m, t_rx_s, True, pos, cov)
+            self.integrity.on_range(src, range_m, t_rx_s)
             self._refresh_state()
             return []
         if kind == "nav":
@@ -336,8 +340,9 @@ class StationCore:
                         self.counters["sync_in"] += 1
                 if peer == self.id and 0.0 < range_m < self.cfg.max_range_m:
                     self.counters["ranges_in"] += 1
-                    if self.est.name == "dmap":
+                    if self.est.name.startswith("dmap"):  # dmap, dmap-ls: ranges used at both ends
                         self.est.on_range(src, float(range_m), t_rx_s, False, pos, cov)
+                    self.integrity.on_range(src, float(range_m), t_rx_s)
             self._refresh_state()
             return []
         return []
@@ -349,6 +354,23 @@ class StationCore:
         T = self.clk.network_time(t_tx_s)
         guard = 6.0 * float(np.sqrt(max(self.clk.offset_var_s2, 0.0))) + self.cfg.max_range_m / SPEED_OF_LIGHT_M_S
         return start - guard <= T <= start + self.plan.slot_s + guard
+
+    def _integrity(self, t_s: float) -> list[dict]:
+        """Test the peers (``stations/integrity.py``); excluded peers leave the survey solve."""
+        if not self.est.initialized:
+            return []
+        peers = {p: (i.pos_m, i.cov_m2) for p, i in self.peers.items()}
+        out = []
+        for body in self.integrity.evaluate(t_s, self.est.pos_m, self.est.cov_m2, peers):
+            self.seq.setdefault("integrity", 0)
+            m = self._base("integrity", t_s)
+            m.update(body)
+            out.append(m)
+        if hasattr(self.est, "excluded"):
+            self.est.excluded = self.integrity.excluded
+            if out:
+                self.est._dirty = self.est.nf > 0
+        return out
 
     def _refresh_state(self) -> None:
         if self.state == "joining" and self.slot is not None and self.est.initialized:

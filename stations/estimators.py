@@ -145,15 +145,42 @@ class SeedUkf:
         self.n_updates += 1
 
 
+def tukey_weight(z: np.ndarray, c: float) -> np.ndarray:
+    """Tukey biweight IRLS weights ``(1 - (z/c)^2)^2`` for ``|z| < c``, else 0 (redescending)."""
+    q = np.clip(1.0 - (np.asarray(z) / c) ** 2, 0.0, None)
+    return q * q
+
+
+def huber_weight(z: np.ndarray, k: float) -> np.ndarray:
+    """Huber IRLS weights ``min(1, k/|z|)`` (monotone: a unique solution from any start)."""
+    a = np.abs(np.asarray(z))
+    return np.where(a <= k, 1.0, k / np.maximum(a, 1e-300))
+
+
 class DistributedMap:
-    """Distributed MAP by block Gauss-Newton on stored link statistics (see module docstring)."""
+    """Distributed MAP by block Gauss-Newton on stored link statistics (see module docstring).
+
+    ``robust`` (default ``"tukey"``): every range is kept (stations are static, so this is the
+    lossless record) and re-weighted at every solve by a redescending M-estimator on its normalized
+    innovation ``z = (d - |c - c_j|) / s``, ``s^2 = sigma_d^2 + u^T (P + C_j) u`` (range noise plus
+    the predicted range's uncertainty from both estimates). An NLOS range (tens of metres long) gets
+    weight 0 once the geometry is known to better than its excess, and is re-admitted if the
+    geometry moves; a weight is never frozen. When fewer than half of the weight survives (our own
+    fix is far off, e.g. a bad coarse fix), the solve falls back to Huber weights, whose convex loss
+    converges from any start, and the next solve redescends from there (an MM scheme).
+    ``robust=None`` gives the plain least-squares MAP (count + mean per link).
+    """
 
     name = "dmap"
 
     def __init__(self, station_id: int, pos0_m: np.ndarray | None, cov0_m2: np.ndarray | None,
                  sigma_d_m: float, *, max_iter: int = 3, tol_m: float = 1e-3,
                  no_fix_sigma_m: float = 1000.0, min_peers_to_init: int = 4, extrinsic: bool = True,
-                 peer_corr: float = 2.0, peer_corr_est: float = 1.0):
+                 peer_corr: float = 2.0, peer_corr_est: float = 0.5, extrinsic_est: bool = False,
+                 robust: str | None = "tukey", tukey_c: float = 4.685, huber_k: float = 2.0,
+                 min_inlier_frac: float = 0.5, keep_per_link: int = 256, link_consensus: bool = True,
+                 consensus_gate: float = 5.0,
+                 restart_from_prior: bool = True, restart_iter: int = 6):
         self.id = station_id
         self.free = free_mask(station_id)
         self.nf = int(self.free.sum())
@@ -165,14 +192,34 @@ class DistributedMap:
         self.extrinsic = extrinsic
         self.peer_corr = peer_corr
         self.peer_corr_est = peer_corr_est
+        self.extrinsic_est = extrinsic_est
+        if robust not in (None, "tukey"):
+            raise ValueError(f"unknown robust loss {robust!r}; choose 'tukey' or None")
+        self.robust = robust
+        if robust is None:
+            self.name = "dmap-ls"
+        self.tukey_c = tukey_c
+        self.huber_k = huber_k
+        self.min_inlier_frac = min_inlier_frac
+        self.link_consensus = link_consensus
+        self.consensus_gate = consensus_gate
+        self.restart_from_prior = restart_from_prior
+        self.restart_iter = restart_iter
+        self.keep_per_link = keep_per_link
         self.n_updates = 0
-        # per-peer arrays: link count and sum of ranges, latest estimate and covariance
+        self.excluded: set[int] = set()  # peers excluded by integrity monitoring (not used in the solve)
+        # per-peer arrays: archived (weight, weighted sum) of old ranges, latest estimate and covariance
         self._index: dict[int, int] = {}
         self._n = np.zeros(0)
         self._sum = np.zeros(0)
         self._pos = np.zeros((0, 3))
         self._cov = np.zeros((0, 3, 3))
         self._known = np.zeros(0, bool)
+        # every kept range: peer slot and value; robust weights of the last solve
+        self._rk = np.zeros(0, np.int64)
+        self._rv = np.zeros(0)
+        self._nr = 0
+        self.range_weight = np.zeros(0)
         self._dirty = False
         if pos0_m is None or cov0_m2 is None or not np.any(np.diag(cov0_m2)[self.free] > 0) and self.nf:
             # no coarse fix: trilaterate once enough peers are known
@@ -207,19 +254,59 @@ class DistributedMap:
         self._cov[k] = cov_m2
         self._known[k] = True
 
+    def link_ranges(self, peer_id: int) -> tuple[np.ndarray, np.ndarray]:
+        """Kept ranges of the link to ``peer_id`` (oldest first) and their weights of the last solve."""
+        k = self._index.get(peer_id)
+        if k is None:
+            return np.zeros(0), np.zeros(0)
+        sel = self._rk[:self._nr] == k
+        w = self.range_weight[sel] if len(self.range_weight) == self._nr else np.ones(int(sel.sum()))
+        return self._rv[:self._nr][sel].copy(), w
+
     @property
     def links(self) -> dict[int, tuple[int, float]]:
-        """Link statistics {peer: (count, mean range)}."""
-        return {p: (int(self._n[k]), float(self._sum[k] / self._n[k])) for p, k in self._index.items() if self._n[k] > 0}
+        """Link statistics {peer: (count, mean range)} over every range received (unweighted)."""
+        nr = self._nr
+        cnt = np.bincount(self._rk[:nr], minlength=len(self._n)).astype(float)
+        tot = np.bincount(self._rk[:nr], weights=self._rv[:nr], minlength=len(self._n))
+        out = {}
+        for p, k in self._index.items():
+            c = cnt[k] + self._n[k]
+            if c > 0:
+                out[p] = (int(round(c)), float((tot[k] + self._sum[k]) / c))
+        return out
 
     def on_range(self, peer_id, range_m, t_s, initiated, peer_pos_m, peer_cov_m2) -> bool:
         if peer_pos_m is not None:
             self.on_peer(peer_id, peer_pos_m, peer_cov_m2)
         k = self._slot(peer_id)
-        self._n[k] += 1.0
-        self._sum[k] += float(range_m)
+        if self._nr == len(self._rv):
+            grow = max(64, self._nr)
+            self._rk = np.concatenate([self._rk, np.zeros(grow, np.int64)])
+            self._rv = np.concatenate([self._rv, np.zeros(grow)])
+        self._rk[self._nr] = k
+        self._rv[self._nr] = float(range_m)
+        self._nr += 1
+        if self.keep_per_link and np.count_nonzero(self._rk[:self._nr] == k) > self.keep_per_link:
+            self._archive(k)
         self._dirty = self.nf > 0
         return False
+
+    def _archive(self, k: int) -> None:
+        """Fold the older half of link ``k``'s ranges into its (weight, weighted sum) archive, with
+        the weights of the last solve (bounded memory and cost on long runs)."""
+        nr = self._nr
+        idx = np.flatnonzero(self._rk[:nr] == k)[: self.keep_per_link // 2]
+        w = self.range_weight[idx] if len(self.range_weight) == nr else np.ones(len(idx))
+        self._n[k] += float(w.sum())
+        self._sum[k] += float(w @ self._rv[idx])
+        keep = np.ones(nr, bool)
+        keep[idx] = False
+        self._rk = self._rk[:nr][keep]
+        self._rv = self._rv[:nr][keep]
+        if len(self.range_weight) == nr:
+            self.range_weight = self.range_weight[keep]
+        self._nr = len(self._rv)
 
     def refresh(self) -> bool:
         """Re-solve if new ranges arrived since the last solve (the core calls this before its nav)."""
@@ -228,12 +315,69 @@ class DistributedMap:
         self._dirty = not self.solve()
         return not self._dirty
 
-    def _arrays(self):
-        sel = (self._n > 0) & self._known
+    def _peer_sel(self) -> np.ndarray:
+        """(m,) bool over peer slots: known estimate, not excluded."""
+        m = len(self._index)
+        sel = self._known[:m].copy()
+        for p in self.excluded:
+            k = self._index.get(p)
+            if k is not None:
+                sel[k] = False
+        return sel
+
+    def _z(self, x: np.ndarray) -> np.ndarray:
+        """(nr,) normalized innovation of every kept range against the range predicted at ``x``:
+        ``(d - |x - c_j|) / s``, ``s^2 = sigma_d^2 + u^T (P + C_j) u``."""
+        nr = self._nr
+        rk, rv = self._rk[:nr], self._rv[:nr]
+        m = len(self._index)
+        diff = x - self._pos[:m]
+        r = np.sqrt(np.einsum("ki,ki->k", diff, diff))
+        u = diff / np.maximum(r, 1e-9)[:, None]
+        s2 = self.sigma_d_m**2 + np.einsum("ki,kij,kj->k", u, self._cov[:m] + self.cov_m2, u)
+        return (rv - r[rk]) / np.sqrt(s2[rk])
+
+    def _weights(self, x: np.ndarray, robust: bool) -> np.ndarray:
+        """(nr,) robust weight of every kept range at own position ``x``."""
+        nr = self._nr
+        rk, rv = self._rk[:nr], self._rv[:nr]
+        if not robust or self.robust is None:
+            return np.ones(nr)
+        m = len(self._index)
+        z = self._z(x)
+        w = tukey_weight(z, self.tukey_c)
+        if self.link_consensus:
+            # within-link consensus, independent of any geometry: distance to the link's centre
+            # (median; of two ranges that disagree, the shorter, since NLOS only lengthens a range)
+            centre = np.empty(m)
+            gap = 3.0 * np.sqrt(2.0) * self.sigma_d_m
+            for k in range(m):
+                v = rv[rk == k]
+                centre[k] = (v.min() if len(v) == 2 and np.ptp(v) > gap else np.median(v)) if len(v) else 0.0
+            w = w * (np.abs(rv - centre[rk]) <= self.consensus_gate * self.sigma_d_m)
+        if w.sum() < self.min_inlier_frac * nr:
+            w = huber_weight(z, self.huber_k)  # far from everything: convex start (MM scheme)
+        return w
+
+    def robust_cost(self, x: np.ndarray) -> float:
+        """Robust MAP objective at ``x``: prior Mahalanobis term + sum of Tukey losses
+        ``rho(z) = c^2/3 (1 - (1 - (z/c)^2)^3)`` (``~ z^2`` near 0, ``c^2/3`` for a rejected range)."""
+        c = self.tukey_c
+        z = self._z(x)
+        q = np.clip(1.0 - (z / c) ** 2, 0.0, None)
+        d0 = x[self.free] - self.prior_mean
+        return float(d0 @ self.prior_info @ d0 + (c * c / 3.0 * (1.0 - q**3)).sum())
+
+    def _arrays(self, w: np.ndarray):
+        """Per-link (effective count, weighted mean range, peer estimate, peer covariance, slots)."""
+        m = len(self._index)
+        nr = self._nr
+        n = self._n[:m] + np.bincount(self._rk[:nr], weights=w, minlength=m)
+        tot = self._sum[:m] + np.bincount(self._rk[:nr], weights=w * self._rv[:nr], minlength=m)
+        sel = (n > 1e-6) & self._peer_sel()
         if not sel.any():
             return None
-        n = self._n[sel]
-        return n, self._sum[sel] / n, self._pos[sel], self._cov[sel]
+        return n[sel], tot[sel] / n[sel], self._pos[:m][sel], self._cov[:m][sel]
 
     def _extrinsic(self, x, n, Pj, Cj):
         """Peer covariances with this station's own link removed (Gaussian BP extrinsic message).
@@ -267,34 +411,78 @@ class DistributedMap:
         b = self.prior_info @ (self.prior_mean - x[self.free]) + J.T @ (w * (dbar - r))
         return A, b, w
 
+    def _objective(self, x, n, dbar, Pj, wl) -> float:
+        """Local MAP objective at ``x`` with the link weights ``wl`` held fixed."""
+        diff = x - Pj
+        r = np.sqrt(np.einsum("ki,ki->k", diff, diff))
+        d0 = x[self.free] - self.prior_mean
+        return float(d0 @ self.prior_info @ d0 + wl @ (dbar - r) ** 2)
+
+    def _irls(self, x: np.ndarray, iters: int, robust: bool) -> np.ndarray | None:
+        """Iteratively re-weighted, backtracked Gauss-Newton from ``x`` (3,); None if no usable link."""
+        f = self.free
+        for _ in range(iters):
+            w = self._weights(x, robust)
+            arr = self._arrays(w)
+            if arr is None:
+                return None
+            n, dbar, Pj, Cj = arr
+            Ce = self._extrinsic(x, n, Pj, Cj) if self.extrinsic_est and self.initialized else Cj
+            A, b, wl = self._normal(x, n, dbar, Pj, Ce, self.peer_corr_est)
+            L = np.linalg.cholesky(A)
+            dx = np.linalg.solve(L.T, np.linalg.solve(L, b))
+            # backtracking on the (fixed-weight) objective: near-flat geometry makes the range nearly
+            # quadratic in height, so a full Gauss-Newton step can overshoot far along z
+            f0 = self._objective(x, n, dbar, Pj, wl)
+            for _ in range(20):
+                xt = x.copy()
+                xt[f] += dx
+                if self._objective(xt, n, dbar, Pj, wl) <= f0 + 1e-12:
+                    break
+                dx = 0.5 * dx
+            x = xt
+            if np.max(np.abs(dx)) < self.tol_m:
+                break
+        return x
+
     def solve(self) -> bool:
-        arr = self._arrays()
-        if arr is None:
+        if self._nr == 0 and not (self._n > 0).any():
             return False
-        n, dbar, Pj, Cj = arr
         iters = self.max_iter
+        robust = self.initialized
         if not self.initialized:
-            if len(n) < self.min_peers_to_init:
+            arr = self._arrays(np.ones(self._nr))
+            if arr is None or len(arr[0]) < self.min_peers_to_init:
                 return False
+            Pj = arr[2]
             # weak prior at the peers' centroid: fixes the mirror ambiguity of a flat network
             self.prior_mean = Pj.mean(axis=0)[self.free]
             self.prior_info = np.eye(self.nf) / self.no_fix_sigma_m**2
             self.pos_m = Pj.mean(axis=0)
             self.pos_m[~self.free] = 0.0
             iters = 50
-        x = self.pos_m.copy()
         f = self.free
-        A = self.prior_info
-        if self.extrinsic and self.initialized:
-            Cj = self._extrinsic(x, n, Pj, Cj)
-        for _ in range(iters):
-            A, b, _ = self._normal(x, n, dbar, Pj, Cj, self.peer_corr_est)
-            L = np.linalg.cholesky(A)
-            dx = np.linalg.solve(L.T, np.linalg.solve(L, b))
-            x[f] += dx
-            if np.max(np.abs(dx)) < self.tol_m:
-                break
-        A, _, _ = self._normal(x, n, dbar, Pj, Cj, self.peer_corr)
+        x = self._irls(self.pos_m.copy(), iters, robust)
+        if x is None:
+            return False
+        if robust and self.robust is not None and self.restart_from_prior and self.prior_mean is not None:
+            # second start from the coarse fix: IRLS with a redescending loss only finds a local
+            # minimum, and early NLOS ranges (not yet separable from a 10 m fix error) can drag the
+            # weakly observed height into a wrong basin that later clean ranges keep consistent.
+            # Keep whichever start has the lower robust objective.
+            x0 = self.pos_m.copy()
+            x0[f] = self.prior_mean
+            x2 = self._irls(x0, self.restart_iter, robust)
+            if x2 is not None and self.robust_cost(x2) < self.robust_cost(x):
+                x = x2
+        w = self._weights(x, robust)
+        arr = self._arrays(w)
+        if arr is None:
+            return False
+        n, dbar, Pj, Cj = arr
+        Cx = self._extrinsic(x, n, Pj, Cj) if self.extrinsic and self.initialized else Cj
+        A, _, _ = self._normal(x, n, dbar, Pj, Cx, self.peer_corr)
+        self.range_weight = w
         self.pos_m = x
         cov = np.zeros((3, 3))
         Linv = np.linalg.solve(np.linalg.cholesky(A), np.eye(self.nf))
@@ -305,15 +493,18 @@ class DistributedMap:
         return True
 
 
-ESTIMATORS = {"dmap": DistributedMap, "seed-ukf": SeedUkf}
+ESTIMATORS = {"dmap": DistributedMap, "dmap-ls": DistributedMap, "seed-ukf": SeedUkf}
 
 
 def make_estimator(name: str, station_id: int, pos0_m, cov0_m2, sigma_d_m: float,
                    ranges_per_update: int = 3) -> SurveyEstimator:
+    """``dmap`` (robust, default), ``dmap-ls`` (the same without the robust weights) or ``seed-ukf``."""
     if name == "seed-ukf":
         if pos0_m is None:
             raise ValueError("seed-ukf needs an initial fix (scenario init.sigma0_m > 0)")
         return SeedUkf(station_id, pos0_m, cov0_m2, sigma_d_m, ranges_per_update)
     if name == "dmap":
         return DistributedMap(station_id, pos0_m, cov0_m2, sigma_d_m)
+    if name == "dmap-ls":
+        return DistributedMap(station_id, pos0_m, cov0_m2, sigma_d_m, robust=None)
     raise ValueError(f"unknown estimator {name!r}; choose from {sorted(ESTIMATORS)}")

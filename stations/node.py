@@ -54,6 +54,8 @@ from net.faults import WireFaults, merge_faults
 from net.procsched import add_sched_args, apply_sched_args
 from net.scenario import Scenario
 
+from .shellfaults import ShellFaults
+
 log = logging.getLogger("larns.station")
 
 AIR_KINDS = ("range_req", "range_rsp", "nav")
@@ -110,6 +112,7 @@ class StationNode:
 
         self.ref_clock = station_clock(scn, scn.ids[0], self.seed)  # network time (truth side only)
         self._last_input_s = -math.inf  # local time of the core's latest input
+        self.shell = ShellFaults(scn, self.id)  # per-link channel, [[faults]] (as in the simulator)
         self.wire = WireFaults(scn.net, station_rng(self.seed, self.id, 3))
         self.slot_s = scn.tdma.slot_s
         self.cycle_s = scn.tdma.cycle_s
@@ -263,8 +266,8 @@ class StationNode:
             self._seen.discard(self._seen_q.popleft())
         if msg["kind"] in ("range_req", "range_rsp"):
             self._wire_delay_s.append((self.fleet_now() - phy["t_true_s"]) / self.speed)  # wall: tx -> here
-        t_rx_local = self.air.arrival_local_s(np.asarray(phy["pos_m"]), phy["t_true_s"],
-                                              self.true_pos, self.clock)
+        t_rx_local = self.shell.arrival_local_s(self.air, msg["src"], np.asarray(phy["pos_m"]), phy["t_true_s"],
+                                                self.true_pos, self.clock)
         if t_rx_local is None:
             self.stats["air_lost"] += 1
             return
@@ -286,6 +289,7 @@ class StationNode:
             try:
                 if kind in AIR_KINDS:
                     t_true = self.clock.to_true(m["t_tx_s"])
+                    m = self.shell.outgoing(m, t_true)
                     data = M.encode(m, {"pos_m": self.true_pos, "t_true_s": t_true})
                 elif kind == "estimate":
                     m = dict(m)

@@ -17,6 +17,7 @@ from net.channel import AirChannel, Clock, coarse_fix, draw_clock, station_rng
 from net.scenario import Scenario
 
 from .core import StationConfig, StationCore
+from .shellfaults import ShellFaults
 from .tdma import TdmaPlan
 
 
@@ -59,6 +60,9 @@ def make_core(scn: Scenario, station_id: int, *, estimator: str | None = None, j
         pos0, cov0 = np.zeros(3), np.zeros((3, 3))
     else:
         pos0, cov0 = None, None
+    shell = ShellFaults(scn, station_id)  # scenario [[faults]]: bad_fix, clock_jump
+    clock = shell.clock(clock)
+    pos0, cov0 = shell.fix(pos0, cov0, scn.sigma0_m)
     cfg = StationConfig(
         id=station_id,
         tdma=TdmaPlan(scn.tdma.cycle_s, scn.tdma.slot_s),
@@ -102,6 +106,7 @@ class Simulator:
         self.clocks: list[Clock] = [Clock()] * n
         self.ref_clock = station_clock(scn, scn.ids[0], self.seed)  # network time = station 1's clock
         self.air = [AirChannel(scn.channel, station_rng(self.seed, i, 2)) for i in scn.ids]
+        self.shell = [ShellFaults(scn, i) for i in scn.ids]  # per-link channel, [[faults]]
         self.net_rng = np.random.default_rng([self.seed, 0, 3])
         self.links = np.zeros((n, n), dtype=np.int64)
         self.range_log: list[tuple[float, int, int, float]] = []  # (t_true, initiator idx, responder idx, range_m)
@@ -136,6 +141,7 @@ class Simulator:
             if kind not in ("range_req", "range_rsp", "nav"):
                 continue
             t_tx_true = self.clocks[k].to_true(m["t_tx_s"])
+            m = self.shell[k].outgoing(m, t_tx_true)
             if kind == "nav":
                 for peer, rng_m, *_ in m["ranges"]:
                     if peer in ids:
@@ -148,7 +154,8 @@ class Simulator:
                     continue
                 if self.scn.net.loss_prob > 0 and self.net_rng.random() < self.scn.net.loss_prob:
                     continue
-                t_local = self.air[j].arrival_local_s(self.scn.pos_m[k], t_tx_true, self.scn.pos_m[j], self.clocks[j])
+                t_local = self.shell[j].arrival_local_s(self.air[j], ids[k], self.scn.pos_m[k], t_tx_true,
+                                                        self.scn.pos_m[j], self.clocks[j])
                 if t_local is None:
                     continue
                 self._push(self.clocks[j].to_true(t_local), ("rx", j, m, t_local))

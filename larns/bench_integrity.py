@@ -1,0 +1,298 @@
+"""`larns bench integrity`: NLOS ranges and faulty / lying stations vs the survey and the stations'
+integrity monitoring (in-process simulator, seed 000 world).
+
+Per case and trial: the horizontal RMS of the non-faulty stations 4..n at 40 s and 60 s against the
+clean centralized CRLB of the same realized links, their mean NEES (3 dof), and from the stations'
+``integrity`` decisions: whether the faulty station was excluded by a non-faulty neighbour, how soon
+after the fault's onset, and the false exclusions (a non-faulty station excluding a non-faulty one)
+per station-hour.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+FAULTY = 6  # a non-frame station of the seed-000 layout
+CASES: dict[str, dict] = {
+    "clean": {},
+    "nlos5_20m": {"channel": {"nlos_prob": 0.05, "nlos_bias_m": 20.0}},
+    "nlos5_5m": {"channel": {"nlos_prob": 0.05, "nlos_bias_m": 5.0}},
+    "nlos20_20m": {"channel": {"nlos_prob": 0.20, "nlos_bias_m": 20.0}},
+    "liar": {"faults": [{"kind": "liar", "station": FAULTY, "offset_m": [30.0, 0.0, 0.0], "from_s": 20.0}]},
+    "range_bias": {"faults": [{"kind": "range_bias", "station": FAULTY, "bias_m": 5.0, "from_s": 20.0}]},
+    "clock_jump": {"faults": [{"kind": "clock_jump", "station": FAULTY, "jump_s": 1e-3, "at_s": 20.0}]},
+    "bad_fix": {"faults": [{"kind": "bad_fix", "station": FAULTY, "offset_m": [50.0, 0.0, 0.0], "sigma0_m": 10.0}]},
+}
+DETECT_WITHIN_S = 10.0
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "integrity",
+        help="NLOS and faulty/lying stations: survey accuracy, NEES, detection, false exclusions",
+        description=("Monte Carlo (in-process simulator, seed 000 world) of the robust survey and the stations' "
+                     f"integrity monitoring. Cases: {', '.join(CASES)} (faulty station {FAULTY}). Per case: "
+                     "horizontal RMS of the non-faulty stations 4..n at 40 s and 60 s vs the clean CRLB, mean "
+                     "NEES, detection probability within 10 s, median time to detect, false exclusions per "
+                     "station-hour."),
+    )
+    p.add_argument("--trials", type=int, default=20, help="trials per case (default 20)")
+    p.add_argument("--cases", nargs="*", default=list(CASES), choices=list(CASES), help="cases (default: all)")
+    p.add_argument("--estimator", default="dmap", choices=["dmap", "dmap-ls", "seed-ukf"])
+    p.add_argument("--duration", type=float, default=60.0, help="simulated seconds per trial (default 60)")
+    p.add_argument("--seed", type=int, default=1, help="base seed; trial k uses seed + k (default 1)")
+    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: all cores)")
+    p.add_argument("--json", metavar="FILE", help="write the results as JSON")
+    p.add_argument("--png-dir", metavar="DIR", default="bench-out/integrity", help="PNG directory ('' to skip)")
+    p.add_argument("--aircraft", nargs="*", metavar="SCENARIO", default=None,
+                   help="also run aircraft RAIM/FDE on these scenarios' [aircraft] worlds (default when given "
+                        "without names: seed001 seed003): one station biased by 30 m from t = 20 s, and clean")
+    p.add_argument("--ac-runs", type=int, default=40, help="aircraft Monte Carlo runs per world (default 40)")
+    p.set_defaults(func=main)
+
+
+AC_BIAS_M = 30.0
+AC_ONSET_S = 20.0
+AC_RATE_HZ = 2.0  # snapshot RAIM epochs per second
+AC_P_FA = 1e-3
+AC_P_MD = 1e-3
+
+
+def aircraft_raim(scenario: str, runs: int, seed: int, duration_s: float = 40.0) -> dict:
+    """Snapshot RAIM/FDE (``aircraft/raim.py``) along the scenario's aircraft track, one station's
+    pseudoranges biased by ``AC_BIAS_M`` from ``AC_ONSET_S``; the same epochs without the fault for the
+    false-alarm and protection-level statistics. Station positions are the true ones (seed 001 setup)."""
+    from aircraft import sim, trajectory
+    from aircraft.config import from_scenario
+    from aircraft.raim import raim_fde
+    from net.scenario import load
+
+    sc = load(scenario)
+    ac = from_scenario(sc)
+    t = np.arange(0.0, duration_s, 1.0 / AC_RATE_HZ)
+    track = trajectory.from_config(dict(ac.trajectory), t, ac.centre_m, ac.height_m)
+    rng = np.random.default_rng([seed, 14])
+    rho = sim.pseudoranges(track, ac.stations_m, ac.clock, ac.sigma_m, runs, rng)  # (T, M, m)
+    m = ac.stations_m.shape[0]
+    ids = list(sc.ids)
+    bad = m // 2  # a station in the middle of the list
+    out = {"scenario": scenario, "stations": m, "runs": runs, "faulty_station": ids[bad], "bias_m": AC_BIAS_M,
+           "p_fa": AC_P_FA, "p_md": AC_P_MD, "epochs_per_s": AC_RATE_HZ}
+    if m < 6:
+        out["note"] = (f"{m} stations: a snapshot pseudorange fix has {m - 4} redundant measurement(s); "
+                       "detection needs >= 5 stations and exclusion >= 6")
+    after = t >= AC_ONSET_S
+    det_t, alarms, exceed_h, exceed_v, n_clean, err_ex, crlb = [], 0, 0, 0, 0, [], []
+    keep = np.arange(m) != bad
+    for k in range(runs):
+        x0 = np.r_[track.pos_m[0] + 50.0, 0.0]
+        first = None
+        for i in range(len(t)):
+            clean = raim_fde(ids, ac.stations_m, rho[i, k], ac.sigma_m, x0, p_fa=AC_P_FA, p_md=AC_P_MD)
+            x0 = np.r_[clean.pos_m, clean.clock_m]
+            n_clean += 1
+            alarms += clean.fault
+            e = clean.pos_m - track.pos_m[i]
+            exceed_h += np.hypot(e[0], e[1]) > clean.hpl_m
+            exceed_v += abs(e[2]) > clean.vpl_m
+            if after[i]:
+                r = rho[i, k].copy()
+                r[bad] += AC_BIAS_M
+                f = raim_fde(ids, ac.stations_m, r, ac.sigma_m, x0, p_fa=AC_P_FA, p_md=AC_P_MD)
+                if first is None and f.excluded == [ids[bad]]:
+                    first = t[i] - AC_ONSET_S
+                if t[i] >= AC_ONSET_S + 5.0 and m >= 6:
+                    err_ex.append(np.sum((f.pos_m - track.pos_m[i]) ** 2))
+                    if k == 0 and keep.sum() >= 5:  # snapshot CRLB of the position without the faulty station
+                        d = track.pos_m[i] - ac.stations_m[keep]
+                        H = np.hstack([d / np.linalg.norm(d, axis=1)[:, None], np.ones((keep.sum(), 1))])
+                        crlb.append(np.trace(np.linalg.inv(H.T @ H)[:3, :3]) * ac.sigma_m**2)
+        det_t.append(first)
+    found = [d for d in det_t if d is not None]
+    out.update(
+        detect_exclude_prob_5s=float(np.mean([d is not None and d <= 5.0 for d in det_t])),
+        detect_exclude_time_s=float(np.median(found)) if found else None,
+        rmse_after_exclusion_m=float(np.sqrt(np.mean(err_ex))) if err_ex else None,
+        crlb_without_station_m=float(np.sqrt(np.mean(crlb))) if crlb else None,
+        false_alarm_rate=alarms / n_clean, hpl_exceed_rate=exceed_h / n_clean, vpl_exceed_rate=exceed_v / n_clean,
+    )
+    return out
+
+
+def fault_metrics(sim, faults, duration_s: float) -> dict:
+    """Detection and false exclusions from the cores' integrity decisions (sim: a finished Simulator).
+
+    Times are the deciders' local times (clock offsets are sub-millisecond in these scenarios)."""
+    bad = {f.station for f in faults}
+    onset = min((f.onset_s for f in faults), default=0.0)
+    first = np.inf
+    false = 0
+    deciders = 0
+    for core in sim.cores:
+        if core is None or core.id in bad:
+            continue
+        deciders += 1
+        for t, suspect, decision, _ in core.integrity.events:
+            if decision != "exclude":
+                continue
+            if suspect in bad:
+                if t >= onset:
+                    first = min(first, t - onset)
+            else:
+                false += 1
+    return {"detect_time_s": float(first) if np.isfinite(first) else None,
+            "false_exclusions": false, "station_hours": deciders * duration_s / 3600.0}
+
+
+def _trial(job: tuple) -> dict:
+    from nav.crlb import survey_crlb
+    from nav.geometry import frame_free_mask
+    from net.scenario import load
+    from stations.sim import Simulator
+
+    case, estimator, seed, duration, scenario = job
+    over = CASES.get(case, {}) if case else {}
+    scn = load(scenario, seed=seed, **{k: (dict(v) if isinstance(v, dict) else v) for k, v in over.items()})
+    sim = Simulator(scn, estimator=estimator)
+    times = np.array([40.0, duration])
+    r = sim.run(duration, times)
+    bad = {f.station for f in scn.faults}
+    keep = np.array([i >= 4 and i not in bad for i in scn.ids])
+    err = (r.pos_m - r.truth_m)[:, keep]
+    free = frame_free_mask(len(scn.ids))
+    crlb = np.stack([survey_crlb(r.truth_m, r.link_counts[k], scn.channel.sigma_d_m, free, scn.sigma0_m)
+                     for k in range(len(times))])[:, keep]
+    P = r.cov_m2[:, keep]
+    nees = np.einsum("kni,kni->kn", err, np.linalg.solve(P, err[..., None])[..., 0])
+    out = {"h2": err[..., 0] ** 2 + err[..., 1] ** 2, "crlb_h2": crlb[..., 0, 0] + crlb[..., 1, 1], "nees": nees}
+    out.update(fault_metrics(sim, scn.faults, duration))
+    out["faulty"] = bool(scn.faults)
+    return out
+
+
+def summarize(case: str, res: list[dict], faulty: bool) -> dict:
+    h2 = np.concatenate([r["h2"] for r in res], axis=1)  # (2, N)
+    c2 = np.concatenate([r["crlb_h2"] for r in res], axis=1)
+    nees = np.concatenate([r["nees"] for r in res], axis=1)
+    from .bench_survey import chi2_band
+
+    lo, hi = chi2_band(3, nees.shape[1])
+    det = [r["detect_time_s"] for r in res]
+    ok = [d is not None and d <= DETECT_WITHIN_S for d in det]
+    found = [d for d in det if d is not None]
+    fe = sum(r["false_exclusions"] for r in res)
+    sh = sum(r["station_hours"] for r in res)
+    return {
+        "case": case, "trials": len(res), "times_s": [40.0, None],
+        "horizontal_rms_m": np.sqrt(h2.mean(axis=1)).tolist(),
+        "crlb_horizontal_rms_m": np.sqrt(c2.mean(axis=1)).tolist(),
+        "crlb_ratio": (np.sqrt(h2.mean(axis=1)) / np.sqrt(c2.mean(axis=1))).tolist(),
+        "nees_mean": nees.mean(axis=1).tolist(), "nees_band_95": [lo, hi],
+        "fault_detect_prob": float(np.mean(ok)) if faulty else None,
+        "fault_detect_time_s": float(np.median(found)) if faulty and found else None,
+        "false_exclusions": int(fe), "false_exclusions_per_station_h": fe / sh if sh else None,
+    }
+
+
+def print_table(rows: list[dict]) -> None:
+    hdr = ("case", "rms40", "crlb40", "ratio40", "rms60", "ratio60", "NEES40", "NEES_hi", "P_det10s",
+           "t_det_s", "FE/st-h")
+    print("  ".join(f"{h:>10}" for h in hdr))
+
+    def f(x, fmt="10.3f"):
+        return f"{'-':>10}" if x is None else format(x, fmt)
+
+    for r in rows:
+        print(f"{r['case']:>10}  " + "  ".join([
+            f(r["horizontal_rms_m"][0]), f(r["crlb_horizontal_rms_m"][0]), f(r["crlb_ratio"][0]),
+            f(r["horizontal_rms_m"][1]), f(r["crlb_ratio"][1]), f(r["nees_mean"][0]), f(r["nees_band_95"][1]),
+            f(r["fault_detect_prob"]), f(r["fault_detect_time_s"]), f(r["false_exclusions_per_station_h"])]))
+
+
+def plot(rows: list[dict], png_dir: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    png_dir.mkdir(parents=True, exist_ok=True)
+    fig, axs = plt.subplots(1, 2, figsize=(11, 4))
+    names = [r["case"] for r in rows]
+    x = np.arange(len(rows))
+    axs[0].bar(x - 0.2, [r["crlb_ratio"][0] for r in rows], 0.4, label="40 s")
+    axs[0].bar(x + 0.2, [r["crlb_ratio"][1] for r in rows], 0.4, label="60 s")
+    axs[0].axhline(1.3, color="k", ls="--", lw=0.8)
+    axs[0].set_ylabel("horizontal RMS / clean CRLB (non-faulty 4..n)")
+    axs[1].bar(x, [r["nees_mean"][0] for r in rows], 0.6, color="tab:orange")
+    axs[1].axhline(rows[0]["nees_band_95"][1], color="k", ls="--", lw=0.8)
+    axs[1].set_ylabel("mean NEES at 40 s (3 dof)")
+    for a in axs:
+        a.set_xticks(x, names, rotation=30, fontsize=8)
+        a.set_yscale("log")
+        a.grid(alpha=0.3)
+    axs[0].legend()
+    fig.suptitle("Integrity: robust survey under NLOS and station faults")
+    fig.tight_layout()
+    f = png_dir / "integrity.png"
+    fig.savefig(f, dpi=110)
+    plt.close(fig)
+    return f
+
+
+def main(args) -> int:
+    from .progress import Progress
+
+    rows = []
+    if not args.cases:
+        args.cases = []
+    ctx = mp.get_context("fork")
+    with ctx.Pool(max(1, args.jobs)) as pool:
+        for case in args.cases:
+            jobs = [(case, args.estimator, args.seed + k, args.duration, "seed000") for k in range(args.trials)]
+            t0 = time.perf_counter()
+            bar = Progress(len(jobs), f"integrity {case}")
+            res = []
+            for r in pool.imap(_trial, jobs):
+                res.append(r)
+                bar.update(1)
+            bar.close()
+            row = summarize(case, res, res[0]["faulty"])
+            row["times_s"][1] = args.duration
+            row["wall_s"] = time.perf_counter() - t0
+            rows.append(row)
+    print(f"\nestimator={args.estimator}  trials/case={args.trials}  faulty station={FAULTY}  "
+          f"(FE/st-h: false exclusions per station-hour by non-faulty stations)")
+    if rows:
+        print_table(rows)
+    if args.png_dir and rows:
+        print(f"wrote {plot(rows, Path(args.png_dir))}")
+    ac_rows = []
+    if args.aircraft is not None:
+        for scn in args.aircraft or ["seed001", "seed003"]:
+            ac_rows.append(aircraft_raim(scn, args.ac_runs, args.seed))
+        print(f"\naircraft snapshot RAIM/FDE (p_fa = {AC_P_FA:g} per epoch, p_md = {AC_P_MD:g}; {AC_RATE_HZ:g} epochs/s; "
+              f"station biased {AC_BIAS_M:g} m from t = {AC_ONSET_S:g} s)")
+        hdr = ("world", "stations", "P_det+exc5s", "t_det_s", "rmse_exc_m", "crlb_m", "ratio", "FA_rate",
+               "HPL_exceed", "VPL_exceed")
+        print("  ".join(f"{h:>11}" for h in hdr))
+        for r in ac_rows:
+            ratio = (r["rmse_after_exclusion_m"] / r["crlb_without_station_m"]
+                     if r["rmse_after_exclusion_m"] and r["crlb_without_station_m"] else None)
+            vals = [r["detect_exclude_prob_5s"], r["detect_exclude_time_s"], r["rmse_after_exclusion_m"],
+                    r["crlb_without_station_m"], ratio, r["false_alarm_rate"], r["hpl_exceed_rate"], r["vpl_exceed_rate"]]
+            print(f"{r['scenario']:>11}  {r['stations']:>11}  " + "  ".join(
+                f"{'-':>11}" if v is None else f"{v:11.4f}" for v in vals))
+            if "note" in r:
+                print(f"  note: {r['note']}")
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps({"estimator": args.estimator, "runs": rows, "aircraft": ac_rows},
+                                              indent=1))
+        print(f"wrote {args.json}")
+    return 0

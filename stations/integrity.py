@@ -1,0 +1,132 @@
+"""Station-side integrity monitoring of peers (pure; no I/O, no RNG).
+
+Each station tests every peer once per own cycle: is the link's recent ranging consistent with our
+own estimate and the peer's broadcast estimate, given both covariances?
+
+For peer ``j``, with the ranges ``d_k`` of the link measured (by either end) in the last
+``window_s`` seconds (at least ``min_ranges`` of them), after a within-link consensus gate (ranges
+more than ``gate * sigma_d`` from the window's median are NLOS-like one-offs and left out),
+
+    T_j = (dbar - |c - c_j|)^2 / (sigma_d^2 / n + u^T (P + C_j) u),     u = (c - c_j) / |c - c_j|,
+
+which is chi-square with 1 degree of freedom when both estimates and the ranges are what they
+claim (the range noise, our error and the peer's error are independent and Gaussian). A peer whose
+``T_j`` exceeds the ``1 - p_fa`` quantile in ``fail_to_exclude`` consecutive tests is *excluded*
+(the survey estimator stops using it); an excluded peer whose ``T_j`` stays below the ``1 - readmit_p``
+quantile (hysteresis: a faulty station's estimate partly absorbs its fault, so merely passing is not
+enough) in ``pass_to_readmit`` consecutive tests is *re-admitted*. Each decision is announced as an
+``integrity`` message. When more than half of the peers tested fail at once, the common factor is this station itself (a biased antenna, a
+jumped clock): it excludes nobody new (``self_suspect``).
+
+Both estimates were partly built from this very link, which makes the residual smaller than the
+formula says, and the survey's covariance is conservative (NEES below its band): on clean data the
+observed false-alarm rate is at or below ``p_fa`` (measured in ``tests/test_integrity.py`` and by
+``larns bench integrity``).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.stats import chi2
+
+
+@dataclass
+class PeerTest:
+    ranges: deque = field(default_factory=deque)  # (t_s, range_m)
+    fails: int = 0
+    passes: int = 0
+    excluded: bool = False
+    statistic: float = 0.0
+    n_tests: int = 0
+    n_alarms: int = 0
+
+
+class StationIntegrity:
+    """Chi-square consistency test of each peer, exclusion and re-admission (see module docstring)."""
+
+    def __init__(self, station_id: int, sigma_d_m: float, *, p_fa: float = 1e-4, window_s: float = 20.0,
+                 fail_to_exclude: int = 2, pass_to_readmit: int = 10, readmit_p: float = 0.1, gate: float = 5.0,
+                 min_ranges: int = 3):
+        self.id = station_id
+        self.sigma_d_m = float(sigma_d_m)
+        self.p_fa = float(p_fa)
+        self.threshold = float(chi2.ppf(1.0 - p_fa, 1))
+        self.readmit_threshold = float(chi2.ppf(1.0 - readmit_p, 1))  # hysteresis: re-admit on clear passes
+        self.window_s = float(window_s)
+        self.fail_to_exclude = int(fail_to_exclude)
+        self.pass_to_readmit = int(pass_to_readmit)
+        self.gate = float(gate)
+        self.min_ranges = int(min_ranges)
+        self.self_suspect = False  # most peers look inconsistent: the fault is probably ours
+        self.peers: dict[int, PeerTest] = {}
+        self.events: list[tuple[float, int, str, float]] = []  # (t_s, suspect, decision, statistic)
+
+    @property
+    def excluded(self) -> set[int]:
+        return {p for p, s in self.peers.items() if s.excluded}
+
+    def on_range(self, peer_id: int, range_m: float, t_s: float) -> None:
+        self.peers.setdefault(peer_id, PeerTest()).ranges.append((float(t_s), float(range_m)))
+
+    def statistic(self, peer_id: int, t_s: float, pos_m, cov_m2, peer_pos_m, peer_cov_m2) -> float | None:
+        """``T_j`` of peer ``peer_id`` at local time ``t_s``; None without a range in the window."""
+        st = self.peers.get(peer_id)
+        if st is None:
+            return None
+        while st.ranges and st.ranges[0][0] < t_s - self.window_s:
+            st.ranges.popleft()
+        if len(st.ranges) < self.min_ranges:  # one or two ranges cannot tell an NLOS one-off from a fault
+            return None
+        d = np.array([r for _, r in st.ranges])
+        d = d[np.abs(d - np.median(d)) <= self.gate * self.sigma_d_m]
+        if not len(d):  # no consensus in the window (an even count split by NLOS): inconclusive
+            return None
+        diff = np.asarray(pos_m, float) - np.asarray(peer_pos_m, float)
+        pred = float(np.linalg.norm(diff))
+        if pred <= 0.0:
+            return None
+        u = diff / pred
+        var = self.sigma_d_m**2 / len(d) + float(u @ (np.asarray(cov_m2, float) + np.asarray(peer_cov_m2, float)) @ u)
+        return float((d.mean() - pred) ** 2 / var)
+
+    def evaluate(self, t_s: float, pos_m, cov_m2, peers: dict[int, tuple]) -> list[dict]:
+        """Test every peer with a range in the window. ``peers``: {id: (pos_m (3,), cov_m2 (3, 3))}
+        from their latest broadcasts. Returns the decisions taken now (``integrity`` message bodies)."""
+        out = []
+        stats = {}
+        for pid, (ppos, pcov) in peers.items():
+            T = self.statistic(pid, t_s, pos_m, cov_m2, ppos, pcov)
+            if T is not None:
+                stats[pid] = T
+        # if most of the peers tested fail, the common factor is this station (its own antenna, clock
+        # or fix): exclude nobody new this round
+        n_fail = sum(T > self.threshold for T in stats.values())
+        self.self_suspect = len(stats) >= 4 and n_fail > len(stats) / 2
+        for pid, T in stats.items():
+            st = self.peers[pid]
+            st.statistic = T
+            st.n_tests += 1
+            if T > self.threshold:
+                st.n_alarms += 1
+                st.fails += 1
+                st.passes = 0
+            else:
+                st.fails = 0
+                st.passes = st.passes + 1 if T <= self.readmit_threshold or not st.excluded else 0
+            decision = None
+            if not st.excluded and st.fails >= self.fail_to_exclude and not self.self_suspect:
+                st.excluded, decision = True, "exclude"
+            elif st.excluded and st.passes >= self.pass_to_readmit:
+                st.excluded, decision = False, "readmit"
+            if decision:
+                self.events.append((float(t_s), pid, decision, T))
+                out.append({"t_s": float(t_s), "suspect": int(pid), "statistic": T, "threshold": self.threshold,
+                            "dof": 1, "p_fa": self.p_fa, "decision": decision})
+        if out:
+            ex = sorted(self.excluded)
+            for m in out:
+                m["excluded"] = ex
+        return out

@@ -1,0 +1,235 @@
+"""Issue 14: NLOS-robust survey, scenario faults, station-side integrity."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from net.scenario import load
+from stations.estimators import DistributedMap
+from stations.sim import Simulator
+
+
+def _solve_case(robust, outlier_m: float, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    truth = np.array([300.0, 400.0, 20.0])
+    peers = {2: [1000.0, 0, 0], 3: [200.0, 900.0, 0], 4: [700.0, 800.0, 60.0], 5: [-300.0, 600.0, 30.0],
+             6: [900.0, 500.0, -20.0], 7: [-100.0, -200.0, 10.0]}
+    est = DistributedMap(8, truth + rng.normal(0, 3.0, 3), np.eye(3) * 9.0, 0.5, robust=robust)
+    for pid, p in peers.items():
+        p = np.asarray(p)
+        est.on_peer(pid, p, np.eye(3) * 0.01)
+        for _ in range(6):
+            est.on_range(pid, np.linalg.norm(truth - p) + rng.normal(0, 0.5), 0.0, True, None, None)
+        est.refresh()
+    est.on_range(4, np.linalg.norm(truth - np.asarray(peers[4])) + outlier_m, 0.0, True, None, None)
+    for _ in range(3):
+        est._dirty = True
+        est.refresh()
+    return est, truth
+
+
+def test_single_outlier_range_is_down_weighted():
+    rob, truth = _solve_case("tukey", 25.0)
+    pla, _ = _solve_case(None, 25.0)
+    ranges, w = rob.link_ranges(4)
+    assert len(ranges) == 7 and w[-1] == 0.0 and np.all(w[:-1] > 0.5)
+    e_rob = np.linalg.norm((rob.pos_m - truth)[:2])
+    e_pla = np.linalg.norm((pla.pos_m - truth)[:2])
+    clean, _ = _solve_case("tukey", 0.0)
+    assert e_rob < 0.5 and e_pla > 2 * e_rob
+    assert np.linalg.norm((rob.pos_m - clean.pos_m)[:2]) < 0.05  # the outlier changed (almost) nothing
+
+
+def test_robust_equals_plain_on_clean_data():
+    """Seeded: on clean ranges the robust dmap's estimates match plain dmap-ls within a fraction of sigma_d."""
+    d_h, e_rob, e_pla = [], [], []
+    for seed in (3, 4):
+        scn = load("seed000", seed=seed)
+        out = {}
+        for est in ("dmap", "dmap-ls"):
+            r = Simulator(scn, estimator=est).run(30.0, [30.0])
+            out[est] = r.pos_m[0, 3:] - r.truth_m[3:]
+        d_h.append(np.hypot(*(out["dmap"] - out["dmap-ls"])[:, :2].T))
+        e_rob.append(np.hypot(*out["dmap"][:, :2].T))
+        e_pla.append(np.hypot(*out["dmap-ls"][:, :2].T))
+    d_h = np.concatenate(d_h)
+    assert np.sqrt((d_h**2).mean()) < 0.1  # sigma_d = 0.5 m
+    rms = lambda e: np.sqrt((np.concatenate(e) ** 2).mean())
+    assert rms(e_rob) < 1.2 * rms(e_pla)
+
+
+# ---------------------------------------------------------------- scenario [[faults]] and [[links]]
+from net import messages as M  # noqa: E402
+from net.scenario import ScenarioError  # noqa: E402
+
+
+@pytest.mark.parametrize("entry, key", [
+    ({"kind": "liar", "offset_m": [1.0, 2.0, 3.0]}, "faults[0].station"),
+    ({"kind": "teleport", "station": 5}, "faults[0].kind"),
+    ({"kind": "liar", "station": 5, "offset_m": [1.0, 2.0]}, "faults[0].offset_m"),
+    ({"kind": "liar", "station": 5, "offset_m": [1.0, 2.0, "x"]}, "faults[0].offset_m"),
+    ({"kind": "range_bias", "station": 5}, "faults[0].bias_m"),
+    ({"kind": "range_bias", "station": 99, "bias_m": 5.0}, "faults[0].station"),
+    ({"kind": "clock_jump", "station": 5, "jump_s": 1e-6, "at_s": 3.0, "bias_m": 1.0}, "faults[0].bias_m"),
+    ({"kind": "bad_fix", "station": 5, "offset_m": [50.0, 0.0, 0.0], "sigma0_m": -1.0}, "faults[0].sigma0_m"),
+])
+def test_malformed_faults_name_the_key(entry, key):
+    with pytest.raises(ScenarioError, match=key.replace("[", r"\[").replace("]", r"\]")):
+        load("seed000", faults=[entry])
+
+
+@pytest.mark.parametrize("entry, key", [
+    ({"nlos_prob": 0.5}, "links[0].station"),
+    ({"station": 4, "nlos_prob": 1.5}, "links[0].nlos_prob"),
+    ({"stations": [4, 4], "bias_m": 1.0}, "links[0].stations"),
+    ({"station": 4, "colour": "red"}, "links[0].colour"),
+])
+def test_malformed_links_name_the_key(entry, key):
+    with pytest.raises(ScenarioError, match=key.replace("[", r"\[").replace("]", r"\]")):
+        load("seed000", links=[entry])
+
+
+def test_link_bias_and_range_bias_fault_lengthen_ranges_in_the_simulator():
+    scn = load("seed000", seed=2, channel={"sigma_d_m": 0.01},
+               links=[{"stations": [4, 5], "bias_m": 3.0}],
+               faults=[{"kind": "range_bias", "station": 7, "bias_m": 5.0, "from_s": 0.0}])
+    sim = Simulator(scn)
+    sim.run(20.0, [20.0])
+    ids = scn.ids
+    for t, i, j, rng_m in sim.range_log:
+        a, b = ids[i], ids[j]
+        excess = rng_m - np.linalg.norm(scn.pos_m[i] - scn.pos_m[j])
+        want = 3.0 * ({a, b} == {4, 5}) + 5.0 * (7 in (a, b))
+        assert excess == pytest.approx(want, abs=0.1)
+
+
+def _node(scn, station_id):
+    import time as _time
+
+    from stations.node import NodeOptions, StationNode
+
+    class Bus:
+        sent: list = []
+
+        def publish(self, key, data):
+            self.sent.append((key, data))
+
+        def subscribe(self, *a):
+            return None
+
+        def declare_token(self, *a):
+            return None
+
+    bus = Bus()
+    bus.sent = []
+    speed = 0.01
+    epoch = _time.time() - (30.0 + 0.001) / speed
+    node = StationNode(scn, NodeOptions(station_id=station_id, speed=speed, epoch_unix_s=epoch, quiet=True), bus)
+    node.start_core()
+    bus.sent.clear()
+    return node, bus
+
+
+def test_faults_are_applied_by_the_node_shell_like_the_simulator():
+    from nav.geometry import SPEED_OF_LIGHT_M_S
+    from stations.shellfaults import JumpClock
+    from stations.sim import make_core
+
+    faults = [{"kind": "liar", "station": 2, "offset_m": [30.0, 0.0, 0.0], "from_s": 0.0},
+              {"kind": "range_bias", "station": 2, "bias_m": 5.0, "from_s": 0.0},
+              {"kind": "clock_jump", "station": 3, "jump_s": 1e-3, "at_s": 5.0},
+              {"kind": "bad_fix", "station": 4, "offset_m": [50.0, 0.0, 0.0], "sigma0_m": 10.0}]
+    scn = load("seed000", layout={"n": 4}, faults=faults)
+    clean = load("seed000", layout={"n": 4})
+    # bad_fix and clock_jump live in make_core, which the node's start_core and the simulator share
+    core4, _ = make_core(scn, 4)
+    core4c, _ = make_core(clean, 4)
+    assert core4.est.pos_m - core4c.est.pos_m == pytest.approx([50.0, 0.0, 0.0])
+    assert core4.est.cov_m2 == pytest.approx(np.eye(3) * 100.0)
+    _, clk3 = make_core(scn, 3)
+    assert isinstance(clk3, JumpClock) and clk3.to_local(6.0) - clk3.to_local(4.0) == pytest.approx(2.0 + 1e-3)
+    assert clk3.to_true(clk3.to_local(6.0)) == pytest.approx(6.0)
+    # the node: a range request to the lying, biased station 2
+    node, bus = _node(scn, 2)
+    t_tx = node.fleet_now()
+    m = {"kind": "range_req", "src": 3, "seq": 1, "stamp_s": t_tx, "dst": 2, "cycle": 30, "slot": 2, "t_tx_s": t_tx}
+    node._on_bytes(M.key_for(m), M.encode(m, {"pos_m": scn.true_pos(3), "t_true_s": t_tx}))
+    rsp = [M.decode(d) for k, d in bus.sent if "/range/rsp/" in k]
+    assert len(rsp) == 1
+    msg, phy = rsp[0]
+    assert np.asarray(msg["pos_m"]) - node.core.est.pos_m == pytest.approx([30.0, 0.0, 0.0])  # the lie
+    tof = np.linalg.norm(scn.true_pos(3) - scn.true_pos(2)) / SPEED_OF_LIGHT_M_S
+    # the request's leg into station 2 is 5 m / c late (the answer's leg is delayed at station 3)
+    assert phy["t_true_s"] == pytest.approx(t_tx + tof + 5.0 / SPEED_OF_LIGHT_M_S + scn.channel.turnaround_s, abs=20e-9)
+    # the simulator's shell lies the same way
+    sim = Simulator(scn)
+    out = sim.shell[1].outgoing({"kind": "nav", "pos_m": [1.0, 2.0, 3.0]}, 1.0)
+    assert out["pos_m"] == [31.0, 2.0, 3.0]
+
+
+# ---------------------------------------------------------------- station-side integrity
+def test_integrity_message_validates_and_round_trips():
+    m = {"kind": "integrity", "src": 3, "seq": 1, "stamp_s": 21.0, "t_s": 21.0, "suspect": 6,
+         "statistic": 123.4, "threshold": 15.1, "dof": 1, "p_fa": 1e-4, "decision": "exclude", "excluded": [6]}
+    back, phy = M.decode(M.encode(m))
+    assert back == m and phy is None and M.key_for(m) == "larns/station/3/integrity"
+    with pytest.raises(M.MessageError):
+        M.encode({**m, "decision": "maybe"})
+    with pytest.raises(M.MessageError):
+        M.encode({**m, "p_fa": 2.0})
+
+
+def test_liar_is_excluded_by_its_neighbours():
+    scn = load("seed000", seed=5, faults=[{"kind": "liar", "station": 6, "offset_m": [30.0, 0.0, 0.0], "from_s": 20.0}])
+    sim = Simulator(scn)
+    sim.run(32.0, [32.0])
+    first = [min((t for t, s, d, _ in c.integrity.events if s == 6 and d == "exclude"), default=np.inf)
+             for c in sim.cores if c.id != 6]
+    assert np.median(first) < 30.0 and min(first) >= 20.0
+    assert all(s == 6 for c in sim.cores if c.id != 6 for _, s, _, _ in c.integrity.events)
+
+
+def test_station_chi_square_false_alarm_rate_on_clean_data():
+    """Seeded: on clean data the per-test statistic is (at most) chi-square(1): its alarm rate at
+    p_fa = 1e-2 stays at or below 1e-2 (the estimates are conservative), and no peer is excluded at
+    the default p_fa = 1e-4."""
+    from scipy.stats import chi2
+
+    stats = []
+    for seed in (7, 8):
+        sim = Simulator(load("seed000", seed=seed))
+        sim.run(60.0, [60.0])
+        for c in sim.cores:
+            assert not c.integrity.events
+            for p in c.integrity.peers.values():
+                assert p.n_tests > 30
+        # re-evaluate the statistic at the end for every link: a sample of T under H0
+        for c in sim.cores:
+            for pid, info in c.peers.items():
+                T = c.integrity.statistic(pid, c.integrity.peers[pid].ranges[-1][0], c.est.pos_m, c.est.cov_m2,
+                                          info.pos_m, info.cov_m2)
+                if T is not None:
+                    stats.append(T)
+    stats = np.array(stats)
+    assert len(stats) > 150
+    assert np.mean(stats > chi2.ppf(0.99, 1)) <= 0.02
+    assert 0.2 < stats.mean() < 1.3  # chi-square(1) has mean 1; conservative covariances give less
+
+
+def test_info_shows_a_station_excluded_by_its_neighbours(tmp_path):
+    from larns.info import format_info, summarize
+    from larns.mcaputil import LogWriter
+
+    p = tmp_path / "i.mcap"
+    with LogWriter(p) as w:
+        for src, seq in ((3, 1), (4, 1)):
+            m = {"kind": "integrity", "src": src, "seq": seq, "stamp_s": 21.0, "t_s": 21.0, "suspect": 6,
+                 "statistic": 99.0, "threshold": 15.1, "dof": 1, "p_fa": 1e-4, "decision": "exclude", "excluded": [6]}
+            w.write(M.key_for(m), M.encode(m), log_time=10**9 * (20 + src))
+        est = {"kind": "estimate", "src": 6, "seq": 1, "stamp_s": 22.0, "t_s": 22.0, "pos_m": [1.0, 2.0, 3.0],
+               "cov_m2": np.eye(3).tolist(), "n_updates": 3, "estimator": "dmap", "state": "surveying"}
+        w.write(M.key_for(est), M.encode(est), log_time=10**9 * 25)
+    s = summarize([p])
+    assert s["stations"][6]["excluded_by"] == [3, 4]
+    assert "station 6 EXCLUDED by 3,4" in format_info(s)
