@@ -35,6 +35,10 @@ class JumpClock:
         t = self.base.to_true(t_local_s - self.jump_s)
         return t if t >= self.at_s else self.base.to_true(t_local_s)
 
+    def error_s(self, t_true_s: float) -> float:
+        """Local minus true time, the jump included (the truth record's clock error)."""
+        return self.base.error_s(t_true_s) + (self.jump_s if t_true_s >= self.at_s else 0.0)
+
     def __getattr__(self, name):  # offset_s, drift, ... of the wrapped clock
         return getattr(self.base, name)
 
