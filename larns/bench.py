@@ -13,6 +13,7 @@ BENCHES: list[str] = [
     "larns.bench_survey",
     "larns.bench_net",
     "larns.bench_replay",
+    "larns.bench_vehicle",
 ]
 
 

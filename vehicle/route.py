@@ -188,9 +188,7 @@ class Route:
         Great circle: the polar axis ``e_eta`` (``e_2^T G = e_2^T``, spec Sec. 3.4). Straight: ``G^T(t) u``.
         """
         if self.kind == "great_circle":
-            a = np.zeros((np.size(k), 3))
-            a[:, 1] = 1.0
-            return a
+            return _E_ETA  # broadcasts against (M, 3)
         return self._u[k] @ earth_rotation(t_s)  # (G^T u)^T = u^T G
 
     def gamma(self, q, k) -> tuple[np.ndarray, np.ndarray]:
@@ -204,8 +202,8 @@ class Route:
 
         q = np.asarray(q, float)
         if self.kind == "great_circle":
-            r = self._tab["r"][k]
-            return -MU_EARTH_M3_S2 * q / r**3, -MU_EARTH_M3_S2 / r**3 + 0.0 * q
+            r3 = self._tab["r"][k] ** 3
+            return -MU_EARTH_M3_S2 * q / r3, -MU_EARTH_M3_S2 / r3
         u = self._u[k]
         p = self._A[k] + q[..., None] * u
         W = _skew(OMEGA_VEC_G)
@@ -233,6 +231,9 @@ class Route:
         scale = np.where(sw, sf_old / sf_new, 1.0)
         qn = np.where(sw, self._q0[kn] + scale * (q - self._q1[k]), q)
         return qn, kn, scale, sw
+
+
+_E_ETA = np.array([[0.0, 1.0, 0.0]])
 
 
 def _skew(w: np.ndarray) -> np.ndarray:

@@ -109,6 +109,9 @@ class _Base:
 
     def _rk4(self, t, dt, w, f, z) -> None:
         x, P = self.x, self.P
+        # gyro noise block F1 Q F1^T = q_g Xi Xi^T, evaluated once per step at the step's start
+        Xi = xi_matrix(x[:, :9].reshape(-1, 3, 3))
+        self._Qd = self.noise.gyro * (Xi @ np.swapaxes(Xi, 1, 2))
         h2 = 0.5 * dt
         k1x, k1P = self.deriv(t, x, P, w, f, z)
         k2x, k2P = self.deriv(t + h2, x + h2 * k1x, P + h2 * k1P, w, f, z)
@@ -127,13 +130,13 @@ class _Base:
         M, n = x.shape
         Dt = x[:, :9].reshape(M, 3, 3)
         W = skew(w)
-        xd = np.zeros_like(x)
-        xd[:, :9] = (-W @ Dt).reshape(M, 9)
-        FP = np.zeros_like(P)
-        FP[:, :9, :] = (-W @ P[:, :9, :].reshape(M, 3, 3 * n)).reshape(M, 9, n)
-        Xi = xi_matrix(Dt)
-        Qd = self.noise.gyro * (Xi @ np.swapaxes(Xi, 1, 2))
-        return Dt, xd, FP, Qd
+        xd = np.empty_like(x)
+        xd[:, :9] = np.matmul(W, Dt).reshape(M, 9)
+        np.negative(xd[:, :9], out=xd[:, :9])
+        FP = np.empty_like(P)
+        FP[:, :9, :] = np.matmul(W, P[:, :9, :].reshape(M, 3, 3 * n)).reshape(M, 9, n)
+        np.negative(FP[:, :9, :], out=FP[:, :9, :])
+        return Dt, xd, FP, self._Qd
 
     def _finish(self, xd, FP, Qd, PH, innov):
         Pd = FP + np.swapaxes(FP, 1, 2)
@@ -247,14 +250,16 @@ class MapFilter(_Base):
         a = r.accel_axis_inertial(t, k)
         gam, dgam = r.gamma(q, k)
         xd[:, 9] = V
-        xd[:, 10] = np.einsum("mi,mij,mj->m", f, Dt, a) + gam
+        xd[:, 10] = (f * (Dt @ a[:, :, None])[:, :, 0]).sum(axis=1) + gam
         FP[:, 9, :] = P[:, 10, :]
-        c = (f[:, :, None] * a[:, None, :]).reshape(-1, 9)  # kron(f, a): d(a^T D f)/d vec(D)
-        FP[:, 10, :] = np.einsum("mi,min->mn", c, P[:, :9, :]) + dgam[:, None] * P[:, 9, :]
+        c = (f[:, :, None] * a[:, None, :]).reshape(-1, 1, 9)  # kron(f, a): d(a^T D f)/d vec(D)
+        FP[:, 10, :] = (c @ P[:, :9, :])[:, 0] + dgam[:, None] * P[:, 9, :]
         Qd_v = self.noise.accel
         if self.clock:
             xd[:, 11] = x[:, 12]
+            xd[:, 12] = 0.0
             FP[:, 11, :] = P[:, 12, :]
+            FP[:, 12, :] = 0.0
         PH = innov = None
         if self.odometer and z is not None:
             sf, dsf = r.speed_factor_d(q, k)
@@ -324,7 +329,9 @@ class FreeFilter(_Base):
             + gravity_gradient(p) @ P[:, 9:12, :]
         if self.clock:
             xd[:, 15] = x[:, 16]
+            xd[:, 16] = 0.0
             FP[:, 15, :] = P[:, 16, :]
+            FP[:, 16, :] = 0.0
         PH = innov = None
         if self.odometer and z is not None:
             G = earth_rotation(t)
