@@ -237,7 +237,7 @@ class _Linear(_Base):
         self.n = 2
         super().__init__(x0, P0, Intensities(0.0, q_acc, r), odometer=True)
 
-    def odo_hph(self, P):
+    def odo_hph(self, t, P):
         return P[:, 1, 1]
 
     def _rk4(self, t, dt, w, f, z):

@@ -96,7 +96,7 @@ class _Base:
         step is split into equal RK4 substeps; otherwise it is one RK4 step of ``dt``.
         """
         if self.odometer and z is not None:
-            stiff = float(np.max(self.odo_hph(self.P))) / self.noise.odometer * dt
+            stiff = float(np.max(self.odo_hph(t, self.P))) / self.noise.odometer * dt
             if stiff > 0.5:
                 n_sub = int(np.ceil(stiff / 0.5))
                 h = dt / n_sub
@@ -271,7 +271,7 @@ class MapFilter(_Base):
         Pd[:, 10, 10] += Qd_v
         return xd, Pd
 
-    def odo_hph(self, P) -> np.ndarray:
+    def odo_hph(self, t, P) -> np.ndarray:
         sf, _ = self.route.speed_factor_d(self.x[:, 9], self.seg)
         return (self.k_odo * sf) ** 2 * P[:, 10, 10]
 
@@ -315,8 +315,11 @@ class FreeFilter(_Base):
         if self.x.shape[-1] != self.n:
             raise ValueError(f"FreeFilter expects {self.n} states, got {self.x.shape[-1]}")
 
-    def odo_hph(self, P) -> np.ndarray:
-        return self.k_odo**2 * np.einsum("mii->m", P[:, 12:15, 12:15])
+    def odo_hph(self, t, P) -> np.ndarray:
+        G = earth_rotation(t)
+        _, vg, _, _ = self.geometry(t, self.x)
+        e = (vg / np.maximum(np.linalg.norm(vg, axis=-1, keepdims=True), 1e-3)) @ G  # inertial direction of H_v
+        return self.k_odo**2 * np.einsum("mi,mij,mj->m", e, P[:, 12:15, 12:15], e)
 
     def deriv(self, t, x, P, w, f, z):
         M, n = x.shape
