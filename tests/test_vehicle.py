@@ -357,3 +357,9 @@ def test_orbits_frames():
     assert np.allclose(orbits.ecef_from_greenwich(orbits.greenwich_from_ecef(e)), e)
     _ = cdekf  # the module under test is importable without the world
     _ = GreatCircle
+
+
+def test_documented_route_files_load():
+    for p in sorted((ROOT / "docs" / "routes").iterdir()):
+        r = load_route(p)
+        assert r.n_segments >= 1 and all(s.length_m > 100.0 for s in r.segments)
