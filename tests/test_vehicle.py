@@ -363,3 +363,14 @@ def test_documented_route_files_load():
     for p in sorted((ROOT / "docs" / "routes").iterdir()):
         r = load_route(p)
         assert r.n_segments >= 1 and all(s.length_m > 100.0 for s in r.segments)
+
+
+def test_map_filter_passes_a_node_with_stop_and_turn():
+    """Two legs, a stop and a 92 deg turn in place at the node inside an outage: the filter moves to
+    the next leg (node pseudo-measurement) and keeps metre-level position errors."""
+    r = great_circle_route([(47.23, 39.72), (47.2325, 39.7225), (47.2340, 39.7190)], 100.0, [10.0, 8.0])
+    case = sim.Case(route=r, duration_s=75.0, outage_s=(20.0, 60.0), runs=6, seed=5, stop_at_end=True)
+    res = sim.run(case)
+    e = np.linalg.norm(res.err_pos, axis=-1)
+    assert np.median(e[:, 56:]) < 2.0  # after the node (turn 43.7-53.7 s), on the second leg
+    assert np.max(e[:, 56:]) < 8.0

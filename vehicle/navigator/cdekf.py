@@ -271,6 +271,59 @@ class MapFilter(_Base):
         Pd[:, 10, 10] += Qd_v
         return xd, Pd
 
+    #: yaw rate (rad/s) above which the vehicle is taken to be turning in place at a map node
+    TURN_RATE_RAD_S = 0.02
+    #: along-track sigma (m) of the node pseudo-measurement ("turns happen at map nodes")
+    NODE_SIGMA_M = 0.5
+    #: how far (m, plus 3 sigma) from the node a turn is accepted as the node's turn
+    NODE_GATE_M = 20.0
+
+    def step(self, t, dt, w, f, z) -> None:
+        """Kalman-Bucy step; a turn in place near a map node snaps the along-track state to the node.
+
+        Map matching: the route's legs are joined at nodes where the vehicle stops and turns in place
+        (the world's speed plan). When the gyro shows a yaw rate above ``TURN_RATE_RAD_S`` while the
+        estimate is within ``NODE_GATE_M`` + 3 sigma of the end of its leg, the node is applied as a
+        pseudo-measurement ``q = q_end`` (sigma ``NODE_SIGMA_M`` along track, Joseph form) and the
+        filter moves to the next leg. Without this, the estimate would linger a metre or two on the
+        old leg's extension while the vehicle sets off on the new one.
+        """
+        super().step(t, dt, w, f, z)
+        r = self.route
+        if r.n_segments < 2:
+            return
+        k = self.seg
+        q1 = r.q_end(k)
+        sf, _ = r.speed_factor_d(q1, k)
+        dist = np.abs(self.x[:, 9] - q1) / sf
+        sig = np.sqrt(np.maximum(self.P[:, 9, 9], 0.0)) / sf
+        turning = (np.abs(w[:, 2]) > self.TURN_RATE_RAD_S) & (k < r.n_segments - 1) & (dist < self.NODE_GATE_M + 3 * sig)
+        if not np.any(turning):
+            return
+        m = np.flatnonzero(turning)
+        x, P = self.x[m], self.P[m]
+        R = (self.NODE_SIGMA_M * sf[m]) ** 2
+        PH = P[:, :, 9]
+        Kg = PH / (P[:, 9, 9] + R)[:, None]
+        x = x + Kg * (q1[m] - x[:, 9])[:, None]
+        IKH = np.broadcast_to(np.eye(self.n), P.shape).copy()
+        IKH[:, :, 9] -= Kg
+        P = IKH @ P @ np.swapaxes(IKH, 1, 2) + R[:, None, None] * Kg[:, :, None] * Kg[:, None, :]
+        # move to the next leg: along-track offset from the node and speed carried over
+        kn = k[m] + 1
+        sf_old = sf[m] * r.fwd_sign(k[m])
+        sf_new = r.speed_factor(r.q_start(kn), kn) * r.fwd_sign(kn)
+        scale = sf_old / sf_new
+        x[:, 9] = r.q_start(kn) + scale * (x[:, 9] - q1[m])
+        x[:, 10] *= scale
+        T = np.ones((m.size, self.n))
+        T[:, 9] = scale
+        T[:, 10] = scale
+        self.x[m] = x
+        self.P[m] = symmetrize(P * T[:, :, None] * T[:, None, :])
+        self.seg = self.seg.copy()
+        self.seg[m] = kn
+
     def odo_hph(self, t, P) -> np.ndarray:
         sf, _ = self.route.speed_factor_d(self.x[:, 9], self.seg)
         return (self.k_odo * sf) ** 2 * P[:, 10, 10]
