@@ -49,15 +49,9 @@ def _progress(msg: str) -> None:
     print(f"[bench vehicle] {msg}", file=sys.stderr, flush=True)
 
 
-def chi2_band(dof: int, n: int, level: float = 0.95) -> tuple[float, float]:
-    from scipy.stats import chi2
-
-    a = (1.0 - level) / 2.0
-    return float(chi2.ppf(a, dof * n) / n), float(chi2.ppf(1 - a, dof * n) / n)
-
-
 def summarize(res, outage: tuple[float, float]) -> dict:
     """Statistics of one case (see the module doc)."""
+    from larns.bench_survey import chi2_band
     from vehicle.sim import ARCMIN
 
     t = res.t_s
