@@ -34,7 +34,9 @@ PAPER_ROUTE = [(47.23, 39.72), (47.40, 39.80)]  # NNE from Rostov-on-Don, ~19.9 
 def register(sub) -> None:
     p = sub.add_parser("vehicle", help="seed 004 vehicle: map-constrained INS/radio/odometer through a 300 s outage",
                        description=__doc__)
-    p.add_argument("--runs", type=int, default=50, help="Monte Carlo runs per case (default 50)")
+    p.add_argument("--runs", type=int, default=50, help="Monte Carlo runs of the paper case, both readings (default 50)")
+    p.add_argument("--runs-other", type=int, default=25,
+                   help="Monte Carlo runs of the other cases (paper_clock, no_map, no_odometer, larns; default 25)")
     p.add_argument("--seed", type=int, default=4, help="world seed (default 4)")
     p.add_argument("--json", metavar="FILE", help="write the results as JSON")
     p.add_argument("--png-dir", metavar="DIR", help="write errors and 3-sigma bounds vs time here")
@@ -88,8 +90,8 @@ def summarize(res, outage: tuple[float, float]) -> dict:
         "polar_rotation_sigma_arcmin": {"start": float(np.sqrt(np.median(res.var_polar_rot[:, 0])) / ARCMIN),
                                         "end": float(np.sqrt(np.median(res.var_polar_rot[:, -1])) / ARCMIN)},
         "nis_mean_per_dof": float(np.nanmean(res.nis / np.where(res.nis_dof > 0, res.nis_dof, np.nan))),
-        "runs": int(M), "wall_s": res.wall_s, "n_states": res.n_states,
-        "s_per_run_1000s": res.wall_s / M * (1000.0 / t[-1]),
+        "runs": int(M), "wall_s": res.wall_s, "cpu_s": res.cpu_s, "n_states": res.n_states,
+        "cpu_s_per_run_1000s": res.cpu_s / M * (1000.0 / t[-1]),
     }
 
 
@@ -99,18 +101,20 @@ def build_cases(args):
 
     dur, outage = (200.0, (80.0, 140.0)) if args.quick else (1000.0, (400.0, 700.0))
     runs = args.runs if not args.quick else min(args.runs, 4)
+    other = args.runs_other if not args.quick else min(args.runs_other, 4)
     route = great_circle_route(PAPER_ROUTE, 100.0, [20.0], name="paper")
-    base = dict(route=route, duration_s=dur, outage_s=outage, runs=runs, seed=args.seed)
+    base = dict(route=route, duration_s=dur, outage_s=outage, seed=args.seed)
     cases = {
-        "paper": sim.Case(**base, convention="per_sample"),
-        "psd": sim.Case(**base, convention="psd"),
-        "paper_clock": sim.Case(**base, convention="per_sample", clock_states=True, clock_in_measurements=True),
-        "no_map": sim.Case(**base, convention="per_sample", filter="free"),
-        "no_odometer": sim.Case(**base, convention="per_sample", odometer=False),
+        "paper": sim.Case(**base, runs=runs, convention="per_sample"),
+        "psd": sim.Case(**base, runs=runs, convention="psd"),
+        "paper_clock": sim.Case(**base, runs=other, convention="per_sample", clock_states=True,
+                                clock_in_measurements=True),
+        "no_map": sim.Case(**base, runs=other, convention="per_sample", filter="free"),
+        "no_odometer": sim.Case(**base, runs=other, convention="per_sample", odometer=False),
     }
     _, phys, _, R, t = field.field_layout("seed000")
     froute, _ = field.field_route(phys, R, t, speed_m_s=5.0 if not args.quick else 20.0)
-    lbase = dict(route=froute, duration_s=dur, outage_s=outage, runs=runs, seed=args.seed, radio="stations",
+    lbase = dict(route=froute, duration_s=dur, outage_s=outage, runs=other, seed=args.seed, radio="stations",
                  stations_g=field.stations_greenwich(phys), sigma_rho_m=0.5, sigma_rate_m_s=0.15,
                  station_sigma_m=0.2, clock_states=True, clock_in_measurements=True, convention="per_sample")
     cases["larns"] = sim.Case(**lbase, filter="map")
@@ -147,8 +151,9 @@ def run(args) -> int:
         one.runs = 1
         _progress("single-run timing of the paper case")
         r1 = sim.run(one)
-        speed = {"single_run_s": r1.wall_s, "steps": r1.steps,
-                 "batched_s_per_run": summ["paper"]["wall_s"] / summ["paper"]["runs"]}
+        speed = {"single_run_cpu_s": r1.cpu_s, "single_run_wall_s": r1.wall_s, "steps": r1.steps,
+                 "batched_cpu_s_per_run": summ["paper"]["cpu_s"] / summ["paper"]["runs"],
+                 "batched_wall_s_per_run": summ["paper"]["wall_s"] / summ["paper"]["runs"]}
     out = _assemble(summ, speed, args, outage, time.perf_counter() - t0)
     _print_table(out)
     if args.json:
@@ -166,8 +171,9 @@ def _keys(s: dict) -> dict:
 
 
 def _assemble(summ, speed, args, outage, wall) -> dict:
-    out = {"paper": PAPER, "outage_s": list(outage), "settings": {"runs": args.runs, "seed": args.seed,
-                                                                 "quick": bool(args.quick), "wall_s": wall}}
+    out = {"paper": PAPER, "outage_s": list(outage),
+           "settings": {"runs": args.runs, "runs_other": args.runs_other, "seed": args.seed,
+                        "quick": bool(args.quick), "wall_s": wall}}
     if "paper" in summ or "psd" in summ:
         out["paper_case"] = {}
         if "paper" in summ:
@@ -199,8 +205,8 @@ def _assemble(summ, speed, args, outage, wall) -> dict:
         out["larns_case"]["map_gain_end_outage"] = ratio
         bars["larns_map_gain_ge_3"] = ratio >= 3
     if speed:
-        bars["single_run_le_10s"] = speed["single_run_s"] <= 10
-        bars["batched_per_run_le_10s"] = speed["batched_s_per_run"] <= 10
+        bars["single_run_cpu_le_10s"] = speed["single_run_cpu_s"] <= 10
+        bars["batched_cpu_per_run_le_10s"] = speed["batched_cpu_s_per_run"] <= 10
     out["bars"] = bars
     return out
 
@@ -210,7 +216,7 @@ def _print_table(out: dict) -> None:
     print(f"\nSeed 004 vehicle: max |component error| at the end of the run (median / 95th pct over runs); "
           f"outage {out['outage_s'][0]:g}-{out['outage_s'][1]:g} s")
     hdr = (f"{'case':<13} {'n':>3} {'vel m/s':>15} {'att arcmin':>15} {'pos m':>15} {'pos@outage end':>15} "
-           f"{'NEES b/o/a (dof, 95% hi)':>28} {'jump sig p/v':>13} {'s/run':>6}")
+           f"{'NEES b/o/a (dof, 95% hi)':>28} {'jump sig p/v':>13} {'cpu s/run':>9}")
     print(hdr)
     print("-" * len(hdr))
     for name, s in d.items():
@@ -220,7 +226,7 @@ def _print_table(out: dict) -> None:
               f"{s['pos_end_outage_m']:8.2f} m     "
               f"{ne['before']:5.2f}/{ne['outage']:5.2f}/{ne['after']:5.2f} ({s['nees_dof']}, {s['nees_band95'][1]:.2f})  "
               f"{s['handover_jump_sigma']['pos_max']:5.2f}/{s['handover_jump_sigma']['vel_max']:5.2f} "
-              f"{s['s_per_run_1000s']:6.2f}")
+              f"{s['cpu_s_per_run_1000s']:9.2f}")
     print(f"{'paper (R4)':<13} {'':>3} {PAPER['vel_m_s']:7.3f}         {PAPER['att_arcmin']:7.2f}         "
           f"{PAPER['pos_m']:7.2f}")
     if "psd" in d:
@@ -232,8 +238,10 @@ def _print_table(out: dict) -> None:
               f"unconstrained {lc['no_map_pos_end_outage_m']:.2f} m (x{lc['map_gain_end_outage']:.1f})")
     sp = out.get("speed")
     if sp:
-        print(f"speed: one 1000 s run alone {sp['single_run_s']:.1f} s ({sp['steps']} RK4 steps); "
-              f"batched {sp['batched_s_per_run']:.2f} s per run")
+        print(f"speed (CPU time of the filter loop; wall on this shared machine in brackets): one 1000 s run "
+              f"alone {sp['single_run_cpu_s']:.1f} s ({sp['single_run_wall_s']:.1f} s), {sp['steps']} RK4 steps; "
+              f"vectorized over {d['paper']['runs']} runs {sp['batched_cpu_s_per_run']:.2f} s per run "
+              f"({sp['batched_wall_s_per_run']:.2f} s)")
     print("bars: " + ", ".join(f"{k} {'PASS' if v else 'FAIL'}" for k, v in out["bars"].items()))
     print(f"wall time {out['settings']['wall_s']:.0f} s (shared machine)")
 
