@@ -12,9 +12,8 @@ import pytest
 from nav import orbits
 from nav.constellation import glonass_like, gps_like
 from vehicle import sim
-from vehicle.navigator import cdekf
 from vehicle.navigator.cdekf import FreeFilter, Intensities, MapFilter, _Base
-from vehicle.route import GreatCircle, great_circle_route, load_route, route_from_geojson, straight_route
+from vehicle.route import great_circle_route, load_route, route_from_geojson, straight_route
 from vehicle.world import truth as wt
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -355,8 +354,6 @@ def test_orbits_frames():
     assert np.allclose(d, orbits.earth_rotation(1.0).T @ np.cross(orbits.OMEGA_VEC_G, p), atol=1e-12)
     e = np.array([[1.0, 2.0, 3.0]])
     assert np.allclose(orbits.ecef_from_greenwich(orbits.greenwich_from_ecef(e)), e)
-    _ = cdekf  # the module under test is importable without the world
-    _ = GreatCircle
 
 
 def test_documented_route_files_load():
@@ -374,3 +371,18 @@ def test_map_filter_passes_a_node_with_stop_and_turn():
     e = np.linalg.norm(res.err_pos, axis=-1)
     assert np.median(e[:, 56:]) < 2.0  # after the node (turn 43.7-53.7 s), on the second leg
     assert np.max(e[:, 56:]) < 8.0
+
+
+@pytest.mark.slow
+def test_bench_vehicle_quick_json(tmp_path):
+    """`larns bench vehicle --quick` writes the issue's JSON keys (smoke test, ~2 min)."""
+    from larns.cli import main
+
+    out = tmp_path / "v.json"
+    assert main(["bench", "vehicle", "--quick", "--json", str(out), "--png-dir", str(tmp_path)]) == 0
+    d = json.loads(out.read_text())
+    for key in ("paper_case", "larns_case", "no_map", "no_odometer"):
+        assert key in d
+    assert set(d["paper_case"]) == {"per_sample", "psd"}
+    assert set(d["paper_case"]["psd"]) == {"vel_m_s", "att_arcmin", "pos_m"}
+    assert (tmp_path / "vehicle_paper.png").exists()
