@@ -138,6 +138,15 @@ class _Base:
         np.negative(FP[:, :9, :], out=FP[:, :9, :])
         return Dt, xd, FP, self._Qd
 
+    def _clock_rows(self, x, P, xd, FP) -> None:
+        """Receiver clock ``b' = d``, ``d' = 0`` (+ noise in :meth:`_finish`), if the model has it."""
+        if self.clock:
+            b = self.ib
+            xd[:, b] = x[:, b + 1]
+            xd[:, b + 1] = 0.0
+            FP[:, b, :] = P[:, b + 1, :]
+            FP[:, b + 1, :] = 0.0
+
     def _finish(self, xd, FP, Qd, PH, innov):
         Pd = FP + np.swapaxes(FP, 1, 2)
         Pd[:, :9, :9] += Qd
@@ -255,11 +264,7 @@ class MapFilter(_Base):
         c = (f[:, :, None] * a[:, None, :]).reshape(-1, 1, 9)  # kron(f, a): d(a^T D f)/d vec(D)
         FP[:, 10, :] = (c @ P[:, :9, :])[:, 0] + dgam[:, None] * P[:, 9, :]
         Qd_v = self.noise.accel
-        if self.clock:
-            xd[:, 11] = x[:, 12]
-            xd[:, 12] = 0.0
-            FP[:, 11, :] = P[:, 12, :]
-            FP[:, 12, :] = 0.0
+        self._clock_rows(x, P, xd, FP)
         PH = innov = None
         if self.odometer and z is not None:
             sf, dsf = r.speed_factor_d(q, k)
@@ -383,11 +388,7 @@ class FreeFilter(_Base):
         FP[:, 9:12, :] = P[:, 12:15, :]
         FP[:, 12:15, :] = (f[:, None, :] @ P[:, :9, :].reshape(M, 3, 3 * n)).reshape(M, 3, n) \
             + gravity_gradient(p) @ P[:, 9:12, :]
-        if self.clock:
-            xd[:, 15] = x[:, 16]
-            xd[:, 16] = 0.0
-            FP[:, 15, :] = P[:, 16, :]
-            FP[:, 16, :] = 0.0
+        self._clock_rows(x, P, xd, FP)
         PH = innov = None
         if self.odometer and z is not None:
             G = earth_rotation(t)
