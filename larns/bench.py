@@ -16,6 +16,7 @@ BENCHES: list[str] = [
     "larns.bench_sync",
     "larns.bench_ins",
     "larns.bench_integrity",
+    "larns.bench_vehicle",
 ]
 
 

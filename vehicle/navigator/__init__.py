@@ -1,0 +1,1 @@
+"""Vehicle navigator: continuous-discrete filters. Never imports vehicle.world."""

@@ -1,0 +1,1 @@
+"""Vehicle world: truth motion along the route, IMU, odometer, receiver clock, radio. Truth lives here."""
