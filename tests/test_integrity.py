@@ -91,7 +91,7 @@ def test_malformed_links_name_the_key(entry, key):
 
 
 def test_link_bias_and_range_bias_fault_lengthen_ranges_in_the_simulator():
-    scn = load("seed000", seed=2, channel={"sigma_d_m": 0.01},
+    scn = load("seed000", seed=2, channel={"sigma_d_m": 0.01}, clock={"model": "perfect"},  # faults alone
                links=[{"stations": [4, 5], "bias_m": 3.0}],
                faults=[{"kind": "range_bias", "station": 7, "bias_m": 5.0, "from_s": 0.0}])
     sim = Simulator(scn)
@@ -124,7 +124,7 @@ def _node(scn, station_id):
     bus = Bus()
     bus.sent = []
     speed = 0.01
-    epoch = _time.time() - (30.0 + 0.001) / speed
+    epoch = _time.time() - (30.0 + 2 * scn.tdma.slot_s + 0.001) / speed  # inside slot 2 of cycle 30
     node = StationNode(scn, NodeOptions(station_id=station_id, speed=speed, epoch_unix_s=epoch, quiet=True), bus)
     node.start_core()
     bus.sent.clear()
@@ -140,8 +140,8 @@ def test_faults_are_applied_by_the_node_shell_like_the_simulator():
               {"kind": "range_bias", "station": 2, "bias_m": 5.0, "from_s": 0.0},
               {"kind": "clock_jump", "station": 3, "jump_s": 1e-3, "at_s": 5.0},
               {"kind": "bad_fix", "station": 4, "offset_m": [50.0, 0.0, 0.0], "sigma0_m": 10.0}]
-    scn = load("seed000", layout={"n": 4}, faults=faults)
-    clean = load("seed000", layout={"n": 4})
+    scn = load("seed000", layout={"n": 4}, faults=faults, clock={"model": "perfect"})  # the faults alone
+    clean = load("seed000", layout={"n": 4}, clock={"model": "perfect"})
     # bad_fix and clock_jump live in make_core, which the node's start_core and the simulator share
     core4, _ = make_core(scn, 4)
     core4c, _ = make_core(clean, 4)
