@@ -246,7 +246,7 @@ def plot(rows: list[dict], png_dir: Path) -> Path:
 
 
 def main(args) -> int:
-    from .progress import Progress
+    from .progress import progress
 
     rows = []
     if not args.cases:
@@ -256,12 +256,7 @@ def main(args) -> int:
         for case in args.cases:
             jobs = [(case, args.estimator, args.seed + k, args.duration, "seed000") for k in range(args.trials)]
             t0 = time.perf_counter()
-            bar = Progress(len(jobs), f"integrity {case}")
-            res = []
-            for r in pool.imap(_trial, jobs):
-                res.append(r)
-                bar.update(1)
-            bar.close()
+            res = list(progress(pool.imap(_trial, jobs), f"integrity {case}", total=len(jobs)))
             row = summarize(case, res, res[0]["faulty"])
             row["times_s"][1] = args.duration
             row["wall_s"] = time.perf_counter() - t0

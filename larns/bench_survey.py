@@ -239,7 +239,7 @@ def plot(all_res: list[dict], png_dir: Path) -> list[Path]:
 
 
 def main(args) -> int:
-    from .progress import Progress
+    from .progress import progress
 
     table_times = [t for t in TABLE_TIMES_S if t <= args.duration]
     times = np.arange(1.0, args.duration + 1e-9, 1.0)
@@ -251,12 +251,7 @@ def main(args) -> int:
                 jobs = [(args.scenario, est, sd, args.stations, args.seed + k, args.duration, table_times,
                          not args.no_map, getattr(args, "clock", None)) for k in range(args.trials)]
                 t0 = time.perf_counter()
-                bar = Progress(len(jobs), f"survey {est} sigma_d={sd}")
-                results = []
-                for r in pool.imap(_trial, jobs):
-                    results.append(r)
-                    bar.update(1)
-                bar.close()
+                results = list(progress(pool.imap(_trial, jobs), f"survey {est} sigma_d={sd}", total=len(jobs)))
                 res = summarize(results, sd, est, times, table_times)
                 res["wall_s"] = time.perf_counter() - t0
                 res["jobs"] = args.jobs

@@ -173,7 +173,7 @@ def plot(res: dict, png_dir: Path) -> Path:
 
 
 def main(args) -> int:
-    from .progress import Progress
+    from .progress import progress
 
     table_times = [t for t in TABLE_TIMES_S if t <= args.duration]
     times = np.arange(1.0, args.duration + 1e-9, 1.0)
@@ -181,13 +181,8 @@ def main(args) -> int:
             for k in range(args.trials)]
     t0 = time.perf_counter()
     ctx = mp.get_context("fork")
-    results = []
     with ctx.Pool(max(1, args.jobs)) as pool:
-        bar = Progress(len(jobs), f"sync {args.clock}")
-        for r in pool.imap(_trial, jobs):
-            results.append(r)
-            bar.update(1)
-        bar.close()
+        results = list(progress(pool.imap(_trial, jobs), f"sync {args.clock}", total=len(jobs)))
     res = summarize(results, times, table_times, {"clock": args.clock, "sigma_d_m": args.sigma_d,
                                                    "stations": args.stations, "scenario": args.scenario})
     res["wall_s"] = time.perf_counter() - t0
