@@ -240,6 +240,8 @@ class ClockEstimator:
         if self.exact or corr is None or src == self.id:
             return False
         T = self.network_time(t_rx_s)
+        if self._coarse_var_at(T, src) <= self.coarse_gate_s**2:  # the common case once synced
+            return False  # (the filter stays where it is: the next input predicts it)
         self.predict(T)
         h = self._row(T, [(self.id, 1.0), (src, -1.0)])
         if float(h @ self.P @ h) <= self.coarse_gate_s**2:
@@ -248,6 +250,30 @@ class ClockEstimator:
         self._update(h, t_rx_s - t_tx_src_s, self.coarse_var)
         self.n_coarse += 1
         return True
+
+    def _coarse_var_at(self, T_s: float, src: int) -> float:
+        """Variance of ``theta_me - theta_src`` predicted to network time ``T_s`` without moving the
+        filter (only the two clocks' 2x2 blocks: O(1) instead of a full predict). The wander common to
+        every offset cancels in the difference (not against the reference, station 1); each
+        non-reference clock adds its own ``Q_tt``."""
+        dt = max(T_s - self.T_s, 0.0)
+        idx, h = [], []
+        for sid, sign in ((self.id, 1.0), (src, -1.0)):
+            k = self.index.get(sid)
+            if sid == 1:
+                continue
+            if k is None:
+                return float("inf")  # not in the filter yet: unknown
+            idx += [2 * k, 2 * k + 1]
+            h += [sign, sign * dt]
+        if not idx:
+            return 0.0
+        hv = np.asarray(h)
+        var = float(hv @ self.P[np.ix_(idx, idx)] @ hv)
+        if dt > 0:  # each clock's own wander, plus the common one where it does not cancel
+            _, Q = transition(dt, self.model.q_wf_s, self.model.q_rw_per_s)
+            var += (len(idx) // 2 + float(hv[0::2].sum()) ** 2) * Q[0, 0]
+        return var
 
     def peer_time(self, sid: int, t_peer_s: float, corr=None) -> tuple[float, float]:
         """Network time at station ``sid``'s local time ``t_peer_s`` and its variance, from this filter's

@@ -219,6 +219,9 @@ class DistributedMap:
         self._rk = np.zeros(0, np.int64)
         self._rv = np.zeros(0)
         self._nr = 0
+        self._rver = 0  # bumped whenever the kept ranges change (cache key of the link centres)
+        self._centre_key: tuple[int, int] | None = None
+        self._centre = np.zeros(0)
         self.range_weight = np.zeros(0)
         self._dirty = False
         if pos0_m is None or cov0_m2 is None or not np.any(np.diag(cov0_m2)[self.free] > 0) and self.nf:
@@ -287,6 +290,7 @@ class DistributedMap:
         self._rk[self._nr] = k
         self._rv[self._nr] = float(range_m)
         self._nr += 1
+        self._rver += 1
         if self.keep_per_link and np.count_nonzero(self._rk[:self._nr] == k) > self.keep_per_link:
             self._archive(k)
         self._dirty = self.nf > 0
@@ -307,6 +311,7 @@ class DistributedMap:
         if len(self.range_weight) == nr:
             self.range_weight = self.range_weight[keep]
         self._nr = len(self._rv)
+        self._rver += 1
 
     def refresh(self) -> bool:
         """Re-solve if new ranges arrived since the last solve (the core calls this before its nav)."""
@@ -348,13 +353,16 @@ class DistributedMap:
         w = tukey_weight(z, self.tukey_c)
         if self.link_consensus:
             # within-link consensus, independent of any geometry: distance to the link's centre
-            # (median; of two ranges that disagree, the shorter, since NLOS only lengthens a range)
-            centre = np.empty(m)
-            gap = 3.0 * np.sqrt(2.0) * self.sigma_d_m
-            for k in range(m):
-                v = rv[rk == k]
-                centre[k] = (v.min() if len(v) == 2 and np.ptp(v) > gap else np.median(v)) if len(v) else 0.0
-            w = w * (np.abs(rv - centre[rk]) <= self.consensus_gate * self.sigma_d_m)
+            # (median; of two ranges that disagree, the shorter, since NLOS only lengthens a range);
+            # it depends on the kept ranges only, so it is computed once per change of them
+            if self._centre_key != (self._rver, m):
+                centre = np.empty(m)
+                gap = 3.0 * np.sqrt(2.0) * self.sigma_d_m
+                for k in range(m):
+                    v = rv[rk == k]
+                    centre[k] = (v.min() if len(v) == 2 and np.ptp(v) > gap else np.median(v)) if len(v) else 0.0
+                self._centre, self._centre_key = centre, (self._rver, m)
+            w = w * (np.abs(rv - self._centre[rk]) <= self.consensus_gate * self.sigma_d_m)
         if w.sum() < self.min_inlier_frac * nr:
             w = huber_weight(z, self.huber_k)  # far from everything: convex start (MM scheme)
         return w
