@@ -125,6 +125,28 @@ def _plt():
     return plt
 
 
+def _hold(t_s: np.ndarray, values: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """(len(grid),) the last of ``values`` at or before each grid time (NaN before the first)."""
+    out = np.full(grid.size, np.nan)
+    k = np.searchsorted(t_s, grid, side="right") - 1
+    ok = k >= 0
+    out[ok] = values[k[ok]]
+    return out
+
+
+def _save_log_plot(plt, fig, ax, ylabel: str, title: str, path: Path) -> None:
+    """Log y axis, labels, grid, legend; write the PNG and close the figure."""
+    ax.set_yscale("log")
+    ax.set_xlabel("fleet time, s")
+    ax.set_ylabel(ylabel)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    ax.set_title(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def fig_station_errors(d: dict, path: Path) -> dict[int, dict]:
     plt = _plt()
     st = {k: v for k, v in d["stations"].items() if v["truth_m"] is not None}
@@ -181,10 +203,8 @@ def fig_convergence(d: dict, path: Path, n_grid: int = 200) -> dict[str, Any]:
     for i, s in enumerate(st.values()):
         eh = np.linalg.norm((s["pos_m"] - s["truth_m"])[:, :2], axis=-1)
         sh = np.sqrt(np.maximum(s["cov_m2"][:, 0, 0] + s["cov_m2"][:, 1, 1], 0.0))
-        k = np.searchsorted(s["t_s"], grid, side="right") - 1  # last estimate at or before the grid time
-        ok = k >= 0
-        H[i, ok] = eh[k[ok]]
-        S[i, ok] = sh[k[ok]]
+        H[i] = _hold(s["t_s"], eh, grid)  # last estimate at or before the grid time
+        S[i] = _hold(s["t_s"], sh, grid)
     with np.errstate(all="ignore"):
         mean_h = np.nanmean(H, axis=0)
         max_h = np.nanmax(H, axis=0)
@@ -193,15 +213,8 @@ def fig_convergence(d: dict, path: Path, n_grid: int = 200) -> dict[str, Any]:
     ax.plot(grid, mean_h, label="mean horizontal error")
     ax.plot(grid, max_h, label="max horizontal error")
     ax.plot(grid, mean_s, ls="--", label="mean 1-sigma horizontal (own covariance)")
-    ax.set_yscale("log")
-    ax.set_xlabel("fleet time, s")
-    ax.set_ylabel("m")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
-    ax.set_title(f"Survey convergence ({len(st)} surveying stations; seed 000 fig. 3 style)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save_log_plot(plt, fig, ax, "m", f"Survey convergence ({len(st)} surveying stations; seed 000 fig. 3 style)",
+                   path)
     sigma_d = None
     for rec in d["init"].values():
         sigma_d = rec["cfg"].get("sigma_d_m")
@@ -479,23 +492,14 @@ def fig_sync(series: dict[int, np.ndarray], path: Path, after_s: float = 60.0) -
     E = np.full((len(st), grid.size), np.nan)
     S = np.full((len(st), grid.size), np.nan)
     for i, r in enumerate(st.values()):
-        k = np.searchsorted(r[:, 0], grid, side="right") - 1
-        ok = k >= 0
-        E[i, ok], S[i, ok] = r[k[ok], 1], r[k[ok], 2]
+        E[i], S[i] = _hold(r[:, 0], r[:, 1], grid), _hold(r[:, 0], r[:, 2], grid)
     with np.errstate(all="ignore"):
         rms = np.sqrt(np.nanmean(E**2, axis=0))
         sig = np.nanmean(S, axis=0)
     ax.plot(grid, rms, "k", lw=1.5, label="RMS over the stations")
     ax.plot(grid, sig, "k--", lw=1.0, label="mean 1-sigma (own covariance)")
-    ax.set_yscale("log")
-    ax.set_xlabel("fleet time, s")
-    ax.set_ylabel("|clock error| vs network time, ns")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
-    ax.set_title(f"Network time: clock error of {len(st)} stations (station 1 = network time)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save_log_plot(plt, fig, ax, "|clock error| vs network time, ns",
+                   f"Network time: clock error of {len(st)} stations (station 1 = network time)", path)
     late = np.concatenate([r[r[:, 0] >= after_s, 1] for r in st.values()])
     return {"final_rms_ns": float(rms[-1]), "stations": len(st),
             "max_abs_ns_after_60s": float(np.max(np.abs(late))) if late.size else None,
