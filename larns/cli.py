@@ -1,6 +1,6 @@
 """`larns` command line: one entry point, subcommands registered by their own modules.
 
-Each module listed in ``COMMANDS`` exposes ``register(subparsers)`` which adds its parser and
+Each module of :mod:`larns.commands` listed in ``COMMANDS`` exposes ``register(subparsers)`` which adds its parser and
 sets ``func`` (called with the parsed args, returns an exit code). Registration must stay cheap:
 heavy imports (zenoh, matplotlib, scipy) happen inside the command functions, so ``--help``
 is instant.
@@ -16,20 +16,20 @@ from . import __version__
 
 # (module, one-line purpose) in the order shown by --help
 COMMANDS: list[str] = [
-    "larns.bench",
-    "larns.record",
-    "larns.station_cmd",
-    "larns.fleet",
-    "larns.router_cmd",
-    "larns.crlb_cmd",
-    "larns.info",
-    "larns.replay",
-    "larns.recover",
-    "larns.foxglove",
-    "larns.report",
-    "larns.aircraft_cmd",
-    "larns.keys",
-    "larns.attack",
+    "larns.commands.bench",
+    "larns.commands.record",
+    "larns.commands.station",
+    "larns.commands.fleet",
+    "larns.commands.router",
+    "larns.commands.crlb",
+    "larns.commands.info",
+    "larns.commands.replay",
+    "larns.commands.recover",
+    "larns.commands.export",
+    "larns.commands.report",
+    "larns.commands.aircraft",
+    "larns.commands.keys",
+    "larns.commands.attack",
 ]
 
 

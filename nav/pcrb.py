@@ -123,3 +123,12 @@ def prior_before_first_step(P0: np.ndarray, F: np.ndarray, Q: np.ndarray) -> np.
         Finv = np.linalg.inv(F)
         return Finv @ (P0 - Q) @ Finv.T
     return np.asarray(P0, dtype=float)
+
+
+def pcrb_step(P: np.ndarray, Jz: np.ndarray, F: np.ndarray | None = None, Q: np.ndarray | None = None) -> np.ndarray:
+    """One step of the posterior CRLB in covariance form for a varying step length: predict
+    ``P <- F P F^T + Q`` (skipped when ``F`` is None: no time passed), then add the measurement
+    information ``Jz = H^T R^-1 H``: ``P <- (I + P Jz)^-1 P``, symmetrized. (n, n) -> (n, n)."""
+    if F is not None:
+        P = F @ P @ F.T + Q
+    return symmetrize(np.linalg.solve(np.eye(P.shape[-1]) + P @ Jz, P))

@@ -492,7 +492,7 @@ def test_ekf_second_order_terms_match_finite_difference_hessians():
 def test_bench_aircraft_envelope_quick(tmp_path):
     """`larns bench aircraft --envelope --quick`: one JSON entry per point and filter with the bound,
     the ratio and its interval, the NEES and its band; heat maps per filter."""
-    from larns.bench_aircraft_envelope import FILTERS, QUICK
+    from larns.bench.envelope import FILTERS, QUICK
     from larns.cli import main
 
     js = tmp_path / "env.json"
@@ -517,7 +517,7 @@ def test_bench_aircraft_envelope_quick(tmp_path):
 
 def test_envelope_pcrb_matches_the_per_track_bound():
     """The batched envelope bound equals sim.pcrb_track of each track."""
-    from larns.bench_aircraft_envelope import Point, _pcrb, _tracks
+    from larns.bench.envelope import Point, _pcrb, _tracks
 
     ac = from_scenario(load("seed001"))
     t = np.arange(0.0, 3.0, 0.01)
@@ -537,7 +537,7 @@ def test_pr_filters_nees_in_band_overhead_and_near_the_station_plane(point):
     """Seeded: mean NEES of the pseudorange EKF/UKF (8 states) at or below the upper end of its 95 %
     band, right above the stations (height and clock nearly collinear) and 50 m above the station
     plane 1 km out (mirror solution, range and clock nearly collinear)."""
-    from larns.bench_aircraft_envelope import Point, run_chunk
+    from larns.bench.envelope import Point, run_chunk
 
     ac = from_scenario(load("seed001"))
     out = run_chunk(ac, [Point(*point)], runs=24, duration_s=12.0, warmup_s=4.0,

@@ -156,7 +156,7 @@ def _sleep_until(wall_s: float) -> None:
 @pytest.fixture(scope="module")
 def fleet(larns_image, tmp_path_factory) -> FleetRun:
     """Run the compose timeline once; yield what the tests need. Always `down -v` at the end."""
-    from larns.fleet import mcap_station_summary
+    from larns.analysis.summary import mcap_station_summary
 
     tmp = tmp_path_factory.mktemp("compose")
     scn = tmp / "compose.toml"
@@ -412,7 +412,7 @@ def test_compose_runs_secure_by_default(fleet):
 def test_compose_down_leaves_a_valid_mcap(fleet):
     from mcap.reader import make_reader
 
-    from larns.mcaputil import read_log
+    from larns.log import read_log
     assert fleet.down_rc == 0
     assert fleet.recorder_rc == 0, f"recorder exit code {fleet.recorder_rc}; logs: {fleet.logs}"
     log = read_log(fleet.mcap)

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from larns.fleet import mcap_station_summary
+from larns.analysis.summary import mcap_station_summary
 from net.bus import free_tcp_ports
 from scenario_text import random_world
 

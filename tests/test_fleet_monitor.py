@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from larns.fleet import Monitor, format_table
+from larns.fleet.monitor import Monitor, format_table
 from net import messages as M
 
 

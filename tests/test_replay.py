@@ -137,7 +137,8 @@ def test_info_counts_match_what_was_published(tmp_path):
 # --------------------------------------------------------------------------- offline
 
 def _estimates(path: Path) -> dict[int, dict[int, dict]]:
-    from larns.mcaputil import decode_all, read_log
+    from larns.log import read_log
+    from larns.log.series import decode_all
 
     out: dict[int, dict[int, dict]] = {}
     for _m, msg in decode_all(read_log(path).messages):
@@ -203,7 +204,7 @@ def test_offline_aircraft_other_algorithm(run, tmp_path):
         k = int(d["sequence"].split()[4].rstrip(","))
         assert d["equal_prefix"] >= 0.9 * k - 5, d
     # the same with a truth sample removed on purpose: the aircraft's sequence up to the hole
-    from larns.mcaputil import LogWriter, read_log
+    from larns.log import LogWriter, read_log
 
     lg = read_log(rec)
     gap = tmp_path / "gap.mcap"
@@ -218,7 +219,7 @@ def test_offline_aircraft_other_algorithm(run, tmp_path):
 
 
 def _ac_topics(path: Path) -> set[str]:
-    from larns.mcaputil import read_log
+    from larns.log import read_log
 
     return {m.topic for m in read_log(path).messages if m.topic.startswith("larns/aircraft/")}
 
@@ -253,7 +254,7 @@ def test_replay_into_a_live_aircraft(run, tmp_path):
 
 
 def _wire(path: Path):
-    from larns.mcaputil import read_log
+    from larns.log import read_log
 
     return [m for m in read_log(path).messages if m.encoding == "msgpack"]
 
@@ -263,7 +264,7 @@ def _wire(path: Path):
 def test_killed_recording_info_report_replay_recover(run, tmp_path):
     from mcap.reader import make_reader
 
-    from larns.mcaputil import read_log
+    from larns.log import read_log
 
     _, _, killed = run
     lg = read_log(killed)
@@ -309,7 +310,7 @@ def test_killed_recording_info_report_replay_recover(run, tmp_path):
 # --------------------------------------------------------------------------- Foxglove
 
 def _json_channels(path: Path) -> dict[str, list]:
-    from larns.mcaputil import read_log
+    from larns.log import read_log
 
     lg = read_log(path)
     schemas = {name: json.loads(data) for name, enc, data in lg.schemas.values() if enc == "jsonschema"}
@@ -351,7 +352,7 @@ def test_foxglove_channels_from_recorder_and_export(run, tmp_path):
     assert st2[-1]["err_m"] < max(st2[0]["err_m"], 0.5) and st2[-1]["err_m"] < 3 * st2[-1]["sigma_m"] + 0.5
     # an old log without the view: export adds the same channels
     bare = tmp_path / "bare.mcap"
-    from larns.mcaputil import LogWriter, read_log
+    from larns.log import LogWriter, read_log
 
     lg = read_log(rec)
     with LogWriter(bare, lg.metadata) as w:

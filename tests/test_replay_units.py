@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from larns import foxglove as F
-from larns.mcaputil import LogWriter, Msg, keyexpr_match, merge, parse_remaps, read_log, remap
-from larns.replay import Controls, play, select_messages
+from larns.log import LogWriter, Msg, keyexpr_match, merge, parse_remaps, read_log, remap
+from larns.commands.replay import Controls, play, select_messages
 from net import messages as M
 
 
@@ -112,7 +112,7 @@ def _write(path, msgs, md=None):
 def test_tolerant_reading_of_truncated_files_and_recover(tmp_path):
     from mcap.reader import make_reader
 
-    from larns.recover import recover
+    from larns.commands.recover import recover
 
     msgs = _msgs(400)
     full = tmp_path / "full.mcap"
@@ -194,7 +194,7 @@ def test_view_messages_validate_and_never_carry_nan():
 def test_simulated_journal_log_replays_bit_exact(tmp_path):
     """The benchmark's synthetic log (in-process simulator with journals) is a faithful recording."""
     from larns.bench_replay import synth_log
-    from larns.info import summarize
+    from larns.analysis.summary import summarize
     from larns.offline import run_offline
 
     p = tmp_path / "sim.mcap"

@@ -29,7 +29,7 @@ def exchanges(navs, slot_s: float, cycle_s: float, nav_offset_s: float = 0.005) 
 
 
 def test_fleet_and_simulator_make_the_same_exchanges_and_sync(tmp_path):
-    from larns.mcaputil import read_log
+    from larns.log import read_log
     from net import messages as M
     from net.scenario import load
     from stations.sim import Simulator

@@ -86,7 +86,7 @@ def _trial(job: tuple) -> dict:
 
 
 def summarize(results: list[dict], times: np.ndarray, table_times: list[float], meta: dict) -> dict:
-    from .bench_survey import chi2_band
+    from .survey import chi2_band
 
     err = np.stack([r["err_s"] for r in results]) * 1e9  # (T, K, n-1) ns
     var = np.stack([r["var_s2"] for r in results]) * 1e18

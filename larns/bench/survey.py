@@ -74,7 +74,7 @@ def _trial(job: tuple) -> dict:
     nees = np.einsum("kni,kni->kn", e4, np.linalg.solve(P4, e4[..., None])[..., 0])
     out = {"err": err, "nees": nees, "crlb_diag": np.einsum("knii->kni", crlb)}
     if scn.faults:  # [[faults]]: detection metrics; errors over the stations that are not faulty
-        from .bench_integrity import fault_metrics
+        from .integrity import fault_metrics
 
         out["faults"] = fault_metrics(sim, scn.faults, duration)
         bad = [i for i, sid in enumerate(scn.ids) if sid in {f.station for f in scn.faults}]

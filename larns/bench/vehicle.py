@@ -53,7 +53,7 @@ def _progress(msg: str) -> None:
 
 def summarize(res, outage: tuple[float, float]) -> dict:
     """Statistics of one case (see the module doc)."""
-    from larns.bench_survey import chi2_band
+    from larns.bench.survey import chi2_band
     from vehicle.sim import ARCMIN
 
     t = res.t_s

@@ -102,9 +102,9 @@ def run_bench_net(n: int = 2000, period_s: float = 0.005, warmup: int = 50) -> d
     p1, p2 = free_tcp_ports(2)
     e1, e2 = f"tcp/127.0.0.1:{p1}", f"tcp/127.0.0.1:{p2}"
     dur = 30 + (n + warmup) * (period_s + 0.002)
-    resp = subprocess.Popen([sys.executable, "-m", "larns.bench_net", "_responder", e2, e1, str(dur)])
+    resp = subprocess.Popen([sys.executable, "-m", "larns.bench.net", "_responder", e2, e1, str(dur)])
     try:
-        out = subprocess.run([sys.executable, "-m", "larns.bench_net", "_initiator", e1, e2, str(n),
+        out = subprocess.run([sys.executable, "-m", "larns.bench.net", "_initiator", e1, e2, str(n),
                               str(period_s), str(warmup)], capture_output=True, text=True,
                              timeout=dur + 30)
         if out.returncode != 0:
@@ -172,7 +172,7 @@ def run_scale_once(n: int, duration_s: float, warmup_s: float = 4.0, quiet: bool
     load0 = os.getloadavg()[0]
     router = None
     if topology == "router":
-        router = subprocess.Popen([sys.executable, "-m", "larns.router_cmd", "--listen", router_ep, "--quiet",
+        router = subprocess.Popen([sys.executable, "-m", "larns.commands.router", "--listen", router_ep, "--quiet",
                                    "--duration", str(duration_s + warmup_s + 0.5 * n + 30),
                                    "--nice", str(router_nice)]
                                   + ([] if slice_us is None else ["--slice-us", str(slice_us)])
@@ -270,7 +270,7 @@ def cmd_bench_scale(args: argparse.Namespace) -> int:
     if args.secure:  # one keystore for the largest N (a temporary one unless given)
         import tempfile
 
-        from larns.keys import init_keystore
+        from larns.commands.keys import init_keystore
 
         secure = str(Path(tempfile.mkdtemp(prefix="larns-bench-keys-")) / "keys")
         init_keystore(secure, list(range(1, max(ns) + 1)), [], recorder=False)

@@ -309,7 +309,7 @@ def main(ac, args, progress) -> int:
     doc["settings"]["scenario"] = args.scenario
     doc["settings"]["quick"] = bool(args.quick)
     print_table(doc)
-    from .bench_aircraft import write_outputs
+    from .aircraft import write_outputs
 
     write_outputs(doc, args, heatmaps)
     return 0

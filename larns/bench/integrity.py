@@ -180,7 +180,7 @@ def summarize(case: str, res: list[dict], faulty: bool) -> dict:
     h2 = np.concatenate([r["h2"] for r in res], axis=1)  # (2, N)
     c2 = np.concatenate([r["crlb_h2"] for r in res], axis=1)
     nees = np.concatenate([r["nees"] for r in res], axis=1)
-    from .bench_survey import chi2_band
+    from .survey import chi2_band
 
     lo, hi = chi2_band(3, nees.shape[1])
     det = [r["detect_time_s"] for r in res]

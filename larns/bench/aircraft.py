@@ -209,7 +209,7 @@ def speed_vs_filterpy(ac, steps: int = 400, runs: int = 64) -> dict:
 def run(args) -> int:
     sc, ac = setup(args.scenario)
     if getattr(args, "envelope", False):
-        from . import bench_aircraft_envelope
+        from . import envelope as bench_aircraft_envelope
 
         return bench_aircraft_envelope.main(ac, args, _progress)
     b = ac.bench

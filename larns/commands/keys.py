@@ -223,7 +223,8 @@ def verify_recording(ks: Keystore, paths, topics=None, exclude=None) -> dict:
     from net import messages as M
     from net.security import SecurityError, Verifier
 
-    from .mcaputil import read_logs
+    from ..log import read_logs
+    from ..log.series import decode
 
     def read_messages(paths, topics, exclude):
         for lg in read_logs(list(paths), topics=topics, exclude=exclude, encodings=["msgpack"], sort=False):
@@ -237,7 +238,7 @@ def verify_recording(ks: Keystore, paths, topics=None, exclude=None) -> dict:
         n += 1
         try:
             signer, env = v.open(m.topic, m.data)
-            msg, _ = M.decode(env)
+            msg, _ = decode(env)
             src = msg["src"]
             if signer != (aircraft_cn(src) if isinstance(src, str) else station_cn(src)):
                 raise SecurityError("signer_mismatch", f"{signer} sent src {src}")

@@ -115,7 +115,7 @@ def register(sub) -> None:
 
 
 if __name__ == "__main__":
-    ap = argparse.ArgumentParser(prog="python -m larns.router_cmd")
+    ap = argparse.ArgumentParser(prog="python -m larns.commands.router")
     register(ap.add_subparsers(dest="cmd", required=True))
     a = ap.parse_args(["router", *sys.argv[1:]])
     sys.exit(a.func(a))

@@ -26,92 +26,33 @@ Figures (``DIR/*.png``):
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
-import sys
-from collections import defaultdict
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
+from ..analysis import metrics as M
+
 
 # --------------------------------------------------------------------------- data extraction
 
-def extract(logs) -> dict[str, Any]:
-    """Decoded time series from recorded wire messages (fleet time axis in seconds)."""
-    from .mcaputil import merge
-    from net import messages as M
-
-    msgs = merge(logs)
-    ep = logs[0].epoch_unix_s if logs else None
-    speed = logs[0].speed if logs else 1.0
-    t0_ns = msgs[0].log_time if msgs else 0
-
-    def fleet(ns: int) -> float:
-        return (ns * 1e-9 - ep) * speed if ep is not None else (ns - t0_ns) * 1e-9
-
-    est: dict[int, list] = defaultdict(list)
-    truth: dict[int, list[float]] = {}
-    ac_est: dict[tuple[str, str], list] = defaultdict(list)
-    ac_truth: dict[str, list] = defaultdict(list)
-    reqs: list[tuple] = []
-    rsps: set[tuple] = set()
-    init_cfg: dict[int, dict] = {}
-    lat: dict[str, list[float]] = defaultdict(list)
-    navs: list[tuple[float, list[float]]] = []
-    for m in msgs:
-        if m.encoding != "msgpack":
-            continue
-        try:
-            msg, phy = M.decode(m.data)
-        except M.MessageError:
-            continue
-        k = msg["kind"]
-        if k == "nav" and phy is not None and msg["state"] in ("frame", "surveying"):
-            navs.append((phy["t_true_s"], phy["pos_m"]))
-        if m.publish_time != m.log_time:
-            lat[k].append((m.log_time - m.publish_time) * 1e-6)
-        if k == "estimate":
-            est[msg["src"]].append((msg["t_s"], msg["pos_m"], msg["cov_m2"], msg["n_updates"], msg["state"],
-                                    fleet(m.log_time)))
-        elif k == "truth":
-            truth[msg["src"]] = msg["pos_m"]
-        elif k == "ac_estimate":
-            ac_est[(msg["src"], msg["algo"])].append((msg["t_s"], msg["pos_m"], msg["cov_m2"]))
-        elif k == "ac_truth":
-            ac_truth[msg["src"]].append((msg["t_s"], msg["pos_m"], msg.get("vel_m_s")))
-        elif k == "range_req":
-            reqs.append((msg["stamp_s"], msg["src"], msg["dst"], msg["seq"], msg["cycle"]))
-        elif k == "range_rsp":
-            rsps.add((msg["dst"], msg["src"], msg["req_seq"]))
-        elif k == "core_init":
-            init_cfg.setdefault(msg["src"], msg["record"])
+def extract(rec) -> dict[str, Any]:
+    """The series the figures draw, from a decoded recording (:class:`larns.log.series.Recording`)."""
     stations = {}
-    for sid, rows in sorted(est.items()):
-        rows.sort(key=lambda r: r[0])
-        stations[sid] = {"t_s": np.array([r[0] for r in rows]), "pos_m": np.array([r[1] for r in rows], float),
-                         "cov_m2": np.array([r[2] for r in rows], float), "n_updates": np.array([r[3] for r in rows]),
-                         "state": rows[-1][4], "truth_m": np.asarray(truth[sid], float) if sid in truth else None}
-    aircraft = {}
-    for (name, algo), rows in sorted(ac_est.items()):
-        rows.sort(key=lambda r: r[0])
-        aircraft.setdefault(name, {})[algo] = {"t_s": np.array([r[0] for r in rows]),
-                                               "pos_m": np.array([r[1] for r in rows], float),
-                                               "cov_m2": np.array([r[2] for r in rows], float)}
-    ac_tr = {}
-    for name, rows in ac_truth.items():
-        rows.sort(key=lambda r: r[0])
-        ac_tr[name] = {"t_s": np.array([r[0] for r in rows]), "pos_m": np.array([r[1] for r in rows], float),
-                       "vel_m_s": np.array([r[2] if r[2] is not None else [0.0, 0.0, 0.0] for r in rows], float)}
-    return {"stations": stations, "aircraft": aircraft, "ac_truth": ac_tr, "reqs": reqs, "rsps": rsps,
-            "init": init_cfg, "latency_ms": lat, "truth": truth, "navs": sorted(navs)}
-
-
-def interp_truth(tr: dict, t_s: np.ndarray) -> np.ndarray:
-    """Aircraft truth at times ``t_s`` (linear interpolation per axis); (K, 3)."""
-    return np.stack([np.interp(t_s, tr["t_s"], tr["pos_m"][:, i]) for i in range(3)], axis=-1)
+    for sid, st in sorted(rec.stations.items()):
+        if st.estimates:
+            tr = st.track()
+            stations[sid] = {**{k: tr[k] for k in ("t_s", "pos_m", "cov_m2", "n_updates", "state")},
+                             "truth_m": np.asarray(st.truth_m, float) if st.truth_m is not None else None}
+    aircraft = {name: {algo: a.track(algo) for algo in a.algos} for name, a in sorted(rec.aircraft.items())
+                if a.estimates}
+    ac_tr = {name: a.truth_track() for name, a in rec.aircraft.items() if a.truths}
+    return {"stations": stations, "aircraft": aircraft, "ac_truth": ac_tr, "reqs": rec.range_requests,
+            "rsps": rec.range_replies, "init": rec.init_record, "latency_ms": rec.net.latency_ms,
+            "truth": rec.truth_positions, "slots": {sid: st.slot for sid, st in rec.stations.items()},
+            "navs": rec.nav_truth}
 
 
 # --------------------------------------------------------------------------- figures
@@ -123,15 +64,6 @@ def _plt():
     import matplotlib.pyplot as plt
 
     return plt
-
-
-def _hold(t_s: np.ndarray, values: np.ndarray, grid: np.ndarray) -> np.ndarray:
-    """(len(grid),) the last of ``values`` at or before each grid time (NaN before the first)."""
-    out = np.full(grid.size, np.nan)
-    k = np.searchsorted(t_s, grid, side="right") - 1
-    ok = k >= 0
-    out[ok] = values[k[ok]]
-    return out
 
 
 def _save_log_plot(plt, fig, ax, ylabel: str, title: str, path: Path) -> None:
@@ -153,9 +85,7 @@ def fig_station_errors(d: dict, path: Path) -> dict[int, dict]:
     out: dict[int, dict] = {}
     for sid in [k for k, v in st.items() if v["state"] == "frame"]:  # the origin: zero error, zero covariance
         s = st.pop(sid)
-        out[sid] = {"final_err_m": float(np.linalg.norm(s["pos_m"][-1] - s["truth_m"])), "final_bound3_m": 0.0,
-                    "inside_3sigma": math.nan, "n_estimates": int(len(s["t_s"])),
-                    "n_updates": int(s["n_updates"][-1])}
+        out[sid] = M.station_numbers(s, s["truth_m"], frame=True)
     if not st:
         return out
     n = len(st)
@@ -163,15 +93,12 @@ def fig_station_errors(d: dict, path: Path) -> dict[int, dict]:
     rows = math.ceil(n / cols)
     fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 2.8 * rows), squeeze=False, sharex=True)
     for ax, (sid, s) in zip(axes.flat, st.items()):
-        e = np.linalg.norm(s["pos_m"] - s["truth_m"], axis=-1)
-        b = 3.0 * np.sqrt(np.maximum(np.einsum("kii->k", s["cov_m2"]), 0.0))
-        inside = float(np.mean(e <= b)) if e.size else math.nan
+        e, b = M.error_and_bound(s, s["truth_m"])
         ax.semilogy(s["t_s"], np.maximum(e, 1e-3), lw=1.0, label="|error|")
         ax.semilogy(s["t_s"], np.maximum(b, 1e-3), lw=1.0, ls="--", label="3 sigma")
         ax.set_title(f"station {sid} ({s['state']})", fontsize=9)
         ax.grid(True, which="both", alpha=0.3)
-        out[sid] = {"final_err_m": float(e[-1]), "final_bound3_m": float(b[-1]), "inside_3sigma": inside,
-                    "n_estimates": int(e.size), "n_updates": int(s["n_updates"][-1])}
+        out[sid] = M.station_numbers(s, s["truth_m"])
     for ax in axes.flat[n:]:
         ax.axis("off")
     axes.flat[0].legend(fontsize=8)
@@ -195,36 +122,16 @@ def fig_convergence(d: dict, path: Path, n_grid: int = 200) -> dict[str, Any]:
     st = _surveying(d)
     if not st:
         return {}
-    t_end = max(v["t_s"][-1] for v in st.values())
-    t_beg = min(v["t_s"][0] for v in st.values())
-    grid = np.linspace(t_beg, t_end, n_grid)
-    H = np.full((len(st), n_grid), np.nan)
-    S = np.full((len(st), n_grid), np.nan)
-    for i, s in enumerate(st.values()):
-        eh = np.linalg.norm((s["pos_m"] - s["truth_m"])[:, :2], axis=-1)
-        sh = np.sqrt(np.maximum(s["cov_m2"][:, 0, 0] + s["cov_m2"][:, 1, 1], 0.0))
-        H[i] = _hold(s["t_s"], eh, grid)  # last estimate at or before the grid time
-        S[i] = _hold(s["t_s"], sh, grid)
-    with np.errstate(all="ignore"):
-        mean_h = np.nanmean(H, axis=0)
-        max_h = np.nanmax(H, axis=0)
-        mean_s = np.nanmean(S, axis=0)
+    grid, mean_h, max_h, mean_s = M.survey_convergence(st, {k: v["truth_m"] for k, v in st.items()}, n_grid)
     fig, ax = plt.subplots(figsize=(7, 4))
     ax.plot(grid, mean_h, label="mean horizontal error")
     ax.plot(grid, max_h, label="max horizontal error")
     ax.plot(grid, mean_s, ls="--", label="mean 1-sigma horizontal (own covariance)")
     _save_log_plot(plt, fig, ax, "m", f"Survey convergence ({len(st)} surveying stations; seed 000 fig. 3 style)",
                    path)
-    sigma_d = None
-    for rec in d["init"].values():
-        sigma_d = rec["cfg"].get("sigma_d_m")
-        break
-    conv = None
-    if sigma_d:
-        below = np.where(np.isfinite(mean_h) & (mean_h < sigma_d))[0]
-        # first time after which the mean error stays below sigma_d
-        if below.size and np.all(mean_h[below[0]:][np.isfinite(mean_h[below[0]:])] < sigma_d):
-            conv = float(grid[below[0]])
+    sigma_d = d["init"]["cfg"].get("sigma_d_m") if d["init"] else None
+    # first time after which the mean error stays below sigma_d
+    conv = M.first_time_staying_below(grid, mean_h, sigma_d) if sigma_d else None
     return {"final_mean_horizontal_m": float(mean_h[-1]), "final_max_horizontal_m": float(max_h[-1]),
             "sigma_d_m": sigma_d, "time_mean_below_sigma_d_s": conv}
 
@@ -236,15 +143,8 @@ def fig_histograms(d: dict, path: Path) -> dict[str, Any]:
         return {}
     from stations.estimators import free_mask
 
-    eh, ev = [], []
-    for sid, s in st.items():
-        half = s["t_s"] >= s["t_s"][0] + 0.5 * (s["t_s"][-1] - s["t_s"][0])
-        e = (s["pos_m"] - s["truth_m"])[half]
-        eh.append(np.linalg.norm(e[:, :2], axis=-1))
-        if free_mask(sid)[2]:  # the frame fixes z of stations 1-3: no vertical error to show
-            ev.append(e[:, 2])
-    eh = np.concatenate(eh)
-    ev = np.concatenate(ev) if ev else np.zeros(0)
+    # the frame fixes z of stations 1-3: no vertical error to show
+    eh, ev = M.second_half_errors(st, {k: v["truth_m"] for k, v in st.items()}, lambda sid: free_mask(sid)[2])
     fig, (a, b) = plt.subplots(1, 2, figsize=(9, 3.6))
     a.hist(eh, bins=30, color="tab:blue", alpha=0.8)
     a.set_xlabel("horizontal error, m")
@@ -259,67 +159,23 @@ def fig_histograms(d: dict, path: Path) -> dict[str, Any]:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
-    return {"horizontal_rms_m": float(np.sqrt(np.mean(eh**2))),
-            "vertical_rms_m": float(np.sqrt(np.mean(ev**2))) if ev.size else math.nan,
-            "samples": int(eh.size)}
+    return M.histogram_numbers(eh, ev)
 
 
 def aircraft_crlb(d: dict, name: str, sigma_m: float, n_points: int = 150) -> tuple[np.ndarray, np.ndarray] | None:
-    """One-cycle CRLB of the position (pseudoranges, unknown clock offset; seed 003 eq. 7) along the
-    true track, with the stations at their true positions and their TDMA slot offsets. The velocity
-    is a parameter too when one cycle has >= 8 stations (else known: one cycle cannot observe it)."""
-    from nav.pcrb import crlb_cycle, fisher_cycle
+    """One-cycle CRLB along the true track (:func:`larns.analysis.metrics.aircraft_crlb`) with each
+    station's recorded slot (the TDMA plan's default slot where none was recorded)."""
+    from stations.tdma import TdmaPlan
 
-    tr = d["ac_truth"].get(name)
-    if tr is None or not d["truth"] or tr["t_s"].size < 2:
-        return None
-    ids = sorted(d["truth"])
-    S = np.array([d["truth"][i] for i in ids], float)
-    slot_s, cycle_s = 0.01, 1.0
-    for rec in d["init"].values():
-        cycle_s, slot_s = rec["tdma"]
-        break
-    t_rel = np.array([((i - 1) * slot_s) % cycle_s for i in ids])
-    k = np.unique(np.linspace(0, tr["t_s"].size - 1, n_points).astype(int))
-    # position + clock offset (+ velocity when one cycle has enough stations to observe it)
-    J = fisher_cycle(tr["pos_m"][k], tr["vel_m_s"][k], S, t_rel, sigma_m, clock=True, velocity=len(ids) >= 8)
-    b = crlb_cycle(J)
-    return tr["t_s"][k], b["total_m"]
+    cycle_s, slot_s = tuple(d["init"]["tdma"]) if d["init"] else (1.0, 0.01)
+    plan = TdmaPlan(cycle_s=cycle_s, slot_s=slot_s)
+    slots = {i: (d["slots"].get(i) if d["slots"].get(i) is not None else plan.default_slot(i)) for i in d["truth"]}
+    return M.aircraft_crlb(d["ac_truth"].get(name), d["truth"], slots, (cycle_s, slot_s), sigma_m, n_points)
 
 
 def aircraft_pcrb(d: dict, name: str, tuning) -> tuple[np.ndarray, np.ndarray] | None:
-    """Posterior CRLB (Tichavsky et al. 1998; covariance form as in ``nav.pcrb``) of the pseudorange
-    filters' own model (CV + clock offset/drift, ``aircraft.estimators.Tuning``) for the sequential
-    TDMA measurements the aircraft made: one scalar pseudorange per recorded nav broadcast, from the
-    sender's true position at its true transmit time, along the recorded true track. Returns
-    (times, sqrt of the position-bound trace)."""
-    from aircraft import models as mdl
-
-    tr = d["ac_truth"].get(name)
-    navs = [n for n in d["navs"] if tr is not None and tr["t_s"][0] - 1.0 <= n[0] <= tr["t_s"][-1]]
-    if tr is None or len(navs) < 8:
-        return None
-    layout = mdl.StateLayout("pr", drift=tuning.drift_state)
-    n = layout.n
-    P = tuning.p0(layout)
-    t_prev = navs[0][0]
-    eye = np.eye(n)
-    ts, out = [], []
-    for t, pos in navs:
-        dt = max(t - t_prev, 0.0)
-        t_prev = t
-        if dt > 0:
-            F = mdl.cv_transition(n, dt)
-            P = F @ P @ F.T + mdl.cv_noise(n, dt, tuning.q_acc, tuning.q_clock, tuning.q_drift, tuning.q_acc_z)
-        X = np.zeros(n)
-        X[:3] = interp_truth(tr, np.array([t]))[0]
-        H = mdl.jac_pr(X, np.asarray(pos, float)[None])  # (1, n)
-        Jz = H.T @ H / tuning.sigma_m**2
-        P = np.linalg.solve(eye + P @ Jz, P)
-        P = 0.5 * (P + P.T)
-        ts.append(t)
-        out.append(np.sqrt(max(np.trace(P[:3, :3]), 0.0)))
-    return np.array(ts), np.array(out)
+    """Posterior CRLB of the pseudorange filters' model (:func:`larns.analysis.metrics.aircraft_pcrb`)."""
+    return M.aircraft_pcrb(d["ac_truth"].get(name), d["navs"], tuning)
 
 
 def fig_aircraft(d: dict, path: Path, sigma_m: float | None, tuning=None) -> dict[str, Any]:
@@ -335,11 +191,8 @@ def fig_aircraft(d: dict, path: Path, sigma_m: float | None, tuning=None) -> dic
         for algo, a in sorted(d["aircraft"][name].items()):
             if tr is None:
                 continue
-            e = np.linalg.norm(a["pos_m"] - interp_truth(tr, a["t_s"]), axis=-1)
+            e, out[name][algo] = M.aircraft_numbers(a, tr)
             ax.semilogy(a["t_s"], np.maximum(e, 1e-3), lw=0.9, label=f"{algo} |error|")
-            tail = e[len(e) // 10:]
-            out[name][algo] = {"n": int(e.size), "final_err_m": float(e[-1]),
-                               "rms_err_m": float(np.sqrt(np.mean(tail**2))) if tail.size else math.nan}
         if tuning is not None:
             pc = aircraft_pcrb(d, name, tuning)
             if pc is not None:
@@ -403,8 +256,7 @@ def fig_tdma(d: dict, path: Path, n_cycles: int = 4) -> dict[str, Any]:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
-    n_ans = sum(1 for r in reqs if (r[1], r[2], r[3]) in d["rsps"])
-    return {"requests": len(reqs), "answered": n_ans, "answered_pct": 100.0 * n_ans / len(reqs)}
+    return M.tdma_numbers(reqs, d["rsps"])
 
 
 def fig_network(info: dict, d: dict, path: Path) -> None:
@@ -449,31 +301,14 @@ def _aircraft_config(logs, scenario: str | None):
         return None
 
 
-def sync_series(logs) -> dict[int, np.ndarray]:
+def sync_series(rec) -> dict[int, np.ndarray]:
     """Per station: rows ``[t_s, error_ns, sigma_ns]`` of its clock estimate against the truth of the
-    same stamp (the estimate's ``clock_offset_s`` minus the truth's ``clock_error_s``)."""
-    from net import messages as M
-
-    from .mcaputil import merge
-
-    est: dict[int, dict[float, tuple[float, float, float]]] = defaultdict(dict)
-    tru: dict[int, dict[float, float]] = defaultdict(dict)
-    for m in merge(logs):
-        if m.encoding != "msgpack" or not (m.topic.endswith("/estimate") or m.topic.endswith("/truth")):
-            continue
-        try:
-            msg, _ = M.decode(m.data)
-        except M.MessageError:
-            continue
-        if msg["kind"] == "estimate" and "clock_offset_s" in msg:
-            est[msg["src"]][msg["stamp_s"]] = (msg["t_s"], msg["clock_offset_s"], msg.get("clock_offset_sd_s", 0.0))
-        elif msg["kind"] == "truth" and "clock_error_s" in msg:
-            tru[msg["src"]][msg["stamp_s"]] = msg["clock_error_s"]
+    same stamp (:meth:`larns.log.series.StationSeries.clock`)."""
     out = {}
-    for sid, e in est.items():
-        rows = sorted((e[k][0], (e[k][1] - tru[sid][k]) * 1e9, e[k][2] * 1e9) for k in e.keys() & tru[sid].keys())
-        if rows:
-            out[sid] = np.array(rows)
+    for sid, st in rec.stations.items():
+        rows = st.clock()
+        if len(rows):
+            out[sid] = rows
     return out
 
 
@@ -486,36 +321,25 @@ def fig_sync(series: dict[int, np.ndarray], path: Path, after_s: float = 60.0) -
     fig, ax = plt.subplots(figsize=(7, 4))
     for sid, r in sorted(st.items()):
         ax.plot(r[:, 0], np.abs(r[:, 1]), lw=0.7, alpha=0.6)
-    t_end = max(r[-1, 0] for r in st.values())
-    t_beg = min(r[0, 0] for r in st.values())
-    grid = np.linspace(t_beg, t_end, 200)
-    E = np.full((len(st), grid.size), np.nan)
-    S = np.full((len(st), grid.size), np.nan)
-    for i, r in enumerate(st.values()):
-        E[i], S[i] = _hold(r[:, 0], r[:, 1], grid), _hold(r[:, 0], r[:, 2], grid)
-    with np.errstate(all="ignore"):
-        rms = np.sqrt(np.nanmean(E**2, axis=0))
-        sig = np.nanmean(S, axis=0)
+    grid, rms, sig = M.sync_curves(st)
     ax.plot(grid, rms, "k", lw=1.5, label="RMS over the stations")
     ax.plot(grid, sig, "k--", lw=1.0, label="mean 1-sigma (own covariance)")
     _save_log_plot(plt, fig, ax, "|clock error| vs network time, ns",
                    f"Network time: clock error of {len(st)} stations (station 1 = network time)", path)
-    late = np.concatenate([r[r[:, 0] >= after_s, 1] for r in st.values()])
-    return {"final_rms_ns": float(rms[-1]), "stations": len(st),
-            "max_abs_ns_after_60s": float(np.max(np.abs(late))) if late.size else None,
-            "rms_ns_after_60s": float(np.sqrt(np.mean(late**2))) if late.size else None}
+    return M.sync_numbers(st, rms, after_s)
 
 
 def make_report(paths: Sequence[str | Path], outdir: str | Path, scenario: str | None = None,
                 sigma_m: float | None = None) -> dict[str, Any]:
-    from .info import summarize
-    from .mcaputil import read_logs
+    from ..analysis.summary import summarize
+    from ..log.series import load
 
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
-    logs = read_logs(paths)
-    info = summarize(paths, logs=logs)
-    d = extract(logs)
+    rec = load(paths)  # every message decoded once, for the summary and the figures
+    logs = rec.logs
+    info = summarize(paths, rec=rec)
+    d = extract(rec)
     res: dict[str, Any] = {"files": [{"path": f["path"], "complete": f["complete"], "error": f["error"]}
                                      for f in info["files"]],
                            "messages": info["messages"], "duration_s": info.get("duration_s", 0.0),
@@ -531,16 +355,14 @@ def make_report(paths: Sequence[str | Path], outdir: str | Path, scenario: str |
         res["histograms"] = fig_histograms(d, out / "survey_histograms.png")
         if res["histograms"]:
             figs.append(("Error histograms", "survey_histograms.png"))
-        res["sync"] = fig_sync(sync_series(logs), out / "sync_errors.png")
+        res["sync"] = fig_sync(sync_series(rec), out / "sync_errors.png")
         if res["sync"]:
             figs.append(("Network time: clock errors", "sync_errors.png"))
     if d["aircraft"]:
         acfg = _aircraft_config(logs, scenario)
         sig = sigma_m if sigma_m is not None else (acfg.sigma_m if acfg is not None else None)
-        if sig is None:
-            for rec in d["init"].values():
-                sig = rec["cfg"].get("sigma_d_m")
-                break
+        if sig is None and d["init"]:
+            sig = d["init"]["cfg"].get("sigma_d_m")
         if acfg is not None:
             tuning = acfg.tuning
         else:
@@ -631,24 +453,3 @@ def markdown(res: dict, info: dict, figs: list[tuple[str, str]]) -> str:
     for title, f in figs:
         L += [f"### {title}", "", f"![{title}]({f})", ""]
     return "\n".join(L)
-
-
-def cmd_report(args: argparse.Namespace) -> int:
-    try:
-        res = make_report(args.files, args.output, scenario=args.scenario, sigma_m=args.sigma)
-    except (OSError, ValueError) as e:
-        print(f"larns report: {e}", file=sys.stderr)
-        return 1
-    print(f"[report] {len(res['figures'])} figures + report.md in {args.output}", file=sys.stderr)
-    return 0
-
-
-def register(sub) -> None:
-    p = sub.add_parser("report", help="PNG figures and a Markdown summary of a recording",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("files", nargs="+", help="MCAP recording(s), merged by log time")
-    p.add_argument("-o", "--output", default="report", help="output folder (default ./report)")
-    p.add_argument("--scenario", default=None, help="scenario (for the aircraft's ranging sigma in the CRLB); "
-                                                    "default: the recording's metadata")
-    p.add_argument("--sigma", type=float, default=None, help="aircraft ranging sigma for the CRLB, m")
-    p.set_defaults(func=cmd_report)

@@ -17,7 +17,7 @@ from pathlib import Path
 
 
 def recover(src: str | Path, dst: str | Path) -> dict:
-    from .mcaputil import LogWriter, read_log
+    from ..log import LogWriter, read_log
 
     src, dst = Path(src), Path(dst)
     if src.resolve() == dst.resolve():

@@ -9,14 +9,14 @@ from __future__ import annotations
 import importlib
 
 BENCHES: list[str] = [
-    "larns.bench_aircraft",
-    "larns.bench_survey",
-    "larns.bench_net",
+    "larns.bench.aircraft",
+    "larns.bench.survey",
+    "larns.bench.net",
     "larns.bench_replay",
-    "larns.bench_sync",
-    "larns.bench_ins",
-    "larns.bench_integrity",
-    "larns.bench_vehicle",
+    "larns.bench.sync",
+    "larns.bench.ins",
+    "larns.bench.integrity",
+    "larns.bench.vehicle",
 ]
 
 

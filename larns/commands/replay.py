@@ -39,7 +39,7 @@ import time
 from dataclasses import dataclass
 from typing import Sequence
 
-from .mcaputil import Msg, merge, parse_remaps, read_logs, remap
+from ..log import Msg, merge, parse_remaps, read_logs, remap
 
 
 # --------------------------------------------------------------------------- selection
@@ -56,7 +56,7 @@ def select_messages(msgs: Sequence[Msg], topics: Sequence[str] | None = None, ex
                     start_offset_s: float = 0.0, until_s: float | None = None) -> list[Msg]:
     """Wire messages (msgpack) matching the globs, inside ``[start + offset, start + until]``;
     offsets in seconds of log time from the first message of the recording."""
-    from .mcaputil import topic_selected
+    from ..log import topic_selected
 
     if not msgs:
         return []
@@ -187,7 +187,7 @@ def play(msgs: Sequence[Msg], publish, rate: float = 1.0, loop: bool = False, re
         first = msgs[0].log_time
         bar = None
         if progress:
-            from .progress import Progress
+            from ..bench.progress import Progress
 
             bar = Progress(len(msgs), f"replay{' loop %d' % (st.loops + 1) if loop else ''}")
         base = clock()
@@ -221,7 +221,7 @@ def _wait_for(bus, keyexpr: str, timeout_s: float) -> bool:
 
 def cmd_replay(args: argparse.Namespace) -> int:
     if getattr(args, "secure", None):  # check the recording's signatures (docs/security.md)
-        from larns.keys import cmd_verify_recordings
+        from larns.commands.keys import cmd_verify_recordings
 
         return cmd_verify_recordings(args.secure, args.files, args.topics, args.exclude)
     if args.offline:
@@ -273,9 +273,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def cmd_offline(args: argparse.Namespace) -> int:
-    from .offline import format_result, run_offline
+    from ..offline import format_result, run_offline
 
-    from .offline import JOURNAL_TOPICS
+    from ..offline import JOURNAL_TOPICS
 
     try:  # only the journal and estimate channels unless the whole recording is rewritten
         logs = read_logs(args.files, topics=None if (args.output or args.algo) else JOURNAL_TOPICS)

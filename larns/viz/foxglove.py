@@ -19,10 +19,8 @@ recorder and ``larns export``.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
-import sys
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -271,16 +269,23 @@ class FoxgloveView:
 
     def convert_bytes(self, key: str, data: bytes, log_ns: int) -> list[tuple[str, str, bytes]]:
         """Wire bytes -> [(topic, schema name, JSON bytes)]; anything undecodable yields nothing."""
-        tail = key.rsplit("/", 2)
-        if not (key.endswith("/estimate") or key.endswith("/truth") or (len(tail) == 3 and tail[1] == "estimate")):
+        if not converts(key):
             return []
-        from net import messages as M
+        from net.messages import MessageError
+
+        from ..log.series import decode
 
         try:
-            msg, _ = M.decode(data)
-        except M.MessageError:
+            msg, _ = decode(data)
+        except MessageError:
             return []
         return [(t, s, dumps(d)) for t, s, d in self.convert(msg, log_ns)]
+
+
+def converts(key: str) -> bool:
+    """Whether the view converts messages of this key (estimates and truths)."""
+    tail = key.rsplit("/", 2)
+    return key.endswith("/estimate") or key.endswith("/truth") or (len(tail) == 3 and tail[1] == "estimate")
 
 
 def dumps(d: dict) -> bytes:
@@ -294,12 +299,13 @@ def schema_for(name: str) -> tuple[str, bytes]:
 
 def iter_json(msgs) -> Iterator[tuple[int, int, str, str, bytes]]:
     """(log_time, publish_time, topic, schema name, JSON bytes) for recorded wire messages."""
+    from ..log.series import decode_all
+
     view = FoxgloveView()
-    for m in msgs:
-        if m.encoding != "msgpack":
-            continue
-        for t, s, b in view.convert_bytes(m.topic, m.data, m.log_time):
-            yield m.log_time, m.publish_time, t, s, b
+    for m, msg in decode_all(m for m in msgs if converts(m.topic)):
+        if msg is not None:
+            for t, s, d in view.convert(msg, m.log_time):
+                yield m.log_time, m.publish_time, t, s, dumps(d)
 
 
 # --------------------------------------------------------------------------- larns export
@@ -309,7 +315,7 @@ def export(paths, output: str | Path) -> dict:
     (existing ``larns/foxglove/**`` channels are regenerated)."""
     import heapq
 
-    from .mcaputil import LogWriter, Msg, merge, read_logs
+    from ..log import LogWriter, Msg, merge, read_logs
 
     logs = read_logs(paths)
     msgs = [m for m in merge(logs) if not m.topic.startswith("larns/foxglove/")]
@@ -332,26 +338,3 @@ def export(paths, output: str | Path) -> dict:
                 w.write(m.topic, m.data, m.log_time, m.publish_time, m.encoding, schema)
     return {"output": str(output), "messages": len(msgs), "json_messages": n_json,
             "complete_inputs": all(lg.complete for lg in logs)}
-
-
-def cmd_export(args: argparse.Namespace) -> int:
-    try:
-        r = export(args.files, args.output)
-    except (OSError, ValueError) as e:
-        print(f"larns export: {e}", file=sys.stderr)
-        return 1
-    print(f"[export] {r['messages']} wire messages + {r['json_messages']} Foxglove JSON messages -> {r['output']}",
-          file=sys.stderr)
-    if args.json:
-        print(json.dumps(r))
-    return 0
-
-
-def register(sub) -> None:
-    p = sub.add_parser(
-        "export", help="add Foxglove JSON channels (3D scene, transforms, plottable errors) to a recording",
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("files", nargs="+", help="MCAP recording(s), merged by log time")
-    p.add_argument("-o", "--output", required=True, help="output .mcap (wire channels + JSON channels)")
-    p.add_argument("--json", action="store_true", help="print statistics as JSON")
-    p.set_defaults(func=cmd_export)

@@ -1,0 +1,140 @@
+"""What is in a recording (``larns info``, like ``ros2 bag info``), from its decoded series.
+
+Per file: size, whether it was finished cleanly (a SIGKILLed recording is stream-read up to the
+damage), duration, start/end, metadata (scenario, epoch, speed). Per topic: message count, rate,
+encoding, kinds. Stations and aircraft found (last state, estimator / algorithms). Loss statistics
+from the ``seq`` field (per sender and kind: a gap between two recorded sequence numbers is a
+message the recorder never got), duplicates, undecodable payloads, and latency ``log_time -
+publish_time`` (receive time minus the sender's stamp) per kind.
+"""
+
+from __future__ import annotations
+
+import math
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Sequence
+
+
+def summarize(paths: Sequence[str | Path], logs=None, rec=None) -> dict[str, Any]:
+    """Everything ``larns info`` prints, as a JSON-able dict (from the decoded series of
+    :mod:`larns.log.series`; pass ``rec`` to reuse an already decoded recording)."""
+    from ..log.reader import read_logs
+    from ..log.series import Recording
+
+    if rec is None:
+        rec = Recording.from_logs(logs if logs is not None else read_logs(paths))
+    out: dict[str, Any] = {"files": [_file_info(lg) for lg in rec.logs], "messages": len(rec.messages)}
+    if not rec.messages:
+        out.update(duration_s=0.0, topics={}, stations={}, aircraft={}, loss={}, latency_ms={})
+        return out
+    out.update(_times(rec))
+    out["topics"] = _topics(rec.net.topics)
+    out["stations"] = station_table(rec)
+    out["aircraft"] = {name: {"messages": a.messages, "algos": a.algos} for name, a in sorted(rec.aircraft.items())}
+    out["loss"], out["loss_total"] = rec.net.loss()
+    out["invalid"] = dict(rec.net.invalid)
+    out["latency_ms"] = rec.net.latency_summary()
+    return out
+
+
+def _file_info(lg) -> dict[str, Any]:
+    return {"path": str(lg.path), "bytes": lg.path.stat().st_size, "complete": lg.complete,
+            "error": lg.error, "messages": len(lg.messages), "library": lg.library, "metadata": lg.metadata}
+
+
+def _times(rec) -> dict[str, Any]:
+    """Start / end (UTC), wall and fleet duration, fleet time of the first and last message."""
+    t0, t1 = rec.messages[0].log_time, rec.messages[-1].log_time
+    tb = rec.timebase
+    dur = (t1 - t0) * 1e-9
+    out = {"start": datetime.fromtimestamp(t0 * 1e-9, timezone.utc).isoformat(),
+           "end": datetime.fromtimestamp(t1 * 1e-9, timezone.utc).isoformat(),
+           "duration_s": dur, "speed": tb.speed, "fleet_duration_s": dur * tb.speed}
+    if tb.epoch_unix_s is not None:  # fleet time (seconds since the fleet epoch) of the first and last message
+        out["fleet_start_s"] = tb.fleet_s(t0)
+        out["fleet_end_s"] = tb.fleet_s(t1)
+    return out
+
+
+def _topics(topics: dict[str, dict]) -> dict[str, dict]:
+    out = {}
+    for name, t in sorted(topics.items()):
+        t = dict(t)
+        span = (t["last_ns"] - t["first_ns"]) * 1e-9
+        t["rate_hz"] = (t["count"] - 1) / span if span > 0 and t["count"] > 1 else 0.0
+        t["kinds"] = dict(t["kinds"])
+        out[name] = t
+    return out
+
+
+def station_row(s) -> dict[str, Any]:
+    """One station's line of ``larns info`` (and the fleet's final table): last estimate, error
+    against the last truth, exchanges, clock sync against network time."""
+    from ..log.series import sigma_m
+
+    row: dict[str, Any] = {"messages": s.messages}
+    e = s.last
+    if e is not None:
+        row.update(state=e["state"], estimator=e["estimator"], n_updates=e["n_updates"], slot=e.get("slot"),
+                   dropped=e.get("dropped"), last_t_s=e["t_s"], sigma_m=float(sigma_m(e["cov_m2"])),
+                   pos_m=e["pos_m"])
+    if s.truth_m is not None:
+        row["truth_m"] = s.truth_m
+    if s.navs:
+        row.update(navs=s.navs, ranges=s.ranges)
+    if s.journal:
+        row["journal"] = True
+    if s.excludes is not None:
+        row["excludes"] = s.excludes
+    if "pos_m" in row and "truth_m" in row:
+        row["err_m"] = math.dist(row["pos_m"], row["truth_m"])
+    sync_summary(row, s.clock())
+    if s.navs:
+        row["exchanges_pct"] = 100.0 * s.ranges / s.navs  # own slots whose exchange completed
+    return row
+
+
+def station_table(rec) -> dict[int, dict]:
+    """:func:`station_row` of every station, with who excludes whom (integrity)."""
+    stations = {sid: station_row(s) for sid, s in sorted(rec.stations.items())}
+    for sid, s in stations.items():
+        by = [o for o, v in stations.items() if sid in v.get("excludes", ())]
+        if by:
+            s["excluded_by"] = by
+    return stations
+
+
+def sync_summary(s: dict, clock, after_s: float = 60.0) -> None:
+    """Clock sync error of one station (rows ``[t_s, error_ns, ...]`` of its estimate against the
+    truth of the same stamp, :meth:`StationSeries.clock`): the last (``sync_ns``), the RMS and the
+    largest magnitude after ``after_s`` fleet seconds, in ns."""
+    if len(clock) == 0:
+        return
+    s["sync_ns"] = float(clock[-1][1])
+    late = [float(e) for t, e in ((r[0], r[1]) for r in clock) if t >= after_s]
+    if late:
+        s["sync_max_ns_after_60s"] = max(abs(e) for e in late)
+        s["sync_rms_ns_after_60s"] = math.sqrt(sum(e * e for e in late) / len(late))
+
+
+def mcap_station_summary(path: str | Path, rec=None) -> dict[int, dict]:
+    """Per station from a recording alone (the fleet's final table in the tests): truth, the
+    estimate time series in log order and the final error. ``{id: {"truth_m", "t_s" (K,), "pos_m"
+    (K,3), "cov_m2" (K,3,3), "n_updates" (K,), "state", "log_time_ns" (K,), "err_m" (final),
+    "sigma_m" (final)}}``. Killed recordings work too (stream-read up to the damage)."""
+    import numpy as np
+
+    from ..log.series import load, sigma_m
+
+    rec = rec if rec is not None else load([path])
+    out: dict[int, dict] = {}
+    for sid, s in sorted(rec.stations.items()):
+        if not s.estimates:
+            continue
+        tr = np.asarray(s.truth_m if s.truth_m is not None else [np.nan] * 3, float)
+        d = s.track(order="log_time_ns")
+        out[sid] = {"truth_m": tr, **{k: d[k] for k in ("t_s", "pos_m", "cov_m2", "n_updates", "state",
+                                                        "log_time_ns")},
+                    "err_m": float(np.linalg.norm(d["pos_m"][-1] - tr)), "sigma_m": float(sigma_m(d["cov_m2"][-1]))}
+    return out

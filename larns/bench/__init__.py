@@ -1,0 +1,1 @@
+"""Benchmarks, one module per bench (``larns bench NAME``): table + JSON (+ PNG)."""

@@ -1,0 +1,110 @@
+"""`larns info run.mcap`: what is in a recording, like ``ros2 bag info`` (numbers from
+:func:`larns.analysis.summary.summarize`)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from typing import Any
+
+
+def _size(n: float) -> str:
+    for u in ("B", "KiB", "MiB", "GiB"):
+        if n < 1024 or u == "GiB":
+            return f"{n:.1f} {u}" if u != "B" else f"{int(n)} B"
+        n /= 1024
+    return str(n)
+
+
+def format_info(s: dict[str, Any]) -> str:
+    L = []
+    for f in s["files"]:
+        state = "complete" if f["complete"] else f"INCOMPLETE (stream-read up to the damage: {f['error']})"
+        L.append(f"Files:             {f['path']}  {_size(f['bytes'])}  {f['messages']} messages  {state}")
+        md = f["metadata"].get("larns", {})
+        if md:
+            L.append("Metadata:          " + ", ".join(f"{k}={v}" for k, v in sorted(md.items())))
+    L.append(f"Messages:          {s['messages']}")
+    if not s["messages"]:
+        return "\n".join(L)
+    L.append(f"Duration:          {s['duration_s']:.3f} s wall  ({s['fleet_duration_s']:.1f} s fleet time at speed "
+             f"{s['speed']:g})")
+    if "fleet_start_s" in s:
+        L.append(f"Fleet time:        {s['fleet_start_s']:.2f} s .. {s['fleet_end_s']:.2f} s since the fleet epoch")
+    L.append(f"Start:             {s['start']}")
+    L.append(f"End:               {s['end']}")
+    st = s["stations"]
+    if st:
+        L.append(f"Stations:          {len(st)}  ids {','.join(map(str, st))}")
+        L.append(f"  {'id':>5} {'state':>9} {'estimator':>9} {'updates':>7} {'sigma m':>8} {'error m':>8} "
+                 f"{'journal':>7} {'dropped':>7} {'xchg %':>7} {'sync ns':>8} {'rms60 ns':>8} {'max60 ns':>8}")
+        for sid, v in st.items():
+            L.append(f"  {sid:>5} {v.get('state', '-'):>9} {v.get('estimator', '-'):>9} {v.get('n_updates', 0):>7} "
+                     f"{v.get('sigma_m', math.nan):>8.2f} {v.get('err_m', math.nan):>8.2f} "
+                     f"{'yes' if v.get('journal') else 'no':>7} {v.get('dropped') if v.get('dropped') is not None else '-':>7} "
+                     f"{v.get('exchanges_pct', math.nan):>7.1f} {v.get('sync_ns', math.nan):>8.2f} "
+                     f"{v.get('sync_rms_ns_after_60s', math.nan):>8.2f} "
+                     f"{v.get('sync_max_ns_after_60s', math.nan):>8.2f}")
+        for sid, v in st.items():
+            if v.get("excluded_by"):
+                L.append(f"  integrity: station {sid} EXCLUDED by {','.join(map(str, v['excluded_by']))}")
+    ac = s["aircraft"]
+    L.append(f"Aircraft:          {len(ac)}" + ("  " + ", ".join(f"{k} ({', '.join(v['algos']) or 'no estimates'})"
+                                                               for k, v in ac.items()) if ac else ""))
+    L.append("Topics:")
+    w = max(len(k) for k in s["topics"])
+    for k, t in s["topics"].items():
+        kinds = ",".join(t["kinds"])
+        L.append(f"  {k:<{w}}  {t['count']:>7} msgs  {t['rate_hz']:>8.2f} Hz  {t['encoding']:<8} {kinds}")
+    L.append("Loss (sequence gaps per sender and kind):")
+    L.append(f"  {'kind':<12} {'senders':>7} {'received':>8} {'missing':>7} {'loss %':>7} {'dup':>5} "
+             f"{'reorder':>7} {'leading':>7}")
+    for k, d in s["loss"].items():
+        L.append(f"  {k:<12} {d['senders']:>7} {d['received']:>8} {d['missing']:>7} {d['loss_pct']:>7.2f} "
+                 f"{d['duplicates']:>5} {d['reordered']:>7} {d['leading']:>7}")
+    lt = s["loss_total"]
+    L.append(f"  {'total':<12} {'':>7} {lt['received']:>8} {lt['missing']:>7} {lt['loss_pct']:>7.2f} "
+             f"{lt['duplicates']:>5}")
+    if s["invalid"]:
+        L.append("Undecodable:       " + ", ".join(f"{k}: {v}" for k, v in s["invalid"].items()))
+    if s["latency_ms"]:
+        L.append("Latency (log_time - publish_time, wall ms):")
+        for k, d in s["latency_ms"].items():
+            L.append(f"  {k:<12} n={d['n']:<7} p50={d['p50']:8.2f}  p99={d['p99']:8.2f}  max={d['max']:8.2f}")
+    return "\n".join(L)
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    from larns.analysis.summary import summarize
+
+    try:
+        s = summarize(args.files)
+    except (OSError, ValueError) as e:
+        print(f"larns info: {e}", file=sys.stderr)
+        return 1
+    try:
+        if args.json:
+            print(json.dumps(s, default=str, indent=1))
+        else:
+            print(format_info(s))
+        sys.stdout.flush()
+    except BrokenPipeError:  # `larns info run.mcap | head`
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    return 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "info", help="summarize an MCAP recording (like ros2 bag info)",
+        description="Duration, message counts and rates per key, stations and aircraft found, loss "
+                    "(sequence gaps), duplicates and latency. Works on recordings that were killed "
+                    "(no summary section): the file is stream-read up to the damage.")
+    p.add_argument("files", nargs="+", help="MCAP file(s); several are merged by log time")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.set_defaults(func=cmd_info)
+
+

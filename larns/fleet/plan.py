@@ -1,0 +1,211 @@
+"""Planning a fleet: which processes to start, with which arguments, when (no process is started here).
+
+:func:`plan_fleet` turns the ``larns fleet`` arguments into a :class:`FleetPlan`: the scenario, the
+joins, one shared epoch a few seconds in the future, the Zenoh endpoints and topology, the log
+folder and one :class:`~larns.fleet.spawn.Child` per process (router, recorder, stations, aircraft).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .spawn import Child
+
+
+@dataclass
+class FleetPlan:
+    scn: Any
+    joins: list[tuple[int, float]]
+    initial: list[int]
+    epoch: float
+    margin: float
+    logdir: Path | None
+    mode: str                      # "peer" or "client"
+    seeds: list[str]
+    monitor_ep: str
+    secure: str | None = None
+    children: list[Child] = field(default_factory=list)
+
+
+def parse_joins(args: argparse.Namespace, scn) -> list[tuple[int, float]]:
+    """``--join ID@T`` plus the scenario's join stations (at ``--join-time``), before ``--duration``."""
+    joins: list[tuple[int, float]] = []
+    for spec in args.join or []:
+        sid, _, t = spec.partition("@")
+        joins.append((int(sid), float(t or 20.0)))
+    # stations marked join in the scenario join at --join-time unless given explicitly
+    for sid in scn.join_ids:
+        if sid not in [j for j, _ in joins]:
+            joins.append((sid, args.join_time))
+    if args.duration:
+        joins = [(s, t) for s, t in joins if t < args.duration]
+    for sid, _ in joins:
+        if sid not in scn.ids:
+            raise SystemExit(f"--join {sid}: no such station in scenario {scn.name} (ids {scn.ids})")
+    return joins
+
+
+def log_folder(args: argparse.Namespace) -> Path:
+    """``--logs``, else ``FILE.mcap.logs/`` next to the recording, else a temporary folder."""
+    if args.logs:
+        logdir = Path(args.logs)
+    elif args.record:
+        logdir = Path(str(args.record) + ".logs")
+    else:  # keep the children's output out of the live table
+        import tempfile
+
+        logdir = Path(tempfile.mkdtemp(prefix="larns-fleet-logs-"))
+    logdir.mkdir(parents=True, exist_ok=True)
+    return logdir
+
+
+def common_argv(args: argparse.Namespace, epoch: float) -> list[str]:
+    """Arguments every station and the aircraft get: scenario, speed, epoch, network emulation."""
+    common = ["--scenario", args.scenario, "--speed", repr(args.speed), "--epoch", repr(epoch)]
+    if args.n_stations:
+        common += ["--n-stations", str(args.n_stations)]
+    for flag, val in (("--net-delay", args.net_delay), ("--net-jitter", args.net_jitter),
+                      ("--net-loss", args.net_loss), ("--net-dup", args.net_dup)):
+        if val is not None:
+            common += [flag, repr(val)]
+    return common
+
+
+def _warn_short_slot(args: argparse.Namespace, scn) -> None:
+    wall_slot_ms = scn.tdma.slot_s / args.speed * 1e3
+    if wall_slot_ms < 5.0:
+        print(f"[fleet] warning: at --speed {args.speed:g} a {scn.tdma.slot_s*1e3:g} ms slot lasts "
+              f"{wall_slot_ms:.1f} ms of wall time; Zenoh round trips on a loaded machine may not fit "
+              f"(late replies are lost measurements)", file=sys.stderr)
+
+
+def plan_fleet(args: argparse.Namespace) -> FleetPlan:
+    """Everything :func:`larns.fleet.run.run_fleet` starts, decided before anything starts."""
+    from net import scenario as S
+    from net.bus import free_tcp_ports
+
+    over: dict[str, Any] = {}
+    if args.n_stations:
+        over["layout"] = {"n": int(args.n_stations)}
+    scn = S.load(args.scenario, **over)
+    joins = parse_joins(args, scn)
+    join_ids = {j for j, _ in joins}
+    secure = _fleet_keystore(args, scn) if getattr(args, "secure", None) else None
+    eps = [f"tcp/127.0.0.1:{p}" for p in free_tcp_ports(len(scn.ids) + (1 if args.record else 0) + 2)]
+    _warn_short_slot(args, scn)
+    margin = args.startup if args.startup is not None else 3.0 + 0.25 * len(scn.ids)
+    epoch = time.time() + margin
+    station_ep = {sid: eps[i] for i, sid in enumerate(scn.ids)}
+    # peer: seeds = the first two stations (gossip links everyone else); --connect overrides.
+    # router: every process is a client of our own router (or of the routers given with --connect)
+    mode = "client" if args.topology == "router" or getattr(args, "zenoh_mode", "peer") == "client" else "peer"
+    if mode == "client":
+        seeds = list(args.connect) if args.connect else [eps[-1]]
+    else:
+        seeds = list(args.connect) if args.connect else [station_ep[scn.ids[0]], station_ep[scn.ids[1]]]
+    p = FleetPlan(scn, joins, [i for i in scn.ids if i not in join_ids], epoch, margin, log_folder(args), mode,
+                  seeds, eps[len(scn.ids)], secure)
+    if mode == "client" and not args.connect:
+        p.children.append(_router_child(args, p, eps[-1]))
+    if args.record:
+        p.children.append(_recorder_child(args, p, eps[len(scn.ids) + 1]))
+    common = common_argv(args, epoch)
+    for sid in scn.ids:
+        p.children.append(_station_child(args, p, sid, station_ep[sid], common))
+    p.children.sort(key=lambda c: (c.name != "router", c.name != "recorder"))
+    if args.aircraft:
+        if not aircraft_available():
+            print("[fleet] --aircraft: no aircraft process in this build (python -m aircraft); skipped",
+                  file=sys.stderr)
+        else:
+            p.children.append(_aircraft_child(args, p, common))
+    return p
+
+
+def _log(p: FleetPlan, name: str) -> Path | None:
+    return p.logdir / name if p.logdir else None
+
+
+def _router_child(args: argparse.Namespace, p: FleetPlan, router_ep: str) -> Child:
+    rcmd = [sys.executable, "-m", "larns", "router", "--listen", router_ep, "-q"]
+    if p.secure:
+        rcmd += ["--secure", p.secure, "--scenario", args.scenario, "--speed", repr(args.speed)]
+    return Child("router", rcmd, _log(p, "router.log"))
+
+
+def _recorder_child(args: argparse.Namespace, p: FleetPlan, rec_ep: str) -> Child:
+    from net.bus import bus_argv
+
+    scn = p.scn
+    cmd = [sys.executable, "-m", "larns", "record", "-o", str(args.record), "-q", "--scenario", scn.name,
+           "--epoch", repr(p.epoch), "--speed", repr(args.speed),
+           "--meta", f"stations={','.join(map(str, scn.ids))}", "--meta", f"seed={scn.seed}",
+           "--meta", f"duration_s={args.duration}"]
+    cmd += bus_argv([rec_ep], p.seeds, args.zenoh_config, p.mode, p.secure)
+    return Child("recorder", cmd, _log(p, "recorder.log"))
+
+
+def _station_child(args: argparse.Namespace, p: FleetPlan, sid: int, ep: str, common: list[str]) -> Child:
+    from net.bus import bus_argv
+
+    cmd = [sys.executable, "-m", "stations", "--id", str(sid), *common, "--status-every", "10"]
+    if args.nice:
+        cmd += ["--nice", str(args.nice)]
+    if args.duration:
+        cmd += ["--duration", repr(args.duration)]
+    start_wall = 0.0
+    joins = dict(p.joins)
+    if sid in joins:
+        cmd += ["--join", "--start-at", repr(joins[sid])]
+        # spawn early enough to be up at t_join (it sleeps until then)
+        start_wall = max(0.0, p.epoch + joins[sid] / args.speed - p.margin)
+    cmd += bus_argv([ep], [s for s in p.seeds if s != ep], args.zenoh_config, p.mode, p.secure)
+    return Child(f"station {sid}", cmd, _log(p, f"station_{sid}.log"), start_wall=start_wall)
+
+
+def _aircraft_child(args: argparse.Namespace, p: FleetPlan, common: list[str]) -> Child:
+    from net.bus import bus_argv
+
+    cmd = [sys.executable, "-m", "aircraft", *common]
+    if args.duration:
+        cmd += ["--duration", repr(args.duration)]
+    cmd += bus_argv(["tcp/127.0.0.1:0"], p.seeds, args.zenoh_config, p.mode, p.secure)
+    return Child("aircraft", cmd, _log(p, "aircraft.log"))
+
+
+def aircraft_available() -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec("aircraft.__main__") is not None
+
+
+def _fleet_keystore(args: argparse.Namespace, scn) -> str:
+    """``--secure DIR`` (checked: every process's credentials must be there) or, with a bare
+    ``--secure``, a fresh temporary keystore for this scenario's stations, its aircraft, the
+    recorder, the router and the monitor."""
+    from net.security import Keystore, KeystoreError, aircraft_cn, station_cn
+
+    if args.secure != "auto":
+        ks = Keystore(args.secure)
+        need = [station_cn(i) for i in scn.ids] + ["monitor"]
+        need += ["recorder"] if args.record else []
+        need += ["router"] if args.topology == "router" and not args.connect else []
+        for cn in need:
+            ks.check_enclave(cn)
+        return str(args.secure)
+    import tempfile
+
+    from larns.commands.keys import init_keystore
+
+    root = Path(tempfile.mkdtemp(prefix="larns-keys-")) / "keys"
+    name = str(scn.aircraft.get("name", "ac1")) if isinstance(getattr(scn, "aircraft", None), dict) else "ac1"
+    init_keystore(root, list(scn.ids), [name], recorder=True)
+    print(f"[fleet] --secure: temporary keystore {root}", file=sys.stderr)
+    if not root.is_dir():
+        raise KeystoreError(f"cannot create {root}")
+    return str(root)

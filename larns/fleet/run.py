@@ -1,0 +1,77 @@
+"""`larns fleet`: plan, spawn, watch, stop - and the final table."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+
+from .monitor import Monitor, StationView, format_table
+from .plan import FleetPlan, plan_fleet
+from .spawn import spawn
+from .stop import shutdown
+from .watch import open_monitor, watch
+
+
+def _announce(args: argparse.Namespace, p: FleetPlan) -> None:
+    joins = p.joins
+    print(f"[fleet] scenario {p.scn.name}: {len(p.initial)} stations"
+          + (f" + {len(joins)} joining ({', '.join(f'{s}@{t:g}s' for s, t in joins)})" if joins else "")
+          + (f", recorder -> {args.record}" if args.record else "")
+          + f", speed {args.speed:g}, epoch in {p.margin:.1f} s"
+          + (f", logs in {p.logdir}/" if p.logdir else ""), file=sys.stderr, flush=True)
+
+
+def _final(args: argparse.Namespace, p: FleetPlan, monitor: Monitor, final: list[StationView],
+           interrupted: bool) -> int:
+    """Final table, exit codes, ``--json``; the launcher's exit code."""
+    t_f = (time.time() - p.epoch) * args.speed
+    print("\n".join([format_table(final, t_f), *monitor.aircraft_lines()]))
+    rc = {c.name: (c.proc.returncode if c.proc else None) for c in p.children}
+    bad = {k: v for k, v in rc.items() if v not in (0, None)}
+    if bad:
+        print(f"[fleet] non-zero exit codes: {bad}", file=sys.stderr)
+    if args.record:
+        print(f"[fleet] recording: {args.record}", file=sys.stderr)
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps({
+            "scenario": p.scn.name, "epoch_unix_s": p.epoch, "speed": args.speed, "duration_s": args.duration,
+            "exit_codes": rc, "stations": [dict(vars(v), err_m=v.err_m) for v in final]}, indent=2,
+            default=float))
+    return 130 if interrupted else (1 if bad else 0)
+
+
+def run_fleet(args: argparse.Namespace) -> int:
+    """Launch the fleet of ``args`` (``larns fleet``), watch it until the end or Ctrl-C, stop it."""
+    p = plan_fleet(args)
+    stop = threading.Event()
+
+    def on_signal(signum, frame):  # noqa: ARG001
+        stop.set()
+
+    old_int = signal.signal(signal.SIGINT, on_signal)
+    old_term = signal.signal(signal.SIGTERM, on_signal)
+    _announce(args, p)
+    monitor = Monitor()
+    bus = None
+    final: list[StationView] = []
+    try:
+        for c in p.children:
+            if c.start_wall == 0.0:
+                spawn(c)
+        bus = open_monitor(args, p, monitor)
+        watch(args, p, monitor, stop)
+        final = monitor.snapshot()
+    finally:
+        # stations first (they exit at --duration on their own), then the recorder, the router last
+        shutdown(p.children, wait_for_stations=not stop.is_set() and bool(args.duration))
+        if bus is not None:
+            bus.close()
+        signal.signal(signal.SIGINT, old_int)
+        signal.signal(signal.SIGTERM, old_term)
+    return _final(args, p, monitor, final, stop.is_set())

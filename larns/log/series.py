@@ -1,0 +1,305 @@
+"""A recording decoded once into typed series: the one place recorded wire messages are decoded.
+
+:func:`load` (or :meth:`Recording.from_logs`) reads one or several MCAP files (complete or killed,
+:mod:`larns.log.reader`), merges them by log time and decodes every ``msgpack`` message exactly
+once. Everything that looks at a recording - ``larns info``, ``report``, ``export``, the fleet's
+final table, the tests - reads these series, so their numbers cannot diverge:
+
+* per station (:class:`StationSeries`): estimates, truth, clock estimate against clock truth of the
+  same stamp, state, drops, nav broadcasts and completed exchanges, journal presence, integrity;
+* per aircraft (:class:`AircraftSeries`): estimates per algorithm and the truth track;
+* the network (:class:`NetworkStats`): per-topic counts, loss from sequence gaps per sender and
+  kind, duplicates, reordering, undecodable payloads and latency ``log_time - publish_time``;
+* the TDMA exchanges (range requests and which were answered) and the broadcasts' physical truth;
+* one :class:`~larns.log.timebase.Timebase` for fleet / wall / publish time.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter, defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Iterator, Sequence
+
+import numpy as np
+
+from .reader import LogFile, Msg, merge, read_logs
+from .timebase import Timebase
+
+
+def decode(data: bytes) -> tuple[dict, dict | None]:
+    """One LARNS envelope (``net.messages.decode``): ``(msg, phy)``; raises ``MessageError``."""
+    from net import messages as M
+
+    return M.decode(data)
+
+
+def decode_all(msgs: Iterable[Msg]) -> Iterator[tuple[Msg, dict | None]]:
+    """(record, decoded msg or None if not a valid LARNS envelope) for the msgpack records."""
+    from net import messages as M
+
+    for m in msgs:
+        if m.encoding != "msgpack":
+            continue
+        try:
+            msg, _ = M.decode(m.data)
+        except M.MessageError:
+            msg = None
+        yield m, msg
+
+
+def sigma_m(cov_m2) -> np.ndarray:
+    """Position sigma ``sqrt(trace P)`` of (..., 3, 3) covariances (negative traces clip to 0)."""
+    c = np.asarray(cov_m2, float)
+    return np.sqrt(np.maximum(np.trace(c[..., :3, :3], axis1=-2, axis2=-1), 0.0))
+
+
+# --------------------------------------------------------------------------- series
+
+@dataclass
+class StationSeries:
+    """One station's recorded messages, in log-time order."""
+
+    id: int
+    messages: int = 0
+    estimates: list[tuple[int, dict]] = field(default_factory=list)  # (log_time_ns, estimate msg)
+    truths: list[dict] = field(default_factory=list)                  # truth msgs
+    navs: int = 0
+    ranges: int = 0
+    journal: bool = False
+    init: dict | None = None          # the first recorded core_init record
+    excludes: list | None = None      # the peers its latest integrity decision excludes
+
+    @property
+    def last(self) -> dict | None:
+        """The last estimate in log order."""
+        return self.estimates[-1][1] if self.estimates else None
+
+    @property
+    def truth_m(self) -> list[float] | None:
+        """The last recorded true position."""
+        return self.truths[-1]["pos_m"] if self.truths else None
+
+    @property
+    def slot(self) -> int | None:
+        """The TDMA slot the station reported last (None if its estimates carry none)."""
+        for _, e in reversed(self.estimates):
+            if e.get("slot") is not None:
+                return int(e["slot"])
+        return None
+
+    def track(self, order: str = "t_s") -> dict[str, Any]:
+        """Estimates as arrays sorted by ``order`` ("t_s" or "log_time_ns"): ``t_s`` (K,), ``pos_m``
+        (K, 3), ``cov_m2`` (K, 3, 3), ``n_updates`` (K,), ``log_time_ns`` (K,), ``state`` (last)."""
+        rows = sorted(self.estimates, key=(lambda r: r[1]["t_s"]) if order == "t_s" else (lambda r: r[0]))
+        return {"t_s": np.array([e["t_s"] for _, e in rows]),
+                "pos_m": np.array([e["pos_m"] for _, e in rows], float),
+                "cov_m2": np.array([e["cov_m2"] for _, e in rows], float),
+                "n_updates": np.array([e["n_updates"] for _, e in rows]),
+                "log_time_ns": np.array([ns for ns, _ in rows]),
+                "state": rows[-1][1]["state"]}
+
+    def clock(self) -> np.ndarray:
+        """Rows ``[t_s, error_ns, sigma_ns]`` sorted by time: the estimate's ``clock_offset_s`` minus
+        the truth's ``clock_error_s`` of the same stamp (the last message of each stamp counts)."""
+        est = {e["stamp_s"]: (e["t_s"], e["clock_offset_s"], e.get("clock_offset_sd_s", 0.0))
+               for _, e in self.estimates if "clock_offset_s" in e}
+        tru = {t["stamp_s"]: t["clock_error_s"] for t in self.truths if "clock_error_s" in t}
+        rows = sorted((est[k][0], (est[k][1] - tru[k]) * 1e9, est[k][2] * 1e9) for k in est.keys() & tru.keys())
+        return np.array(rows, float).reshape(-1, 3)
+
+
+@dataclass
+class AircraftSeries:
+    """One aircraft's estimates per algorithm and its truth track, in log order."""
+
+    name: str
+    messages: int = 0
+    estimates: dict[str, list[dict]] = field(default_factory=dict)  # algo -> ac_estimate msgs
+    truths: list[dict] = field(default_factory=list)
+
+    @property
+    def algos(self) -> list[str]:
+        return sorted(self.estimates)
+
+    def track(self, algo: str) -> dict[str, np.ndarray]:
+        """One algorithm's estimates sorted by time: ``t_s`` (K,), ``pos_m`` (K, 3), ``cov_m2`` (K, 3, 3)."""
+        rows = sorted(self.estimates[algo], key=lambda r: r["t_s"])
+        return {"t_s": np.array([r["t_s"] for r in rows]), "pos_m": np.array([r["pos_m"] for r in rows], float),
+                "cov_m2": np.array([r["cov_m2"] for r in rows], float)}
+
+    def truth_track(self) -> dict[str, np.ndarray] | None:
+        """True ``t_s`` (K,), ``pos_m`` (K, 3), ``vel_m_s`` (K, 3; zeros where not recorded)."""
+        if not self.truths:
+            return None
+        rows = sorted(self.truths, key=lambda r: r["t_s"])
+        return {"t_s": np.array([r["t_s"] for r in rows]), "pos_m": np.array([r["pos_m"] for r in rows], float),
+                "vel_m_s": np.array([r.get("vel_m_s") if r.get("vel_m_s") is not None else [0.0, 0.0, 0.0]
+                                     for r in rows], float)}
+
+
+@dataclass
+class NetworkStats:
+    """What the recorder saw of the network, per topic, sender and kind."""
+
+    topics: dict[str, dict] = field(default_factory=dict)
+    seqs: dict[tuple, list[int]] = field(default_factory=lambda: defaultdict(list))  # (src, kind) -> seqs
+    latency_ms: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))
+    invalid: Counter = field(default_factory=Counter)
+
+    def count(self, m: Msg) -> dict:
+        t = self.topics.get(m.topic)
+        if t is None:
+            t = self.topics[m.topic] = {"count": 0, "bytes": 0, "encoding": m.encoding, "kinds": Counter(),
+                                        "first_ns": m.log_time, "last_ns": m.log_time}
+        t["count"] += 1
+        t["bytes"] += len(m.data)
+        t["last_ns"] = m.log_time
+        return t
+
+    def loss(self) -> tuple[dict[str, dict], dict]:
+        """Per kind and in total: received, missing (sequence gaps), duplicates, reordered, leading."""
+        loss: dict[str, dict] = {}
+        tot: Counter = Counter()
+        for (_src, kind), ss in sorted(self.seqs.items(), key=lambda kv: (str(kv[0][0]), kv[0][1])):
+            d = loss.setdefault(kind, {"senders": 0, "received": 0, "missing": 0, "duplicates": 0,
+                                       "reordered": 0, "leading": 0})
+            g = sequence_gaps(ss)
+            d["senders"] += 1
+            for k in ("received", "missing", "duplicates", "reordered", "leading"):
+                d[k] += g[k]
+            tot.update(received=g["received"], missing=g["missing"], duplicates=g["duplicates"])
+        for d in loss.values():
+            d["loss_pct"] = _pct_of(d["missing"], d["received"])
+        return loss, {**dict(tot), "loss_pct": _pct_of(tot["missing"], tot["received"])}
+
+    def latency_summary(self) -> dict[str, dict]:
+        return {k: {"n": len(v), "p50": percentile(v, 50), "p99": percentile(v, 99), "max": max(v)}
+                for k, v in sorted(self.latency_ms.items())}
+
+
+def _pct_of(missing: int, received: int) -> float:
+    n = received + missing
+    return 100.0 * missing / n if n else 0.0
+
+
+def sequence_gaps(seqs: Sequence[int]) -> dict[str, int]:
+    """Loss statistics of one sender's sequence numbers in arrival order: ``received`` (distinct),
+    ``missing`` (gaps between the first and last), ``duplicates``, ``reordered`` (steps back) and
+    ``leading`` (numbers before the first one heard, if the sender starts at 1)."""
+    uniq = sorted(set(seqs))
+    return {"received": len(uniq), "missing": uniq[-1] - uniq[0] + 1 - len(uniq),
+            "duplicates": len(seqs) - len(uniq), "reordered": sum(1 for a, b in zip(seqs, seqs[1:]) if b < a),
+            "leading": max(0, uniq[0] - 1)}
+
+
+def percentile(v: Sequence[float], q: float) -> float:
+    """The nearest-rank ``q`` percentile (NaN for no values)."""
+    if not v:
+        return math.nan
+    v = sorted(v)
+    return v[min(len(v) - 1, max(0, int(round(q / 100.0 * (len(v) - 1)))))]
+
+
+# --------------------------------------------------------------------------- the recording
+
+@dataclass
+class Recording:
+    """A recording decoded once. ``records`` keeps every msgpack record with its decoded message
+    (None if undecodable) for consumers that convert message by message (the Foxglove export)."""
+
+    logs: list[LogFile]
+    messages: list[Msg]
+    timebase: Timebase
+    stations: dict[int, StationSeries] = field(default_factory=dict)
+    aircraft: dict[str, AircraftSeries] = field(default_factory=dict)
+    net: NetworkStats = field(default_factory=NetworkStats)
+    records: list[tuple[Msg, dict | None]] = field(default_factory=list)
+    range_requests: list[tuple] = field(default_factory=list)  # (stamp_s, src, dst, seq, cycle)
+    range_replies: set = field(default_factory=set)             # (initiator, responder, req_seq)
+    nav_truth: list[tuple[float, list[float]]] = field(default_factory=list)  # (t_true_s, sender pos_m)
+    init_record: dict | None = None  # the first core_init journal record recorded (any station)
+
+    @classmethod
+    def from_logs(cls, logs: Sequence[LogFile]) -> "Recording":
+        from net import messages as M
+
+        msgs = merge(logs)
+        rec = cls(list(logs), msgs, Timebase.of(logs, msgs[0].log_time if msgs else 0))
+        for m in msgs:
+            t = rec.net.count(m)
+            if m.encoding != "msgpack":
+                t["kinds"][m.schema or m.encoding] += 1
+                continue
+            try:
+                msg, phy = M.decode(m.data)
+            except M.MessageError as e:
+                rec.net.invalid[e.reason] += 1
+                t["kinds"]["invalid"] += 1
+                rec.records.append((m, None))
+                continue
+            rec.records.append((m, msg))
+            t["kinds"][msg["kind"]] += 1
+            rec._add(m, msg, phy)
+        rec.nav_truth.sort()
+        return rec
+
+    def _add(self, m: Msg, msg: dict, phy: dict | None) -> None:
+        kind, src = msg["kind"], msg["src"]
+        self.net.seqs[(src, kind)].append(msg["seq"])
+        if m.publish_time != m.log_time:
+            self.net.latency_ms[kind].append(Timebase.latency_ms(m.log_time, m.publish_time))
+        if kind == "range_req":
+            self.range_requests.append((msg["stamp_s"], src, msg["dst"], msg["seq"], msg["cycle"]))
+        elif kind == "range_rsp":
+            self.range_replies.add((msg["dst"], src, msg["req_seq"]))
+        if isinstance(src, int):
+            self._add_station(self.stations.setdefault(src, StationSeries(src)), m, msg, phy)
+        else:
+            self._add_aircraft(self.aircraft.setdefault(src, AircraftSeries(src)), msg)
+
+    def _add_station(self, s: StationSeries, m: Msg, msg: dict, phy: dict | None) -> None:
+        s.messages += 1
+        kind = msg["kind"]
+        if kind == "estimate":
+            s.estimates.append((m.log_time, msg))
+        elif kind == "truth":
+            s.truths.append(msg)
+        elif kind == "nav":
+            s.navs += 1
+            s.ranges += len(msg["ranges"])
+            if phy is not None and msg["state"] in ("frame", "surveying"):
+                self.nav_truth.append((phy["t_true_s"], phy["pos_m"]))
+        elif kind in ("core_init", "core_input"):
+            s.journal = True
+            if kind == "core_init" and s.init is None:
+                s.init = msg["record"]
+                if self.init_record is None:
+                    self.init_record = s.init
+        elif kind == "integrity":
+            s.excludes = sorted(msg.get("excluded", []))
+
+    @staticmethod
+    def _add_aircraft(a: AircraftSeries, msg: dict) -> None:
+        a.messages += 1
+        if msg["kind"] == "ac_estimate":
+            a.estimates.setdefault(msg["algo"], []).append(msg)
+        elif msg["kind"] == "ac_truth":
+            a.truths.append(msg)
+
+    # ------------------------------------------------------------------ derived views
+
+    @property
+    def truth_positions(self) -> dict[int, list[float]]:
+        """Last true position per station that published one."""
+        return {sid: s.truth_m for sid, s in self.stations.items() if s.truth_m is not None}
+
+    @property
+    def meta(self) -> dict[str, str]:
+        return self.logs[0].larns_meta if self.logs else {}
+
+
+def load(paths: Sequence[str | Path]) -> Recording:
+    """Read and decode one or several recordings (merged by log time)."""
+    return Recording.from_logs(read_logs(paths))

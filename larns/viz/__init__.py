@@ -1,0 +1,1 @@
+"""Views of recordings: figures and the Markdown report, the Foxglove JSON view."""
