@@ -10,7 +10,7 @@ import threading
 import numpy as np
 import pytest
 
-from larns import foxglove as F
+from larns.viz import foxglove as F
 from larns.log import LogWriter, Msg, keyexpr_match, merge, parse_remaps, read_log, remap
 from larns.commands.replay import Controls, play, select_messages
 from net import messages as M

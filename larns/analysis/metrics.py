@@ -46,11 +46,13 @@ def station_numbers(track: dict, truth_m, frame: bool = False) -> dict[str, Any]
 
 
 def first_time_staying_below(grid: np.ndarray, values: np.ndarray, threshold: float) -> float | None:
-    """The first grid time from which every finite value stays below ``threshold`` (None if never)."""
-    below = np.where(np.isfinite(values) & (values < threshold))[0]
-    if below.size and np.all(values[below[0]:][np.isfinite(values[below[0]:])] < threshold):
-        return float(grid[below[0]])
-    return None
+    """The first grid time from which every finite value stays below ``threshold`` (None if the
+    last finite value is not below it). NaN (no estimate yet) neither breaks nor starts a stay."""
+    ok = np.isfinite(values)
+    above = np.where(ok & (values >= threshold))[0]
+    start = above[-1] + 1 if above.size else 0
+    below = np.where(ok[start:])[0]
+    return float(grid[start + below[0]]) if below.size else None
 
 
 def survey_convergence(tracks: dict[int, dict], truths: dict[int, Any], n_grid: int = 200

@@ -155,6 +155,110 @@ def _proc_stats(pid: int) -> tuple[float, int]:
     return cpu, rss
 
 
+def _scale_router(router_ep: str, run_s: float, router_nice: int, slice_us: float | None,
+                  secure: str | None) -> subprocess.Popen:
+    """Start the ``larns router`` of the client/router topology."""
+    router = subprocess.Popen([sys.executable, "-m", "larns.commands.router", "--listen", router_ep, "--quiet",
+                               "--duration", str(run_s), "--nice", str(router_nice)]
+                              + ([] if slice_us is None else ["--slice-us", str(slice_us)])
+                              + (["--secure", secure, "--scenario", "seed000"] if secure else []))
+    time.sleep(1.0)
+    return router
+
+
+def _scale_station_argv(sid: int, n: int, epoch: float, duration_s: float, nice: int, journal: bool,
+                        slice_us: float | None, secure: str | None, topology: str, router_ep: str,
+                        listen: str, seeds: list[str]) -> list[str]:
+    """``python -m stations`` arguments of station ``sid`` in the scale benchmark."""
+    cmd = [sys.executable, "-m", "stations", "--id", str(sid), "--scenario", "seed000",
+           "--n-stations", str(n), "--epoch", repr(epoch), "--duration", str(duration_s),
+           "--quiet", "--report-json", "--nice", str(nice)]
+    if not journal:
+        cmd += ["--no-journal"]
+    if slice_us is not None:
+        cmd += ["--slice-us", str(slice_us)]
+    if secure:  # TLS/mTLS, access control, signed messages, receive guards (docs/security.md)
+        cmd += ["--secure", secure]
+    if topology == "router":
+        return cmd + ["--zenoh-mode", "client", "--connect", router_ep]
+    cmd += ["--listen", listen]
+    for s in seeds:
+        if s != listen:
+            cmd += ["--connect", s]
+    return cmd
+
+
+def _stats_of(proc: subprocess.Popen | None):
+    return _proc_stats(proc.pid) if proc is not None and proc.poll() is None else None
+
+
+def _scale_measure(procs: list[subprocess.Popen], router: subprocess.Popen | None, epoch: float,
+                   duration_s: float) -> dict:
+    """CPU and RSS of the stations (and router) over the steady part of the run: from 5 s after the
+    epoch to 1 s before the end."""
+    time.sleep(max(0.0, epoch + 5.0 - time.time()))
+    c0 = {p.pid: _proc_stats(p.pid)[0] for p in procs if p.poll() is None}
+    r0 = _stats_of(router)
+    t_c0 = time.time()
+    time.sleep(max(0.0, epoch + duration_s - 1.0 - time.time()))
+    cpu_rss = {p.pid: _proc_stats(p.pid) for p in procs if p.poll() is None}
+    r1 = _stats_of(router)
+    dt = time.time() - t_c0
+    return {"cpu": [(cpu_rss[pid][0] - c0[pid]) / dt for pid in cpu_rss if pid in c0],
+            "rss": [cpu_rss[pid][1] for pid in cpu_rss],
+            "router_cpu_pct": float((r1[0] - r0[0]) / dt * 100) if r0 and r1 else None,
+            "router_rss_mb": float(r1[1] / 2**20) if r1 else None}
+
+
+def _scale_collect(procs: list[subprocess.Popen], router: subprocess.Popen | None, duration_s: float) -> list:
+    """Each station's final JSON report (None if it printed none); the router is stopped."""
+    reports = []
+    for p in procs:
+        out, _ = p.communicate(timeout=duration_s + 60)
+        lines = [ln for ln in (out or "").splitlines() if ln.startswith("{")]
+        reports.append(json.loads(lines[-1]) if lines else None)
+    if router is not None:
+        router.terminate()
+        try:
+            router.wait(10)
+        except subprocess.TimeoutExpired:
+            router.kill()
+    return reports
+
+
+def _median_of(ok: list[dict], q: str) -> float:
+    return float(np.median([r["range_delay_ms"][q] for r in ok if r.get("range_delay_ms")] or [float("nan")]))
+
+
+def _scale_result(n: int, duration_s: float, reports: list, m: dict) -> dict:
+    ok = [r for r in reports if r]
+    cpu, rss = m["cpu"], m["rss"]
+    return {
+        "n": n, "duration_s": duration_s, "reported": len(ok),
+        "missed_slots": int(sum(r["missed_slots"] for r in ok)),
+        "slots": int(sum(r["slots"] for r in ok)),
+        "late_replies": int(sum(r["late"] for r in ok)),
+        "requests": int(sum(r["counters"].get("requests", 0) for r in ok)),
+        "responses": int(sum(r["counters"].get("responses", 0) for r in ok)),
+        "max_lateness_ms": float(max((r["max_lateness_ms"] for r in ok), default=float("nan"))),
+        "range_delay_p50_ms": _median_of(ok, "p50"),
+        "range_delay_p99_ms": _median_of(ok, "p99"),
+        "cpu_per_proc_pct": float(np.mean(cpu) * 100) if cpu else float("nan"),
+        "cpu_total_pct": float(np.sum(cpu) * 100) if cpu else float("nan"),
+        "rss_per_proc_mb": float(np.mean(rss) / 2**20) if rss else float("nan"),
+    }
+
+
+def _scale_line(res: dict, topology: str, load0: float) -> str:
+    return (f"  {topology} N={res['n']:3d} missed={res['missed_slots']:5d}/{res['slots']:6d} "
+            f"replies {res['responses']}/{res['requests']} late={res['late_replies']} "
+            f"max_lateness={res['max_lateness_ms']:.2f} ms cpu/proc={res['cpu_per_proc_pct']:.1f}% "
+            f"rss/proc={res['rss_per_proc_mb']:.0f} MB "
+            + (f"router cpu={res['router_cpu_pct']:.1f}% " if res["router_cpu_pct"] is not None else "")
+            + f"load before={load0:.1f} "
+            f"-> {'OK' if res['ok'] else 'MISSED'}")
+
+
 def run_scale_once(n: int, duration_s: float, warmup_s: float = 4.0, quiet: bool = False,
                    nice: int = 0, topology: str = "peer", journal: bool = True, router_nice: int = 0,
                    slice_us: float | None = None, secure: str | None = None) -> dict:
@@ -172,73 +276,14 @@ def run_scale_once(n: int, duration_s: float, warmup_s: float = 4.0, quiet: bool
     load0 = os.getloadavg()[0]
     router = None
     if topology == "router":
-        router = subprocess.Popen([sys.executable, "-m", "larns.commands.router", "--listen", router_ep, "--quiet",
-                                   "--duration", str(duration_s + warmup_s + 0.5 * n + 30),
-                                   "--nice", str(router_nice)]
-                                  + ([] if slice_us is None else ["--slice-us", str(slice_us)])
-                                  + (["--secure", secure, "--scenario", "seed000"] if secure else []))
-        time.sleep(1.0)
+        router = _scale_router(router_ep, duration_s + warmup_s + 0.5 * n + 30, router_nice, slice_us, secure)
     start = time.time()
     epoch = start + warmup_s + 0.5 * n
-    procs = []
-    for k in range(n):
-        sid = k + 1
-        cmd = [sys.executable, "-m", "stations", "--id", str(sid), "--scenario", "seed000",
-               "--n-stations", str(n), "--epoch", repr(epoch), "--duration", str(duration_s),
-               "--quiet", "--report-json", "--nice", str(nice)]
-        if not journal:
-            cmd += ["--no-journal"]
-        if slice_us is not None:
-            cmd += ["--slice-us", str(slice_us)]
-        if secure:  # TLS/mTLS, access control, signed messages, receive guards (docs/security.md)
-            cmd += ["--secure", secure]
-        if topology == "router":
-            cmd += ["--zenoh-mode", "client", "--connect", router_ep]
-        else:
-            cmd += ["--listen", f"tcp/127.0.0.1:{ports[k]}"]
-            for s in seeds:
-                if s != f"tcp/127.0.0.1:{ports[k]}":
-                    cmd += ["--connect", s]
-        procs.append(subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True))
-    # CPU measured over the steady part only
-    time.sleep(max(0.0, epoch + 5.0 - time.time()))
-    c0 = {p.pid: _proc_stats(p.pid)[0] for p in procs if p.poll() is None}
-    r0 = _proc_stats(router.pid) if router is not None and router.poll() is None else None
-    t_c0 = time.time()
-    time.sleep(max(0.0, epoch + duration_s - 1.0 - time.time()))
-    cpu_rss = {p.pid: _proc_stats(p.pid) for p in procs if p.poll() is None}
-    r1 = _proc_stats(router.pid) if router is not None and router.poll() is None else None
-    t_c1 = time.time()
-    reports = []
-    for p in procs:
-        out, _ = p.communicate(timeout=duration_s + 60)
-        lines = [ln for ln in (out or "").splitlines() if ln.startswith("{")]
-        reports.append(json.loads(lines[-1]) if lines else None)
-    if router is not None:
-        router.terminate()
-        try:
-            router.wait(10)
-        except subprocess.TimeoutExpired:
-            router.kill()
-    ok = [r for r in reports if r]
-    cpu = [(cpu_rss[pid][0] - c0[pid]) / (t_c1 - t_c0) for pid in cpu_rss if pid in c0]
-    rss = [cpu_rss[pid][1] for pid in cpu_rss]
-    res = {
-        "n": n, "duration_s": duration_s, "reported": len(ok),
-        "missed_slots": int(sum(r["missed_slots"] for r in ok)),
-        "slots": int(sum(r["slots"] for r in ok)),
-        "late_replies": int(sum(r["late"] for r in ok)),
-        "requests": int(sum(r["counters"].get("requests", 0) for r in ok)),
-        "responses": int(sum(r["counters"].get("responses", 0) for r in ok)),
-        "max_lateness_ms": float(max((r["max_lateness_ms"] for r in ok), default=float("nan"))),
-        "range_delay_p50_ms": float(np.median([r["range_delay_ms"]["p50"] for r in ok if r.get("range_delay_ms")]
-                                              or [float("nan")])),
-        "range_delay_p99_ms": float(np.median([r["range_delay_ms"]["p99"] for r in ok if r.get("range_delay_ms")]
-                                              or [float("nan")])),
-        "cpu_per_proc_pct": float(np.mean(cpu) * 100) if cpu else float("nan"),
-        "cpu_total_pct": float(np.sum(cpu) * 100) if cpu else float("nan"),
-        "rss_per_proc_mb": float(np.mean(rss) / 2**20) if rss else float("nan"),
-    }
+    procs = [subprocess.Popen(_scale_station_argv(k + 1, n, epoch, duration_s, nice, journal, slice_us, secure,
+                                                  topology, router_ep, f"tcp/127.0.0.1:{ports[k]}", seeds),
+                              stdout=subprocess.PIPE, text=True) for k in range(n)]
+    m = _scale_measure(procs, router, epoch, duration_s)  # CPU measured over the steady part only
+    res = _scale_result(n, duration_s, _scale_collect(procs, router, duration_s), m)
     res["loadavg_1min_before"] = load0
     res["loadavg_1min_after"] = os.getloadavg()[0]
     res["nice"] = nice
@@ -246,18 +291,11 @@ def run_scale_once(n: int, duration_s: float, warmup_s: float = 4.0, quiet: bool
     res["router_nice"] = router_nice if topology == "router" else None
     res["journal"] = journal
     res["slice_us"] = slice_us
-    res["router_cpu_pct"] = (float((r1[0] - r0[0]) / (t_c1 - t_c0) * 100) if r0 and r1 else None)
-    res["router_rss_mb"] = float(r1[1] / 2**20) if r1 else None
+    res["router_cpu_pct"] = m["router_cpu_pct"]
+    res["router_rss_mb"] = m["router_rss_mb"]
     res["ok"] = bool(res["reported"] == n and res["missed_slots"] == 0)
     if not quiet:
-        print(f"  {topology} N={n:3d} missed={res['missed_slots']:5d}/{res['slots']:6d} "
-              f"replies {res['responses']}/{res['requests']} late={res['late_replies']} "
-              f"max_lateness={res['max_lateness_ms']:.2f} ms cpu/proc={res['cpu_per_proc_pct']:.1f}% "
-              f"rss/proc={res['rss_per_proc_mb']:.0f} MB "
-              + (f"router cpu={res['router_cpu_pct']:.1f}% " if res["router_cpu_pct"] is not None else "")
-              + f"load before={load0:.1f} "
-              f"-> {'OK' if res['ok'] else 'MISSED'}",
-              flush=True)
+        print(_scale_line(res, topology, load0), flush=True)
     return res
 
 
