@@ -24,6 +24,7 @@ COMMANDS: list[str] = [
     "larns.commands.crlb",
     "larns.commands.info",
     "larns.commands.replay",
+    "larns.commands.reestimate",
     "larns.commands.recover",
     "larns.commands.export",
     "larns.commands.report",

@@ -174,21 +174,12 @@ def test_hot_join_converges_without_disturbing(tmp_path, spawn):
     assert sorted(summary) == [1, 2, 3, 4, 5, 6, 7]
     j = summary[7]
     # the joiner's first estimate comes after the join time (fleet clock, epoch from the file)
-    from mcap.reader import make_reader
-    with open(out, "rb") as f:
-        rd = make_reader(f)
-        md = {m.name: m.metadata for m in rd.iter_metadata()}["larns"]
-        navs7 = []
-        members_with_7 = 0
-        from net import messages as M
-        for _s, ch, m in rd.iter_messages(topics=[f"larns/station/{i}/nav" for i in range(1, 8)]):
-            msg, _ = M.decode(m.data)
-            if msg["src"] == 7:
-                navs7.append(m.log_time)
-            elif 7 in msg["members"]:
-                members_with_7 += 1
-    epoch, speed = float(md["epoch_unix_s"]), float(md["speed"])
-    fleet_t = lambda ns: (ns / 1e9 - epoch) * speed  # noqa: E731
+    from larns.log.series import load
+
+    rec = load([out])
+    navs7 = [ns for ns, _ in rec.stations[7].nav]
+    members_with_7 = sum(1 for sid, st in rec.stations.items() if sid != 7 for _, n in st.nav if 7 in n["members"])
+    fleet_t = rec.timebase.fleet_s
     assert fleet_t(j["log_time_ns"][0]) >= t_join - 0.1
     assert navs7 and members_with_7 > 0          # it took a slot and others added it to their rotation
     assert j["state"] == "surveying"

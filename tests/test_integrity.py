@@ -219,7 +219,7 @@ def test_station_chi_square_false_alarm_rate_on_clean_data():
 
 def test_info_shows_a_station_excluded_by_its_neighbours(tmp_path):
     from larns.analysis.summary import summarize
-from larns.commands.info import format_info
+    from larns.commands.info import format_info
     from larns.log import LogWriter
 
     p = tmp_path / "i.mcap"

@@ -2,7 +2,7 @@
 
 A recorder killed with SIGKILL (or a full disk, or a power cut) leaves an MCAP file without its
 summary section, footer and trailing magic, possibly ending inside a chunk. ``recover`` stream-reads
-every complete record before the damage (``larns.mcaputil.read_log``) and writes them to a new,
+every complete record before the damage (``larns.log.read_log``) and writes them to a new,
 chunked, indexed file with a summary: schemas, channels (topics and encodings kept), metadata and
 every message with its log time, publish time and sequence number. The indexed reader
 (``mcap.reader.make_reader(...).get_summary()``) and every MCAP tool open the result.

@@ -329,8 +329,17 @@ def register(sub) -> None:
     p.add_argument("--wait-for", default=None, metavar="KEYEXPR",
                    help="wait for a liveliness token, e.g. larns/alive/aircraft/*")
     p.add_argument("--wait-timeout", type=float, default=30.0, help="seconds to wait for --wait-for")
-    g = p.add_argument_group("offline re-estimation (no Zenoh, no sleeping)")
+    g = p.add_argument_group("offline re-estimation (no Zenoh, no sleeping; also `larns reestimate`)")
     g.add_argument("--offline", action="store_true", help="re-run the estimators on the recorded inputs")
+    add_offline_args(g)
+    p.add_argument("--json", action="store_true", help="print statistics as JSON")
+    p.add_argument("-q", "--quiet", action="store_true")
+    add_bus_args(p)
+    p.set_defaults(func=cmd_replay)
+
+
+def add_offline_args(g) -> None:
+    """The options of offline re-estimation (``replay --offline`` and ``reestimate``)."""
     g.add_argument("-o", "--output", default=None, help="write the re-estimated recording here (.mcap)")
     g.add_argument("--estimator", default=None, help="survey estimator for the stations (dmap, seed-ukf); "
                                                      "default: the recorded one")
@@ -342,7 +351,3 @@ def register(sub) -> None:
     g.add_argument("--fast", action="store_true", help="skip strict validation of the journal payloads")
     g.add_argument("--check", action="store_true",
                    help="exit 3 unless every re-estimated station reproduces its recorded estimates bit for bit")
-    p.add_argument("--json", action="store_true", help="print statistics as JSON")
-    p.add_argument("-q", "--quiet", action="store_true")
-    add_bus_args(p)
-    p.set_defaults(func=cmd_replay)

@@ -53,7 +53,7 @@ class McapSink:
         md.update({k: str(v) for k, v in (metadata or {}).items()})
         self.writer.add_metadata("larns", md)
         self.finished = False
-        # Foxglove view (larns/foxglove.py): JSON channels next to the wire channels
+        # Foxglove view (larns/viz/foxglove.py): JSON channels next to the wire channels
         self.fox = None
         self.json_channels: dict[str, int] = {}
         self.json_schemas: dict[str, int] = {}

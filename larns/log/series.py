@@ -67,6 +67,7 @@ class StationSeries:
     truths: list[dict] = field(default_factory=list)                  # truth msgs
     navs: int = 0
     ranges: int = 0
+    nav: list[tuple[int, dict]] = field(default_factory=list)       # (log_time_ns, nav broadcast)
     journal: bool = False
     init: dict | None = None          # the first recorded core_init record
     excludes: list | None = None      # the peers its latest integrity decision excludes
@@ -88,6 +89,11 @@ class StationSeries:
             if e.get("slot") is not None:
                 return int(e["slot"])
         return None
+
+    def drops(self) -> tuple[np.ndarray, np.ndarray]:
+        """The station's drop counter (``dropped`` on its estimates) over time: ``(t_s, dropped)``."""
+        rows = [(e["t_s"], e["dropped"]) for _, e in self.estimates if e.get("dropped") is not None]
+        return np.array([r[0] for r in rows], float), np.array([r[1] for r in rows], int)
 
     def track(self, order: str = "t_s") -> dict[str, Any]:
         """Estimates as arrays sorted by ``order`` ("t_s" or "log_time_ns"): ``t_s`` (K,), ``pos_m``
@@ -267,6 +273,7 @@ class Recording:
         elif kind == "truth":
             s.truths.append(msg)
         elif kind == "nav":
+            s.nav.append((m.log_time, msg))
             s.navs += 1
             s.ranges += len(msg["ranges"])
             if phy is not None and msg["state"] in ("frame", "surveying"):
