@@ -180,5 +180,5 @@ def aircraft_pcrb(truth: dict, navs: Sequence[tuple[float, Any]], tuning) -> tup
                                                        tuning.q_acc_z)) if dt > 0 else (None, None)
         P = pcrb_step(P, H.T @ H / tuning.sigma_m**2, F, Q)
         ts.append(t)
-        out.append(np.sqrt(max(np.trace(P[:3, :3]), 0.0)))
+        out.append(sigma_m(P))
     return np.array(ts), np.array(out)

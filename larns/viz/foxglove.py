@@ -186,11 +186,13 @@ def _tf(ns: int, child: str, pos) -> dict[str, Any]:
 def _numbers(pos, cov, truth) -> dict[str, float]:
     pos = np.asarray(pos, float)
     C = np.asarray(cov, float)
+    from ..log.series import sigma_m
+
     var = np.maximum(np.diag(C), 0.0)
+    sig = float(sigma_m(C))
     out = {"x_m": _f(pos[0]), "y_m": _f(pos[1]), "z_m": _f(pos[2]),
            "sigma_x_m": _f(math.sqrt(var[0])), "sigma_y_m": _f(math.sqrt(var[1])),
-           "sigma_z_m": _f(math.sqrt(var[2])), "sigma_m": _f(math.sqrt(var.sum())),
-           "bound3_m": _f(N_SIGMA * math.sqrt(var.sum()))}
+           "sigma_z_m": _f(math.sqrt(var[2])), "sigma_m": _f(sig), "bound3_m": _f(N_SIGMA * sig)}
     if truth is not None:
         e = pos - np.asarray(truth, float)
         if np.all(np.isfinite(e)):
