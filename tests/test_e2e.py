@@ -179,7 +179,7 @@ def test_hot_join_converges_without_disturbing(tmp_path, spawn):
     rec = load([out])
     navs7 = [ns for ns, _ in rec.stations[7].nav]
     members_with_7 = sum(1 for sid, st in rec.stations.items() if sid != 7 for _, n in st.nav if 7 in n["members"])
-    fleet_t = rec.timebase.fleet_s
+    fleet_t, speed = rec.timebase.fleet_s, rec.timebase.speed
     assert fleet_t(j["log_time_ns"][0]) >= t_join - 0.1
     assert navs7 and members_with_7 > 0          # it took a slot and others added it to their rotation
     assert j["state"] == "surveying"
