@@ -12,7 +12,7 @@ import pytest
 
 from larns.viz import foxglove as F
 from larns.log import LogWriter, Msg, keyexpr_match, merge, parse_remaps, read_log, remap
-from larns.commands.replay import Controls, play, select_messages
+from larns.log.player import Controls, play, select_messages
 from net import messages as M
 
 
@@ -112,7 +112,7 @@ def _write(path, msgs, md=None):
 def test_tolerant_reading_of_truncated_files_and_recover(tmp_path):
     from mcap.reader import make_reader
 
-    from larns.commands.recover import recover
+    from larns.log.recover import recover
 
     msgs = _msgs(400)
     full = tmp_path / "full.mcap"

@@ -31,15 +31,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import select
 import sys
-import threading
 import time
-from dataclasses import dataclass
-from typing import Sequence
 
-from ..log import Msg, merge, parse_remaps, read_logs, remap
+from ..log import merge, parse_remaps, read_logs
+from ..log.player import Controls, Keyboard, play, select_messages  # noqa: F401  (old import path)
 
 
 # --------------------------------------------------------------------------- selection
@@ -51,164 +47,6 @@ def _warn_incomplete(logs, tag: str, verb: str) -> None:
             print(f"[{tag}] {lg.path}: incomplete recording ({lg.error}); {verb} the "
                   f"{len(lg.messages)} messages before the damage", file=sys.stderr)
 
-
-def select_messages(msgs: Sequence[Msg], topics: Sequence[str] | None = None, exclude: Sequence[str] | None = None,
-                    start_offset_s: float = 0.0, until_s: float | None = None) -> list[Msg]:
-    """Wire messages (msgpack) matching the globs, inside ``[start + offset, start + until]``;
-    offsets in seconds of log time from the first message of the recording."""
-    from ..log import topic_selected
-
-    if not msgs:
-        return []
-    t0 = msgs[0].log_time
-    lo = t0 + int(start_offset_s * 1e9)
-    hi = t0 + int(until_s * 1e9) if until_s is not None else None
-    return [m for m in msgs if m.encoding == "msgpack" and m.log_time >= lo and (hi is None or m.log_time <= hi)
-            and topic_selected(m.topic, topics, exclude)]
-
-
-# --------------------------------------------------------------------------- keyboard
-
-class Controls:
-    """Pause / step / quit state; fed by the keyboard thread (or by tests)."""
-
-    def __init__(self, paused: bool = False):
-        self.paused = paused
-        self.steps = 0
-        self.quit = False
-        self.cv = threading.Condition()
-
-    def key(self, ch: str) -> None:
-        with self.cv:
-            if ch == " ":
-                self.paused = not self.paused
-            elif ch in ("s", "S") and self.paused:
-                self.steps += 1
-            elif ch in ("q", "Q", "\x03"):
-                self.quit = True
-            self.cv.notify_all()
-
-
-class Keyboard:
-    """Reads single keys from a TTY stdin in cbreak mode (restored on exit). No-op otherwise."""
-
-    def __init__(self, controls: Controls, stream=None):
-        self.c = controls
-        self.stream = stream or sys.stdin
-        self.enabled = hasattr(self.stream, "isatty") and self.stream.isatty() and self._foreground()
-        self._old = None
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-
-    def _foreground(self) -> bool:
-        """Only a foreground job may change the terminal (a background one would get SIGTTOU)."""
-        try:
-            return os.tcgetpgrp(self.stream.fileno()) == os.getpgrp()
-        except OSError:  # not our controlling terminal: no job control applies
-            return True
-
-    def __enter__(self) -> "Keyboard":
-        if self.enabled:
-            import termios
-            import tty
-
-            fd = self.stream.fileno()
-            self._old = termios.tcgetattr(fd)
-            tty.setcbreak(fd)
-            self._thread = threading.Thread(target=self._loop, daemon=True)
-            self._thread.start()
-        return self
-
-    def _loop(self) -> None:
-        fd = self.stream.fileno()
-        while not self._stop.is_set():
-            r, _, _ = select.select([fd], [], [], 0.1)
-            if r:
-                ch = os.read(fd, 1).decode(errors="ignore")
-                if ch:
-                    self.c.key(ch)
-
-    def __exit__(self, *exc) -> None:
-        self._stop.set()
-        if self._thread:
-            self._thread.join(1.0)
-        if self._old is not None:
-            import termios
-
-            termios.tcsetattr(self.stream.fileno(), termios.TCSADRAIN, self._old)
-
-
-# --------------------------------------------------------------------------- player
-
-@dataclass
-class PlayStats:
-    published: int = 0
-    loops: int = 0
-    wall_s: float = 0.0
-    max_lag_ms: float = 0.0
-
-
-def _wait_due(offset_ns: int, rate: float, c: Controls, clock, sleep, base_ref: list, st: PlayStats) -> bool:
-    """Block until the message at ``offset_ns`` is due (or stepped while paused). Pauses shift the
-    schedule (``base_ref[0]``). Returns False on quit."""
-    while True:
-        with c.cv:
-            if c.quit:
-                return False
-            if c.paused:
-                if c.steps > 0:
-                    c.steps -= 1
-                    return True
-                t_p = clock()
-                c.cv.wait(0.05)
-                base_ref[0] += clock() - t_p
-                continue
-        due = base_ref[0] + offset_ns * 1e-9 / rate
-        dt = due - clock()
-        if dt <= 0:
-            st.max_lag_ms = max(st.max_lag_ms, -dt * 1e3)
-            return True
-        sleep(min(dt, 0.05))
-
-
-def play(msgs: Sequence[Msg], publish, rate: float = 1.0, loop: bool = False, remaps=(),
-         controls: Controls | None = None, progress: bool = True, clock=time.monotonic,
-         sleep=time.sleep) -> PlayStats:
-    """Publish ``msgs`` with their recorded timing: ``publish(key, data)`` at
-    ``wall_start + (log_time - first) / rate``. Pauses shift the schedule."""
-    if rate <= 0:
-        raise ValueError("--rate must be > 0")
-    c = controls or Controls()
-    st = PlayStats()
-    t_start = clock()
-    while True:
-        if not msgs:
-            break
-        first = msgs[0].log_time
-        bar = None
-        if progress:
-            from ..bench.progress import Progress
-
-            bar = Progress(len(msgs), f"replay{' loop %d' % (st.loops + 1) if loop else ''}")
-        base = clock()
-        for m in msgs:
-            if not _wait_due(m.log_time - first, rate, c, clock, sleep, base_ref := [base], st):
-                break
-            base = base_ref[0]
-            publish(remap(m.topic, remaps) if remaps else m.topic, m.data)
-            st.published += 1
-            if bar:
-                bar.update(1)
-        if bar:
-            bar.close()
-        st.loops += 1
-        if c.quit or not loop:
-            break
-    st.wall_s = clock() - t_start
-    return st
-
-
-# --------------------------------------------------------------------------- commands
 
 def _wait_for(bus, keyexpr: str, timeout_s: float) -> bool:
     t_end = time.monotonic() + timeout_s
