@@ -157,14 +157,16 @@ def simulate(case: TriadCase, progress=None) -> TriadResult:
     pn_true, _, _ = to_network_frame(g_true, z_ref=min(3, len(g_true) - 1))
     tidx = np.asarray(case.tie_idx, dtype=int)
     lat_t, lon_t, h_t = frame.to_geodetic(g_true[tidx])
+    # survey errors are drawn whatever the tie mode, so a perfect tie sees the same world otherwise
+    pn_err = case.sigma_n_m * rng.standard_normal((M,) + pn_true.shape)
+    geo_err = np.asarray(case.sigma_tie_m) * rng.standard_normal((M, tidx.size, 3))
     ties = []
     for m in range(M):
         if case.tie == "perfect":
             ties.append(ft.perfect(g_true))
             continue
-        pn = pn_true + case.sigma_n_m * rng.standard_normal(pn_true.shape)
-        surveyed = frame.from_geodetic(lat_t, lon_t, h_t) + np.asarray(case.sigma_tie_m) * rng.standard_normal((tidx.size, 3))
-        ties.append(ft.tie(pn, case.sigma_n_m, tidx, surveyed, np.asarray(case.sigma_tie_m)))
+        surveyed = frame.from_geodetic(lat_t, lon_t, h_t) + geo_err[m]
+        ties.append(ft.tie(pn_true + pn_err[m], case.sigma_n_m, tidx, surveyed, np.asarray(case.sigma_tie_m)))
     if case.pcrb:
         ties.append(ft.FieldTie(g_true, ties[0].cov_m2, np.eye(3), np.zeros(3)))
     tie_all = ft.stack(ties).subset(gidx)

@@ -17,6 +17,7 @@ BENCHES: list[str] = [
     "larns.bench_ins",
     "larns.bench_integrity",
     "larns.bench_vehicle",
+    "larns.bench_triad",
 ]
 
 
