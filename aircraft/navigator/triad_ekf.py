@@ -351,13 +351,14 @@ def levelled_attitude(f_b_mean: np.ndarray, v_m_s: np.ndarray) -> np.ndarray:
 
 
 def start_from_window(tn: InsTuning, x: np.ndarray, cov: np.ndarray, f_b_mean: np.ndarray, cost: np.ndarray,
-                      dof: int) -> TriadStart:
+                      dof: int, level_floor_rad: float = 2e-5) -> TriadStart:
     """Our filter's start from :func:`window_fix` and :func:`levelled_attitude`.
 
-    Prior: the fix's ``[p, v, b, d]`` covariance (with its cross terms); level attitude error
-    ``sqrt(turn_on_a^2 + sigma_gm_a^2) / g`` per horizontal axis (an accelerometer bias tilts the
-    levelling; kept uncorrelated with the bias: conservative), heading ``sigma_v_cross / speed``;
-    biases, baro bias from the tuning."""
+    Prior: the fix's ``[p, v, b, d]`` covariance (with its cross terms); the level attitude error is
+    the one the accelerometer biases leave in the levelling, ``phi = A C^ (dba + dbac)`` with
+    ``A = [[0, -1/g, 0], [1/g, 0, 0], [0, 0, 0]]`` (so ``-[f_n x] phi - C^ db`` has no horizontal part),
+    carried with its correlation to the biases, plus a floor ``level_floor_rad``; heading
+    ``sigma_v_cross / speed``; biases and baro bias from the tuning."""
     L = TRIAD_LAYOUT
     M = x.shape[0]
     v = x[:, 3:6]
@@ -365,15 +366,19 @@ def start_from_window(tn: InsTuning, x: np.ndarray, cov: np.ndarray, f_b_mean: n
     P0 = np.broadcast_to(initial_covariance(L, tn, np.zeros(2), 1.0), (M, L.n, L.n)).copy()
     idx = np.r_[0:3, 3:6, L.CLK.start, L.CLK.start + 1]
     P0[:, idx[:, None], idx[None, :]] = cov
-    sig_level = np.hypot(tn.turn_on_a, tn.sigma_gm_a) / G0_M_S2
     speed = np.linalg.norm(v[:, :2], axis=-1)
     cross = np.stack([-v[:, 1], v[:, 0], np.zeros(M)], axis=-1) / np.maximum(speed, 1.0)[:, None]
     var_cross = np.einsum("mi,mij,mj->m", cross, cov[:, 3:6, 3:6], cross)
     sig_yaw = np.sqrt(var_cross) / np.maximum(speed, 1.0)
-    P0[:, L.ATT, L.ATT] = 0.0
-    P0[:, 0 + 6, 0 + 6] = sig_level**2
-    P0[:, 1 + 6, 1 + 6] = sig_level**2
-    P0[:, 2 + 6, 2 + 6] = np.maximum(sig_yaw, 1e-4) ** 2
+    A = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 0.0]]) / G0_M_S2
+    J = A @ C  # (M, 3, 3): phi = J (dba + dbac)
+    Sa, Sc = tn.sigma_gm_a**2 * np.eye(3), tn.turn_on_a**2 * np.eye(3)
+    P0[:, L.ATT, L.ATT] = J @ (Sa + Sc) @ np.swapaxes(J, -1, -2) + level_floor_rad**2 * np.diag([1.0, 1.0, 0.0])
+    P0[:, 8, 8] += np.maximum(sig_yaw, 1e-4) ** 2
+    P0[:, L.ATT, L.BA] = J @ Sa
+    P0[:, L.BA, L.ATT] = np.swapaxes(J @ Sa, -1, -2)
+    P0[:, L.ATT, L.BAC] = J @ Sc
+    P0[:, L.BAC, L.ATT] = np.swapaxes(J @ Sc, -1, -2)
     return TriadStart(x[:, :3], v, C, x[:, 6:8], P0, cov, cost, dof)
 
 
