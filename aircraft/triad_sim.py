@@ -78,6 +78,7 @@ class TriadCase:
     clock: wclock.ClockModel = field(default_factory=wclock.ClockModel)
     paper: PaperTuning = field(default_factory=PaperTuning)
     use_baro: bool = True
+    station_states: bool = True  # our filter estimates the ranged stations' tie errors (else: white)
     pcrb: bool = True
     paper_filter: bool = True
 
@@ -168,7 +169,7 @@ def simulate(case: TriadCase, progress=None) -> TriadResult:
         surveyed = frame.from_geodetic(lat_t, lon_t, h_t) + geo_err[m]
         ties.append(ft.tie(pn_true + pn_err[m], case.sigma_n_m, tidx, surveyed, np.asarray(case.sigma_tie_m)))
     if case.pcrb:
-        ties.append(ft.FieldTie(g_true, ties[0].cov_m2, np.eye(3), np.zeros(3)))
+        ties.append(ft.FieldTie(g_true, ties[0].cov_m2, np.eye(3), np.zeros(3), ties[0].cov_full_m2))
     tie_all = ft.stack(ties).subset(gidx)
     # --- world: baro, IMU ------------------------------------------------------------------------
     baro = wbaro.sample(case.baro, p_tr[:, 2] + frame.h_m, t_ep, M, rng)
@@ -196,7 +197,8 @@ def simulate(case: TriadCase, progress=None) -> TriadResult:
                                sigma_baro_m=case.baro.sigma_m, sigma_baro_bias_m=case.baro.sigma_bias_m,
                                tc_baro_s=case.baro.tc_s, max_prop_s=1.0)
     st = start_from_window(tn, x, cov, f_mean, cost, 0)
-    ekf = TriadEkf(tn, alm, frame, st.p, st.v, st.C, st.clk, st.P0, case.sigma_sat_m, case.mask_deg, T0 + W)
+    ekf = TriadEkf(tn, alm, frame, st.p, st.v, st.C, st.clk, st.P0, case.sigma_sat_m, case.mask_deg, T0 + W,
+                   stations=tie_all if case.station_states else None)
     paper = None
     if case.paper_filter:
         paper = PaperFilter(tn, case.paper, alm, frame, st.p, st.v, st.C, st.clk, paper_p0(st.P_pvc, case.paper, tn),

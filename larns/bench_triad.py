@@ -43,6 +43,8 @@ def register(sub) -> None:
     p.add_argument("--imu", default="navigation", help="IMU preset (navigation, tactical, adis16480)")
     p.add_argument("--seed", type=int, default=2)
     p.add_argument("--quick", action="store_true", help="smoke test: 10 runs, durations / 5, a small sweep")
+    p.add_argument("--cases", nargs="+", choices=list(CASES), default=list(CASES),
+                   help="cases to run (default all; the 2sv -> 2sv2gs ratio needs 4sv, 2sv and 2sv2gs)")
     p.add_argument("--no-sweep", action="store_true")
     p.add_argument("--no-tie-cost", action="store_true")
     p.add_argument("--json", metavar="FILE")
@@ -114,54 +116,44 @@ def run(args) -> int:
     curves = {}
     results = {}
     for name, (nsv, gs, dur) in CASES.items():
+        if name not in args.cases:
+            continue
         r = simulate(TriadCase(name=name, n_sv=nsv, gs_idx=gs, duration_s=dur * scale, runs=runs, seed=args.seed,
                                imu=args.imu), progress=_progress)
         w = r.t_s > r.t_s[-1] - WINDOW_S * scale
         doc["cases"][name] = _summary(r, w, hi)
         results[name] = r
         curves[name] = r
-    # the 2 sv -> 2 sv + 2 gs ratio on the same window (the 2 sv run is longer)
-    t_end = CASES["2sv2gs"][2] * scale
-    same = lambda r: (r.t_s > t_end - WINDOW_S * scale) & (r.t_s <= t_end)  # noqa: E731
-    rms_2sv_same = _rms(results["2sv"].rms_radial()[same(results["2sv"])])
-    rms_4sv_same = _rms(results["4sv"].rms_radial()[same(results["4sv"])])
-    doc["rms_2sv_at_2sv2gs_window_m"] = rms_2sv_same
-    doc["rms_4sv_at_2sv2gs_window_m"] = rms_4sv_same
-    doc["improvement_2sv_to_2sv2gs"] = rms_2sv_same / doc["cases"]["2sv2gs"]["rms_radial_m"]
-    p2 = _rms(results["2sv"].rms_radial(results["2sv"].err_paper_m)[same(results["2sv"])])
-    doc["paper_filter_improvement_2sv_to_2sv2gs"] = p2 / doc["cases"]["2sv2gs"]["paper_filter_rms_radial_m"]
     doc["rms_radial_m"] = {k: v["rms_radial_m"] for k, v in doc["cases"].items()}
     doc["paper_filter"] = {k: v["paper_filter_rms_radial_m"] for k, v in doc["cases"].items()}
     doc["pcrb_m"] = {k: v["pcrb_m"] for k, v in doc["cases"].items()}
+    t_end = CASES["2sv2gs"][2] * scale
+    same = lambda r: (r.t_s > t_end - WINDOW_S * scale) & (r.t_s <= t_end)  # noqa: E731
+    if {"4sv", "2sv", "2sv2gs"} <= set(results):
+        _ratio(doc, results, same)
     # tie cost --------------------------------------------------------------------------------------
     if not args.no_tie_cost:
         doc["tie_cost"] = {}
         for name in ("4gs", "2sv2gs"):
+            if name not in results:
+                continue
             nsv, gs, dur = CASES[name]
-            r = simulate(TriadCase(name=name + " perfect tie", n_sv=nsv, gs_idx=gs, duration_s=dur * scale, runs=runs,
-                                   seed=args.seed, imu=args.imu, tie="perfect", paper_filter=False), progress=_progress)
-            w = r.t_s > r.t_s[-1] - WINDOW_S * scale
-            s = _summary(r, w, hi)
-            doc["tie_cost"][name] = {"survey_tie_m": doc["cases"][name]["rms_radial_m"], "perfect_tie_m": s["rms_radial_m"],
-                                     "ratio": doc["cases"][name]["rms_radial_m"] / s["rms_radial_m"],
-                                     "perfect_mean_nees": s["mean_nees"]}
-    # sweep -----------------------------------------------------------------------------------------
-    if not args.no_sweep:
-        sr = 6 if args.quick else args.sweep_runs
-        sizes = (30e3,) if args.quick else (10e3, 30e3, 100e3)
-        doc["sweep"] = {"runs": sr, "duration_s": 500.0 * scale, "n_sv": 2, "reference_4sv_m": rms_4sv_same,
-                        "rows": []}
-        for label, D, st in sweep_layouts(sizes):
-            k = len(st)
-            field = np.vstack([st, DEFAULT_STATIONS_M])  # the ranged stations first; the default corners tie the field
-            r = simulate(TriadCase(name=f"2sv + {label} D={D / 1e3:g} km", n_sv=2, gs_idx=tuple(range(k)),
-                                   duration_s=500.0 * scale, runs=sr, seed=args.seed + 7, imu=args.imu,
-                                   stations_m=field, tie_idx=(k, k + 1, k + 2), paper_filter=False), progress=_progress)
-            w = r.t_s > r.t_s[-1] - WINDOW_S * scale
-            s = _summary(r, w, nees_band(3, sr)[1])
-            doc["sweep"]["rows"].append({"layout": label, "half_side_m": D, "stations": k, "stations_m": st.tolist(),
-                                         "rms_radial_m": s["rms_radial_m"], "pcrb_m": s["pcrb_m"],
-                                         "mean_nees": s["mean_nees"], "matches_4sv": s["rms_radial_m"] <= rms_4sv_same})
+            c = doc["cases"][name]
+            row = {"survey_tie_m": c["rms_radial_m"], "survey_tie_mean_nees": c["mean_nees"],
+                   "survey_tie_ratio_to_pcrb": c["ratio_to_pcrb"]}
+            for label, kw in (("perfect_tie", {"tie": "perfect"}), ("white_tie", {"station_states": False})):
+                r = simulate(TriadCase(name=f"{name} {label}", n_sv=nsv, gs_idx=gs, duration_s=dur * scale, runs=runs,
+                                       seed=args.seed, imu=args.imu, paper_filter=False, **kw), progress=_progress)
+                w = r.t_s > r.t_s[-1] - WINDOW_S * scale
+                sm = _summary(r, w, hi)
+                row[f"{label}_m"] = sm["rms_radial_m"]
+                row[f"{label}_mean_nees"] = sm["mean_nees"]
+                row[f"{label}_ratio_to_pcrb"] = sm["ratio_to_pcrb"]
+            row["ratio"] = row["survey_tie_m"] / row["perfect_tie_m"]
+            doc["tie_cost"][name] = row
+    if not args.no_sweep and "4sv" in results:
+        rms_4sv_same = _rms(results["4sv"].rms_radial()[same(results["4sv"])])
+        _sweep(doc, args, scale, rms_4sv_same)
     _table(doc)
     if args.png:
         _plot(args.png, curves, doc)
@@ -171,6 +163,36 @@ def run(args) -> int:
             json.dump(doc, f, indent=1)
         print(f"wrote {args.json}")
     return 0
+
+
+def _ratio(doc, results, same) -> None:
+    """The 2 sv -> 2 sv + 2 gs ratio on the same window (the 2 sv run is longer)."""
+    rms_2sv_same = _rms(results["2sv"].rms_radial()[same(results["2sv"])])
+    doc["rms_2sv_at_2sv2gs_window_m"] = rms_2sv_same
+    doc["rms_4sv_at_2sv2gs_window_m"] = _rms(results["4sv"].rms_radial()[same(results["4sv"])])
+    doc["improvement_2sv_to_2sv2gs"] = rms_2sv_same / doc["cases"]["2sv2gs"]["rms_radial_m"]
+    p2 = _rms(results["2sv"].rms_radial(results["2sv"].err_paper_m)[same(results["2sv"])])
+    doc["paper_filter_improvement_2sv_to_2sv2gs"] = p2 / doc["cases"]["2sv2gs"]["paper_filter_rms_radial_m"]
+
+
+def _sweep(doc, args, scale, rms_4sv_same) -> None:
+    """2 satellites + k LARNS stations in the :func:`sweep_layouts` (the default corners tie the field)."""
+    from aircraft.triad_sim import DEFAULT_STATIONS_M, TriadCase, simulate
+
+    sr = 6 if args.quick else args.sweep_runs
+    sizes = (30e3,) if args.quick else (10e3, 30e3, 100e3)
+    doc["sweep"] = {"runs": sr, "duration_s": 500.0 * scale, "n_sv": 2, "reference_4sv_m": rms_4sv_same, "rows": []}
+    for label, D, st in sweep_layouts(sizes):
+        k = len(st)
+        field = np.vstack([st, DEFAULT_STATIONS_M])  # the ranged stations first
+        r = simulate(TriadCase(name=f"2sv + {label} D={D / 1e3:g} km", n_sv=2, gs_idx=tuple(range(k)),
+                               duration_s=500.0 * scale, runs=sr, seed=args.seed + 7, imu=args.imu,
+                               stations_m=field, tie_idx=(k, k + 1, k + 2), paper_filter=False), progress=_progress)
+        w = r.t_s > r.t_s[-1] - WINDOW_S * scale
+        s = _summary(r, w, nees_band(3, sr)[1])
+        doc["sweep"]["rows"].append({"layout": label, "half_side_m": D, "stations": k, "stations_m": st.tolist(),
+                                     "rms_radial_m": s["rms_radial_m"], "pcrb_m": s["pcrb_m"],
+                                     "mean_nees": s["mean_nees"], "matches_4sv": s["rms_radial_m"] <= rms_4sv_same})
 
 
 def _table(doc) -> None:
@@ -189,13 +211,17 @@ def _table(doc) -> None:
               f" {c['filter_sigma_m']:7.2f} {c['mean_nees']:6.2f} {c['paper_filter_rms_radial_m']:12.2f}"
               f" {c['paper_filter_mean_nees']:9.2f} {'-' if pm is None else f'{pm:g}':>8}")
     print(f"paper: {doc['paper_note']}")
-    print(f"2sv -> 2sv2gs on the same window: {doc['rms_2sv_at_2sv2gs_window_m']:.1f} -> "
-          f"{doc['cases']['2sv2gs']['rms_radial_m']:.1f} m = {doc['improvement_2sv_to_2sv2gs']:.2f}x ours, "
-          f"{doc['paper_filter_improvement_2sv_to_2sv2gs']:.2f}x paper filter (bar >= {BAR_IMPROVEMENT:g}x; paper 2.25x)")
-    if "tie_cost" in doc:
-        print("Earth tie (3 stations surveyed, Procrustes) vs a perfect tie:")
+    if "improvement_2sv_to_2sv2gs" in doc:
+        print(f"2sv -> 2sv2gs on the same window: {doc['rms_2sv_at_2sv2gs_window_m']:.1f} -> "
+              f"{doc['cases']['2sv2gs']['rms_radial_m']:.1f} m = {doc['improvement_2sv_to_2sv2gs']:.2f}x ours, "
+              f"{doc['paper_filter_improvement_2sv_to_2sv2gs']:.2f}x paper filter (bar >= {BAR_IMPROVEMENT:g}x; paper 2.25x)")
+    if doc.get("tie_cost"):
+        print("Earth tie (3 stations surveyed, Procrustes): RMS m / RMS over PCRB / mean NEES")
+        print(f"{'case':>7} {'tie errors as states':>24} {'tie share as white':>24} {'perfect tie':>24}")
         for name, c in doc["tie_cost"].items():
-            print(f"  {name}: {c['survey_tie_m']:.2f} m vs {c['perfect_tie_m']:.2f} m ({c['ratio']:.3f}x)")
+            cells = [f"{c[k + '_m']:.2f} / {c[k + '_ratio_to_pcrb']:.3f} / {c[k + '_mean_nees']:.2f}"
+                     for k in ("survey_tie", "white_tie", "perfect_tie")]
+            print(f"{name:>7} " + " ".join(f"{x:>24}" for x in cells))
     if "sweep" in doc:
         s = doc["sweep"]
         print(f"sweep: 2 satellites + k LARNS stations, {s['duration_s']:g} s, {s['runs']} runs; 4sv reference "

@@ -275,3 +275,33 @@ def test_triad_navigator_never_imports_world():
                 mods = [a.name for a in node.names]
             for nm in mods:
                 assert "world" not in nm and "triad_sim" not in nm, (name, nm)
+
+
+def test_station_state_jacobian_and_injection():
+    """The ranged station's position-error columns are ``-u`` (finite differences through the filter's
+    own injection), and the station prior is the tie's joint covariance."""
+    from aircraft.navigator.triad_ekf import StationPseudorange
+
+    g = np.array([[50e3, 50e3, 30.0], [-50e3, -50e3, 10.0]])
+    C = np.kron(np.eye(2), np.diag([0.2, 0.3, 0.4]))
+    C[0, 3] = C[3, 0] = 0.05
+    tie = ft.FieldTie(g, np.stack([C[:3, :3], C[3:, 3:]]), np.eye(3), np.zeros(3), C)
+    tn = _tuning()
+    from aircraft.navigator.ins_ekf import initial_covariance
+
+    P0 = initial_covariance(TRIAD_LAYOUT, tn, np.zeros(2), 1.0)
+    ekf = TriadEkf(tn, gps_like(), FRAME, [[0.0, 0.0, 1e4]], np.zeros((1, 3)), np.eye(3)[None], np.zeros((1, 2)),
+                   P0, stations=tie)
+    L = ekf.L
+    assert L.n == TRIAD_LAYOUT.n + 6 and np.allclose(ekf.P[0, L.base_n:, L.base_n:], C)
+    m = StationPseudorange(1, ekf.t_s)
+    h0, H = m.predict(ekf)
+    for i in range(L.base_n, L.n):
+        d = np.zeros((1, L.n))
+        d[0, i] = 1e-3
+        gs0, p0 = ekf.gs.copy(), ekf.p.copy()
+        ekf.inject(d)
+        h1, _ = m.predict(ekf)
+        ekf.gs, ekf.p = gs0, p0
+        assert (h1 - h0)[0] / 1e-3 == pytest.approx(H[0, i], abs=1e-6)
+    assert np.allclose(H[0, L.GS(1)], -H[0, L.P]) and np.allclose(H[0, L.GS(0)], 0.0)

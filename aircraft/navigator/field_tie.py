@@ -6,8 +6,10 @@ every station into the triad's Earth-tied frame; the fit's covariance is propaga
 (numerical Jacobian of the whole map) into each station's local position, and from there into the
 pseudorange variance ``sigma^2 + u^T Sigma_j u``.
 
-The tie error is constant over a flight; the filter treats its share as white (docs/triad.md: the
-cost is measured, and the NEES shows whether the white treatment is defensible).
+The tie error is constant over a flight: our filter carries the ranged stations' position errors as
+random-constant states with the tie's joint covariance as their prior (:class:`FieldTie.cov_full_m2`);
+:meth:`FieldTie.range_var_m2` is the cheaper white treatment (the paper's filter, which assumes
+exactly known stations, uses it). docs/triad.md measures both.
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ class FieldTie:
     cov_m2: np.ndarray
     R: np.ndarray
     t: np.ndarray
+    cov_full_m2: np.ndarray | None = None  # (..., 3m, 3m) joint covariance (station-major)
 
     def range_var_m2(self, p_m: np.ndarray, sigma_m: float | np.ndarray) -> np.ndarray:
         """Pseudorange variances (M, m) seen from positions (M, 3): ``sigma^2 + u^T Sigma_j u``."""
@@ -50,13 +53,16 @@ class FieldTie:
     def subset(self, idx) -> "FieldTie":
         """The stations ``idx`` only (last station axis)."""
         i = np.asarray(idx, dtype=int)
-        return FieldTie(self.stations_m[..., i, :], self.cov_m2[..., i, :, :], self.R, self.t)
+        r = (3 * i[:, None] + np.arange(3)).ravel()
+        full = None if self.cov_full_m2 is None else self.cov_full_m2[..., r[:, None], r[None, :]]
+        return FieldTie(self.stations_m[..., i, :], self.cov_m2[..., i, :, :], self.R, self.t, full)
 
 
 def stack(ties: list[FieldTie]) -> FieldTie:
     """One tie per run -> arrays with a leading run axis (M, m, ...)."""
     return FieldTie(np.stack([t.stations_m for t in ties]), np.stack([t.cov_m2 for t in ties]),
-                    np.stack([t.R for t in ties]), np.stack([t.t for t in ties]))
+                    np.stack([t.R for t in ties]), np.stack([t.t for t in ties]),
+                    np.stack([t.cov_full_m2 for t in ties]))
 
 
 def tie(stations_n_m: np.ndarray, sigma_n_m: float, tie_idx: np.ndarray, tie_local_m: np.ndarray,
@@ -94,10 +100,10 @@ def tie(stations_n_m: np.ndarray, sigma_n_m: float, tie_idx: np.ndarray, tie_loc
     var = np.concatenate([np.full(3 * m, sigma_n_m**2), np.tile(np.asarray(sigma_tie_m, float) ** 2, len(idx))])
     C = (J * var) @ J.T
     cov = np.stack([C[3 * j:3 * j + 3, 3 * j:3 * j + 3] for j in range(m)])
-    return FieldTie(pn @ R.T + t, 0.5 * (cov + np.swapaxes(cov, -1, -2)), R, t)
+    return FieldTie(pn @ R.T + t, 0.5 * (cov + np.swapaxes(cov, -1, -2)), R, t, 0.5 * (C + C.T))
 
 
 def perfect(stations_local_m: np.ndarray) -> FieldTie:
     """A yardstick only: stations at given local positions with zero covariance."""
     s = np.asarray(stations_local_m, float)
-    return FieldTie(s, np.zeros((len(s), 3, 3)), np.eye(3), np.zeros(3))
+    return FieldTie(s, np.zeros((len(s), 3, 3)), np.eye(3), np.zeros(3), np.zeros((3 * len(s), 3 * len(s))))

@@ -45,6 +45,26 @@ from nav.strapdown import G0_M_S2
 from .ins_ekf import BaroAltitude, InsEkf, InsTuning, Pseudorange, initial_covariance
 
 TRIAD_LAYOUT = es.ErrorLayout(turn_on=True, tilt=False, clock=True, baro=True)
+
+
+@dataclass(frozen=True)
+class TriadLayout(es.ErrorLayout):
+    """:class:`nav.errorstate.ErrorLayout` plus the position errors of ``stations`` ranged ground
+    stations (random constants, 3 each, after every other state)."""
+
+    stations: int = 0
+
+    @property
+    def base_n(self) -> int:
+        return es.ErrorLayout.n.fget(self)
+
+    def GS(self, j: int) -> slice:
+        i = self.base_n + 3 * j
+        return slice(i, i + 3)
+
+    @property
+    def n(self) -> int:
+        return self.base_n + 3 * self.stations
 UP = np.array([0.0, 0.0, 1.0])
 
 
@@ -162,10 +182,15 @@ class TriadMixin:
                 if ok.any():
                     self.update(Pseudorange(sat[:, i], ep.t_s), z[:, i], self.sigma_sat_m**2, None if ok.all() else ok)
         if ep.gs_rho_m is not None and ep.gs_rho_m.shape[-1]:
-            var = ep.gs.range_var_m2(self.p, ep.gs_sigma_m)  # (M, j) at the nominal before the batch
-            for j in range(ep.gs_rho_m.shape[-1]):
-                self.update(Pseudorange(ep.gs.stations_m[:, j], ep.t_s), ep.gs_rho_m[:, j], var[:, j])
-                stats["gs_used"] += self.M
+            if getattr(self, "gs", None) is not None:  # the filter's own station states
+                for j in range(ep.gs_rho_m.shape[-1]):
+                    self.update(StationPseudorange(j, ep.t_s), ep.gs_rho_m[:, j], ep.gs_sigma_m**2)
+                    stats["gs_used"] += self.M
+            else:  # the tie's share as white range noise
+                var = ep.gs.range_var_m2(self.p, ep.gs_sigma_m)  # (M, j) at the nominal before the batch
+                for j in range(ep.gs_rho_m.shape[-1]):
+                    self.update(Pseudorange(ep.gs.stations_m[:, j], ep.t_s), ep.gs_rho_m[:, j], var[:, j])
+                    stats["gs_used"] += self.M
         if ep.baro_m is not None:
             self.update(BaroAltitude(UP, ep.t_s, self.frame.h_m), ep.baro_m, self.tn.sigma_baro_m**2)
         return stats
@@ -175,13 +200,46 @@ class TriadEkf(TriadMixin, InsEkf):
     """Our triad filter (module doc): :class:`InsEkf` on :data:`TRIAD_LAYOUT` in a :class:`TriadFrame`.
 
     Parameters as :class:`InsEkf` (``tau`` zero and ``sign`` +1: the ENU frame is level by
-    construction) plus the almanac, frame, satellite pseudorange sigma and elevation mask."""
+    construction; ``P0`` over :data:`TRIAD_LAYOUT`) plus the almanac, frame, satellite pseudorange
+    sigma and elevation mask; ``stations``: the ranged ground stations from the Earth tie
+    (:class:`aircraft.navigator.field_tie.FieldTie` with arrays (M, j, ...)): their position errors
+    become states with the tie's joint covariance as the prior (the epoch's ground pseudoranges are in
+    this order). Without it the ground stations are taken from each epoch with the white treatment."""
 
     def __init__(self, tn: InsTuning, alm: Almanac, frame: TriadFrame, p_m, v_m_s, C_nb, clock, P0,
-                 sigma_sat_m: float = 3.0, mask_deg: float = 10.0, t0_s: float = 0.0):
+                 sigma_sat_m: float = 3.0, mask_deg: float = 10.0, t0_s: float = 0.0, stations=None):
         M = np.asarray(p_m).shape[0]
-        super().__init__(tn, TRIAD_LAYOUT, p_m, v_m_s, C_nb, clock, P0, np.zeros((M, 2)), 1.0, t0_s)
+        j = 0 if stations is None else stations.stations_m.shape[-2]
+        L = TriadLayout(turn_on=True, tilt=False, clock=True, baro=True, stations=j)
+        nb = L.base_n
+        P = np.zeros((M, L.n, L.n))
+        P[:, :nb, :nb] = np.broadcast_to(np.asarray(P0, float), (M, nb, nb))
+        self.gs = None
+        if j:
+            P[:, nb:, nb:] = np.broadcast_to(stations.cov_full_m2, (M, 3 * j, 3 * j))
+        super().__init__(tn, L, p_m, v_m_s, C_nb, clock, P, np.zeros((M, 2)), 1.0, t0_s)
+        if j:
+            self.gs = np.broadcast_to(np.asarray(stations.stations_m, float), (M, j, 3)).copy()
         self.alm, self.frame, self.sigma_sat_m, self.mask_deg = alm, frame, sigma_sat_m, mask_deg
+
+    def inject(self, dx: np.ndarray) -> None:
+        super().inject(dx)
+        if self.gs is not None:
+            self.gs = self.gs + dx[:, self.L.base_n:].reshape(self.gs.shape)
+
+
+@dataclass(frozen=True)
+class StationPseudorange:
+    """Pseudorange to the filter's ground station ``j`` (its nominal position ``ekf.gs[:, j]``):
+    :class:`Pseudorange` plus ``-u`` on that station's position-error states."""
+
+    j: int
+    t_rx_s: float
+
+    def predict(self, ekf: "TriadEkf") -> tuple[np.ndarray, np.ndarray]:
+        pred, H = Pseudorange(ekf.gs[:, self.j], self.t_rx_s).predict(ekf)
+        H[:, ekf.L.GS(self.j)] = -H[:, ekf.L.P]
+        return pred, H
 
 
 # --- the paper's filter ---------------------------------------------------------------------------
