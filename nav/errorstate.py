@@ -16,6 +16,7 @@ the navigation-frame specific force and ``G_tau = d g_n / d tau``:
     dbac' = 0                         dbgc' = 0                    (turn-on, random constants)
     dtau' = 0
     db'   = dd + w_b                  dd' = w_d                    (receiver clock)
+    dbh'  = -dbh / T_h + w_h                                       (baro bias, optional)
 
 Gravity with tilt: the physical "up" direction in the navigation frame is
 ``u(tau) = s [tau_1, tau_2, sqrt(1 - tau_1^2 - tau_2^2)]`` (``s = +-1`` fixes which way +Z points,
@@ -38,11 +39,12 @@ from .strapdown import G0_M_S2
 
 @dataclass(frozen=True)
 class ErrorLayout:
-    """Named slices of the error state: 15 core states + optional turn-on biases, tilt, clock."""
+    """Named slices of the error state: 15 core states + optional turn-on biases, tilt, clock, baro bias."""
 
     turn_on: bool = True
     tilt: bool = True
     clock: bool = True
+    baro: bool = False
 
     @property
     def P(self):
@@ -87,8 +89,15 @@ class ErrorLayout:
         return slice(i, i + 2)
 
     @property
+    def BARO(self):
+        if not self.baro:
+            return None
+        i = 15 + 6 * self.turn_on + 2 * self.tilt + 2 * self.clock
+        return slice(i, i + 1)
+
+    @property
     def n(self) -> int:
-        return 15 + 6 * self.turn_on + 2 * self.tilt + 2 * self.clock
+        return 15 + 6 * self.turn_on + 2 * self.tilt + 2 * self.clock + self.baro
 
     def names(self) -> list[str]:
         out = [f"{a}_{x}" for a in ("p", "v", "phi", "ba", "bg") for x in "xyz"]
@@ -98,6 +107,8 @@ class ErrorLayout:
             out += ["tau_1", "tau_2"]
         if self.clock:
             out += ["clk_b", "clk_d"]
+        if self.baro:
+            out += ["baro_b"]
         return out
 
 
@@ -134,9 +145,10 @@ def _skew(w):
 
 
 def f_matrix(L: ErrorLayout, C_mean: np.ndarray, f_n_mean: np.ndarray, G_tau: np.ndarray | None,
-             tc_a_s: float, tc_g_s: float) -> np.ndarray:
+             tc_a_s: float, tc_g_s: float, tc_baro_s: float = np.inf) -> np.ndarray:
     """Continuous error-dynamics matrix (..., n, n) (module docstring), interval-mean ``C^`` (..., 3, 3)
-    and ``f^_n`` (..., 3); ``G_tau`` (..., 3, 2) when the layout carries the tilt."""
+    and ``f^_n`` (..., 3); ``G_tau`` (..., 3, 2) when the layout carries the tilt; ``tc_baro_s`` the
+    baro bias correlation time when it carries the baro bias."""
     F = np.zeros(C_mean.shape[:-2] + (L.n, L.n))
     F[..., L.P, L.V] = np.eye(3)
     F[..., L.V, L.ATT] = -_skew(f_n_mean)
@@ -152,11 +164,14 @@ def f_matrix(L: ErrorLayout, C_mean: np.ndarray, f_n_mean: np.ndarray, G_tau: np
     if L.clock:
         c = L.CLK.start
         F[..., c, c + 1] = 1.0
+    if L.baro:
+        F[..., L.BARO, L.BARO] = -1.0 / tc_baro_s
     return F
 
 
 def q_matrix(L: ErrorLayout, vrw: float, arw: float, sigma_gm_a: float, tc_a_s: float,
-             sigma_gm_g: float, tc_g_s: float, q_b: float = 0.0, q_d: float = 0.0) -> np.ndarray:
+             sigma_gm_g: float, tc_g_s: float, q_b: float = 0.0, q_d: float = 0.0,
+             sigma_baro_bias_m: float = 0.0, tc_baro_s: float = np.inf) -> np.ndarray:
     """Continuous process-noise density (n, n). White accelerometer/gyro noise is isotropic, so
     ``C^ Q C^T = Q`` and the density does not depend on the attitude."""
     Q = np.zeros((L.n, L.n))
@@ -168,6 +183,8 @@ def q_matrix(L: ErrorLayout, vrw: float, arw: float, sigma_gm_a: float, tc_a_s: 
         c = L.CLK.start
         Q[c, c] = q_b
         Q[c + 1, c + 1] = q_d
+    if L.baro:
+        Q[L.BARO, L.BARO] = 2.0 * sigma_baro_bias_m**2 / tc_baro_s
     return Q
 
 

@@ -47,6 +47,9 @@ class InsTuning:
     p0_clock_m: float = 100.0
     p0_drift_m_s: float = 1.0
     p0_tilt_rad: float = 5e-3
+    sigma_baro_m: float = 10.0  # baro white noise (used when the layout carries the baro bias)
+    sigma_baro_bias_m: float = 20.0  # stationary sigma of the baro bias (Gauss-Markov)
+    tc_baro_s: float = 600.0
     max_prop_s: float = 0.1  # longest covariance step without a measurement
 
     @classmethod
@@ -62,7 +65,7 @@ class InsTuning:
 
     def qc(self, L: es.ErrorLayout) -> np.ndarray:
         return es.q_matrix(L, self.vrw, self.arw, self.sigma_gm_a, self.tc_a_s, self.sigma_gm_g, self.tc_g_s,
-                           self.q_b, self.q_d)
+                           self.q_b, self.q_d, self.sigma_baro_bias_m, self.tc_baro_s)
 
 
 def tilt_attitude_jacobian(tau: np.ndarray, sign) -> np.ndarray:
@@ -99,6 +102,8 @@ def initial_covariance(L: es.ErrorLayout, tn: InsTuning, tau: np.ndarray, sign) 
         c = L.CLK.start
         P[c, c] = tn.p0_clock_m**2
         P[c + 1, c + 1] = tn.p0_drift_m_s**2
+    if L.baro:
+        P[L.BARO, L.BARO] = tn.sigma_baro_bias_m**2
     return P
 
 
@@ -127,6 +132,7 @@ class InsEkf:
         self.bg = np.zeros((M, 3))
         self.bac = np.zeros((M, 3))
         self.bgc = np.zeros((M, 3))
+        self.bh = np.zeros(M)  # baro bias estimate (m), used when the layout carries it
         self.P = np.broadcast_to(np.asarray(P0, dtype=float), (M, L.n, L.n)).copy()
         self.t_s = float(t0_s)
         self.t_prop = self.t_s
@@ -167,13 +173,14 @@ class InsEkf:
         Cm = self._Csum / nsteps
         fm = self._fsum / T
         Gt = es.gravity_jacobian(self.tau, self.sign) if L.tilt else None
-        F = es.f_matrix(L, Cm, fm, Gt, tn.tc_a_s, tn.tc_g_s)
+        F = es.f_matrix(L, Cm, fm, Gt, tn.tc_a_s, tn.tc_g_s, tn.tc_baro_s)
         Phi, Qd = es.discretize(F, self.Qc, T)
         self.P = es.propagate(self.P, Phi, Qd)
         self.last_phi = Phi
         self.clk[:, 0] += self.clk[:, 1] * T
         self.ba *= np.exp(-T / tn.tc_a_s)
         self.bg *= np.exp(-T / tn.tc_g_s)
+        self.bh *= np.exp(-T / tn.tc_baro_s)
         self._Csum[:] = 0.0
         self._fsum[:] = 0.0
         self.t_prop = self.t_s
@@ -238,6 +245,8 @@ class InsEkf:
             self._g = es.gravity(self.tau, self.sign)
         if L.clock:
             self.clk = self.clk + dx[:, L.CLK]
+        if L.baro:
+            self.bh = self.bh + dx[:, L.BARO.start]
 
     def estimate(self) -> dict:
         """Current estimate: position, velocity, attitude (roll, pitch, yaw of ``C_nb``), covariances."""
@@ -290,3 +299,22 @@ class PositionComponent:
         H[:, L.P] = self.e
         H[:, L.V] = -T * self.e
         return ekf.position_at(self.t_s) @ self.e, H
+
+
+@dataclass(frozen=True)
+class BaroAltitude:
+    """Barometric altitude ``e^T p(t_s) + h0 + b_h`` (seed spec sec. 1.3: the baro measurement with a
+    Gauss-Markov bias state): ``e`` the physical up direction in the navigation frame, ``h0_m`` the
+    altitude of the frame's origin. Jacobian ``[e, -T e, 0 ..., 1 (baro bias)]``."""
+
+    e: np.ndarray
+    t_s: float
+    h0_m: float = 0.0
+
+    def predict(self, ekf: "InsEkf") -> tuple[np.ndarray, np.ndarray]:
+        L = ekf.L
+        pred, H = PositionComponent(self.e, self.t_s).predict(ekf)
+        if L.baro:
+            H[:, L.BARO.start] = 1.0
+            pred = pred + ekf.bh
+        return pred + self.h0_m, H

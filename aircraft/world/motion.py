@@ -124,6 +124,20 @@ class Ellipse(Motion):
         return p, v, acc
 
 
+@dataclass
+class Straight(Motion):
+    """Straight and level (or any constant-velocity) flight ``p0 + v (t - t0)`` (seed 002 spec sec. 1.8)."""
+
+    p0_m: np.ndarray
+    v_m_s: np.ndarray
+    t0_s: float = 0.0
+
+    def pva(self, t_s):
+        t_s = np.asarray(t_s, dtype=float)
+        v = np.broadcast_to(np.asarray(self.v_m_s, float), (t_s.size, 3)).copy()
+        return np.asarray(self.p0_m, float) + (t_s - self.t0_s)[:, None] * v, v, np.zeros_like(v)
+
+
 class AtRest(Motion):
     """Test motions at a fixed point (subclasses give the attitude)."""
 

@@ -17,6 +17,7 @@ BENCHES: list[str] = [
     "larns.bench.ins",
     "larns.bench.integrity",
     "larns.bench.vehicle",
+    "larns.bench.triad",
 ]
 
 
