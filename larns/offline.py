@@ -178,6 +178,7 @@ def reestimate_station(j: Journal, estimator: str | None = None, epoch_unix_s: f
                        speed: float = 1.0) -> StationResult:
     """Rebuild station ``j.id``'s core from its init record and replay its journal."""
     from stations.core import StationCore
+    from stations.shell import PublishPolicy
 
     res = StationResult(j.id, estimator or "")
     if j.init is None:
@@ -198,6 +199,7 @@ def reestimate_station(j: Journal, estimator: str | None = None, epoch_unix_s: f
         res.error = f"cannot rebuild core: {type(e).__name__}: {e}"
         return res
     res.estimator = core.est.name
+    policy = PublishPolicy(j.id)
     for m, entries in inputs:
         res.n_inputs += 1
         res.n_entries += len(entries)
@@ -209,8 +211,7 @@ def reestimate_station(j: Journal, estimator: str | None = None, epoch_unix_s: f
         for o in outs:
             if o["kind"] != "estimate":
                 continue
-            if core.slot is not None:
-                o["slot"] = int(core.slot)
+            o = policy.estimate(o, core.slot)  # as the station's shell published it (no drop count)
             pub = m.log_time
             if epoch_unix_s is not None:
                 t = epoch_unix_s + o["stamp_s"] / speed

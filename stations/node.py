@@ -54,6 +54,7 @@ from net.faults import WireFaults, merge_faults
 from net.procsched import add_sched_args, apply_sched_args
 from net.scenario import Scenario
 
+from .shell import PublishPolicy
 from .shellfaults import ShellFaults
 
 log = logging.getLogger("larns.station")
@@ -125,9 +126,7 @@ class StationNode:
         self._order = 0
         self._seen: set = set()
         self._seen_q: deque = deque()
-        self._truth_seq = 0
-        self._journal_seq = {"core_init": 0, "core_input": 0}
-        self._navs_sent = 0
+        self.policy = PublishPolicy(self.id, journal=opts.journal)  # estimate/truth/journal decorations
         self._journal_thread: threading.Thread | None = None
         self._journal_q: Any = None
         self._last_status = -math.inf
@@ -292,10 +291,7 @@ class StationNode:
                     m = self.shell.outgoing(m, t_true)
                     data = M.encode(m, {"pos_m": self.true_pos, "t_true_s": t_true})
                 elif kind == "estimate":
-                    m = dict(m)
-                    if self.core.slot is not None:
-                        m["slot"] = int(self.core.slot)
-                    m["dropped"] = int(self.drops.total)
+                    m = self.policy.estimate(m, self.core.slot, self.drops.total)
                     data = M.encode(m)
                     self._publish_truth(m)
                 else:
@@ -306,25 +302,11 @@ class StationNode:
                 continue
             self.bus.publish(M.key_for(m), data)
             self.stats["tx_" + kind] += 1
-            if kind == "nav":
-                self._navs_sent += 1
-        if self.opts.journal and any(m["kind"] == "nav" for m in outs):
-            self._publish_journal()
+            self.policy.sent(kind)
+        for kind, fields in self.policy.after_outputs(self.core, outs):
+            self._journal_submit(kind, fields)
 
     # ------------------------------------------------------------------ core journal
-    def _journal_msg(self, kind: str, stamp_s: float, **fields: Any) -> dict:
-        self._journal_seq[kind] += 1
-        return {"kind": kind, "src": self.id, "seq": self._journal_seq[kind], "stamp_s": float(stamp_s), **fields}
-
-    def _publish_init(self) -> None:
-        self._journal_submit("core_init", {"record": self.core.init_record})
-
-    def _publish_journal(self) -> None:
-        """After the own slot's nav: what the core consumed since the last one (docs/protocol.md)."""
-        if self._navs_sent % 10 == 0:
-            self._publish_init()
-        self._journal_submit("core_input", {"entries": self.core.take_inputs()})
-
     def _journal_submit(self, kind: str, fields: dict) -> None:
         """Hand a journal message to the sender thread: it is encoded (validated, split when too
         big) and published there, outside the node lock, so a big journal never delays the reply
@@ -348,35 +330,17 @@ class StationNode:
             self.stats["journal_dropped"] += 1
 
     def _journal_emit(self, kind: str, fields: dict, stamp_s: float, publish) -> None:
-        """Encode one journal message (core_input: split in halves while too big) and publish it."""
+        """Encode one journal item (``PublishPolicy.encode_journal``: a core_input split while too
+        big) and publish it."""
+        for key, data in self.policy.encode_journal(kind, fields, stamp_s, self._journal_error):
+            publish(key, data)
+
+    def _journal_error(self, kind: str, n_entries: int, e: M.MessageError) -> None:
         if kind == "core_init":
-            m = self._journal_msg("core_init", stamp_s, **fields)
-            try:
-                publish(M.key_for(m), M.encode(m))
-            except M.MessageError as e:
-                log.error("station %d: cannot publish core_init: %s", self.id, e)
+            log.error("station %d: cannot publish core_init: %s", self.id, e)
             return
-        chunks = [fields["entries"]]
-        while chunks:
-            part = chunks.pop(0)
-            m = self._journal_msg("core_input", stamp_s, entries=part)
-            try:
-                if len(part) > M.MAX_JOURNAL:
-                    raise M.MessageError("shape", f"{len(part)} journal entries > {M.MAX_JOURNAL}")
-                # not validated again here: every entry is a timer time or a message that was
-                # validated when it was received or sent; readers validate. Encoding a cycle's
-                # journal at N = 50 takes 0.12 ms instead of 0.93 ms.
-                data = M.encode(m, validate=False)
-            except M.MessageError as e:
-                if e.reason in ("size", "shape") and len(part) > 1:  # too big for one message: split
-                    self._journal_seq["core_input"] -= 1
-                    half = len(part) // 2
-                    chunks[:0] = [part[:half], part[half:]]
-                    continue
-                log.error("station %d: dropping %d journal entries: %s", self.id, len(part), e)
-                self.stats["journal_invalid"] += 1
-                continue
-            publish(M.key_for(m), data)
+        log.error("station %d: dropping %d journal entries: %s", self.id, n_entries, e)
+        self.stats["journal_invalid"] += 1
 
     def _journal_sender(self) -> None:
         def publish(key: str, data: bytes) -> None:
@@ -401,12 +365,9 @@ class StationNode:
             self._journal_thread.join(timeout_s)
 
     def _publish_truth(self, est: dict) -> None:
-        self._truth_seq += 1
-        t = self.fleet_now()
         tau = self.clock.to_true(float(est["stamp_s"]))  # the estimate's instant
-        m = {"kind": "truth", "src": self.id, "seq": self._truth_seq, "stamp_s": float(est["stamp_s"]),
-             "t_s": float(t), "pos_m": self.true_pos,
-             "clock_error_s": float(self.clock.error_s(tau) - self.ref_clock.error_s(tau))}
+        m = self.policy.truth(est, self.fleet_now(), self.true_pos,
+                              clock_error_s=self.clock.error_s(tau) - self.ref_clock.error_s(tau))
         self.bus.publish(M.key_for(m), M.encode(m))
 
     # ------------------------------------------------------------------ main loop
@@ -466,9 +427,8 @@ class StationNode:
         t0 = max(0.0, self.fleet_now())
         self.core, self.clock = self._make_core(self.scn, self.id, estimator=self.opts.estimator,
                                                 join=self.opts.join, start_s=t0, seed=self.seed)
-        if self.opts.journal:
-            self.core.journal = True
-            self._publish_init()
+        for kind, fields in self.policy.start(self.core):
+            self._journal_submit(kind, fields)
 
     def run(self) -> dict:
         bus = self.bus
