@@ -185,7 +185,7 @@ def resolve(name_or_path: str | Path) -> Path:
         return p
     if p.exists() and p.is_file():
         return p
-    pkg = importlib.resources.files("larns") / "scenarios" / f"{name_or_path}.toml"
+    pkg = importlib.resources.files("net") / "scenarios" / f"{name_or_path}.toml"
     if pkg.is_file():
         return Path(str(pkg))
     raise FileNotFoundError(f"no scenario file or packaged scenario named {name_or_path!r}")
