@@ -61,16 +61,6 @@ class StationConfig:
     clock_q_rw_per_s: float = 0.0
 
 
-@dataclass
-class PeerInfo:
-    pos_m: np.ndarray
-    cov_m2: np.ndarray
-    n_updates: int = 0
-    state: str = "surveying"
-    slot: int | None = None
-    last_heard_s: float = -np.inf
-
-
 class StationCore:
     """One station's protocol state machine (see module docstring)."""
 
@@ -93,7 +83,7 @@ class StationCore:
                                                    cfg.sigma_d_m, cfg.ranges_per_update)
         self.clk = ClockEstimator(cfg.id, ClockModel(cfg.clock_q_wf_s, cfg.clock_q_rw_per_s, cfg.clock_offset_sigma_s,
                                                      cfg.clock_freq_sigma), start_s, cfg.sigma_d_m)
-        self.peers: dict[int, PeerInfo] = {}
+        self.peers: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # peer -> its latest broadcast (pos_m, cov_m2)
         self.integrity = StationIntegrity(cfg.id, cfg.sigma_d_m)  # peer consistency tests (issue 14)
         self.known: dict[int, float] = {p: start_s for p in cfg.known_ids if p != cfg.id}
         self.seq = {"range_req": 0, "range_rsp": 0, "nav": 0, "estimate": 0}
@@ -112,8 +102,6 @@ class StationCore:
             self.listen_until_s = start_s
             self.heard_slots = {}
         self._next_req_T, self._nav_s = self._schedule_after(start_s)
-        self._cycle = 0
-        self._started_s = start_s
 
     # ------------------------------------------------------------------ timing
     def _schedule_after(self, t_s: float) -> tuple[float, float]:
@@ -220,7 +208,6 @@ class StationCore:
             t0 = self._next_req_s  # the radio transmits at the slot start, however late the host
             T0 = self._next_req_T
             cycle, _ = self.plan.locate(T0 + 1e-9)
-            self._cycle = cycle
             mem = self.members(t0)
             if mem:
                 # the addressee rotates over the members from cycle to cycle
@@ -294,7 +281,7 @@ class StationCore:
             self.counters["responses"] += 1
             pos = np.asarray(msg["pos_m"], float)
             cov = np.asarray(msg["cov_m2"], float)
-            self._update_peer(src, msg, t_rx_s)
+            self._update_peer(src, msg)
             entry = [src, float(range_m), float(t_rx_s)]
             t3 = msg.get("t_tx_s")
             if t3 is not None:
@@ -314,7 +301,7 @@ class StationCore:
             return []
         if kind == "nav":
             self._heard(src, t_rx_s)
-            self._update_peer(src, msg, t_rx_s)
+            self._update_peer(src, msg)
             slot = msg.get("slot")
             if slot is not None:
                 self.heard_slots[src] = slot
@@ -359,9 +346,8 @@ class StationCore:
         """Test the peers (``stations/integrity.py``); excluded peers leave the survey solve."""
         if not self.est.initialized:
             return []
-        peers = {p: (i.pos_m, i.cov_m2) for p, i in self.peers.items()}
         out = []
-        for body in self.integrity.evaluate(t_s, self.est.pos_m, self.est.cov_m2, peers):
+        for body in self.integrity.evaluate(t_s, self.est.pos_m, self.est.cov_m2, self.peers):
             self.seq.setdefault("integrity", 0)
             m = self._base("integrity", t_s)
             m.update(body)
@@ -376,15 +362,6 @@ class StationCore:
         if self.state == "joining" and self.slot is not None and self.est.initialized:
             self.state = "surveying"
 
-    def _update_peer(self, src: int, msg: dict, t_s: float) -> None:
-        p = self.peers.get(src)
-        pos = np.asarray(msg["pos_m"], float)
-        cov = np.asarray(msg["cov_m2"], float)
-        if p is None:
-            self.peers[src] = PeerInfo(pos, cov, int(msg.get("n_updates", 0)), msg.get("state", "surveying"),
-                                       msg.get("slot"), t_s)
-        else:
-            p.pos_m, p.cov_m2, p.n_updates = pos, cov, int(msg.get("n_updates", 0))
-            p.state, p.last_heard_s = msg.get("state", p.state), t_s
-            if msg.get("slot") is not None:
-                p.slot = msg["slot"]
+    def _update_peer(self, src: int, msg: dict) -> None:
+        """The peer's latest broadcast position and covariance (for the integrity tests)."""
+        self.peers[src] = (np.asarray(msg["pos_m"], float), np.asarray(msg["cov_m2"], float))
