@@ -204,6 +204,16 @@ def load(name_or_path: str | Path, **overrides: Any) -> Scenario:
     return from_dict(raw)
 
 
+def load_cli(name_or_path: str | Path, n_stations: int | None = None, **overrides: Any) -> Scenario:
+    """:func:`load` as the processes' ``--scenario`` / ``--n-stations`` flags ask for it: ``n_stations``
+    (if given and non-zero) sets the station count of a random layout (``[layout] n``)."""
+    if n_stations:
+        layout = dict(overrides.pop("layout", None) or {})
+        layout["n"] = int(n_stations)
+        overrides["layout"] = layout
+    return load(name_or_path, **overrides)
+
+
 def from_dict(raw: dict[str, Any]) -> Scenario:
     seed = int(raw.get("seed", 0))
     frame = raw.get("frame", {})
