@@ -164,9 +164,13 @@ def mcap_station_summary(path: str | Path) -> dict[int, dict]:
     est: dict[int, list] = {}
     truth: dict[int, list] = {}
     with open(path, "rb") as f:
-        mine = ((ch, m) for _schema, ch, m in make_reader(f).iter_messages()
-                if ch.topic.endswith("/estimate") or ch.topic.endswith("/truth"))
-        for (_ch, m), msg, _phy in M.decode_valid(mine, lambda cm: cm[1].data):
+        for _schema, ch, m in make_reader(f).iter_messages():
+            if not (ch.topic.endswith("/estimate") or ch.topic.endswith("/truth")):
+                continue
+            try:
+                msg, _ = M.decode(m.data)
+            except M.MessageError:
+                continue
             if msg["kind"] == "truth":
                 truth[msg["src"]] = msg["pos_m"]
             elif msg["kind"] == "estimate":
@@ -226,7 +230,10 @@ def run_fleet(args: argparse.Namespace) -> int:
     from net import scenario as S
     from net.bus import Bus, bus_argv, free_tcp_ports
 
-    scn = S.load_cli(args.scenario, args.n_stations)
+    over: dict[str, Any] = {}
+    if args.n_stations:
+        over["layout"] = {"n": int(args.n_stations)}
+    scn = S.load(args.scenario, **over)
     joins: list[tuple[int, float]] = []
     for spec in args.join or []:
         sid, _, t = spec.partition("@")

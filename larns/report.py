@@ -61,7 +61,13 @@ def extract(logs) -> dict[str, Any]:
     init_cfg: dict[int, dict] = {}
     lat: dict[str, list[float]] = defaultdict(list)
     navs: list[tuple[float, list[float]]] = []
-    for m, msg, phy in M.decode_valid((m for m in msgs if m.encoding == "msgpack"), lambda m: m.data):
+    for m in msgs:
+        if m.encoding != "msgpack":
+            continue
+        try:
+            msg, phy = M.decode(m.data)
+        except M.MessageError:
+            continue
         k = msg["kind"]
         if k == "nav" and phy is not None and msg["state"] in ("frame", "surveying"):
             navs.append((phy["t_true_s"], phy["pos_m"]))
@@ -452,9 +458,13 @@ def sync_series(logs) -> dict[int, np.ndarray]:
 
     est: dict[int, dict[float, tuple[float, float, float]]] = defaultdict(dict)
     tru: dict[int, dict[float, float]] = defaultdict(dict)
-    mine = (m for m in merge(logs)
-            if m.encoding == "msgpack" and (m.topic.endswith("/estimate") or m.topic.endswith("/truth")))
-    for _m, msg, _phy in M.decode_valid(mine, lambda m: m.data):
+    for m in merge(logs):
+        if m.encoding != "msgpack" or not (m.topic.endswith("/estimate") or m.topic.endswith("/truth")):
+            continue
+        try:
+            msg, _ = M.decode(m.data)
+        except M.MessageError:
+            continue
         if msg["kind"] == "estimate" and "clock_offset_s" in msg:
             est[msg["src"]][msg["stamp_s"]] = (msg["t_s"], msg["clock_offset_s"], msg.get("clock_offset_sd_s", 0.0))
         elif msg["kind"] == "truth" and "clock_error_s" in msg:

@@ -157,12 +157,7 @@ class Simulator:
         for m in outs:
             kind = m["kind"]
             if kind not in ("range_req", "range_rsp", "nav"):
-                if self.publish is None:
-                    continue
-                if kind == "estimate":
-                    self._publish_estimate(k, m)
-                else:  # integrity announcements: as they are
-                    self.publish(self.now_s, ids[k], m, None)
+                self._publish_local(k, m)
                 continue
             t_tx_true = self.clocks[k].to_true(m["t_tx_s"])
             m = self.shell[k].outgoing(m, t_tx_true)
@@ -188,12 +183,16 @@ class Simulator:
                 self._push(self.clocks[j].to_true(t_local), ("rx", j, m, t_local))
         self._journal(k, self.policy[k].after_outputs(self.cores[k], outs))
 
-    def _publish_estimate(self, k: int, est: dict) -> None:
-        """The truth and the decorated estimate, in the node's order (the truth carries the position only: the simulator's truth carries no
-        clock error, as the recordings it synthesizes always did)."""
-        pol = self.policy[k]
-        m = pol.estimate(est, self.cores[k].slot)
-        self.publish(self.now_s, self.scn.ids[k], pol.truth(m, self.now_s, self.scn.pos_m[k]), None)
+    def _publish_local(self, k: int, m: dict) -> None:
+        """A core output that does not go on air: an estimate goes out decorated after its truth (the
+        node's order; the simulator's truth carries the position only, no clock error, as the
+        recordings it synthesizes always did); integrity announcements as they are."""
+        if self.publish is None:
+            return
+        if m["kind"] == "estimate":
+            pol = self.policy[k]
+            m = pol.estimate(m, self.cores[k].slot)
+            self.publish(self.now_s, self.scn.ids[k], pol.truth(m, self.now_s, self.scn.pos_m[k]), None)
         self.publish(self.now_s, self.scn.ids[k], m, None)
 
     def _journal(self, k: int, items: list[tuple[str, dict]]) -> None:
