@@ -14,7 +14,7 @@ Shapes: ``M`` runs, ``m`` stations in a batch, ``n`` states. Stations are shared
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.special import erfcx
@@ -632,7 +632,6 @@ class AircraftEstimator:
         self.n_updates = 0
         self.n_dropped = 0
         self.n_resets = 0
-        self.last_nis: float | None = None
         self.init = None  # the InitResult of the latest start (broadcast initializer)
 
     # -- input
@@ -655,11 +654,10 @@ class AircraftEstimator:
             # sequential scalar update at the slot's own time
             try:
                 self.tracker.predict_to(t_s)
-                nu, S = self.tracker.update(pos[None], np.array([rho_m]), cov[None])
+                self.tracker.update(pos[None], np.array([rho_m]), cov[None])
             except np.linalg.LinAlgError:
                 self._reset()
                 return
-            self.last_nis = float(nu[0] ** 2 / S[0, 0])
             self.t_s = t_s
             self.n_updates += 1
             return
@@ -739,17 +737,15 @@ class AircraftEstimator:
         try:
             self.tracker.predict_to(t_s)
             if self.cfg.tuning.sequential and self.model == "pr" and not np.any(dt):
-                nu, s_diag = self.tracker.update_sequential(pos, rho, cov)
-                S = np.diag(s_diag)
+                self.tracker.update_sequential(pos, rho, cov)
             else:
-                nu, S = self.tracker.update(pos, rho, cov, dt if np.any(dt) else None)
+                self.tracker.update(pos, rho, cov, dt if np.any(dt) else None)
         except np.linalg.LinAlgError:
             self._reset()
             return
         if not np.all(np.isfinite(self.tracker.x)):
             self._reset()
             return
-        self.last_nis = float(nu @ chol_solve(S, nu[:, None])[:, 0])
         self.t_s = t_s
         self.n_updates += 1
 
@@ -786,8 +782,3 @@ class AircraftEstimator:
         return {"t_s": self.tracker.t_s, "pos_m": x[:3].tolist(), "cov_m2": P[:3, :3].tolist(),
                 "vel_m_s": x[3:6].tolist(), "clock_m": float(x[6]) if x.size > 6 else None,
                 "n_updates": self.n_updates}
-
-
-def with_tuning(cfg: EstimatorConfig, **kw) -> EstimatorConfig:
-    """A copy of ``cfg`` with tuning fields replaced."""
-    return replace(cfg, tuning=replace(cfg.tuning, **kw))

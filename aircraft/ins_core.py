@@ -37,9 +37,6 @@ from .world.field import Field
 from .world.imu import ImuEmulator, preset
 from .world.motion import Ellipse, Hover, Motion
 
-INS_ALGOS = ("ins-ekf",)
-
-
 def motion_from_config(cfg: dict, height_m: float | None = None) -> Motion:
     """6-DOF motion from an ``[aircraft.trajectory]`` table (physical coordinates of the scenario)."""
     kind = cfg.get("kind", "hover")

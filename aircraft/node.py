@@ -22,11 +22,9 @@ SIGINT / SIGTERM: clean exit.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import math
 import queue
-import signal
 import sys
 import threading
 import time
@@ -297,69 +295,40 @@ class AircraftNode:
 # --------------------------------------------------------------------------- command line
 
 def add_args(p: argparse.ArgumentParser) -> None:
-    from net.bus import add_bus_args
+    from net import cli
 
     from .models import ALGOS
 
-    p.add_argument("--scenario", default="seed003", help="scenario name or TOML path (default seed003)")
     p.add_argument("--algo", action="append", choices=ALGOS + ("ins-ekf",), default=None,
                    help="estimator to run (repeatable; default: the scenario's [aircraft] algos)")
     p.add_argument("--name", default=None, help="aircraft name (default: scenario's, ac1)")
-    p.add_argument("--speed", type=float, default=1.0, help="run K times faster than real time (default 1)")
-    p.add_argument("--epoch", type=float, default=None,
-                   help="fleet epoch, Unix seconds (must match the stations; default: start of the UTC day)")
-    p.add_argument("--duration", type=float, default=None, help="stop at this fleet time (s since the epoch)")
     p.add_argument("--height", type=float, default=None, help="fixed flight height, m (overrides the scenario)")
-    p.add_argument("--seed", type=int, default=None, help="override the scenario's world seed")
-    p.add_argument("--n-stations", type=int, default=None,
-                   help="override the number of stations of a random-layout scenario (as the stations do)")
-    g = p.add_argument_group("network faults (accepted for launcher compatibility; the aircraft's own "
-                             "subscription is not faulted - the stations' links are)")
-    for flag in ("--net-delay", "--net-jitter", "--net-loss", "--net-dup"):
-        g.add_argument(flag, type=float, default=None, help=argparse.SUPPRESS)
+    cli.add_process_args(p, scenario="seed003", what="aircraft", net_faults=False)
     p.add_argument("--imu", default=None, metavar="PRESET",
                    help="fly with an IMU (adis16480, tactical, navigation) and run ins-ekf (docs/ins.md)")
-    p.add_argument("--status-every", type=float, default=5.0, help="fleet seconds between status lines")
-    p.add_argument("--report-json", action="store_true", help="print a JSON report on stdout at exit")
-    p.add_argument("-q", "--quiet", action="store_true")
-    add_bus_args(p)
+    cli.add_output_args(p)
 
 
 def main_args(args: argparse.Namespace) -> int:
+    from net import cli
     from net.bus import Bus, bus_kwargs
-    from net.scenario import load
+    from net.scenario import load_cli
 
     from .config import from_scenario
 
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    scn = load(args.scenario, **({"layout": {"n": int(args.n_stations)}} if args.n_stations else {}))
+    cli.setup_logging()
+    scn = load_cli(args.scenario, args.n_stations)
     ac = from_scenario(scn)
     algos = args.algo or (("ins-ekf",) if args.imu else ac.algos)
     opts = AircraftOptions(name=args.name or ac.name, algos=tuple(algos), speed=args.speed,
                            epoch_unix_s=args.epoch, duration_s=args.duration, seed=args.seed,
                            height_m=args.height, status_every_s=args.status_every, quiet=args.quiet,
                            imu=args.imu or ac.imu)
-    from net.security import KeystoreError
-
     args.secure_cn = f"aircraft-{opts.name}"
-    try:
-        bus = Bus(**bus_kwargs(args))
-    except KeystoreError as e:  # credentials that cannot be loaded
-        print(f"aircraft {opts.name}: --secure: {e}", file=sys.stderr)
+    bus = cli.open_bus(f"aircraft {opts.name}", lambda: Bus(**bus_kwargs(args)))
+    rep = cli.serve(args, bus, lambda: AircraftNode(scn, opts, bus))
+    if rep is None:  # bad options (algorithm mix, IMU preset, trajectory kind): the error was printed
         return 2
-    try:
-        try:
-            node = AircraftNode(scn, opts, bus)
-        except ValueError as e:  # bad options (algorithm mix, IMU preset, trajectory kind): a clear error
-            print(f"error: {e}", file=sys.stderr)
-            return 2
-        signal.signal(signal.SIGINT, node.stop)
-        signal.signal(signal.SIGTERM, node.stop)
-        rep = node.run()
-    finally:
-        bus.close()
-    if args.report_json:
-        print(json.dumps(rep), flush=True)
     if not args.quiet and "ins-ekf" in rep["estimates"]:
         v = rep["estimates"]["ins-ekf"]
         print(f"[aircraft {opts.name}] ins-ekf: IMU steps {v['imu_steps']} of {v['imu_steps_expected']} "
@@ -386,11 +355,12 @@ def _split_ins(opts: AircraftOptions) -> tuple[tuple[str, ...], tuple[str, ...]]
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m aircraft", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_args(p)
-    return p
+    from net import cli
+
+    return cli.build_parser("python -m aircraft", __doc__, add_args)
 
 
 def main(argv: list[str] | None = None) -> int:
-    return main_args(build_parser().parse_args(argv))
+    from net import cli
+
+    return cli.main(argv, "python -m aircraft", __doc__, add_args, main_args)

@@ -178,6 +178,7 @@ def reestimate_station(j: Journal, estimator: str | None = None, epoch_unix_s: f
                        speed: float = 1.0) -> StationResult:
     """Rebuild station ``j.id``'s core from its init record and replay its journal."""
     from stations.core import StationCore
+    from stations.shell import PublishPolicy
 
     res = StationResult(j.id, estimator or "")
     if j.init is None:
@@ -198,6 +199,7 @@ def reestimate_station(j: Journal, estimator: str | None = None, epoch_unix_s: f
         res.error = f"cannot rebuild core: {type(e).__name__}: {e}"
         return res
     res.estimator = core.est.name
+    policy = PublishPolicy(j.id)
     for m, entries in inputs:
         res.n_inputs += 1
         res.n_entries += len(entries)
@@ -209,8 +211,7 @@ def reestimate_station(j: Journal, estimator: str | None = None, epoch_unix_s: f
         for o in outs:
             if o["kind"] != "estimate":
                 continue
-            if core.slot is not None:
-                o["slot"] = int(core.slot)
+            o = policy.estimate(o, core.slot)  # as the station's shell published it (no drop count)
             pub = m.log_time
             if epoch_unix_s is not None:
                 t = epoch_unix_s + o["stamp_s"] / speed
@@ -364,22 +365,13 @@ def aircraft_nav_sequence(msgs: Sequence[Msg], name: str) -> tuple[list[tuple[Ms
 
     navs: list[tuple[float, Msg, dict, dict]] = []
     rx: dict[int, float] = {}
-    for m in msgs:
-        if m.encoding != "msgpack":
-            continue
-        if m.topic.endswith("/nav"):
-            try:
-                msg, phy = M.decode(m.data)
-            except M.MessageError:
-                continue
-            if msg["kind"] == "nav" and phy is not None:
-                navs.append((phy["t_true_s"], m, msg, phy))
-        elif m.topic == f"larns/aircraft/{name}/truth":
-            try:
-                msg, _ = M.decode(m.data)
-            except M.MessageError:
-                continue
+    truth_key = f"larns/aircraft/{name}/truth"
+    mine = (m for m in msgs if m.encoding == "msgpack" and (m.topic.endswith("/nav") or m.topic == truth_key))
+    for m, msg, phy in M.decode_valid(mine, lambda m: m.data):
+        if m.topic == truth_key:
             rx.setdefault(msg["seq"], msg["t_s"])
+        elif msg["kind"] == "nav" and phy is not None:
+            navs.append((phy["t_true_s"], m, msg, phy))
     recorder = [(m, msg, phy) for _t, m, msg, phy in navs]
     if not rx or 1 not in rx:
         return recorder, "recorder"
@@ -474,14 +466,10 @@ def reestimate_aircraft(logs: Sequence[LogFile], msgs: Sequence[Msg], algos: Seq
     # the recorded estimates of the same algorithms, in order (the aircraft core is deterministic given
     # the world seed and the sequence of broadcasts it measured)
     recorded: dict[str, list[dict]] = {a: [] for a in algos}
-    for m in msgs:
-        if m.encoding == "msgpack" and m.topic.startswith(f"larns/aircraft/{name}/estimate/"):
-            try:
-                msg, _ = M.decode(m.data)
-            except M.MessageError:
-                continue
-            if msg["kind"] == "ac_estimate" and msg["algo"] in recorded:
-                recorded[msg["algo"]].append(msg)
+    mine = (m for m in msgs if m.encoding == "msgpack" and m.topic.startswith(f"larns/aircraft/{name}/estimate/"))
+    for _m, msg, _phy in M.decode_valid(mine, lambda m: m.data):
+        if msg["kind"] == "ac_estimate" and msg["algo"] in recorded:
+            recorded[msg["algo"]].append(msg)
     res = {}
     for a, d in out.items():
         e = np.asarray(d["err"])
@@ -518,13 +506,9 @@ def reestimate_ins(logs: Sequence[LogFile], msgs: Sequence[Msg], scenario: str |
 
     md, scn, ac, name, seed = _aircraft_world(logs, scenario, name, seed)
     rng = np.random.default_rng([int(seed), 0x1A5, sum(map(ord, name))])  # as aircraft.node.AircraftNode
-    recorded = []
-    for m in msgs:
-        if m.encoding == "msgpack" and m.topic == f"larns/aircraft/{name}/estimate/ins-ekf":
-            try:
-                recorded.append(M.decode(m.data)[0])
-            except M.MessageError:
-                continue
+    key = f"larns/aircraft/{name}/estimate/ins-ekf"
+    recorded = [msg for _m, msg, _phy in M.decode_valid((m for m in msgs if m.encoding == "msgpack" and m.topic == key),
+                                                        lambda m: m.data)]
     t0 = float(recorded[0].get("extra", {}).get("t0_s", 0.0)) if recorded else 0.0  # the aircraft's start
     from net.channel import draw_clock, station_rng
 

@@ -50,7 +50,6 @@ def survey_fim(pos_m: np.ndarray, counts: np.ndarray, sigma_d_m: float, free: np
             if np.isfinite(s0[i]) and s0[i] > 0:
                 k = idx[i][free[i]]
                 J[k, k] += 1.0 / s0[i] ** 2
-    n = len(pos_m)
     tot = counts + counts.T
     ii, jj = np.nonzero(np.triu(tot, 1))
     for i, j in zip(ii, jj):

@@ -11,7 +11,7 @@ from typing import Callable
 import numpy as np
 from scipy.linalg.lapack import dpotrs
 
-from .ut import SigmaParams, chol_lower, sigma_points, unscented_transform
+from .ut import SigmaParams, chol_lower, unscented_transform
 
 
 def symmetrize(P: np.ndarray) -> np.ndarray:

@@ -21,7 +21,7 @@ import math
 import re
 import time
 from collections import Counter
-from typing import Any, Callable
+from typing import Any, Callable, Iterable, Iterator, TypeVar
 
 import msgpack
 import numpy as np
@@ -504,3 +504,26 @@ class DropCounter:
 
     def as_dict(self) -> dict[str, Any]:
         return {"total": self.total, "by_reason": dict(self.by_reason)}
+
+
+_T = TypeVar("_T")
+
+
+def decode_valid(items: Iterable[_T], payload: Callable[[_T], Any] = lambda x: x,
+                 invalid: Counter[str] | DropCounter | None = None) -> Iterator[tuple[_T, dict[str, Any], dict[str, Any] | None]]:
+    """Strictly decode a stream of payloads, skipping the invalid ones.
+
+    Yields ``(item, msg, phy)`` for every item whose ``payload(item)`` bytes are a valid envelope
+    (:func:`decode`); an invalid one is counted by reason in ``invalid`` (a ``Counter`` or a
+    :class:`DropCounter`; None: not counted) and skipped, never raised. ``items`` may be recorded
+    messages (``payload=lambda m: m.data``) or raw bytes (the default ``payload``)."""
+    for item in items:
+        try:
+            msg, phy = decode(payload(item))
+        except MessageError as e:
+            if isinstance(invalid, DropCounter):
+                invalid.drop_error(e)
+            elif invalid is not None:
+                invalid[e.reason] += 1
+            continue
+        yield item, msg, phy

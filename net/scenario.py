@@ -61,7 +61,7 @@ from __future__ import annotations
 
 import importlib.resources
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -185,7 +185,7 @@ def resolve(name_or_path: str | Path) -> Path:
         return p
     if p.exists() and p.is_file():
         return p
-    pkg = importlib.resources.files("larns") / "scenarios" / f"{name_or_path}.toml"
+    pkg = importlib.resources.files("net") / "scenarios" / f"{name_or_path}.toml"
     if pkg.is_file():
         return Path(str(pkg))
     raise FileNotFoundError(f"no scenario file or packaged scenario named {name_or_path!r}")
@@ -204,7 +204,20 @@ def load(name_or_path: str | Path, **overrides: Any) -> Scenario:
     return from_dict(raw)
 
 
+def load_cli(name_or_path: str | Path, n_stations: int | None = None, **overrides: Any) -> Scenario:
+    """:func:`load` as the processes' ``--scenario`` / ``--n-stations`` flags ask for it: ``n_stations``
+    (if given and non-zero) sets the station count of a random layout (``[layout] n``)."""
+    if n_stations:
+        layout = dict(overrides.pop("layout", None) or {})
+        layout["n"] = int(n_stations)
+        overrides["layout"] = layout
+    return load(name_or_path, **overrides)
+
+
 def from_dict(raw: dict[str, Any]) -> Scenario:
+    """The scenario of a parsed TOML document; an invalid entry raises :class:`ScenarioError` naming
+    its key (e.g. ``[channel] sigma_d_m``, ``stations[2].pos_m``, ``faults[1].offset_m``)."""
+    validate(raw)
     seed = int(raw.get("seed", 0))
     frame = raw.get("frame", {})
     z_ref = int(frame.get("z_ref", 4))
@@ -264,7 +277,7 @@ def from_dict(raw: dict[str, Any]) -> Scenario:
         join_ids=join_ids,
         aircraft=dict(raw.get("aircraft", {})),
         raw=raw,
-        clock=clock_params(raw.get("clock"), channel.clock_offset_s, channel.clock_drift_ppm),
+        clock=_clock(raw, channel),
         links=parse_links(raw.get("links", []), ids),
         faults=parse_faults(raw.get("faults", []), ids),
     )
@@ -409,3 +422,128 @@ def parse_links(entries: Any, ids: list[int]) -> list[LinkOverride]:
             raise ScenarioError(f"{w}.nlos_bias_m: must be >= 0")
         out.append(LinkOverride(sel, **kw))
     return out
+
+
+# ---------------------------------------------------------------- validation of the other sections
+def _clock(raw: dict, channel: ChannelParams) -> ClockParams:
+    try:
+        return clock_params(raw.get("clock"), channel.clock_offset_s, channel.clock_drift_ppm)
+    except ValueError as e:  # net/clock.py names the key ("[clock] model: ...")
+        raise ScenarioError(str(e)) from None
+
+
+_NONNEG, _PROB, _POS = "must be >= 0", "must be a probability in [0, 1]", "must be > 0"
+_SECTION_RULES: dict[str, tuple[type, dict[str, str]]] = {
+    "tdma": (Tdma, {"cycle_s": _POS, "slot_s": _POS}),
+    "channel": (ChannelParams, {"sigma_d_m": _NONNEG, "nlos_prob": _PROB, "nlos_bias_m": _NONNEG,
+                                "loss_prob": _PROB, "clock_offset_s": _NONNEG, "clock_drift_ppm": _NONNEG,
+                                "turnaround_s": _NONNEG}),
+    "net": (NetFaults, {"delay_s": _NONNEG, "jitter_s": _NONNEG, "loss_prob": _PROB, "dup_prob": _PROB}),
+    "init": (None, {"sigma0_m": _NONNEG}),
+}
+_LAYOUT_KEYS = ("kind", "n", "area_m", "min_separation_m", "join_ids", "joiners")
+_SURVEY_KEYS = ("estimator", "ranges_per_update")
+
+
+def _table(raw: dict, key: str) -> dict:
+    v = raw.get(key, {})
+    if not isinstance(v, dict):
+        raise ScenarioError(f"[{key}]: expected a table, got {v!r}")
+    return v
+
+
+def _int(v: Any, where: str, low: int) -> int:
+    if isinstance(v, bool) or not isinstance(v, int) or v < low:
+        raise ScenarioError(f"{where}: expected an integer >= {low}, got {v!r}")
+    return v
+
+
+def _known(tab: dict, where: str, keys: Any) -> None:
+    unknown = sorted(set(tab) - set(keys))
+    if unknown:
+        raise ScenarioError(f"{where} {unknown[0]}: unknown key; keys are {', '.join(sorted(keys))}")
+
+
+def _check_rule(v: float, where: str, rule: str) -> None:
+    ok = {_NONNEG: v >= 0.0, _PROB: 0.0 <= v <= 1.0, _POS: v > 0.0}[rule]
+    if not ok:
+        raise ScenarioError(f"{where}: {rule}, got {v!r}")
+
+
+def _validate_params(raw: dict) -> None:
+    for key, (cls, rules) in _SECTION_RULES.items():
+        tab = _table(raw, key)
+        _known(tab, f"[{key}]", [f.name for f in fields(cls)] if cls is not None else rules)
+        for k, v in tab.items():
+            if k in rules:
+                _check_rule(_num(v, f"[{key}] {k}"), f"[{key}] {k}", rules[k])
+    tdma = _table(raw, "tdma")
+    if _num(tdma.get("slot_s", 0.01), "[tdma] slot_s") > _num(tdma.get("cycle_s", 1.0), "[tdma] cycle_s"):
+        raise ScenarioError("[tdma] slot_s: longer than cycle_s")
+
+
+def _validate_layout(raw: dict) -> None:
+    lay = _table(raw, "layout")
+    _known(lay, "[layout]", _LAYOUT_KEYS)
+    if "n" in lay:
+        _int(lay["n"], "[layout] n", 3)
+    if "joiners" in lay:
+        _int(lay["joiners"], "[layout] joiners", 0)
+    if "min_separation_m" in lay:
+        _check_rule(_num(lay["min_separation_m"], "[layout] min_separation_m"), "[layout] min_separation_m", _NONNEG)
+    area = lay.get("area_m", (1.0, 1.0, 1.0))
+    if not isinstance(area, (list, tuple)) or len(area) != 3:
+        raise ScenarioError(f"[layout] area_m: expected 3 numbers [x, y, z] in metres, got {area!r}")
+    for i, v in enumerate(area):
+        _check_rule(_num(v, f"[layout] area_m[{i}]"), f"[layout] area_m[{i}]", _NONNEG)
+    join = lay.get("join_ids", [])
+    if not isinstance(join, list):
+        raise ScenarioError(f"[layout] join_ids: expected a list of station ids, got {join!r}")
+    for i, v in enumerate(join):
+        _int(v, f"[layout] join_ids[{i}]", 1)
+
+
+def _validate_stations(raw: dict) -> None:
+    st = raw.get("stations")
+    if st is None:
+        return
+    if not isinstance(st, list) or not st:
+        raise ScenarioError("stations: expected a non-empty array of tables ([[stations]])")
+    for i, e in enumerate(st):
+        w = f"stations[{i}]"
+        if not isinstance(e, dict):
+            raise ScenarioError(f"{w}: expected a table")
+        if "id" not in e:
+            raise ScenarioError(f"{w}.id: missing")
+        _int(e["id"], f"{w}.id", 1)
+        pos = e.get("pos_m")
+        if pos is None:
+            raise ScenarioError(f"{w}.pos_m: missing (physical coordinates [x, y, z], m)")
+        if not isinstance(pos, list) or len(pos) != 3:
+            raise ScenarioError(f"{w}.pos_m: expected 3 numbers [x, y, z] in metres, got {pos!r}")
+        for j, v in enumerate(pos):
+            _num(v, f"{w}.pos_m[{j}]")
+        if not isinstance(e.get("join", False), bool):
+            raise ScenarioError(f"{w}.join: expected true or false, got {e['join']!r}")
+
+
+def validate(raw: dict[str, Any]) -> None:
+    """Check the sections :func:`from_dict` reads (``[[faults]]`` and ``[[links]]`` are checked by their
+    parsers); raises :class:`ScenarioError` naming the first bad key."""
+    if not isinstance(raw, dict):
+        raise ScenarioError(f"scenario: expected a table, got {type(raw).__name__}")
+    if "seed" in raw:
+        _int(raw["seed"], "seed", 0)
+    _validate_params(raw)
+    _validate_layout(raw)
+    _validate_stations(raw)
+    frame = _table(raw, "frame")
+    _known(frame, "[frame]", ("z_ref",))
+    if "z_ref" in frame:
+        _int(frame["z_ref"], "[frame] z_ref", 1)
+    survey = _table(raw, "survey")
+    _known(survey, "[survey]", _SURVEY_KEYS)
+    if "estimator" in survey and not isinstance(survey["estimator"], str):
+        raise ScenarioError(f"[survey] estimator: expected a name, got {survey['estimator']!r}")
+    if "ranges_per_update" in survey:
+        _int(survey["ranges_per_update"], "[survey] ranges_per_update", 1)

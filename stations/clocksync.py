@@ -292,8 +292,3 @@ class ClockEstimator:
         P = self.P
         var = P[2 * k, 2 * k] + 2 * dt * P[2 * k, 2 * k + 1] + dt * dt * P[2 * k + 1, 2 * k + 1]
         return float(T), float(max(var, 0.0))
-
-    def peer_network_time(self, corr, t_peer_s: float) -> float:
-        """Network time at a peer's local time, from its broadcast correction."""
-        th, _ = predict_correction(corr, t_peer_s, ClockModel())
-        return t_peer_s - th

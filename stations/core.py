@@ -61,16 +61,6 @@ class StationConfig:
     clock_q_rw_per_s: float = 0.0
 
 
-@dataclass
-class PeerInfo:
-    pos_m: np.ndarray
-    cov_m2: np.ndarray
-    n_updates: int = 0
-    state: str = "surveying"
-    slot: int | None = None
-    last_heard_s: float = -np.inf
-
-
 class StationCore:
     """One station's protocol state machine (see module docstring)."""
 
@@ -93,7 +83,7 @@ class StationCore:
                                                    cfg.sigma_d_m, cfg.ranges_per_update)
         self.clk = ClockEstimator(cfg.id, ClockModel(cfg.clock_q_wf_s, cfg.clock_q_rw_per_s, cfg.clock_offset_sigma_s,
                                                      cfg.clock_freq_sigma), start_s, cfg.sigma_d_m)
-        self.peers: dict[int, PeerInfo] = {}
+        self.peers: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # peer -> its latest broadcast (pos_m, cov_m2)
         self.integrity = StationIntegrity(cfg.id, cfg.sigma_d_m)  # peer consistency tests (issue 14)
         self.known: dict[int, float] = {p: start_s for p in cfg.known_ids if p != cfg.id}
         self.seq = {"range_req": 0, "range_rsp": 0, "nav": 0, "estimate": 0}
@@ -112,8 +102,6 @@ class StationCore:
             self.listen_until_s = start_s
             self.heard_slots = {}
         self._next_req_T, self._nav_s = self._schedule_after(start_s)
-        self._cycle = 0
-        self._started_s = start_s
 
     # ------------------------------------------------------------------ timing
     def _schedule_after(self, t_s: float) -> tuple[float, float]:
@@ -220,7 +208,6 @@ class StationCore:
             t0 = self._next_req_s  # the radio transmits at the slot start, however late the host
             T0 = self._next_req_T
             cycle, _ = self.plan.locate(T0 + 1e-9)
-            self._cycle = cycle
             mem = self.members(t0)
             if mem:
                 # the addressee rotates over the members from cycle to cycle
@@ -256,96 +243,107 @@ class StationCore:
         self._refresh_state()
 
     def on_message(self, msg: dict, t_rx_s: float) -> list[dict]:
+        """A received air message at local time ``t_rx_s`` (phy stripped); returns the replies."""
         if self.journal:
             self._inputs.append(["m", float(t_rx_s), msg])
-        kind = msg.get("kind")
+        if msg.get("src") == self.id:
+            return []
+        handler = self._HANDLERS.get(msg.get("kind"))
+        return [] if handler is None else handler(self, msg, t_rx_s)
+
+    def _on_range_req(self, msg: dict, t_rx_s: float) -> list[dict]:
+        """A range request: answered after the turnaround if it is for us and still in its slot."""
         src = msg.get("src")
-        if src == self.id:
+        self._heard(src, t_rx_s)
+        if msg.get("dst") != self.id:
             return []
-        if kind == "range_req":
-            self._heard(src, t_rx_s)
-            if msg.get("dst") != self.id:
-                return []
-            t_tx = t_rx_s + self.cfg.turnaround_s
-            if not self._in_slot(msg, t_tx):
-                self.counters["late"] += 1
-                return []
-            m = self._base("range_rsp", t_tx)
-            m.update(dst=src, req_seq=msg["seq"], turnaround_s=float(self.cfg.turnaround_s), t_tx_s=float(t_tx),
-                     t_rx_s=float(t_rx_s), pos_m=self.est.pos_m.tolist(), cov_m2=self.est.cov_m2.tolist(),
-                     n_updates=int(self.est.n_updates), state=self.state, clock=self.clk.correction(t_rx_s))
-            return [m]
-        if kind == "range_rsp":
-            self._heard(src, t_rx_s)
-            if msg.get("dst") != self.id:
-                return []
-            pend = self.pending.pop(msg.get("req_seq"), None)
-            if pend is None or pend[0] != src or t_rx_s > pend[2]:
-                self.counters["ignored"] += 1
-                return []
-            _, t_tx, _ = pend
-            corr = msg.get("clock")
-            f_me, f_peer = self.clk.freq(), (corr[2] if corr is not None else 0.0)
-            # two-way ranging on each end's own clock, durations scaled to network seconds
-            range_m = 0.5 * SPEED_OF_LIGHT_M_S * ((t_rx_s - t_tx) / (1.0 + f_me) - msg["turnaround_s"] / (1.0 + f_peer))
-            if not (0.0 < range_m < self.cfg.max_range_m):
-                self.counters["rejected_ranges"] += 1
-                return []
-            self.counters["responses"] += 1
-            pos = np.asarray(msg["pos_m"], float)
-            cov = np.asarray(msg["cov_m2"], float)
-            self._update_peer(src, msg, t_rx_s)
-            entry = [src, float(range_m), float(t_rx_s)]
-            t3 = msg.get("t_tx_s")
-            if t3 is not None:
-                # two-way time transfer: theta_me - theta_peer at the exchange midpoint (both ends'
-                # midpoints are the same instant); the nav entry carries it to the other stations
-                t2 = msg.get("t_rx_s", t3 - msg["turnaround_s"])
-                dtheta = 0.5 * ((t_rx_s - t3) - (t2 - t_tx))
-                t_mid = 0.5 * (t_tx + t_rx_s)
-                entry = [src, float(range_m), float(t_mid), float(dtheta)]
-                if self.clk.on_exchange(self.id, src, self.clk.network_time(t_mid), dtheta,
-                                        self.clk.offset_var_s2) is not None:
-                    self.counters["sync_in"] += 1
-            self.ranges_out.append(entry)
-            self.est.on_range(src, range_m, t_rx_s, True, pos, cov)
-            self.integrity.on_range(src, range_m, t_rx_s)
-            self._refresh_state()
+        t_tx = t_rx_s + self.cfg.turnaround_s
+        if not self._in_slot(msg, t_tx):
+            self.counters["late"] += 1
             return []
-        if kind == "nav":
-            self._heard(src, t_rx_s)
-            self._update_peer(src, msg, t_rx_s)
-            slot = msg.get("slot")
-            if slot is not None:
-                self.heard_slots[src] = slot
-                if self.slot is not None and slot == self.slot and src < self.id:
-                    # slot collision: the lower id keeps the slot, we listen again and re-claim
-                    self.slot = None
-                    self.state = "joining"
-                    self.listen_until_s = t_rx_s + self.plan.cycle_s
-                    self._next_req_T = self._nav_s = float("inf")
-            pos = np.asarray(msg["pos_m"], float)
-            cov = np.asarray(msg["cov_m2"], float)
-            self.est.on_peer(src, pos, cov)
-            corr = msg.get("clock")
-            if corr is not None:
-                self.clk.on_nav(src, t_rx_s, msg["t_tx_s"], corr)  # coarse, only while unknown
-            for r in msg.get("ranges", ()):
-                peer, range_m = r[0], r[1]
-                if len(r) == 4 and corr is not None and 0.0 < range_m < self.cfg.max_range_m:
-                    # every exchange the network makes refines the network clock filter: ours (the
-                    # responder's end) and the others' alike
-                    T_mid, T_var = self.clk.peer_time(src, r[2], corr)  # our prior view of src's clock
-                    if self.clk.on_exchange(src, peer, T_mid, float(r[3]), T_var) is not None:
-                        self.counters["sync_in"] += 1
-                if peer == self.id and 0.0 < range_m < self.cfg.max_range_m:
-                    self.counters["ranges_in"] += 1
-                    if self.est.name.startswith("dmap"):  # dmap, dmap-ls: ranges used at both ends
-                        self.est.on_range(src, float(range_m), t_rx_s, False, pos, cov)
-                    self.integrity.on_range(src, float(range_m), t_rx_s)
-            self._refresh_state()
+        m = self._base("range_rsp", t_tx)
+        m.update(dst=src, req_seq=msg["seq"], turnaround_s=float(self.cfg.turnaround_s), t_tx_s=float(t_tx),
+                 t_rx_s=float(t_rx_s), pos_m=self.est.pos_m.tolist(), cov_m2=self.est.cov_m2.tolist(),
+                 n_updates=int(self.est.n_updates), state=self.state, clock=self.clk.correction(t_rx_s))
+        return [m]
+
+    def _on_range_rsp(self, msg: dict, t_rx_s: float) -> list[dict]:
+        """The reply to our request: a two-way range and a two-way time transfer."""
+        src = msg.get("src")
+        self._heard(src, t_rx_s)
+        if msg.get("dst") != self.id:
             return []
+        pend = self.pending.pop(msg.get("req_seq"), None)
+        if pend is None or pend[0] != src or t_rx_s > pend[2]:
+            self.counters["ignored"] += 1
+            return []
+        _, t_tx, _ = pend
+        corr = msg.get("clock")
+        f_me, f_peer = self.clk.freq(), (corr[2] if corr is not None else 0.0)
+        # two-way ranging on each end's own clock, durations scaled to network seconds
+        range_m = 0.5 * SPEED_OF_LIGHT_M_S * ((t_rx_s - t_tx) / (1.0 + f_me) - msg["turnaround_s"] / (1.0 + f_peer))
+        if not (0.0 < range_m < self.cfg.max_range_m):
+            self.counters["rejected_ranges"] += 1
+            return []
+        self.counters["responses"] += 1
+        pos = np.asarray(msg["pos_m"], float)
+        cov = np.asarray(msg["cov_m2"], float)
+        self._update_peer(src, msg)
+        entry = [src, float(range_m), float(t_rx_s)]
+        t3 = msg.get("t_tx_s")
+        if t3 is not None:
+            # two-way time transfer: theta_me - theta_peer at the exchange midpoint (both ends'
+            # midpoints are the same instant); the nav entry carries it to the other stations
+            t2 = msg.get("t_rx_s", t3 - msg["turnaround_s"])
+            dtheta = 0.5 * ((t_rx_s - t3) - (t2 - t_tx))
+            t_mid = 0.5 * (t_tx + t_rx_s)
+            entry = [src, float(range_m), float(t_mid), float(dtheta)]
+            if self.clk.on_exchange(self.id, src, self.clk.network_time(t_mid), dtheta,
+                                    self.clk.offset_var_s2) is not None:
+                self.counters["sync_in"] += 1
+        self.ranges_out.append(entry)
+        self.est.on_range(src, range_m, t_rx_s, True, pos, cov)
+        self.integrity.on_range(src, range_m, t_rx_s)
+        self._refresh_state()
         return []
+
+    def _on_nav(self, msg: dict, t_rx_s: float) -> list[dict]:
+        """A peer's nav broadcast: its estimate, slot, clock correction and the ranges it measured."""
+        src = msg.get("src")
+        self._heard(src, t_rx_s)
+        self._update_peer(src, msg)
+        slot = msg.get("slot")
+        if slot is not None:
+            self.heard_slots[src] = slot
+            if self.slot is not None and slot == self.slot and src < self.id:
+                # slot collision: the lower id keeps the slot, we listen again and re-claim
+                self.slot = None
+                self.state = "joining"
+                self.listen_until_s = t_rx_s + self.plan.cycle_s
+                self._next_req_T = self._nav_s = float("inf")
+        pos = np.asarray(msg["pos_m"], float)
+        cov = np.asarray(msg["cov_m2"], float)
+        self.est.on_peer(src, pos, cov)
+        corr = msg.get("clock")
+        if corr is not None:
+            self.clk.on_nav(src, t_rx_s, msg["t_tx_s"], corr)  # coarse, only while unknown
+        for r in msg.get("ranges", ()):
+            peer, range_m = r[0], r[1]
+            if len(r) == 4 and corr is not None and 0.0 < range_m < self.cfg.max_range_m:
+                # every exchange the network makes refines the network clock filter: ours (the
+                # responder's end) and the others' alike
+                T_mid, T_var = self.clk.peer_time(src, r[2], corr)  # our prior view of src's clock
+                if self.clk.on_exchange(src, peer, T_mid, float(r[3]), T_var) is not None:
+                    self.counters["sync_in"] += 1
+            if peer == self.id and 0.0 < range_m < self.cfg.max_range_m:
+                self.counters["ranges_in"] += 1
+                if self.est.name.startswith("dmap"):  # dmap, dmap-ls: ranges used at both ends
+                    self.est.on_range(src, float(range_m), t_rx_s, False, pos, cov)
+                self.integrity.on_range(src, float(range_m), t_rx_s)
+        self._refresh_state()
+        return []
+
+    _HANDLERS = {"range_req": _on_range_req, "range_rsp": _on_range_rsp, "nav": _on_nav}
 
     def _in_slot(self, req: dict, t_tx_s: float) -> bool:
         """Does a reply sent at local ``t_tx_s`` still fall inside the request's slot, on our estimate
@@ -359,9 +357,8 @@ class StationCore:
         """Test the peers (``stations/integrity.py``); excluded peers leave the survey solve."""
         if not self.est.initialized:
             return []
-        peers = {p: (i.pos_m, i.cov_m2) for p, i in self.peers.items()}
         out = []
-        for body in self.integrity.evaluate(t_s, self.est.pos_m, self.est.cov_m2, peers):
+        for body in self.integrity.evaluate(t_s, self.est.pos_m, self.est.cov_m2, self.peers):
             self.seq.setdefault("integrity", 0)
             m = self._base("integrity", t_s)
             m.update(body)
@@ -376,15 +373,6 @@ class StationCore:
         if self.state == "joining" and self.slot is not None and self.est.initialized:
             self.state = "surveying"
 
-    def _update_peer(self, src: int, msg: dict, t_s: float) -> None:
-        p = self.peers.get(src)
-        pos = np.asarray(msg["pos_m"], float)
-        cov = np.asarray(msg["cov_m2"], float)
-        if p is None:
-            self.peers[src] = PeerInfo(pos, cov, int(msg.get("n_updates", 0)), msg.get("state", "surveying"),
-                                       msg.get("slot"), t_s)
-        else:
-            p.pos_m, p.cov_m2, p.n_updates = pos, cov, int(msg.get("n_updates", 0))
-            p.state, p.last_heard_s = msg.get("state", p.state), t_s
-            if msg.get("slot") is not None:
-                p.slot = msg["slot"]
+    def _update_peer(self, src: int, msg: dict) -> None:
+        """The peer's latest broadcast position and covariance (for the integrity tests)."""
+        self.peers[src] = (np.asarray(msg["pos_m"], float), np.asarray(msg["cov_m2"], float))

@@ -34,11 +34,9 @@ from __future__ import annotations
 import argparse
 import gc
 import heapq
-import json
 import logging
 import math
 import os
-import signal
 import sys
 import threading
 import time
@@ -54,6 +52,7 @@ from net.faults import WireFaults, merge_faults
 from net.procsched import add_sched_args, apply_sched_args
 from net.scenario import Scenario
 
+from .shell import PublishPolicy
 from .shellfaults import ShellFaults
 
 log = logging.getLogger("larns.station")
@@ -125,9 +124,7 @@ class StationNode:
         self._order = 0
         self._seen: set = set()
         self._seen_q: deque = deque()
-        self._truth_seq = 0
-        self._journal_seq = {"core_init": 0, "core_input": 0}
-        self._navs_sent = 0
+        self.policy = PublishPolicy(self.id, journal=opts.journal)  # estimate/truth/journal decorations
         self._journal_thread: threading.Thread | None = None
         self._journal_q: Any = None
         self._last_status = -math.inf
@@ -292,10 +289,7 @@ class StationNode:
                     m = self.shell.outgoing(m, t_true)
                     data = M.encode(m, {"pos_m": self.true_pos, "t_true_s": t_true})
                 elif kind == "estimate":
-                    m = dict(m)
-                    if self.core.slot is not None:
-                        m["slot"] = int(self.core.slot)
-                    m["dropped"] = int(self.drops.total)
+                    m = self.policy.estimate(m, self.core.slot, self.drops.total)
                     data = M.encode(m)
                     self._publish_truth(m)
                 else:
@@ -306,25 +300,11 @@ class StationNode:
                 continue
             self.bus.publish(M.key_for(m), data)
             self.stats["tx_" + kind] += 1
-            if kind == "nav":
-                self._navs_sent += 1
-        if self.opts.journal and any(m["kind"] == "nav" for m in outs):
-            self._publish_journal()
+            self.policy.sent(kind)
+        for kind, fields in self.policy.after_outputs(self.core, outs):
+            self._journal_submit(kind, fields)
 
     # ------------------------------------------------------------------ core journal
-    def _journal_msg(self, kind: str, stamp_s: float, **fields: Any) -> dict:
-        self._journal_seq[kind] += 1
-        return {"kind": kind, "src": self.id, "seq": self._journal_seq[kind], "stamp_s": float(stamp_s), **fields}
-
-    def _publish_init(self) -> None:
-        self._journal_submit("core_init", {"record": self.core.init_record})
-
-    def _publish_journal(self) -> None:
-        """After the own slot's nav: what the core consumed since the last one (docs/protocol.md)."""
-        if self._navs_sent % 10 == 0:
-            self._publish_init()
-        self._journal_submit("core_input", {"entries": self.core.take_inputs()})
-
     def _journal_submit(self, kind: str, fields: dict) -> None:
         """Hand a journal message to the sender thread: it is encoded (validated, split when too
         big) and published there, outside the node lock, so a big journal never delays the reply
@@ -348,35 +328,17 @@ class StationNode:
             self.stats["journal_dropped"] += 1
 
     def _journal_emit(self, kind: str, fields: dict, stamp_s: float, publish) -> None:
-        """Encode one journal message (core_input: split in halves while too big) and publish it."""
+        """Encode one journal item (``PublishPolicy.encode_journal``: a core_input split while too
+        big) and publish it."""
+        for key, data in self.policy.encode_journal(kind, fields, stamp_s, self._journal_error):
+            publish(key, data)
+
+    def _journal_error(self, kind: str, n_entries: int, e: M.MessageError) -> None:
         if kind == "core_init":
-            m = self._journal_msg("core_init", stamp_s, **fields)
-            try:
-                publish(M.key_for(m), M.encode(m))
-            except M.MessageError as e:
-                log.error("station %d: cannot publish core_init: %s", self.id, e)
+            log.error("station %d: cannot publish core_init: %s", self.id, e)
             return
-        chunks = [fields["entries"]]
-        while chunks:
-            part = chunks.pop(0)
-            m = self._journal_msg("core_input", stamp_s, entries=part)
-            try:
-                if len(part) > M.MAX_JOURNAL:
-                    raise M.MessageError("shape", f"{len(part)} journal entries > {M.MAX_JOURNAL}")
-                # not validated again here: every entry is a timer time or a message that was
-                # validated when it was received or sent; readers validate. Encoding a cycle's
-                # journal at N = 50 takes 0.12 ms instead of 0.93 ms.
-                data = M.encode(m, validate=False)
-            except M.MessageError as e:
-                if e.reason in ("size", "shape") and len(part) > 1:  # too big for one message: split
-                    self._journal_seq["core_input"] -= 1
-                    half = len(part) // 2
-                    chunks[:0] = [part[:half], part[half:]]
-                    continue
-                log.error("station %d: dropping %d journal entries: %s", self.id, len(part), e)
-                self.stats["journal_invalid"] += 1
-                continue
-            publish(M.key_for(m), data)
+        log.error("station %d: dropping %d journal entries: %s", self.id, n_entries, e)
+        self.stats["journal_invalid"] += 1
 
     def _journal_sender(self) -> None:
         def publish(key: str, data: bytes) -> None:
@@ -401,12 +363,9 @@ class StationNode:
             self._journal_thread.join(timeout_s)
 
     def _publish_truth(self, est: dict) -> None:
-        self._truth_seq += 1
-        t = self.fleet_now()
         tau = self.clock.to_true(float(est["stamp_s"]))  # the estimate's instant
-        m = {"kind": "truth", "src": self.id, "seq": self._truth_seq, "stamp_s": float(est["stamp_s"]),
-             "t_s": float(t), "pos_m": self.true_pos,
-             "clock_error_s": float(self.clock.error_s(tau) - self.ref_clock.error_s(tau))}
+        m = self.policy.truth(est, self.fleet_now(), self.true_pos,
+                              clock_error_s=self.clock.error_s(tau) - self.ref_clock.error_s(tau))
         self.bus.publish(M.key_for(m), M.encode(m))
 
     # ------------------------------------------------------------------ main loop
@@ -466,9 +425,8 @@ class StationNode:
         t0 = max(0.0, self.fleet_now())
         self.core, self.clock = self._make_core(self.scn, self.id, estimator=self.opts.estimator,
                                                 join=self.opts.join, start_s=t0, seed=self.seed)
-        if self.opts.journal:
-            self.core.journal = True
-            self._publish_init()
+        for kind, fields in self.policy.start(self.core):
+            self._journal_submit(kind, fields)
 
     def run(self) -> dict:
         bus = self.bus
@@ -548,63 +506,44 @@ class StationNode:
 # --------------------------------------------------------------------------- command line
 
 def add_args(p: argparse.ArgumentParser) -> None:
-    from net.bus import add_bus_args
+    from net import cli
 
     p.add_argument("--id", type=int, required=True, help="station id (1..65535; 1-3 define the frame)")
-    p.add_argument("--scenario", default="seed000", help="scenario name or TOML path (default seed000)")
     p.add_argument("--join", action="store_true",
                    help="hot-join a running fleet: listen for a cycle, claim a free slot, initialize")
-    p.add_argument("--speed", type=float, default=1.0, help="run K times faster than real time (default 1)")
-    p.add_argument("--epoch", type=float, default=None,
-                   help="fleet epoch, Unix seconds (all processes must agree; default: start of the UTC day)")
-    p.add_argument("--duration", type=float, default=None,
-                   help="stop at this fleet time (seconds since the epoch); default: run until signalled")
     p.add_argument("--start-at", type=float, default=None, metavar="T",
                    help="power on at fleet time T (with --join: hot-join at T); default: now")
     p.add_argument("--estimator", default=None, help="override the scenario's survey estimator")
-    p.add_argument("--seed", type=int, default=None, help="override the scenario's world seed")
-    p.add_argument("--n-stations", type=int, default=None,
-                   help="override the number of stations of a random-layout scenario")
+    cli.add_process_args(p, scenario="seed000", what="station")
     add_sched_args(p)
-    g = p.add_argument_group("network faults (override the scenario's [net] section)")
-    g.add_argument("--net-delay", type=float, default=None, metavar="S", help="extra delivery delay, s")
-    g.add_argument("--net-jitter", type=float, default=None, metavar="S", help="delay jitter (1 sigma), s")
-    g.add_argument("--net-loss", type=float, default=None, metavar="P", help="loss probability")
-    g.add_argument("--net-dup", type=float, default=None, metavar="P", help="duplication probability")
     p.add_argument("--nice", type=int, default=0, metavar="N",
                    help="change the scheduling niceness by N (negative = higher priority, needs privileges); "
                         "helps real-time behaviour on a busy machine")
-    p.add_argument("--status-every", type=float, default=5.0, help="fleet seconds between status lines")
     p.add_argument("--lookahead", type=float, default=0.05, metavar="S",
                    help="wall seconds the own nav waits for an outstanding range reply (default 0.05)")
     p.add_argument("--no-journal", action="store_true",
                    help="do not publish the core journal (larns/station/<id>/init and .../input, "
                         "needed for bit-exact offline re-estimation)")
-    p.add_argument("--report-json", action="store_true", help="print a JSON report on stdout at exit")
-    p.add_argument("-q", "--quiet", action="store_true")
-    add_bus_args(p)
+    cli.add_output_args(p)
 
 
 def load_scenario(args: argparse.Namespace) -> Scenario:
+    """The scenario of ``--scenario`` / ``--n-stations`` with the ``--net-*`` faults merged in."""
     from dataclasses import replace
 
     from net import scenario as S
 
-    over: dict[str, Any] = {}
-    if args.n_stations:
-        over["layout"] = {"n": int(args.n_stations)}
-    scn = S.load(args.scenario, **over)
+    scn = S.load_cli(args.scenario, args.n_stations)
     net = merge_faults(scn.net, args.net_delay, args.net_jitter, args.net_loss, args.net_dup)
     return replace(scn, net=net)
 
 
 def main_args(args: argparse.Namespace) -> int:
-    from net.bus import Bus, bus_kwargs
+    from net import cli
+    from net.bus import Bus
 
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    stop_early = threading.Event()  # a signal during start-up (Zenoh open) still means: exit cleanly
-    signal.signal(signal.SIGINT, lambda *_: stop_early.set())
-    signal.signal(signal.SIGTERM, lambda *_: stop_early.set())
+    cli.setup_logging()
+    stop_early = cli.early_stop()  # a signal during start-up (Zenoh open) still means: exit cleanly
     if getattr(args, "nice", 0):
         try:
             os.nice(args.nice)
@@ -621,35 +560,10 @@ def main_args(args: argparse.Namespace) -> int:
                        journal=not getattr(args, "no_journal", False),
                        lookahead_s=getattr(args, "lookahead", 0.05))
     args.secure_cn = f"station-{args.id}"
-    bus = _secure_bus(Bus, bus_kwargs, args, scn)
-    try:
-        node = StationNode(scn, opts, bus)
-        signal.signal(signal.SIGINT, node.stop)
-        signal.signal(signal.SIGTERM, node.stop)
-        if stop_early.is_set():
-            node.stop()
-        # everything allocated so far (modules, numpy/scipy/zenoh objects: ~36k) never becomes
-        # garbage; moved out of the collector's sight, a full collection takes microseconds instead
-        # of ~20 ms, which would otherwise land on a random slot now and then
-        gc.freeze()
-        prof_dir = os.environ.get("LARNS_PROFILE")  # cProfile of the main loop (timers + nav drain)
-        if prof_dir:
-            import cProfile
-
-            prof = cProfile.Profile()
-            prof.enable()
-            try:
-                rep = node.run()
-            finally:
-                prof.disable()
-                os.makedirs(prof_dir, exist_ok=True)
-                prof.dump_stats(os.path.join(prof_dir, f"station_{args.id}.prof"))
-        else:
-            rep = node.run()
-    finally:
-        bus.close()
-    if args.report_json:
-        print(json.dumps(rep), flush=True)
+    bus = cli.open_bus(f"station {args.id}", lambda: Bus(**_bus_kwargs(args, scn)))
+    rep = cli.serve(args, bus, lambda: StationNode(scn, opts, bus), run=_run, stop=stop_early)
+    if rep is None:
+        return 2
     if not args.quiet:
         print(f"[station {args.id}] stopped: updates={rep['n_updates']} err={rep['err_m']:.2f} m "
               f"drops={rep['drops']['total']} late={rep['late']} host_late={rep['host_late']} "
@@ -659,28 +573,47 @@ def main_args(args: argparse.Namespace) -> int:
     return 0
 
 
-def _secure_bus(Bus, bus_kwargs, args: argparse.Namespace, scn: Scenario):
-    """The station's bus; with ``--secure`` its credentials (exit 2 with the reason if they cannot
-    be loaded) and the Zenoh ingress flood guard for this scenario's TDMA (net/security.py)."""
-    from net.security import Keystore, KeystoreError, flood_guard
+def _run(node: StationNode) -> dict:
+    """Run the node with the collector out of the way and, with ``LARNS_PROFILE=DIR``, under cProfile."""
+    # everything allocated so far (modules, numpy/scipy/zenoh objects: ~36k) never becomes
+    # garbage; moved out of the collector's sight, a full collection takes microseconds instead
+    # of ~20 ms, which would otherwise land on a random slot now and then
+    gc.freeze()
+    prof_dir = os.environ.get("LARNS_PROFILE")  # cProfile of the main loop (timers + nav drain)
+    if not prof_dir:
+        return node.run()
+    import cProfile
 
+    prof = cProfile.Profile()
+    prof.enable()
     try:
-        kw = bus_kwargs(args)
-        if "secure" in kw:
-            ids = sorted(set(Keystore(kw["secure"][0]).reserved) | set(scn.ids))
-            kw["secure"] = (*kw["secure"], flood_guard(scn.tdma.cycle_s, scn.tdma.slot_s, args.speed, ids, args.id))
-        return Bus(**kw)
-    except KeystoreError as e:
-        print(f"station {args.id}: --secure: {e}", file=sys.stderr)
-        raise SystemExit(2) from None
+        return node.run()
+    finally:
+        prof.disable()
+        os.makedirs(prof_dir, exist_ok=True)
+        prof.dump_stats(os.path.join(prof_dir, f"station_{node.id}.prof"))
+
+
+def _bus_kwargs(args: argparse.Namespace, scn: Scenario) -> dict:
+    """The station's bus settings; with ``--secure`` the Zenoh ingress flood guard for this
+    scenario's TDMA (net/security.py)."""
+    from net.bus import bus_kwargs
+    from net.security import Keystore, flood_guard
+
+    kw = bus_kwargs(args)
+    if "secure" in kw:
+        ids = sorted(set(Keystore(kw["secure"][0]).reserved) | set(scn.ids))
+        kw["secure"] = (*kw["secure"], flood_guard(scn.tdma.cycle_s, scn.tdma.slot_s, args.speed, ids, args.id))
+    return kw
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m stations", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_args(p)
-    return p
+    from net import cli
+
+    return cli.build_parser("python -m stations", __doc__, add_args)
 
 
 def main(argv: list[str] | None = None) -> int:
-    return main_args(build_parser().parse_args(argv))
+    from net import cli
+
+    return cli.main(argv, "python -m stations", __doc__, add_args, main_args)

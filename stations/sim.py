@@ -3,13 +3,16 @@
 No Zenoh, no sleeping: a discrete-event loop ordered by true time. The objects are exactly the
 ones the Zenoh node runs (``StationCore`` + ``AirChannel`` + ``Clock``), and the world is drawn from
 the same per-station seeded streams (``net.channel.station_rng``), so a result measured here holds
-in the networked emulator.
+in the networked emulator. With ``publish=`` it also hands out what each station's shell would put
+on the bus (``stations/shell.py``: decorated estimates, truth, and with ``journal=True`` the core
+journal), which ``larns bench replay`` writes as a recording.
 """
 
 from __future__ import annotations
 
 import heapq
 from dataclasses import dataclass, field
+from typing import Any, Callable
 
 import numpy as np
 
@@ -17,6 +20,7 @@ from net.channel import AirChannel, Clock, coarse_fix, draw_clock, station_rng
 from net.scenario import Scenario
 
 from .core import StationConfig, StationCore
+from .shell import PublishPolicy
 from .shellfaults import ShellFaults
 from .tdma import TdmaPlan
 
@@ -50,10 +54,12 @@ def network_offset_s(clock, ref_clock, t_true_s: float) -> float:
 
 
 def make_core(scn: Scenario, station_id: int, *, estimator: str | None = None, join: bool = False,
-              start_s: float = 0.0, seed: int | None = None) -> tuple[StationCore, Clock]:
-    """Build a station core the way a station process does: clock and coarse fix from the world seed."""
+              start_s: float = 0.0, seed: int | None = None, clock: Clock | None = None
+              ) -> tuple[StationCore, Clock]:
+    """Build a station core the way a station process does: clock and coarse fix from the world seed
+    (``clock``: another oscillator than the seed's, for tests)."""
     seed = scn.seed if seed is None else seed
-    clock = station_clock(scn, station_id, seed)
+    clock = station_clock(scn, station_id, seed) if clock is None else clock
     if scn.sigma0_m > 0:
         pos0, cov0 = coarse_fix(scn.true_pos(station_id), station_id, scn.sigma0_m, station_rng(seed, station_id, 1))
     elif station_id == 1:
@@ -90,11 +96,23 @@ class Simulator:
     seed : override the world seed.
     start_s : {station id: true start time}; stations in ``scn.join_ids`` default to joining.
     stop_s : {station id: true time the station dies (SIGKILL-like: silent from then on)}.
+    core_factory : builds a station's ``(core, clock)``; same signature as :func:`make_core` (the
+        default). The injection point for tests and tools that change how a core is built.
+    journal : the stations' shells publish their core journal (``core_init``, ``core_input``).
+    publish : ``publish(t_true_s, station_id, msg, phy)`` receives everything the stations' shells
+        publish, in order: air messages (``phy`` = true sender position and transmit time),
+        decorated estimates with their truth, journal messages (``phy`` None) - what
+        ``stations/node.py`` puts on the bus (``stations/shell.py``). Default: nothing is published.
     """
 
     def __init__(self, scn: Scenario, *, estimator: str | None = None, seed: int | None = None,
-                 start_s: dict[int, float] | None = None, stop_s: dict[int, float] | None = None):
+                 start_s: dict[int, float] | None = None, stop_s: dict[int, float] | None = None,
+                 core_factory: Callable[..., tuple[StationCore, Clock]] | None = None, journal: bool = False,
+                 publish: Callable[[float, int, dict, dict | None], Any] | None = None):
         self.scn = scn
+        self.core_factory = make_core if core_factory is None else core_factory
+        self.publish = publish
+        self.policy = [PublishPolicy(i, journal=journal) for i in scn.ids]
         self.seed = scn.seed if seed is None else seed
         self.estimator = estimator
         self.start_s = dict(start_s or {})
@@ -139,9 +157,13 @@ class Simulator:
         for m in outs:
             kind = m["kind"]
             if kind not in ("range_req", "range_rsp", "nav"):
+                self._publish_local(k, m)
                 continue
             t_tx_true = self.clocks[k].to_true(m["t_tx_s"])
             m = self.shell[k].outgoing(m, t_tx_true)
+            if self.publish is not None:
+                self.publish(self.now_s, ids[k], m, {"pos_m": self.scn.pos_m[k], "t_true_s": t_tx_true})
+            self.policy[k].sent(kind)
             if kind == "nav":
                 for peer, rng_m, *_ in m["ranges"]:
                     if peer in ids:
@@ -159,14 +181,35 @@ class Simulator:
                 if t_local is None:
                     continue
                 self._push(self.clocks[j].to_true(t_local), ("rx", j, m, t_local))
+        self._journal(k, self.policy[k].after_outputs(self.cores[k], outs))
+
+    def _publish_local(self, k: int, m: dict) -> None:
+        """A core output that does not go on air: an estimate goes out decorated after its truth (the
+        node's order; the simulator's truth carries the position only, no clock error, as the
+        recordings it synthesizes always did); integrity announcements as they are."""
+        if self.publish is None:
+            return
+        if m["kind"] == "estimate":
+            pol = self.policy[k]
+            m = pol.estimate(m, self.cores[k].slot)
+            self.publish(self.now_s, self.scn.ids[k], pol.truth(m, self.now_s, self.scn.pos_m[k]), None)
+        self.publish(self.now_s, self.scn.ids[k], m, None)
+
+    def _journal(self, k: int, items: list[tuple[str, dict]]) -> None:
+        for kind, fields in items:
+            m = self.policy[k].journal_msg(kind, self.now_s, **fields)
+            if self.publish is not None:
+                self.publish(self.now_s, self.scn.ids[k], m, None)
 
     def _handle(self, t: float, ev: tuple) -> None:
         what, k = ev[0], ev[1]
         sid = self.scn.ids[k]
         if what == "start":
             join = sid in self.scn.join_ids or self.start_s.get(sid, 0.0) > 0.0
-            core, clock = make_core(self.scn, sid, estimator=self.estimator, join=join, start_s=t, seed=self.seed)
+            core, clock = self.core_factory(self.scn, sid, estimator=self.estimator, join=join, start_s=t,
+                                            seed=self.seed)
             self.cores[k], self.clocks[k] = core, clock
+            self._journal(k, self.policy[k].start(core))
             self._arm(k)
             return
         if not self._alive(k, t):

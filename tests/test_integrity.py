@@ -206,9 +206,9 @@ def test_station_chi_square_false_alarm_rate_on_clean_data():
                 assert p.n_tests > 30
         # re-evaluate the statistic at the end for every link: a sample of T under H0
         for c in sim.cores:
-            for pid, info in c.peers.items():
+            for pid, (ppos, pcov) in c.peers.items():
                 T = c.integrity.statistic(pid, c.integrity.peers[pid].ranges[-1][0], c.est.pos_m, c.est.cov_m2,
-                                          info.pos_m, info.cov_m2)
+                                          ppos, pcov)
                 if T is not None:
                     stats.append(T)
     stats = np.array(stats)

@@ -47,10 +47,13 @@ def test_slice_keeps_the_nice_value():
     def work():
         os.setpriority(os.PRIO_PROCESS, 0, os.getpriority(os.PRIO_PROCESS, 0) + 3)  # this thread only
         nice = os.getpriority(os.PRIO_PROCESS, 0)
-        P.set_slice_us(100)
-        return nice, os.getpriority(os.PRIO_PROCESS, 0)
+        got = P.set_slice_us(100)
+        return nice, got, os.getpriority(os.PRIO_PROCESS, 0)
 
-    nice, after = _in_thread(work)
+    nice, got, after = _in_thread(work)
+    if got is None:  # the slice was not set: nothing could have changed the nice value
+        pytest.skip("kernel without EEVDF custom slices: set_slice_us is a no-op, the test cannot fail here")
+    assert got == 100_000
     assert after == nice
 
 

@@ -105,24 +105,18 @@ def test_hot_join_converges_without_disturbing_the_network():
 
 def test_join_without_fix_trilaterates():
     scn = load("seed000", seed=22, layout={"n": 11, "join_ids": [11]})
-    sim = Simulator(scn)
-    sim.start_s[11] = 15.0
-    import stations.sim as ssim
+    from stations.sim import make_core
 
     # a newcomer with no coarse fix: build the core with sigma0 = 0 for it only
-    orig = ssim.make_core
-
     def make(scn_, sid, **kw):
         if sid == 11:
             from dataclasses import replace
-            return orig(replace(scn_, sigma0_m=0.0), sid, **kw)
-        return orig(scn_, sid, **kw)
+            return make_core(replace(scn_, sigma0_m=0.0), sid, **kw)
+        return make_core(scn_, sid, **kw)
 
-    ssim.make_core = make
-    try:
-        r = sim.run(60.0, [60.0])
-    finally:
-        ssim.make_core = orig
+    sim = Simulator(scn, core_factory=make)
+    sim.start_s[11] = 15.0
+    r = sim.run(60.0, [60.0])
     e = np.linalg.norm(r.pos_m[-1, 10, :2] - r.truth_m[10, :2])
     assert e < 1.5
 
@@ -166,22 +160,16 @@ def test_core_journal_replays_bit_for_bit():
     """A core rebuilt from its init record and fed its journal reproduces every estimate exactly."""
     import msgpack
 
-    import stations.sim as ssim
     from stations.core import StationCore
-
-    orig = ssim.make_core
+    from stations.sim import make_core
 
     def make(*a, **k):
-        c, clock = orig(*a, **k)
+        c, clock = make_core(*a, **k)
         c.journal = True
         return c, clock
 
-    ssim.make_core = make
-    try:
-        sim = Simulator(load("seed000", seed=31))
-        sim.run(15.0, [15.0])
-    finally:
-        ssim.make_core = orig
+    sim = Simulator(load("seed000", seed=31), core_factory=make)
+    sim.run(15.0, [15.0])
     for c in sim.cores:
         # through msgpack, as on the wire
         entries = msgpack.unpackb(msgpack.packb(c.take_inputs()), raw=False)

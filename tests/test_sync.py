@@ -138,17 +138,15 @@ def test_clock_filter_is_consistent_in_the_simulator_and_syncs_below_2ns():
 
 
 @pytest.mark.parametrize("offset_s, drift", [(1e-3, 20e-6), (-1e-3, -20e-6), (1e-3, -20e-6), (-1e-3, 20e-6)])
-def test_station_with_clock_ahead_or_behind_completes_all_its_exchanges(monkeypatch, offset_s, drift):
-    import stations.sim as sim_mod
+def test_station_with_clock_ahead_or_behind_completes_all_its_exchanges(offset_s, drift):
+    from stations.sim import make_core
 
     scn = load("seed000", seed=2)
-    orig = sim_mod.station_clock
 
-    def clock_of(scn_, sid, seed=None):
-        return Clock(offset_s, drift) if sid == 5 else orig(scn_, sid, seed)
+    def make(scn_, sid, **kw):
+        return make_core(scn_, sid, clock=Clock(offset_s, drift) if sid == 5 else None, **kw)
 
-    monkeypatch.setattr(sim_mod, "station_clock", clock_of)
-    sim = Simulator(scn)
+    sim = Simulator(scn, core_factory=make)
     r = sim.run(40.0, [40.0])
     c5 = r.counters[5]
     assert c5["requests"] >= 39 and c5["responses"] == c5["requests"] and c5["late"] == 0

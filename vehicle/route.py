@@ -30,7 +30,6 @@ from nav.orbits import (
     OMEGA_VEC_G,
     R_EARTH_MEAN_M,
     earth_rotation,
-    ecef_from_greenwich,
     enu_to_ecef,
     enu_rotation,
     gravity,
@@ -337,9 +336,3 @@ def route_from_geojson(doc: dict, name: str = "route") -> Route:
     co = doc["coordinates"]
     h = float(co[0][2]) if len(co[0]) > 2 else 100.0
     return great_circle_route([(c[1], c[0]) for c in co], h, props.get("speeds_m_s"), name=name)
-
-
-def ecef_points(route: Route) -> np.ndarray:
-    """Map nodes in ECEF (K + 1, 3)."""
-    pts = [s.A for s in route.segments] + [route.segments[-1].B]
-    return ecef_from_greenwich(np.array(pts))

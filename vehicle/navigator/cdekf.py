@@ -220,13 +220,6 @@ class _Base:
         M = self.x.shape[0]
         return np.swapaxes(self.x[:, :9].reshape(M, 3, 3), 1, 2)
 
-    def attitude_cov(self) -> np.ndarray:
-        """Covariance (M, 3, 3) of the inertial-frame small-angle attitude error ``D_hat = exp([e x]) D``."""
-        M = self.x.shape[0]
-        J = inertial_dirs(self.x[:, :9].reshape(M, 3, 3))
-        Jp = 0.5 * np.swapaxes(J, 1, 2)  # pseudo-inverse: the columns are orthogonal, |col|^2 = 2
-        return Jp @ self.P[:, :9, :9] @ J * 0.5
-
     def error_state_cov(self) -> np.ndarray:
         """Covariance of ``[e_I (3), rest of the state]`` (M, n - 6, n - 6) (attitude as 3 angles)."""
         M, n = self.x.shape

@@ -1,0 +1,113 @@
+"""Command-line plumbing shared by the LARNS processes (``python -m stations``, ``python -m aircraft``,
+``larns station``, ``larns aircraft``): common flags, the bus with its ``--secure`` credentials, and
+the run of a node until it stops or is signalled (clean exit: liveliness withdrawn, session closed).
+
+Each process module keeps only what is its own: ``add_args`` (its flags, on top of
+:func:`add_process_args`), the node and its options; ``main`` and ``build_parser`` come from here.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import signal
+import sys
+import threading
+from typing import Any, Callable
+
+
+def add_process_args(p: argparse.ArgumentParser, *, scenario: str, what: str, net_faults: bool = True) -> None:
+    """The flags every process takes: scenario (default ``scenario``) and world, fleet time, network
+    faults (``net_faults`` False: accepted for launcher compatibility but hidden), status and report.
+    ``what`` names the process in the help texts ("station", "aircraft")."""
+    p.add_argument("--scenario", default=scenario, help=f"scenario name or TOML path (default {scenario})")
+    p.add_argument("--speed", type=float, default=1.0, help="run K times faster than real time (default 1)")
+    p.add_argument("--epoch", type=float, default=None,
+                   help="fleet epoch, Unix seconds (all processes must agree; default: start of the UTC day)")
+    p.add_argument("--duration", type=float, default=None,
+                   help="stop at this fleet time (seconds since the epoch); default: run until signalled")
+    p.add_argument("--seed", type=int, default=None, help="override the scenario's world seed")
+    p.add_argument("--n-stations", type=int, default=None,
+                   help="override the number of stations of a random-layout scenario")
+    if net_faults:
+        g = p.add_argument_group("network faults (override the scenario's [net] section)")
+        g.add_argument("--net-delay", type=float, default=None, metavar="S", help="extra delivery delay, s")
+        g.add_argument("--net-jitter", type=float, default=None, metavar="S", help="delay jitter (1 sigma), s")
+        g.add_argument("--net-loss", type=float, default=None, metavar="P", help="loss probability")
+        g.add_argument("--net-dup", type=float, default=None, metavar="P", help="duplication probability")
+    else:
+        g = p.add_argument_group(f"network faults (accepted for launcher compatibility; the {what}'s own "
+                                 "subscription is not faulted - the stations' links are)")
+        for flag in ("--net-delay", "--net-jitter", "--net-loss", "--net-dup"):
+            g.add_argument(flag, type=float, default=None, help=argparse.SUPPRESS)
+
+
+def add_output_args(p: argparse.ArgumentParser) -> None:
+    """Status lines, the JSON report at exit, quiet; then the Zenoh flags (``net.bus.add_bus_args``)."""
+    from .bus import add_bus_args
+
+    p.add_argument("--status-every", type=float, default=5.0, help="fleet seconds between status lines")
+    p.add_argument("--report-json", action="store_true", help="print a JSON report on stdout at exit")
+    p.add_argument("-q", "--quiet", action="store_true")
+    add_bus_args(p)
+
+
+def build_parser(prog: str, doc: str | None, add_args: Callable[[argparse.ArgumentParser], None]
+                 ) -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=prog, description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_args(p)
+    return p
+
+
+def main(argv: list[str] | None, prog: str, doc: str | None, add_args: Callable[[argparse.ArgumentParser], None],
+         main_args: Callable[[argparse.Namespace], int]) -> int:
+    """``python -m <package>``: parse ``argv`` with the process's flags and run it."""
+    return main_args(build_parser(prog, doc, add_args).parse_args(argv))
+
+
+def setup_logging() -> None:
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+
+
+def early_stop() -> threading.Event:
+    """SIGINT / SIGTERM during start-up (Zenoh opening) set the returned event; :func:`serve` then
+    stops the node as soon as it exists (a signal still means: exit cleanly)."""
+    ev = threading.Event()
+    signal.signal(signal.SIGINT, lambda *_: ev.set())
+    signal.signal(signal.SIGTERM, lambda *_: ev.set())
+    return ev
+
+
+def open_bus(who: str, make_bus: Callable[[], Any]) -> Any:
+    """``make_bus()``, or exit 2 with the reason when the ``--secure`` credentials cannot be loaded."""
+    from .security import KeystoreError
+
+    try:
+        return make_bus()
+    except KeystoreError as e:
+        print(f"{who}: --secure: {e}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
+def serve(args: argparse.Namespace, bus: Any, make_node: Callable[[], Any],
+          run: Callable[[Any], dict] | None = None, stop: threading.Event | None = None) -> dict | None:
+    """Build the node (a ``ValueError`` - bad options - prints ``error: ...`` and returns None), route
+    SIGINT / SIGTERM to ``node.stop``, run it (``run(node)``, default ``node.run()``), close the bus,
+    print the report as JSON with ``--report-json``; returns the report."""
+    try:
+        try:
+            node = make_node()
+        except ValueError as e:
+            print(f"error: {e}", file=sys.stderr)
+            return None
+        signal.signal(signal.SIGINT, node.stop)
+        signal.signal(signal.SIGTERM, node.stop)
+        if stop is not None and stop.is_set():
+            node.stop()
+        rep = node.run() if run is None else run(node)
+    finally:
+        bus.close()
+    if args.report_json:
+        print(json.dumps(rep), flush=True)
+    return rep

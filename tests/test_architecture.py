@@ -1,0 +1,98 @@
+"""The package dependency direction of docs/architecture.md, checked on the import graph of the code.
+
+The graph is generated from the source (``ast`` over every module of nav, net, stations, aircraft,
+vehicle and larns: ``import`` and ``from ... import`` statements anywhere in a module, including
+function-local and relative ones), so a new import against the direction fails here.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("nav", "net", "stations", "aircraft", "vehicle", "larns")
+# package -> the packages of ours it may import (docs/architecture.md, "Packages and dependency direction")
+ALLOWED = {
+    "nav": set(),
+    "net": {"nav"},
+    "stations": {"nav", "net"},
+    "aircraft": {"nav", "net"},
+    "vehicle": {"nav", "net"},
+    "larns": {"nav", "net", "stations", "aircraft", "vehicle"},
+}
+
+
+def _module_name(path: Path) -> str:
+    parts = path.relative_to(ROOT).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def imports_in(src: str, pkg: tuple[str, ...]) -> list[tuple[int, str]]:
+    """(line, absolute module name) of every import in source ``src`` of a module in package path
+    ``pkg`` (e.g. ``("stations",)``); relative imports are resolved against ``pkg``."""
+    out = []
+    for node in ast.walk(ast.parse(src)):
+        if isinstance(node, ast.Import):
+            out += [(node.lineno, a.name) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = ".".join(pkg[: len(pkg) - (node.level - 1)])
+                if node.module:
+                    out.append((node.lineno, f"{base}.{node.module}" if base else node.module))
+                else:  # "from . import x": x is a module of that package
+                    out += [(node.lineno, f"{base}.{a.name}" if base else a.name) for a in node.names]
+            else:
+                out.append((node.lineno, node.module or ""))
+    return out
+
+
+def import_graph() -> dict[str, list[tuple[str, int, str]]]:
+    """{module: [(file, line, imported module of ours)]} over every module of our packages."""
+    graph: dict[str, list[tuple[str, int, str]]] = {}
+    for pkg in PACKAGES:
+        for f in sorted((ROOT / pkg).rglob("*.py")):
+            graph[_module_name(f)] = [(str(f.relative_to(ROOT)), line, name)
+                                      for line, name in imports_in(f.read_text(), f.relative_to(ROOT).parent.parts)
+                                      if name.split(".")[0] in PACKAGES]
+    return graph
+
+
+GRAPH = import_graph()
+
+
+def test_the_graph_covers_every_package():
+    assert {m.split(".")[0] for m in GRAPH} == set(PACKAGES)
+    assert len(GRAPH) > 50
+    # the relative-import resolution works: stations/node.py imports stations.shellfaults relatively
+    assert any(name == "stations.shellfaults" for _f, _l, name in GRAPH["stations.node"])
+
+
+@pytest.mark.parametrize("pkg", PACKAGES)
+def test_package_dependency_direction(pkg):
+    bad = [f"{f}:{line} imports {name}" for mod, edges in GRAPH.items() if mod.split(".")[0] == pkg
+           for f, line, name in edges
+           if name.split(".")[0] not in ALLOWED[pkg] | {pkg}]
+    assert not bad, f"{pkg} may depend on {sorted(ALLOWED[pkg]) or 'nothing of ours'} only:\n" + "\n".join(bad)
+
+
+@pytest.mark.parametrize("pkg", ["aircraft", "vehicle"])
+def test_navigator_never_imports_the_world(pkg):
+    """Truth never reaches an estimator: ``navigator/`` does not import ``world/``."""
+    assert any(m.startswith(f"{pkg}.navigator.") for m in GRAPH)
+    bad = [f"{f}:{line} imports {name}" for mod, edges in GRAPH.items() if mod.startswith(f"{pkg}.navigator")
+           for f, line, name in edges if name.startswith(f"{pkg}.world")]
+    assert not bad, "\n".join(bad)
+
+
+def test_the_parser_sees_local_and_relative_imports():
+    """A checker that cannot fail is no check: function-local, relative and ``from . import`` imports
+    of a module of ``net/`` are all resolved to what the direction test compares."""
+    src = "import numpy\ndef f():\n    from stations import core\n    from ..aircraft.node import x\n" \
+          "    from . import bus\n    import vehicle.sim as vs\n"
+    names = [n for _l, n in imports_in(src, ("net",))]
+    assert names == ["numpy", "stations", "aircraft.node", "net.bus", "vehicle.sim"]
+    assert [n for n in names if n.split(".")[0] in PACKAGES and n.split(".")[0] not in ALLOWED["net"] | {"net"}] \
+        == ["stations", "aircraft.node", "vehicle.sim"]
