@@ -8,7 +8,7 @@
 * :mod:`larns.viz` - figures, the Foxglove view, the Markdown report;
 * :mod:`larns.fleet` - the local fleet launcher (plan, spawn, watch, stop);
 * :mod:`larns.bench` - one module per benchmark;
-* ``larns.offline`` (offline re-estimation), ``larns.bench_replay`` and :mod:`larns.scenarios`.
+* offline re-estimation is :mod:`larns.analysis.offline`; the replay benchmark :mod:`larns.bench.replay`.
 
 Modules that moved keep their old import names for one release (``MOVED``): ``import
 larns.mcaputil`` gives :mod:`larns.log`, ``larns.info`` gives :mod:`larns.analysis.summary`, ...
@@ -45,6 +45,8 @@ MOVED = {
     "larns.bench_ins": "larns.bench.ins",
     "larns.bench_integrity": "larns.bench.integrity",
     "larns.bench_vehicle": "larns.bench.vehicle",
+    "larns.offline": "larns.analysis.offline",
+    "larns.bench_replay": "larns.bench.replay",
 }
 
 

@@ -3,7 +3,7 @@
 :class:`PublishPolicy` is a pure object (no bus, no clock, no RNG): core outputs and the shell's
 state go in, messages to publish come out. The Zenoh station process (``stations/node.py``), the
 in-process simulator (``stations/sim.py``, journals optional), offline re-estimation
-(``larns/offline.py``) and the replay benchmark (``larns/bench_replay.py``) all use it, so a
+(``larns/analysis/offline.py``) and the replay benchmark (``larns/bench/replay.py``) all use it, so a
 recording synthesized in the simulator, a live recording and an offline re-run carry the same
 decorations:
 

@@ -181,7 +181,7 @@ def test_offline_reestimation_is_bit_exact(run, tmp_path):
 
 def test_offline_aircraft_other_algorithm(run, tmp_path):
     scn, rec, _ = run
-    from larns.offline import run_offline
+    from larns.analysis.offline import run_offline
 
     res = run_offline([rec], output=tmp_path / "ac.mcap", algos=["ekf-pr", "lsq-pr"], scenario=str(scn))
     ac = res.aircraft["ac1"]

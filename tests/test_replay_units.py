@@ -193,9 +193,9 @@ def test_view_messages_validate_and_never_carry_nan():
 
 def test_simulated_journal_log_replays_bit_exact(tmp_path):
     """The benchmark's synthetic log (in-process simulator with journals) is a faithful recording."""
-    from larns.bench_replay import synth_log
+    from larns.bench.replay import synth_log
     from larns.analysis.summary import summarize
-    from larns.offline import run_offline
+    from larns.analysis.offline import run_offline
 
     p = tmp_path / "sim.mcap"
     gen = synth_log(p, "seed000", duration_s=8.0)

@@ -12,7 +12,7 @@ BENCHES: list[str] = [
     "larns.bench.aircraft",
     "larns.bench.survey",
     "larns.bench.net",
-    "larns.bench_replay",
+    "larns.bench.replay",
     "larns.bench.sync",
     "larns.bench.ins",
     "larns.bench.integrity",

@@ -111,9 +111,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def cmd_offline(args: argparse.Namespace) -> int:
-    from ..offline import format_result, run_offline
+    from ..analysis.offline import format_result, run_offline
 
-    from ..offline import JOURNAL_TOPICS
+    from ..analysis.offline import JOURNAL_TOPICS
 
     try:  # only the journal and estimate channels unless the whole recording is rewritten
         logs = read_logs(args.files, topics=None if (args.output or args.algo) else JOURNAL_TOPICS)

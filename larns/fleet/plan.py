@@ -89,10 +89,7 @@ def plan_fleet(args: argparse.Namespace) -> FleetPlan:
     from net import scenario as S
     from net.bus import free_tcp_ports
 
-    over: dict[str, Any] = {}
-    if args.n_stations:
-        over["layout"] = {"n": int(args.n_stations)}
-    scn = S.load(args.scenario, **over)
+    scn = S.load_cli(args.scenario, args.n_stations)
     joins = parse_joins(args, scn)
     join_ids = {j for j, _ in joins}
     secure = _fleet_keystore(args, scn) if getattr(args, "secure", None) else None

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Sequence
 
+import msgpack
 import numpy as np
 
 from .reader import LogFile, Msg, merge, read_logs
@@ -47,6 +48,135 @@ def decode_all(msgs: Iterable[Msg]) -> Iterator[tuple[Msg, dict | None]]:
         except M.MessageError:
             msg = None
         yield m, msg
+
+
+def decoded(msgs: Iterable[Msg], invalid: Counter[str] | None = None) -> Iterator[tuple[Msg, dict, dict | None]]:
+    """``(record, msg, phy)`` for the valid LARNS envelopes among ``msgs``; invalid ones are counted by
+    reason in ``invalid`` and skipped (``net.messages.decode_valid`` on the records' payloads)."""
+    from net import messages as M
+
+    yield from M.decode_valid(msgs, lambda m: m.data, invalid)
+
+
+# --- the station journals (offline re-estimation reads them) ------------------------------------
+
+@dataclass
+class Journal:
+    """The recorded journal of one station."""
+
+    id: int
+    init: dict | None = None
+    inputs: dict[int, tuple[Msg, list]] = field(default_factory=dict)  # seq -> (record, entries)
+    estimates: dict[int, tuple[Msg, dict]] = field(default_factory=dict)  # seq -> (record, msg)
+
+    def contiguous(self) -> tuple[list[tuple[Msg, list]], int | None]:
+        """Inputs from seq 1 up to the first hole; returns (inputs, seq of the first missing one or None)."""
+        out = []
+        s = 1
+        last = max(self.inputs, default=0)
+        while s <= last:
+            if s not in self.inputs:
+                return out, s
+            out.append(self.inputs[s])
+            s += 1
+        return out, None
+
+
+def _unpack(data: bytes) -> dict | None:
+    try:
+        env = msgpack.unpackb(data, raw=False, strict_map_key=False)
+        msg = env["msg"]
+        return msg if isinstance(msg, dict) else None
+    except Exception:
+        return None
+
+
+def _time(v: Any) -> float:
+    from net import messages as M
+
+    if type(v) is not float and type(v) is not int:
+        raise M.MessageError("type", "journal time must be a number")
+    f = float(v)
+    if not -M.MAX_ABS <= f <= M.MAX_ABS:
+        raise M.MessageError("value", "journal time not finite")
+    return f
+
+
+def decode_input(data: bytes, cache: dict[bytes, dict]) -> dict:
+    """Strictly validate a ``core_input`` envelope, as ``net.messages.decode`` does, but validate each
+    distinct embedded air message once: a nav broadcast sits in the journal of every station that
+    heard it (``cache`` maps its msgpack bytes to the validated message)."""
+    from net import messages as M
+
+    if len(data) > M.MAX_PAYLOAD_BYTES:
+        raise M.MessageError("size", "too big")
+    try:
+        env = msgpack.unpackb(data, raw=False, strict_map_key=True, max_bin_len=0, max_ext_len=0,
+                              max_array_len=M.MAX_LIST * 4, max_map_len=64)
+    except Exception as e:
+        raise M.MessageError("msgpack", type(e).__name__) from None
+    if not isinstance(env, dict) or env.get("v") != M.VERSION or isinstance(env.get("v"), bool) \
+            or set(env) - {"v", "msg"} or not isinstance(env.get("msg"), dict):
+        raise M.MessageError("envelope", "not a core_input envelope")
+    raw = env["msg"]
+    entries = raw.get("entries")
+    msg = M.validate_msg({**raw, "entries": []})
+    if msg["kind"] != "core_input":
+        raise M.MessageError("kind", "not core_input")
+    if not isinstance(entries, list) or len(entries) > M.MAX_JOURNAL:
+        raise M.MessageError("shape", "entries")
+    out = []
+    for e in entries:
+        if isinstance(e, list) and len(e) == 2 and e[0] == "t":
+            out.append(["t", _time(e[1])])
+        elif isinstance(e, list) and len(e) == 3 and e[0] == "m":
+            key = msgpack.packb(e[2], use_bin_type=True)
+            v = cache.get(key)
+            if v is None:
+                v = M.validate_msg(e[2])
+                if v["kind"] not in M.AIR_MSG_KINDS:
+                    raise M.MessageError("kind", "not an air message")
+                cache[key] = v
+            out.append(["m", _time(e[1]), v])
+        else:
+            raise M.MessageError("shape", "journal entry")
+    msg["entries"] = out
+    return msg
+
+
+def collect_journals(msgs: Sequence[Msg], strict: bool = True) -> dict[int, Journal]:
+    """Group init / input / estimate records by station. ``strict`` validates every payload like
+    ``net.messages.decode`` (malformed ones are skipped); otherwise plain msgpack (for logs written
+    by our own recorder the values are identical: validation normalized them before sending)."""
+    from net import messages as M
+
+    out: dict[int, Journal] = {}
+    cache: dict[bytes, dict] = {}
+    for m in msgs:
+        if m.encoding != "msgpack" or not m.topic.startswith("larns/station/"):
+            continue
+        tail = m.topic.rsplit("/", 1)[-1]
+        if tail not in ("init", "input", "estimate"):
+            continue
+        if strict:
+            try:
+                msg = decode_input(m.data, cache) if tail == "input" else M.decode(m.data)[0]
+            except M.MessageError:
+                continue
+        else:
+            msg = _unpack(m.data)
+            if msg is None or msg.get("kind") not in ("core_init", "core_input", "estimate"):
+                continue
+        j = out.setdefault(int(msg["src"]), Journal(int(msg["src"])))
+        k = msg["kind"]
+        if k == "core_init":
+            if j.init is None:
+                j.init = msg["record"]
+        elif k == "core_input":
+            j.inputs.setdefault(int(msg["seq"]), (m, msg["entries"]))
+        elif k == "estimate":
+            j.estimates.setdefault(int(msg["seq"]), (m, msg))
+    return out
 
 
 def sigma_m(cov_m2) -> np.ndarray:

@@ -1,6 +1,6 @@
 """The core journal: what the shell policy publishes (``stations/shell.py``) against the two readers
 that validate it - ``net.messages.decode`` (the schema, ``_journal``) and the offline decoder
-(``larns.offline.decode_input``, which validates each distinct embedded air message once). Valid
+(``larns.log.series.decode_input``, which validates each distinct embedded air message once). Valid
 journals decode identically in both and re-estimate bit for bit; malformed ones are rejected by both,
 and a rejected input leaves a hole at which offline re-estimation stops (reported, not papered over).
 """
@@ -13,7 +13,8 @@ import msgpack
 import pytest
 
 from larns.mcaputil import Msg
-from larns.offline import collect_journals, decode_input, reestimate_station
+from larns.analysis.offline import reestimate_station
+from larns.log.series import collect_journals, decode_input
 from net import messages as M
 from net.scenario import load
 from stations.shell import PublishPolicy

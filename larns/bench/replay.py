@@ -28,7 +28,7 @@ def synth_log(path: str | Path, scenario: str = "seed000", duration_s: float = 6
     from net.scenario import load
     from stations.sim import Simulator
 
-    from .mcaputil import LogWriter
+    from ..log import LogWriter
 
     scn = load(scenario)
     epoch = 1.7e9
@@ -59,7 +59,7 @@ def synth_log(path: str | Path, scenario: str = "seed000", duration_s: float = 6
 
 
 def run(args: argparse.Namespace) -> int:
-    from .offline import format_result, run_offline
+    from ..analysis.offline import format_result, run_offline
 
     out_dir = Path(args.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -24,34 +24,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
-import msgpack
-
-from .mcaputil import LogFile, LogWriter, Msg, merge, read_logs
+from ..log import LogFile, LogWriter, Msg, merge, read_logs
+from ..log.series import Journal, collect_journals, decode, decoded
 
 JOURNAL_TOPICS = ["larns/station/*/init", "larns/station/*/input", "larns/station/*/estimate"]
 ESTIMATE_FIELDS = ("t_s", "pos_m", "cov_m2", "n_updates", "estimator", "state", "seq", "stamp_s")
-
-
-@dataclass
-class Journal:
-    """The recorded journal of one station."""
-
-    id: int
-    init: dict | None = None
-    inputs: dict[int, tuple[Msg, list]] = field(default_factory=dict)  # seq -> (record, entries)
-    estimates: dict[int, tuple[Msg, dict]] = field(default_factory=dict)  # seq -> (record, msg)
-
-    def contiguous(self) -> tuple[list[tuple[Msg, list]], int | None]:
-        """Inputs from seq 1 up to the first hole; returns (inputs, seq of the first missing one or None)."""
-        out = []
-        s = 1
-        last = max(self.inputs, default=0)
-        while s <= last:
-            if s not in self.inputs:
-                return out, s
-            out.append(self.inputs[s])
-            s += 1
-        return out, None
 
 
 @dataclass
@@ -70,103 +47,6 @@ class StationResult:
     @property
     def bit_exact(self) -> bool:
         return self.compared > 0 and self.equal == self.compared
-
-
-def _unpack(data: bytes) -> dict | None:
-    try:
-        env = msgpack.unpackb(data, raw=False, strict_map_key=False)
-        msg = env["msg"]
-        return msg if isinstance(msg, dict) else None
-    except Exception:
-        return None
-
-
-def _time(v: Any) -> float:
-    from net import messages as M
-
-    if type(v) is not float and type(v) is not int:
-        raise M.MessageError("type", "journal time must be a number")
-    f = float(v)
-    if not -M.MAX_ABS <= f <= M.MAX_ABS:
-        raise M.MessageError("value", "journal time not finite")
-    return f
-
-
-def decode_input(data: bytes, cache: dict[bytes, dict]) -> dict:
-    """Strictly validate a ``core_input`` envelope, as ``net.messages.decode`` does, but validate each
-    distinct embedded air message once: a nav broadcast sits in the journal of every station that
-    heard it (``cache`` maps its msgpack bytes to the validated message)."""
-    from net import messages as M
-
-    if len(data) > M.MAX_PAYLOAD_BYTES:
-        raise M.MessageError("size", "too big")
-    try:
-        env = msgpack.unpackb(data, raw=False, strict_map_key=True, max_bin_len=0, max_ext_len=0,
-                              max_array_len=M.MAX_LIST * 4, max_map_len=64)
-    except Exception as e:
-        raise M.MessageError("msgpack", type(e).__name__) from None
-    if not isinstance(env, dict) or env.get("v") != M.VERSION or isinstance(env.get("v"), bool) \
-            or set(env) - {"v", "msg"} or not isinstance(env.get("msg"), dict):
-        raise M.MessageError("envelope", "not a core_input envelope")
-    raw = env["msg"]
-    entries = raw.get("entries")
-    msg = M.validate_msg({**raw, "entries": []})
-    if msg["kind"] != "core_input":
-        raise M.MessageError("kind", "not core_input")
-    if not isinstance(entries, list) or len(entries) > M.MAX_JOURNAL:
-        raise M.MessageError("shape", "entries")
-    out = []
-    for e in entries:
-        if isinstance(e, list) and len(e) == 2 and e[0] == "t":
-            out.append(["t", _time(e[1])])
-        elif isinstance(e, list) and len(e) == 3 and e[0] == "m":
-            key = msgpack.packb(e[2], use_bin_type=True)
-            v = cache.get(key)
-            if v is None:
-                v = M.validate_msg(e[2])
-                if v["kind"] not in M.AIR_MSG_KINDS:
-                    raise M.MessageError("kind", "not an air message")
-                cache[key] = v
-            out.append(["m", _time(e[1]), v])
-        else:
-            raise M.MessageError("shape", "journal entry")
-    msg["entries"] = out
-    return msg
-
-
-def collect_journals(msgs: Sequence[Msg], strict: bool = True) -> dict[int, Journal]:
-    """Group init / input / estimate records by station. ``strict`` validates every payload like
-    ``net.messages.decode`` (malformed ones are skipped); otherwise plain msgpack (for logs written
-    by our own recorder the values are identical: validation normalized them before sending)."""
-    from net import messages as M
-
-    out: dict[int, Journal] = {}
-    cache: dict[bytes, dict] = {}
-    for m in msgs:
-        if m.encoding != "msgpack" or not m.topic.startswith("larns/station/"):
-            continue
-        tail = m.topic.rsplit("/", 1)[-1]
-        if tail not in ("init", "input", "estimate"):
-            continue
-        if strict:
-            try:
-                msg = decode_input(m.data, cache) if tail == "input" else M.decode(m.data)[0]
-            except M.MessageError:
-                continue
-        else:
-            msg = _unpack(m.data)
-            if msg is None or msg.get("kind") not in ("core_init", "core_input", "estimate"):
-                continue
-        j = out.setdefault(int(msg["src"]), Journal(int(msg["src"])))
-        k = msg["kind"]
-        if k == "core_init":
-            if j.init is None:
-                j.init = msg["record"]
-        elif k == "core_input":
-            j.inputs.setdefault(int(msg["seq"]), (m, msg["entries"]))
-        elif k == "estimate":
-            j.estimates.setdefault(int(msg["seq"]), (m, msg))
-    return out
 
 
 def same_estimate(a: dict, b: dict) -> bool:
@@ -291,7 +171,7 @@ def run_offline(paths: Sequence[str | Path], output: str | Path | None = None, e
     ids = sorted(journals) if not stations else [s for s in sorted(journals) if s in set(stations)]
     bar = None
     if progress:
-        from .progress import Progress
+        from ..bench.progress import Progress
 
         bar = Progress(len(ids), "re-estimating stations")
     for sid in ids:
@@ -361,13 +241,12 @@ def aircraft_nav_sequence(msgs: Sequence[Msg], name: str) -> tuple[list[tuple[Ms
     in recorded order ("recorder")."""
     import bisect
 
-    from net import messages as M
 
     navs: list[tuple[float, Msg, dict, dict]] = []
     rx: dict[int, float] = {}
     truth_key = f"larns/aircraft/{name}/truth"
     mine = (m for m in msgs if m.encoding == "msgpack" and (m.topic.endswith("/nav") or m.topic == truth_key))
-    for m, msg, phy in M.decode_valid(mine, lambda m: m.data):
+    for m, msg, phy in decoded(mine):
         if m.topic == truth_key:
             rx.setdefault(msg["seq"], msg["t_s"])
         elif msg["kind"] == "nav" and phy is not None:
@@ -442,7 +321,6 @@ def reestimate_aircraft(logs: Sequence[LogFile], msgs: Sequence[Msg], algos: Seq
     import numpy as np
 
     from aircraft.node import AircraftCore
-    from net import messages as M
 
     if "ins-ekf" in algos:
         return reestimate_ins(logs, msgs, scenario, name, seed, height_m)
@@ -467,7 +345,7 @@ def reestimate_aircraft(logs: Sequence[LogFile], msgs: Sequence[Msg], algos: Seq
     # the world seed and the sequence of broadcasts it measured)
     recorded: dict[str, list[dict]] = {a: [] for a in algos}
     mine = (m for m in msgs if m.encoding == "msgpack" and m.topic.startswith(f"larns/aircraft/{name}/estimate/"))
-    for _m, msg, _phy in M.decode_valid(mine, lambda m: m.data):
+    for _m, msg, _phy in decoded(mine):
         if msg["kind"] == "ac_estimate" and msg["algo"] in recorded:
             recorded[msg["algo"]].append(msg)
     res = {}
@@ -475,7 +353,7 @@ def reestimate_aircraft(logs: Sequence[LogFile], msgs: Sequence[Msg], algos: Seq
         e = np.asarray(d["err"])
         # skip the first 10 % (filter start-up) for the RMS
         tail = e[len(e) // 10:] if e.size else e
-        new = [M.decode(x.data)[0] for x in d["estimates"]] if recorded[a] else []
+        new = [decode(x.data)[0] for x in d["estimates"]] if recorded[a] else []
         keys = ("t_s", "pos_m", "cov_m2", "n_updates")
         # match by the per-algorithm update count (robust to recorded estimates lost on the way)
         rec_by_n = {y.get("n_updates"): y for y in recorded[a]}
@@ -502,13 +380,11 @@ def reestimate_ins(logs: Sequence[LogFile], msgs: Sequence[Msg], scenario: str |
     import numpy as np
 
     from aircraft.ins_core import InsAircraftCore
-    from net import messages as M
 
     md, scn, ac, name, seed = _aircraft_world(logs, scenario, name, seed)
     rng = np.random.default_rng([int(seed), 0x1A5, sum(map(ord, name))])  # as aircraft.node.AircraftNode
     key = f"larns/aircraft/{name}/estimate/ins-ekf"
-    recorded = [msg for _m, msg, _phy in M.decode_valid((m for m in msgs if m.encoding == "msgpack" and m.topic == key),
-                                                        lambda m: m.data)]
+    recorded = [msg for _m, msg, _phy in decoded(m for m in msgs if m.encoding == "msgpack" and m.topic == key)]
     t0 = float(recorded[0].get("extra", {}).get("t0_s", 0.0)) if recorded else 0.0  # the aircraft's start
     from net.channel import draw_clock, station_rng
 
@@ -521,7 +397,7 @@ def reestimate_ins(logs: Sequence[LogFile], msgs: Sequence[Msg], scenario: str |
     truth, flown = _refly(core, navs, ep, speed)
     est = [rec for _o, rec in flown]
     err = [float(np.linalg.norm(np.asarray(o["pos_m"]) - core.truth_n(o["t_s"])[0])) for o, _rec in flown]
-    new = [M.decode(x.data)[0] for x in est]
+    new = [decode(x.data)[0] for x in est]
     keys = ("t_s", "pos_m", "cov_m2", "vel_m_s", "n_updates", "extra")
     rec_by_n = {y.get("n_updates"): y for y in recorded}
     same = [all(x.get(k) == rec_by_n[x["n_updates"]].get(k) for k in keys) for x in new if x["n_updates"] in rec_by_n]
