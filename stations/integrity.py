@@ -20,7 +20,7 @@ jumped clock): it excludes nobody new (``self_suspect``).
 
 Both estimates were partly built from this very link, which makes the residual smaller than the
 formula says, and the survey's covariance is conservative (NEES below its band): on clean data the
-observed false-alarm rate is at or below ``p_fa`` (measured in ``tests/test_integrity.py`` and by
+observed false-alarm rate is at or below ``p_fa`` (measured in ``tests/stations/test_integrity.py`` and by
 ``larns bench integrity``).
 """
 

@@ -14,7 +14,7 @@ Two filters:
   ``p, v, phi, ba, bg, bac, bgc, clk_b, clk_d, baro_b`` (24 states). One epoch's satellite and
   ground-station pseudoranges (seed 002 eq. 6, each with its own variance) and the baro altitude are
   one measurement batch with a diagonal ``R``, applied as sequential scalar Joseph updates (exact for a
-  diagonal ``R`` in the linear case, tests/test_triad.py). Satellites below the elevation mask (seen
+  diagonal ``R`` in the linear case, tests/aircraft/test_triad.py). Satellites below the elevation mask (seen
   from the nominal position) are dropped and counted; the state never depends on which satellites
   are tracked, so a satellite rising or setting only changes the rows of ``H``.
 * :class:`PaperFilter`: the seed spec's reconstruction of the paper's 11-state kinematic error filter

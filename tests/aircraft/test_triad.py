@@ -21,7 +21,7 @@ from nav.constellation import gps_like
 from nav.kalman import kf_update
 from nav.strapdown import G0_M_S2
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 FRAME = TriadFrame(55.75, 37.62, 0.0)
 
 

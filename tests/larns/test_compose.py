@@ -42,7 +42,7 @@ from scenario_text import random_world
 
 pytestmark = [pytest.mark.compose, pytest.mark.timeout(900)]
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SPEED = 5.0
 CYCLE_S = 0.6
 IDS = list(range(1, 11))

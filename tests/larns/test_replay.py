@@ -363,7 +363,7 @@ def test_foxglove_channels_from_recorder_and_export(run, tmp_path):
     larns("export", str(bare), "-o", str(out))
     exp = _json_channels(out)
     assert {t: len(v) for t, v in exp.items()} == {t: len(v) for t, v in got.items()}
-    layout = json.loads((Path(__file__).parents[1] / "docs" / "foxglove-layout.json").read_text())
+    layout = json.loads((Path(__file__).parents[2] / "docs" / "foxglove-layout.json").read_text())
     text = json.dumps(layout)
     assert "larns/foxglove/scene" in text and "larns/foxglove/station/" in text
 

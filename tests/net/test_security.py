@@ -21,7 +21,7 @@ from net import messages as M
 from net import security as S
 from net.bus import free_tcp_ports
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")

@@ -17,7 +17,7 @@ from nav import errorstate as es
 from nav import strapdown as sd
 from nav.rotations import dcm_from_euler, euler_from_dcm, exp_so3, log_so3
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 # -- rotations ---------------------------------------------------------------------------------------

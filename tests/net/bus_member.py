@@ -1,4 +1,4 @@
-"""The bus test process shared by tests/test_bus.py (peers) and tests/test_bus_router.py (clients).
+"""The bus test process shared by tests/net/test_bus.py (peers) and tests/net/test_bus_router.py (clients).
 
 ``python -c SCRIPT NAME N MODE LISTEN ENDPOINT...``: a Bus in ``MODE`` (peer or client), listening on
 ``LISTEN`` ("-": nowhere, as a client) and connecting to the endpoints; it publishes its name until

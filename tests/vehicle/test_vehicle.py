@@ -16,7 +16,7 @@ from vehicle.navigator.cdekf import FreeFilter, Intensities, MapFilter, _Base
 from vehicle.route import great_circle_route, load_route, route_from_geojson, straight_route
 from vehicle.world import truth as wt
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PAPER_PTS = [(47.23, 39.72), (47.40, 39.80)]
 
 
