@@ -9,8 +9,10 @@ covariance.
   weighted residual wins, reflected above the station plane), with its own covariance
   ``(H^T W H)^-1`` (seed 001 eqs. 14-16/18), standard deviations doubled (one epoch, linearized at
   the fix) plus the spread of the other roots that fit as well, where that position standard
-  deviation is at most ``max_fix_sigma_m``.
-* **Wide prior** where it does not (the fix's position standard deviation above ``max_fix_sigma_m``,
+  deviation is at most ``max_fix_sigma_m`` and the batch's cost rises over that uncertainty as its
+  linearization says (:func:`linear_over_sigma`).
+* **Wide prior** where it does not (the fix's position standard deviation above ``max_fix_sigma_m``
+  or the cost flat along some axis,
   e.g. in the far field of a small-base system where one epoch's fix is off by kilometres): the fix as
   the mean with an isotropic covariance of ``wide_sigma_m`` (never smaller than the fix's own) for the
   position and the clock.
@@ -74,6 +76,41 @@ def start_points(pos_m: np.ndarray) -> np.ndarray:
     return np.array(pts)
 
 
+def batch_cost(model: str, x: np.ndarray, pos_m: np.ndarray, cov_m2: np.ndarray | None, rho_m: np.ndarray,
+               sigma_m: float) -> np.ndarray:
+    """Weighted residual sum of squares of one batch at candidate fixes ``x`` (k, 4) pr / (k, 3) tdoa
+    (range variances evaluated at each candidate, seed 001 eqs. 14/18). Returns (k,)."""
+    x = np.atleast_2d(x)
+    k, m = x.shape[0], pos_m.shape[0]
+    rho = np.broadcast_to(rho_m, (k, m))
+    if model == "pr":
+        X = np.concatenate([x[:, :3], np.zeros((k, 3)), x[:, 3:4]], axis=1)
+        res = rho - mdl.h_pr(X, pos_m)
+        return np.sum(res**2 / mdl.range_var(X, pos_m, cov_m2, sigma_m), axis=1)
+    X = np.concatenate([x, np.zeros((k, 3))], axis=1)
+    res = np.einsum("ij,kj->ki", mdl.g_matrix(m, 0), rho) - mdl.h_tdoa(X, pos_m, 0)
+    Rd = mdl.r_tdoa(mdl.range_var(X, pos_m, cov_m2, sigma_m), 0)
+    return np.einsum("ki,ki->k", res, np.linalg.solve(Rd, res[..., None])[..., 0])
+
+
+def linear_over_sigma(model: str, fix: np.ndarray, C: np.ndarray, pos_m: np.ndarray, cov_m2: np.ndarray | None,
+                      rho_m: np.ndarray, sigma_m: float, min_rise: float = 1.0) -> bool:
+    """Whether the batch's cost behaves as its linearization over the fix's own uncertainty: stepping
+    2 standard deviations along each principal axis of ``C`` must raise the cost by about 4 (the
+    linear prediction); True if every rise is at least ``min_rise``. Far outside a small array the
+    cost is flat (or still falling) along the range direction and other roots fit as well: then the
+    linearized ``C`` does not describe the fix and the start must be wide."""
+    if not np.all(np.isfinite(C)):
+        return False
+    lam, V = np.linalg.eigh(0.5 * (C + C.T))
+    steps = 2.0 * np.sqrt(np.clip(lam, 0.0, None)) * V  # (n, n): column j = step along axis j
+    c0 = batch_cost(model, fix, pos_m, cov_m2, rho_m, sigma_m)[0]
+    cand = np.concatenate([fix + steps.T, fix - steps.T])
+    rise = batch_cost(model, cand, pos_m, cov_m2, rho_m, sigma_m) - c0
+    n = steps.shape[1]
+    return bool(np.all(np.minimum(rise[:n], rise[n:]) >= min_rise))
+
+
 def snapshot_fix(
     model: str, pos_m: np.ndarray, cov_m2: np.ndarray | None, rho_m: np.ndarray, sigma_m: float,
     floor_z_m: float | None = 0.0,
@@ -94,17 +131,9 @@ def snapshot_fix(
     if model == "pr":
         b0 = rho_m.mean() - np.linalg.norm(starts[:, None, :] - pos_m, axis=-1).mean(axis=1)
         x = lsq_pr(rho, pos_m, np.column_stack([starts, b0]), var, cov_m2, **kw)
-        X = np.concatenate([x[:, :3], np.zeros((k, 3)), x[:, 3:4]], axis=1)
-        res = rho - mdl.h_pr(X, pos_m)
-        w = 1.0 / mdl.range_var(X, pos_m, cov_m2, np.sqrt(var))
-        cost = np.sum(res**2 * w, axis=1)
     else:
         x = lsq_tdoa(rho, pos_m, starts, var, cov_m2, **kw)
-        X = np.concatenate([x, np.zeros((k, 3))], axis=1)
-        G = mdl.g_matrix(m, 0)
-        res = np.einsum("ij,kj->ki", G, rho) - mdl.h_tdoa(X, pos_m, 0)
-        Rd = mdl.r_tdoa(mdl.range_var(X, pos_m, cov_m2, np.sqrt(var)), 0)
-        cost = np.einsum("ki,ki->k", res, np.linalg.solve(Rd, res[..., None])[..., 0])
+    cost = batch_cost(model, x, pos_m, cov_m2, rho_m, sigma_m)
     cost = np.where(np.all(np.isfinite(x), axis=1), cost, np.inf)
     i = int(np.argmin(cost))
     fix = x[i]
@@ -137,7 +166,9 @@ def initial_state(
     layout = mdl.StateLayout(model, drift=tuning.drift_state and model == "pr")
     fix, C, cost, amb = snapshot_fix(model, pos_m, cov_m2, rho_m, tuning.sigma_m, tuning.floor_z_m)
     sig = float(np.sqrt(np.trace(C[:3, :3]))) if np.all(np.isfinite(C)) else np.inf
-    snapshot = bool(np.isfinite(sig) and sig <= cfg.max_fix_sigma_m)
+    snapshot = bool(np.isfinite(sig) and sig <= cfg.max_fix_sigma_m) and \
+        linear_over_sigma(model, fix, C, np.asarray(pos_m, dtype=float), cov_m2, np.asarray(rho_m, dtype=float),
+                          tuning.sigma_m)
     k = fix.size  # 4 (pr: x y z b) or 3
     if snapshot:
         C = C * cfg.fix_inflation**2
