@@ -102,11 +102,15 @@ class ClockEstimator:
     station_id : this station (1: the reference, exact). model : oscillator class (prior and noise of
     every clock). t0_s : local time of the prior. sigma_d_m : two-way range noise (sets the TWTT noise).
     coarse_range_m, coarse_gate_s : coarse one-way sync (see module docstring). rebase_s : largest
-    ``T_s - T0`` before ``P0`` is moved to ``T_s``, s.
+    ``T_s - T0`` before ``P0`` is moved to ``T_s``, s. time_gate : largest variance that the
+    uncertain network time of an exchange may add to it, as a fraction of the time-transfer
+    variance; an exchange whose time is less certain waits up to ``defer_s`` (s of network time) for
+    its clock to be known (``on_exchange``).
     """
 
     def __init__(self, station_id: int, model: ClockModel, t0_s: float, sigma_d_m: float,
-                 coarse_range_m: float = 5000.0, coarse_gate_s: float = 1e-6, rebase_s: float = 1.0):
+                 coarse_range_m: float = 5000.0, coarse_gate_s: float = 1e-6, rebase_s: float = 1.0,
+                 time_gate: float = 0.01, defer_s: float = 3.0):
         self.id = station_id
         self.ref = station_id == 1
         self.model = model
@@ -121,6 +125,11 @@ class ClockEstimator:
         self.coarse_gate_s = coarse_gate_s
         self.n_updates = 0
         self.n_coarse = 0
+        self.n_untimed = 0  # exchanges dropped: their network time too uncertain (on_exchange)
+        self.n_deferred = 0  # exchanges kept until their time was known (on_exchange)
+        self.time_gate = time_gate
+        self.defer_s = defer_s
+        self._pending: list[tuple[int, int, float, float, float]] = []
         self.exact = model.offset_sigma_s == 0 and model.freq_sigma == 0 and model.q_wf_s == 0 \
             and model.q_rw_per_s == 0  # perfect clocks: nothing to estimate
         if not self.ref:
@@ -310,20 +319,69 @@ class ClockEstimator:
     def on_exchange(self, a: int, b: int, T_s: float, dtheta_s: float, t_var_s2: float = 0.0) -> float | None:
         """Two-way time transfer ``theta_a - theta_b = dtheta_s`` at network time ``T_s``; the NIS.
 
-        ``t_var_s2``: variance of ``T_s`` itself (it comes from a clock estimate): an error ``e`` in the
-        time of the measurement shifts it by ``(f_a - f_b) e``, charged as ``E[(f_a - f_b)^2] t_var``
-        (matters only before a station's first fine sync)."""
+        ``T_s`` is the network time of the exchange's midpoint on clock ``a`` (the initiator's local
+        ``t_mid``) by this filter's estimate of clock ``a``, ``t_var_s2`` its variance. An error ``e`` in
+        that time shifts the measurement by ``(f_a - f_b) e``: charged as ``E[(f_a - f_b)^2] t_var``
+        only while it is below ``time_gate`` times the time-transfer variance (after the coarse sync:
+        microseconds x ppm, ~1e-4 of it). The error is that of a clock estimate, common to every
+        exchange placed with it and correlated with the state, not independent noise: an exchange
+        placed by a clock still unknown to a millisecond (ms x ppm: ns, as large as the measurement)
+        is kept on clock ``a``'s local time and placed again when that clock is known
+        (``n_deferred``; within ``defer_s``, else dropped: ``n_untimed``). Returns None unless used."""
         if self.exact or (a == 1 and b == 1):
             return None
-        self.predict(T_s)
-        ks, signs, dt_h = self._terms(T_s, [(a, 1.0), (b, -1.0)])
+        self._retry()
+        nis = self._exchange(a, b, T_s, dtheta_s, t_var_s2)
+        if nis is None:
+            k = self.index.get(a)
+            if k is None:  # placed by a broadcast correction we cannot re-evaluate
+                self.n_untimed += 1
+            else:  # back to clock a's local time (the inverse of peer_time / network_time)
+                t_loc = T_s + self.x[2 * k] + self.x[2 * k + 1] * (T_s - self.T_s)
+                self._pending.append((a, b, float(t_loc), float(dtheta_s), float(T_s)))
+                self.n_deferred += 1
+        return nis
+
+    def _exchange(self, a: int, b: int, T_s: float, dtheta_s: float, t_var_s2: float) -> float | None:
+        """The update of ``on_exchange``; None (nothing changed) if its time is too uncertain."""
         r = self.var_z
         if t_var_s2 > 0:
-            B = self._block(ks)
-            ef = sum(sg * self.x[2 * k + 1] for k, sg in zip(ks, signs))  # E[f_a - f_b]
-            vf = sum(si * sj * B[2 * i + 1, 2 * j + 1] for i, si in enumerate(signs) for j, sj in enumerate(signs))
-            r += (float(ef) ** 2 + float(vf)) * t_var_s2
+            ef, vf, ks, sg = 0.0, 0.0, [], []
+            for sid, g in ((a, 1.0), (b, -1.0)):
+                k = self.index.get(sid)
+                if sid == 1:
+                    continue
+                if k is None:
+                    vf += self.model.freq_sigma**2  # not in the filter yet: its prior
+                else:
+                    ks.append(k)
+                    sg.append(g)
+            if ks:
+                B = self._block(ks)
+                ef = sum(g * self.x[2 * k + 1] for k, g in zip(ks, sg))  # E[f_a - f_b]
+                vf += sum(gi * gj * B[2 * i + 1, 2 * j + 1] for i, gi in enumerate(sg) for j, gj in enumerate(sg))
+            r_t = (float(ef) ** 2 + float(vf)) * t_var_s2
+            if r_t > self.time_gate * self.var_z:
+                return None
+            r += r_t
+        self.predict(T_s)
+        ks, signs, dt_h = self._terms(T_s, [(a, 1.0), (b, -1.0)])
         return self._update(ks, signs, dt_h, dtheta_s, r)
+
+    def _retry(self) -> None:
+        """Place the deferred exchanges whose clock is now known well enough (late inputs)."""
+        if not self._pending:
+            return
+        keep = []
+        for a, b, t_loc, z, T0 in self._pending:
+            T, var = self.peer_time(a, t_loc)
+            if self._exchange(a, b, T, z, var) is not None:
+                continue
+            if self.T_s - T0 <= self.defer_s:
+                keep.append((a, b, t_loc, z, T0))
+            else:
+                self.n_untimed += 1
+        self._pending = keep
 
     def on_nav(self, src: int, t_rx_s: float, t_tx_src_s: float, corr) -> bool:
         """Coarse one-way timing of a nav from ``src`` (``t_tx`` on its clock, ``corr`` its broadcast
@@ -342,6 +400,7 @@ class ClockEstimator:
         # t_rx - t_tx = d / c + theta_me - theta_src: the distance unknown (coarse variance)
         self._update(ks, signs, dt_h, t_rx_s - t_tx_src_s, self.coarse_var)
         self.n_coarse += 1
+        self._retry()
         return True
 
     def _coarse_var_at(self, T_s: float, src: int) -> float:
