@@ -330,7 +330,6 @@ class ClockEstimator:
         (``n_deferred``; within ``defer_s``, else dropped: ``n_untimed``). Returns None unless used."""
         if self.exact or (a == 1 and b == 1):
             return None
-        self._retry()
         nis = self._exchange(a, b, T_s, dtheta_s, t_var_s2)
         if nis is None:
             k = self.index.get(a)
@@ -340,6 +339,8 @@ class ClockEstimator:
                 t_loc = T_s + self.x[2 * k] + self.x[2 * k + 1] * (T_s - self.T_s)
                 self._pending.append((a, b, float(t_loc), float(dtheta_s), float(T_s)))
                 self.n_deferred += 1
+                return None
+        self._retry()
         return nis
 
     def _exchange(self, a: int, b: int, T_s: float, dtheta_s: float, t_var_s2: float) -> float | None:
