@@ -22,7 +22,8 @@ Measurements:
   is the same measurement between two other clocks, placed in network time by this filter's own
   estimate of the sender's clock (a sender not in the filter yet: by its broadcast **clock correction**
   ``[t_ref, theta, f, P_tt, P_tf, P_ff]``); the variance of that time is charged through the two
-  clocks' frequency difference (``on_exchange``, ``t_var_s2``).
+  clocks' frequency difference while small, else the exchange waits until that clock is known
+  (``on_exchange``, ``t_var_s2``).
 * **Coarse sync** while the clock is unknown to more than ``coarse_gate_s``: a nav broadcast received
   at ``t_rx`` with transmit stamp ``t_tx`` gives ``theta_m = t_rx - (t_tx - theta_j(t_tx)) - d / c`` with
   the distance ``d`` unknown (variance ``(coarse_range_m / c)^2``): microseconds from the first nav heard.
