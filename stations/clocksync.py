@@ -131,6 +131,7 @@ class ClockEstimator:
         self.time_gate = time_gate
         self.defer_s = defer_s
         self._pending: list[tuple[int, int, float, float, float]] = []
+        self._retry_T = -np.inf
         self.exact = model.offset_sigma_s == 0 and model.freq_sigma == 0 and model.q_wf_s == 0 \
             and model.q_rw_per_s == 0  # perfect clocks: nothing to estimate
         if not self.ref:
@@ -165,15 +166,23 @@ class ClockEstimator:
 
     def _block(self, ks: list[int]) -> np.ndarray:
         """``P(T_s)`` restricted to the clocks at state-block indices ``ks`` (1 or 2 of them): O(1)."""
+        P0 = self._P0
         if len(ks) == 1:
             k = 2 * ks[0]
-            M = self._P0[k: k + 2, k: k + 2].copy()
+            M = P0[k: k + 2, k: k + 2].copy()
         else:
             J = [j for k in ks for j in (2 * k, 2 * k + 1)]
-            M = self._P0[np.ix_(J, J)]
+            M = P0[J][:, J]
         dt = self.T_s - self._T0
         if dt > 0:
-            _propagate(M, dt, self._Q(dt))
+            M[0::2] += dt * M[1::2]  # F M F^T, F = [[1, dt], [0, 1]] per clock
+            M[:, 0::2] += dt * M[:, 1::2]
+            a, b, c = self._Q(dt)  # own wander on the diagonal blocks, network time's everywhere
+            if len(ks) == 1:
+                M += np.array([[2 * a, 2 * b], [2 * b, 2 * c]])
+            else:
+                M += np.array([[2 * a, 2 * b, a, b], [2 * b, 2 * c, b, c], [a, b, 2 * a, 2 * b],
+                               [b, c, 2 * b, 2 * c]])
         return M
 
     def _PH(self, ks: list[int], signs: list[float], dt_h: float) -> np.ndarray:
@@ -370,15 +379,19 @@ class ClockEstimator:
         ks, signs, dt_h = self._terms(T_s, [(a, 1.0), (b, -1.0)])
         return self._update(ks, signs, dt_h, dtheta_s, r)
 
-    def _retry(self) -> None:
-        """Place the deferred exchanges whose clock is now known well enough (late inputs)."""
-        if not self._pending:
+    def _retry(self, force: bool = False) -> None:
+        """Place the deferred exchanges whose clock is now known well enough (late inputs); at most
+        every 0.1 s of network time unless ``force``, one try per clock still unknown."""
+        if not self._pending or (not force and self.T_s - self._retry_T < 0.1):
             return
-        keep = []
+        self._retry_T = self.T_s
+        keep, unknown = [], set()
         for a, b, t_loc, z, T0 in self._pending:
-            T, var = self.peer_time(a, t_loc)
-            if self._exchange(a, b, T, z, var) is not None:
-                continue
+            if a not in unknown:
+                T, var = self.peer_time(a, t_loc)
+                if self._exchange(a, b, T, z, var) is not None:
+                    continue
+                unknown.add(a)
             if self.T_s - T0 <= self.defer_s:
                 keep.append((a, b, t_loc, z, T0))
             else:
