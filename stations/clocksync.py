@@ -18,11 +18,12 @@ Measurements:
   ``(t2 + t3) / 2`` are the same true instant); each arrival's timing noise ``sigma_t = sqrt(2)
   sigma_d / c`` gives ``var(dtheta) = sigma_d^2 / c^2``. Both ends use the exchange: the initiator on
   the reply, the responder from the initiator's nav broadcast (which carries ``dtheta``).
-* The peer's broadcast **clock correction** ``[t_ref, theta, f, P_tt, P_tf, P_ff]`` (on the peer's own
-  clock) predicted to the exchange with the model: ``theta_m = dtheta + theta_j``, measurement variance
-  ``sigma_d^2 / c^2 + gamma P_j(t)``. As in the position survey (``estimators.DistributedMap``) a
-  consider factor ``gamma = 2`` on the peer term keeps the covariance honest about the errors peers
-  share; the gain uses ``gamma_est = 1`` and the covariance the Joseph form with ``gamma``.
+* An exchange heard in a peer's nav (``[peer, range, t_mid, dtheta]``, ``t_mid`` on the sender's clock)
+  is the same measurement between two other clocks, placed in network time by this filter's own
+  estimate of the sender's clock (a sender not in the filter yet: by its broadcast **clock correction**
+  ``[t_ref, theta, f, P_tt, P_tf, P_ff]``); the variance of that time is charged through the two
+  clocks' frequency difference while small, else the exchange waits until that clock is known
+  (``on_exchange``, ``t_var_s2``).
 * **Coarse sync** while the clock is unknown to more than ``coarse_gate_s``: a nav broadcast received
   at ``t_rx`` with transmit stamp ``t_tx`` gives ``theta_m = t_rx - (t_tx - theta_j(t_tx)) - d / c`` with
   the distance ``d`` unknown (variance ``(coarse_range_m / c)^2``): microseconds from the first nav heard.
@@ -63,6 +64,18 @@ def predict_correction(corr, t_s: float, model: ClockModel) -> tuple[float, floa
     return th + f * dt, max(var, 0.0)
 
 
+def _propagate(P: np.ndarray, dt_s: float, Q: tuple[float, float, float]) -> None:
+    """In place: ``P <- F P F^T + Q (x) (I + 1 1^T)`` for clocks in 2x2 blocks (``F = [[1, dt], [0, 1]]``
+    per block; the ``1 1^T`` part is network time's own wander, common to every offset)."""
+    P[0::2, :] += dt_s * P[1::2, :]
+    P[:, 0::2] += dt_s * P[:, 1::2]
+    qtt, qtf, qff = Q
+    for a, b, q in ((0, 0, qtt), (0, 1, qtf), (1, 0, qtf), (1, 1, qff)):
+        blk = P[a::2, b::2]
+        blk += q
+        np.einsum("ii->i", blk)[...] += q
+
+
 class ClockEstimator:
     """Network clock filter of one station (see module docstring): a Kalman filter of every known
     station's ``[theta, f]`` against network time, fed by all two-way exchanges the station takes part
@@ -73,42 +86,138 @@ class ClockEstimator:
     itself an oscillator: ``theta_k = x_k - x_1`` wanders with its own noise and station 1's, which
     all stations share, so the process noise is ``Q(dt) (x) (I + 1 1^T)``.
 
+    **Cost.** The filter state ``x`` lives at ``T_s``; its covariance is kept at a reference time
+    ``T0 <= T_s`` as ``P0``, with ``P(T_s) = F P0 F^T + Q(T_s - T0) (x) (I + 1 1^T)`` (``F`` the
+    block-diagonal transition over ``T_s - T0``: every clock shares the model and the step, and the
+    exact discretization composes, so one prediction over ``T_s - T0`` equals the chain of per-input
+    predictions). A time-transfer row touches two clocks, so ``P(T_s) h`` is four columns of ``P0``
+    mapped through ``F`` and ``Q``: O(n). The scalar update with the optimal gain,
+    ``P - K S K^T = P - w w^T`` with ``w = P h / sqrt(S)`` (the Joseph form's value for a scalar
+    measurement), moves to the reference time as ``P0 - v v^T``, ``v = F^{-1} w``: one rank-1 pass,
+    exactly symmetric. ``P0`` is moved to ``T_s`` (one O(n^2) prediction, symmetrized) when
+    ``T_s - T0`` exceeds ``rebase_s`` (about once per TDMA cycle) or when ``P`` is read. Equal to the
+    dense filter (predict every input, expanded Joseph update) to rounding: ``tests/test_sync.py``.
+
     Parameters
     ----------
     station_id : this station (1: the reference, exact). model : oscillator class (prior and noise of
     every clock). t0_s : local time of the prior. sigma_d_m : two-way range noise (sets the TWTT noise).
+    coarse_range_m, coarse_gate_s : coarse one-way sync (see module docstring). rebase_s : largest
+    ``T_s - T0`` before ``P0`` is moved to ``T_s``, s. time_gate : largest variance that the
+    uncertain network time of an exchange may add to it, as a fraction of the time-transfer
+    variance; an exchange whose time is less certain waits up to ``defer_s`` (s of network time) for
+    its clock to be known (``on_exchange``).
     """
 
     def __init__(self, station_id: int, model: ClockModel, t0_s: float, sigma_d_m: float,
-                 coarse_range_m: float = 5000.0, coarse_gate_s: float = 1e-6):
+                 coarse_range_m: float = 5000.0, coarse_gate_s: float = 1e-6, rebase_s: float = 1.0,
+                 time_gate: float = 0.01, defer_s: float = 3.0):
         self.id = station_id
         self.ref = station_id == 1
         self.model = model
         self.T_s = float(t0_s)
         self.index: dict[int, int] = {}
         self.x = np.zeros(0)
-        self.P = np.zeros((0, 0))
+        self._P0 = np.zeros((0, 0))  # covariance at self._T0 (see the class docstring)
+        self._T0 = self.T_s
+        self.rebase_s = float(rebase_s)
         self.var_z = (sigma_d_m / C) ** 2
         self.coarse_var = (coarse_range_m / C) ** 2
         self.coarse_gate_s = coarse_gate_s
         self.n_updates = 0
         self.n_coarse = 0
+        self.n_untimed = 0  # exchanges dropped: their network time too uncertain (on_exchange)
+        self.n_deferred = 0  # exchanges kept until their time was known (on_exchange)
+        self.time_gate = time_gate
+        self.defer_s = defer_s
+        self._pending: list[tuple[int, int, float, float, float]] = []
+        self._retry_T = -np.inf
         self.exact = model.offset_sigma_s == 0 and model.freq_sigma == 0 and model.q_wf_s == 0 \
             and model.q_rw_per_s == 0  # perfect clocks: nothing to estimate
         if not self.ref:
             self._add(station_id)
 
-    # ------------------------------------------------------------------ state bookkeeping
+    # ------------------------------------------------------------------ covariance storage
+    @property
+    def P(self) -> np.ndarray:
+        """Covariance (n, n) of ``x`` at ``T_s`` (moves the stored reference to ``T_s``: O(n^2))."""
+        self._rebase()
+        return self._P0
+
+    @P.setter
+    def P(self, value: np.ndarray) -> None:
+        self._P0 = np.asarray(value, float)
+        self._T0 = self.T_s
+
+    def _Q(self, dt_s: float) -> tuple[float, float, float]:
+        """``Q(dt)`` of one clock (``dt >= 0``) as ``(Q_tt, Q_tf, Q_ff)`` (``net.clock.transition``)."""
+        qw, qr = self.model.q_wf_s, self.model.q_rw_per_s
+        return qw * dt_s + qr * dt_s**3 / 3.0, qr * dt_s * dt_s / 2.0, qr * dt_s
+
+    def _rebase(self) -> None:
+        """``P0 <- F P0 F^T + Q (x) (I + 1 1^T)`` over ``T_s - T0``; then ``T0 = T_s``."""
+        dt = self.T_s - self._T0
+        self._T0 = self.T_s
+        if dt <= 0 or not len(self.x):
+            return
+        P = self._P0
+        _propagate(P, dt, self._Q(dt))
+        self._P0 = 0.5 * (P + P.T)
+
+    def _block(self, ks: list[int]) -> np.ndarray:
+        """``P(T_s)`` restricted to the clocks at state-block indices ``ks`` (1 or 2 of them): O(1)."""
+        P0 = self._P0
+        if len(ks) == 1:
+            k = 2 * ks[0]
+            M = P0[k: k + 2, k: k + 2].copy()
+        else:
+            J = [j for k in ks for j in (2 * k, 2 * k + 1)]
+            M = P0[J][:, J]
+        dt = self.T_s - self._T0
+        if dt > 0:
+            M[0::2] += dt * M[1::2]  # F M F^T, F = [[1, dt], [0, 1]] per clock
+            M[:, 0::2] += dt * M[:, 1::2]
+            a, b, c = self._Q(dt)  # own wander on the diagonal blocks, network time's everywhere
+            if len(ks) == 1:
+                M += np.array([[2 * a, 2 * b], [2 * b, 2 * c]])
+            else:
+                M += np.array([[2 * a, 2 * b, a, b], [2 * b, 2 * c, b, c], [a, b, 2 * a, 2 * b],
+                               [b, c, 2 * b, 2 * c]])
+        return M
+
+    def _PH(self, ks: list[int], signs: list[float], dt_h: float) -> np.ndarray:
+        """``P(T_s) h`` (n,) for the sparse row ``h = sum_i s_i e_{k_i} (x) [1, dt_h]`` (block indices
+        ``ks``, signs ``s``): columns of ``P0`` mapped through ``F`` and ``Q``, O(n)."""
+        dt = self.T_s - self._T0
+        J, u = [], []
+        for k, sg in zip(ks, signs):  # F^T h on the touched blocks: s [1, dt + dt_h]
+            J += [2 * k, 2 * k + 1]
+            u += [sg, sg * (dt + dt_h)]
+        y = self._P0[:, J] @ np.array(u)
+        if dt > 0:
+            y[0::2] += dt * y[1::2]  # F (P0 F^T h)
+            qtt, qtf, qff = self._Q(dt)
+            gt, gf = qtt + dt_h * qtf, qtf + dt_h * qff  # Q [1, dt_h]
+            tot = float(sum(signs))  # network time's wander: every block gets Q sum_i h_i
+            if tot:
+                y[0::2] += tot * gt
+                y[1::2] += tot * gf
+            for k, sg in zip(ks, signs):
+                y[2 * k] += sg * gt
+                y[2 * k + 1] += sg * gf
+        return y
+
     def _add(self, sid: int) -> int:
         k = self.index.get(sid)
         if k is None:
+            self._rebase()
             k = self.index[sid] = len(self.index)
             n = 2 * len(self.index)
             P = np.zeros((n, n))
-            P[: n - 2, : n - 2] = self.P
+            P[: n - 2, : n - 2] = self._P0
             P[n - 2, n - 2] = self.model.offset_sigma_s**2
             P[n - 1, n - 1] = self.model.freq_sigma**2
-            self.P = P
+            self._P0 = P
             self.x = np.concatenate([self.x, [0.0, 0.0]])
         return k
 
@@ -116,9 +225,15 @@ class ClockEstimator:
         """Own ``theta, f`` at ``T_s`` and their covariance ``P_tt, P_tf, P_ff``."""
         if self.ref:
             return 0.0, 0.0, 0.0, 0.0, 0.0
+        k = self.index[self.id]
+        B = self._block([k])
+        return self.x[2 * k], self.x[2 * k + 1], B[0, 0], B[0, 1], B[1, 1]
+
+    def _own_x(self) -> tuple[float, float]:
+        if self.ref:
+            return 0.0, 0.0
         k = 2 * self.index[self.id]
-        P = self.P
-        return self.x[k], self.x[k + 1], P[k, k], P[k, k + 1], P[k + 1, k + 1]
+        return self.x[k], self.x[k + 1]
 
     # ------------------------------------------------------------------ time conversions
     @property
@@ -132,12 +247,12 @@ class ClockEstimator:
 
     def network_time(self, t_local_s: float) -> float:
         """Estimated network time at local time ``t_local_s``."""
-        a, f = self._own()[:2]
+        a, f = self._own_x()
         return (t_local_s - a + f * self.T_s) / (1.0 + f)
 
     def local_time(self, t_net_s: float) -> float:
         """Local time at which the estimated network time is ``t_net_s``."""
-        a, f = self._own()[:2]
+        a, f = self._own_x()
         return t_net_s + a + f * (t_net_s - self.T_s)
 
     def offset_at(self, t_local_s: float) -> float:
@@ -145,7 +260,7 @@ class ClockEstimator:
         return t_local_s - self.network_time(t_local_s)
 
     def freq(self) -> float:
-        return float(self._own()[1])
+        return float(self._own_x()[1])
 
     def variance_at(self, t_local_s: float) -> float:
         """Own offset variance at local ``t_local_s`` (predicted; the state unchanged), s^2."""
@@ -166,73 +281,122 @@ class ClockEstimator:
 
     # ------------------------------------------------------------------ filter steps
     def predict(self, T_s: float) -> None:
-        """Move every clock to network time ``T_s`` (no-op for the past: late inputs use ``H = [1, dt]``)."""
+        """Move every clock to network time ``T_s`` (no-op for the past: late inputs use ``H = [1, dt]``).
+        The state moves (O(n)); the covariance follows lazily (class docstring)."""
         dt = T_s - self.T_s
         if dt <= 0 or not len(self.x):
             self.T_s = max(self.T_s, T_s)
+            if not len(self.x):
+                self._T0 = self.T_s
             return
-        x, P = self.x, self.P
-        x[0::2] += dt * x[1::2]
-        # F P F^T with F = I + dt E (E: theta <- f in each 2x2 block)
-        P[0::2, :] += dt * P[1::2, :]
-        P[:, 0::2] += dt * P[:, 1::2]
-        _, Q = transition(dt, self.model.q_wf_s, self.model.q_rw_per_s)
-        n = len(x) // 2
-        i = np.arange(n) * 2
-        # network time's (station 1's) own wander, common to every station's offset
-        P[0::2, 0::2] += Q[0, 0]
-        P[0::2, 1::2] += Q[0, 1]
-        P[1::2, 0::2] += Q[1, 0]
-        P[1::2, 1::2] += Q[1, 1]
-        P[i, i] += Q[0, 0]
-        P[i, i + 1] += Q[0, 1]
-        P[i + 1, i] += Q[1, 0]
-        P[i + 1, i + 1] += Q[1, 1]
-        self.P = 0.5 * (P + P.T)
+        self.x[0::2] += dt * self.x[1::2]
         self.T_s = float(T_s)
 
-    def _row(self, T_s: float, terms: list[tuple[int, float]]) -> np.ndarray:
-        h = np.zeros(len(self.x))
-        dt = T_s - self.T_s  # <= 0 for late inputs
+    def _terms(self, T_s: float, terms: list[tuple[int, float]]) -> tuple[list[int], list[float], float]:
+        """Sparse row of ``sum sign theta_sid(T_s)`` at the filter's time: block indices, signs and the
+        ``dt = T_s - self.T_s`` (``<= 0``: late inputs use ``h = sign [1, dt]``); station 1 has no state."""
+        ks, signs = [], []
         for sid, sign in terms:
             if sid == 1:
                 continue
-            k = 2 * self._add(sid)
-            if len(h) < len(self.x):
-                h = np.concatenate([h, np.zeros(len(self.x) - len(h))])
-            h[k] += sign
-            h[k + 1] += sign * dt
-        return h
+            ks.append(self._add(sid))
+            signs.append(sign)
+        return ks, signs, T_s - self.T_s
 
-    def _update(self, h: np.ndarray, z: float, r: float) -> float:
-        PH = self.P @ h
-        s_prior = float(h @ PH)
-        S = s_prior + r
-        K = PH / S
-        nu = z - float(h @ self.x)
-        self.x = self.x + K * nu
-        # Joseph form (I - K h) P (I - K h)^T + r K K^T, expanded as rank-1 terms
-        P = self.P - np.outer(K, PH) - np.outer(PH, K) + S * np.outer(K, K)
-        self.P = 0.5 * (P + P.T)
+    def _update(self, ks: list[int], signs: list[float], dt_h: float, z: float, r: float) -> float:
+        """Scalar update ``z = h x + v``, ``var v = r``, ``h = sum_i s_i e_{k_i} (x) [1, dt_h]``; the NIS."""
+        if self.T_s - self._T0 > self.rebase_s:
+            self._rebase()
+        PH = self._PH(ks, signs, dt_h)
+        x = self.x
+        hph, hx = 0.0, 0.0
+        for k, sg in zip(ks, signs):
+            hph += sg * (PH[2 * k] + dt_h * PH[2 * k + 1])
+            hx += sg * (x[2 * k] + dt_h * x[2 * k + 1])
+        S = float(hph) + r
+        nu = z - float(hx)
+        x += PH * (nu / S)
+        # Joseph form with the optimal gain K = P h / S: (I - K h) P (I - K h)^T + r K K^T = P - w w^T,
+        # w = P h / sqrt(S); at the reference time T0: P0 - v v^T, v = F^{-1} w (exactly symmetric)
+        v = PH * (1.0 / np.sqrt(S))
+        dt = self.T_s - self._T0
+        if dt > 0:
+            v[0::2] -= dt * v[1::2]
+        self._P0 -= np.outer(v, v)
         self.n_updates += 1
         return nu * nu / S
 
     def on_exchange(self, a: int, b: int, T_s: float, dtheta_s: float, t_var_s2: float = 0.0) -> float | None:
         """Two-way time transfer ``theta_a - theta_b = dtheta_s`` at network time ``T_s``; the NIS.
 
-        ``t_var_s2``: variance of ``T_s`` itself (it comes from a clock estimate): an error ``e`` in the
-        time of the measurement shifts it by ``(f_a - f_b) e``, charged as ``E[(f_a - f_b)^2] t_var``
-        (matters only before a station's first fine sync)."""
+        ``T_s`` is the network time of the exchange's midpoint on clock ``a`` (the initiator's local
+        ``t_mid``) by this filter's estimate of clock ``a``, ``t_var_s2`` its variance. An error ``e`` in
+        that time shifts the measurement by ``(f_a - f_b) e``: charged as ``E[(f_a - f_b)^2] t_var``
+        only while it is below ``time_gate`` times the time-transfer variance (after the coarse sync:
+        microseconds x ppm, ~1e-4 of it). The error is that of a clock estimate, common to every
+        exchange placed with it and correlated with the state, not independent noise: an exchange
+        placed by a clock still unknown to a millisecond (ms x ppm: ns, as large as the measurement)
+        is kept on clock ``a``'s local time and placed again when that clock is known
+        (``n_deferred``; within ``defer_s``, else dropped: ``n_untimed``). Returns None unless used."""
         if self.exact or (a == 1 and b == 1):
             return None
-        self.predict(T_s)
-        h = self._row(T_s, [(a, 1.0), (b, -1.0)])
+        nis = self._exchange(a, b, T_s, dtheta_s, t_var_s2)
+        if nis is None:
+            k = self.index.get(a)
+            if k is None:  # placed by a broadcast correction we cannot re-evaluate
+                self.n_untimed += 1
+            else:  # back to clock a's local time (the inverse of peer_time / network_time)
+                t_loc = T_s + self.x[2 * k] + self.x[2 * k + 1] * (T_s - self.T_s)
+                self._pending.append((a, b, float(t_loc), float(dtheta_s), float(T_s)))
+                self.n_deferred += 1
+                return None
+        self._retry()
+        return nis
+
+    def _exchange(self, a: int, b: int, T_s: float, dtheta_s: float, t_var_s2: float) -> float | None:
+        """The update of ``on_exchange``; None (nothing changed) if its time is too uncertain."""
         r = self.var_z
         if t_var_s2 > 0:
-            hf = np.zeros(len(self.x))
-            hf[1::2] = h[0::2]  # f_a - f_b
-            r += (float(hf @ self.x) ** 2 + float(hf @ self.P @ hf)) * t_var_s2
-        return self._update(h, dtheta_s, r)
+            ef, vf, ks, sg = 0.0, 0.0, [], []
+            for sid, g in ((a, 1.0), (b, -1.0)):
+                k = self.index.get(sid)
+                if sid == 1:
+                    continue
+                if k is None:
+                    vf += self.model.freq_sigma**2  # not in the filter yet: its prior
+                else:
+                    ks.append(k)
+                    sg.append(g)
+            if ks:
+                B = self._block(ks)
+                ef = sum(g * self.x[2 * k + 1] for k, g in zip(ks, sg))  # E[f_a - f_b]
+                vf += sum(gi * gj * B[2 * i + 1, 2 * j + 1] for i, gi in enumerate(sg) for j, gj in enumerate(sg))
+            r_t = (float(ef) ** 2 + float(vf)) * t_var_s2
+            if r_t > self.time_gate * self.var_z:
+                return None
+            r += r_t
+        self.predict(T_s)
+        ks, signs, dt_h = self._terms(T_s, [(a, 1.0), (b, -1.0)])
+        return self._update(ks, signs, dt_h, dtheta_s, r)
+
+    def _retry(self, force: bool = False) -> None:
+        """Place the deferred exchanges whose clock is now known well enough (late inputs); at most
+        every 0.1 s of network time unless ``force``, one try per clock still unknown."""
+        if not self._pending or (not force and self.T_s - self._retry_T < 0.1):
+            return
+        self._retry_T = self.T_s
+        keep, unknown = [], set()
+        for a, b, t_loc, z, T0 in self._pending:
+            if a not in unknown:
+                T, var = self.peer_time(a, t_loc)
+                if self._exchange(a, b, T, z, var) is not None:
+                    continue
+                unknown.add(a)
+            if self.T_s - T0 <= self.defer_s:
+                keep.append((a, b, t_loc, z, T0))
+            else:
+                self.n_untimed += 1
+        self._pending = keep
 
     def on_nav(self, src: int, t_rx_s: float, t_tx_src_s: float, corr) -> bool:
         """Coarse one-way timing of a nav from ``src`` (``t_tx`` on its clock, ``corr`` its broadcast
@@ -243,12 +407,15 @@ class ClockEstimator:
         if self._coarse_var_at(T, src) <= self.coarse_gate_s**2:  # the common case once synced
             return False  # (the filter stays where it is: the next input predicts it)
         self.predict(T)
-        h = self._row(T, [(self.id, 1.0), (src, -1.0)])
-        if float(h @ self.P @ h) <= self.coarse_gate_s**2:
+        ks, signs, dt_h = self._terms(T, [(self.id, 1.0), (src, -1.0)])
+        B = self._block(ks)
+        hv = np.array([v for sg in signs for v in (sg, sg * dt_h)])
+        if float(hv @ B @ hv) <= self.coarse_gate_s**2:
             return False
         # t_rx - t_tx = d / c + theta_me - theta_src: the distance unknown (coarse variance)
-        self._update(h, t_rx_s - t_tx_src_s, self.coarse_var)
+        self._update(ks, signs, dt_h, t_rx_s - t_tx_src_s, self.coarse_var)
         self.n_coarse += 1
+        self._retry()
         return True
 
     def _coarse_var_at(self, T_s: float, src: int) -> float:
@@ -257,22 +424,21 @@ class ClockEstimator:
         every offset cancels in the difference (not against the reference, station 1); each
         non-reference clock adds its own ``Q_tt``."""
         dt = max(T_s - self.T_s, 0.0)
-        idx, h = [], []
+        ks, h = [], []
         for sid, sign in ((self.id, 1.0), (src, -1.0)):
             k = self.index.get(sid)
             if sid == 1:
                 continue
             if k is None:
                 return float("inf")  # not in the filter yet: unknown
-            idx += [2 * k, 2 * k + 1]
+            ks.append(k)
             h += [sign, sign * dt]
-        if not idx:
+        if not ks:
             return 0.0
         hv = np.asarray(h)
-        var = float(hv @ self.P[np.ix_(idx, idx)] @ hv)
+        var = float(hv @ self._block(ks) @ hv)
         if dt > 0:  # each clock's own wander, plus the common one where it does not cancel
-            _, Q = transition(dt, self.model.q_wf_s, self.model.q_rw_per_s)
-            var += (len(idx) // 2 + float(hv[0::2].sum()) ** 2) * Q[0, 0]
+            var += (len(ks) + float(hv[0::2].sum()) ** 2) * self._Q(dt)[0]
         return var
 
     def peer_time(self, sid: int, t_peer_s: float, corr=None) -> tuple[float, float]:
@@ -289,6 +455,6 @@ class ClockEstimator:
         a, f = self.x[2 * k], self.x[2 * k + 1]
         T = (t_peer_s - a + f * self.T_s) / (1.0 + f)
         dt = T - self.T_s
-        P = self.P
-        var = P[2 * k, 2 * k] + 2 * dt * P[2 * k, 2 * k + 1] + dt * dt * P[2 * k + 1, 2 * k + 1]
+        B = self._block([k])
+        var = B[0, 0] + 2 * dt * B[0, 1] + dt * dt * B[1, 1]
         return float(T), float(max(var, 0.0))
