@@ -96,7 +96,7 @@ class ClockEstimator:
     measurement), moves to the reference time as ``P0 - v v^T``, ``v = F^{-1} w``: one rank-1 pass,
     exactly symmetric. ``P0`` is moved to ``T_s`` (one O(n^2) prediction, symmetrized) when
     ``T_s - T0`` exceeds ``rebase_s`` (about once per TDMA cycle) or when ``P`` is read. Equal to the
-    dense filter (predict every input, expanded Joseph update) to rounding: ``tests/test_sync.py``.
+    dense filter (predict every input, expanded Joseph update) to rounding: ``tests/stations/test_sync.py``.
 
     Parameters
     ----------
