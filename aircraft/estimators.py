@@ -20,12 +20,16 @@ import numpy as np
 from scipy.special import erfcx
 
 from nav.kalman import chol_solve, ekf_update, kf_predict, kf_update, symmetrize, ukf_update
+from nav.pcrb import gauss_markov_block
 from nav.ut import SigmaParams, unscented_transform
 
 from . import coords as crd
 from . import models as mdl
 
 ALGOS = mdl.ALGOS
+# correlation time of a station's residual sync error after the broadcast correction, s (measured with
+# the station clock filter on the seed000 world, TCXO clocks: docs/sync.md)
+CLOCK_BIAS_TAU_S = 6.0
 
 
 # --------------------------------------------------------------------------- snapshot LSQ
@@ -196,6 +200,15 @@ class Tuning:
     # ... and only beyond this many array radii (RMS station distance from the centroid) from the
     # reference: close to the array the ranges to single stations dominate the nonlinearity
     inverse_min_radii: float = 3.0
+    # residual station clock errors after the broadcast clock correction (docs/sync.md): "states" = one
+    # first-order Gauss-Markov range bias per station heard, stationary variance = the broadcast clock
+    # variance c^2 P_theta, correlation time ``clock_bias_tau_s`` (added as a station is first heard,
+    # dropped after ``clock_bias_drop_s`` without a measurement); "white" = the broadcast variance added
+    # to each range's variance as if independent between measurements (wrong for a slowly varying
+    # sync error: 4-8 x the bound, docs/sync.md)
+    clock_bias: str = "states"
+    clock_bias_tau_s: float = CLOCK_BIAS_TAU_S
+    clock_bias_drop_s: float = 60.0
 
     def p0(self, layout: mdl.StateLayout) -> np.ndarray:
         d = [self.p0_pos_m] * 3 + [self.p0_vel_m_s] * 3
@@ -237,6 +250,12 @@ class CvTracker:
             raise ValueError(f"x0 must have {self.layout.n} states for {model}, got {x0.shape}")
         if tuning.coords not in ("inverse", "cartesian"):
             raise ValueError(f"unknown coords {tuning.coords!r} (inverse or cartesian)")
+        if tuning.clock_bias not in ("states", "white"):
+            raise ValueError(f"unknown clock_bias {tuning.clock_bias!r} (states or white)")
+        self.n_base = self.layout.n  # states after these: the stations' clock biases (bias_ids order)
+        self.bias_ids: list = []
+        self._bias_var = np.zeros(0)  # their stationary variances (latest broadcast), m^2
+        self._bias_t = np.zeros(0)  # time each was last measured
         self._x = x0.copy()
         P0 = tuning.p0(self.layout) if P0 is None else np.asarray(P0, dtype=float)
         self._P = np.broadcast_to(P0, x0.shape[:-1] + (self.layout.n,) * 2).copy()
@@ -350,10 +369,60 @@ class CvTracker:
             n, tu = self.layout.n, self.tuning
             if len(self._fq) > 64:
                 self._fq.clear()
-            self._fq[key] = (mdl.cv_transition(n, dt),
-                             mdl.cv_noise(n, dt, tu.q_acc, tu.q_clock, tu.q_drift, tu.q_acc_z))
+            F = mdl.cv_transition(n, dt)
+            Q = mdl.cv_noise(n, dt, tu.q_acc, tu.q_clock, tu.q_drift, tu.q_acc_z)
+            nb = len(self.bias_ids)
+            if nb:  # the stations' clock biases: independent first-order Gauss-Markov
+                A, Qb = gauss_markov_block(nb, self._bias_var, tu.clock_bias_tau_s, dt)
+                F = np.block([[F, np.zeros((n, nb))], [np.zeros((nb, n)), A]])
+                Q = np.block([[Q, np.zeros((n, nb))], [np.zeros((nb, n)), Qb]])
+            self._fq[key] = (F, Q)
         self._last_dt, self._last_fq = dt, self._fq[key]
         return self._last_fq
+
+    def _bias_changed(self) -> None:
+        self._fq.clear()
+        self._last_dt = self._last_fq = None
+
+    def _use_biases(self, ids, var_m2, t_s: float) -> np.ndarray:
+        """Clock-bias states for the stations ``ids`` (m,) with broadcast variances ``var_m2`` (m,):
+        adds a state ``N(0, var)`` (independent of the rest) for a station heard for the first time,
+        keeps the latest broadcast variance as its stationary variance, drops (marginalizes) the states
+        of stations unheard for ``clock_bias_drop_s``. Returns ``D`` (m, nb): measurement j sees bias
+        ``D[j] @ beta``."""
+        ids = list(ids)
+        var = np.broadcast_to(np.asarray(var_m2, dtype=float), (len(ids),))
+        stale = [k for k, sid in enumerate(self.bias_ids)
+                 if sid not in ids and t_s - self._bias_t[k] > self.tuning.clock_bias_drop_s]
+        if stale:
+            keep = np.setdiff1d(np.arange(self._x.shape[-1]), self.n_base + np.array(stale))
+            self._x = self._x[..., keep]
+            self._P = self._P[..., keep[:, None], keep]
+            self.bias_ids = [sid for k, sid in enumerate(self.bias_ids) if k not in stale]
+            kb = np.setdiff1d(np.arange(len(self._bias_var)), stale)
+            self._bias_var, self._bias_t = self._bias_var[kb], self._bias_t[kb]
+            self._bias_changed()
+        new = [(sid, v) for sid, v in zip(ids, var) if sid not in self.bias_ids]
+        if new:
+            k, n = len(new), self._x.shape[-1]
+            vn = np.array([v for _, v in new])
+            self._x = np.concatenate([self._x, np.zeros(self._x.shape[:-1] + (k,))], axis=-1)
+            P = np.zeros(self._P.shape[:-2] + (n + k, n + k))
+            P[..., :n, :n] = self._P
+            P[..., n:, n:] = np.diag(vn)
+            self._P = P
+            self.bias_ids += [sid for sid, _ in new]
+            self._bias_var = np.concatenate([self._bias_var, vn])
+            self._bias_t = np.concatenate([self._bias_t, np.full(k, t_s)])
+            self._bias_changed()
+        idx = np.array([self.bias_ids.index(sid) for sid in ids], dtype=int)
+        if not np.array_equal(self._bias_var[idx], var):
+            self._bias_var[idx] = var
+            self._bias_changed()
+        self._bias_t[idx] = t_s
+        D = np.zeros((len(ids), len(self.bias_ids)))
+        D[np.arange(len(ids)), idx] = 1.0
+        return D
 
     def predict_to(self, t_s: float) -> None:
         """Propagate to ``t_s`` (no-op if ``t_s <= t``: measurements are never processed backwards)."""
@@ -376,14 +445,57 @@ class CvTracker:
             self._P = symmetrize(Fs @ self._P @ np.swapaxes(Fs, -1, -2) + G1 @ Q @ np.swapaxes(G1, -1, -2))
         self.t_s = float(t_s)
 
+    def measurement_model(self, stations_m: np.ndarray, dt_s: np.ndarray | None = None,
+                          D: np.ndarray | None = None):
+        """``(h, jac)`` of one batch on Cartesian states ``[x (n), beta (nb)]`` (..., n + nb).
+
+        Pseudoranges ``h_pr(x) + D beta`` or differences against ``self.base``
+        ``h_tdoa(x) + G D beta``; ``D`` (m, nb) maps the clock-bias states to the stations of the batch
+        (None: no bias states). ``jac`` returns (..., m or m-1, n + nb).
+        """
+        n0 = self.n_base
+        if self.layout.kind == "pr":
+            Db = D
+
+            def h0(X):
+                return mdl.h_pr(X[..., :n0], stations_m, dt_s)
+
+            def j0(X):
+                return mdl.jac_pr(X[..., :n0], stations_m, dt_s)
+        else:
+            b = self.base
+            Db = None if D is None else mdl.g_matrix(stations_m.shape[0], b) @ D
+
+            def h0(X):
+                return mdl.h_tdoa(X[..., :n0], stations_m, b, dt_s)
+
+            def j0(X):
+                return mdl.jac_tdoa(X[..., :n0], stations_m, b, dt_s)
+        if Db is None:
+            return h0, j0
+
+        def h(X):
+            return h0(X) + X[..., n0:] @ Db.T
+
+        def jac(X):
+            J = j0(X)
+            return np.concatenate([J, np.broadcast_to(Db, J.shape[:-1] + Db.shape[-1:])], axis=-1)
+
+        return h, jac
+
     def update(
         self, stations_m: np.ndarray, rho_m: np.ndarray, station_cov_m2: np.ndarray | None = None,
         dt_s: np.ndarray | None = None, sigma_m: float | np.ndarray | None = None,
+        bias_ids=None, bias_var_m2: np.ndarray | float | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """One batch update with pseudoranges ``rho_m`` (M, m) from ``stations_m`` (m, 3).
 
         ``dt_s`` (m,) are the measurement times relative to the filter time (TDMA batches).
         TDOA: the batch is differenced against ``self.base`` (needs m >= 2). Returns (nu, S).
+        ``bias_ids`` (m,) station ids and ``bias_var_m2`` (m,) their broadcast clock variances
+        ``c^2 P_theta``: with ``tuning.clock_bias == "states"`` each station's residual clock error is a
+        Gauss-Markov state (``rho_j = h_j(x) + beta_j + v_j``; differences see ``G beta``), with
+        ``"white"`` its variance is added to the range's.
         """
         stations_m = np.asarray(stations_m, dtype=float)
         if self._ref is None and self.tuning.coords == "inverse":
@@ -391,6 +503,14 @@ class CvTracker:
             self._radius = crd.array_radius(stations_m)
             self._switch()
         sig = self.tuning.sigma_m if sigma_m is None else sigma_m
+        D = None
+        if bias_ids is not None and bias_var_m2 is not None:
+            if self.tuning.clock_bias == "states":
+                D = self._use_biases(bias_ids, bias_var_m2, self.t_s)
+            else:
+                sig = np.sqrt(np.asarray(sig, dtype=float) ** 2 + np.asarray(bias_var_m2, dtype=float))
+        if D is None and self.bias_ids:
+            D = np.zeros((stations_m.shape[0], len(self.bias_ids)))
         if self.layout.kind == "pr":
             if station_cov_m2 is None and np.ndim(sig) == 0:  # R does not depend on the state: cache it
                 key = (stations_m.shape[0], float(sig), self._x.shape[:-1])
@@ -400,21 +520,12 @@ class CvTracker:
             else:
                 R = mdl.r_pr(mdl.range_var(self.x, stations_m, station_cov_m2, sig, dt_s))
             z = rho_m
-
-            def h(X):
-                return mdl.h_pr(X, stations_m, dt_s)
         else:
             b = self.base
             R = mdl.r_tdoa(mdl.range_var(self.x, stations_m, station_cov_m2, sig, dt_s), b)
             z = np.delete(rho_m, b, axis=-1) - rho_m[..., b : b + 1]
-
-            def h(X):
-                return mdl.h_tdoa(X, stations_m, b, dt_s)
+        h, jac = self.measurement_model(stations_m, dt_s, D)
         if self.kind == "ekf":
-            def jac(X):
-                return (mdl.jac_pr(X, stations_m, dt_s) if self.layout.kind == "pr"
-                        else mdl.jac_tdoa(X, stations_m, self.base, dt_s))
-
             if self._inv.any():  # measurement model and Jacobian in the runs' own coordinates
                 hc, jc = h, jac
 
@@ -542,6 +653,7 @@ class CvTracker:
 
     def update_sequential(
         self, stations_m: np.ndarray, rho_m: np.ndarray, station_cov_m2: np.ndarray | None = None,
+        bias_ids=None, bias_var_m2: np.ndarray | float | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Pseudorange epoch as sequential scalar updates (re-linearized / sigma points redrawn after
         each). Equivalent to the batch update for a linear model; for ranges it reduces the EKF's
@@ -549,9 +661,12 @@ class CvTracker:
         if self.layout.kind != "pr":
             raise ValueError("sequential scalar updates need independent pseudoranges (pr model)")
         nus, Ss = [], []
-        for j in range(stations_m.shape[0]):
+        m = stations_m.shape[0]
+        bv = None if bias_var_m2 is None else np.broadcast_to(np.asarray(bias_var_m2, dtype=float), (m,))
+        for j in range(m):
             c = None if station_cov_m2 is None else station_cov_m2[j : j + 1]
-            nu, S = self.update(stations_m[j : j + 1], rho_m[..., j : j + 1], c)
+            kw = {} if bias_ids is None or bv is None else {"bias_ids": [list(bias_ids)[j]], "bias_var_m2": bv[j : j + 1]}
+            nu, S = self.update(stations_m[j : j + 1], rho_m[..., j : j + 1], c, **kw)
             nus.append(nu[..., 0])
             Ss.append(S[..., 0, 0])
         return np.stack(nus, axis=-1), np.stack(Ss, axis=-1)
@@ -569,7 +684,7 @@ class CvTracker:
         fz = self.tuning.floor_z_m
         if fz is None:
             return
-        n = self.layout.n
+        n = self._x.shape[-1]
         x = self._x.reshape(-1, n)  # views: in-place edits reach self._x / self._P
         P = self._P.reshape(-1, n, n)
         s2 = P[:, 2, 2]
