@@ -389,9 +389,13 @@ class CvTracker:
         adds a state ``N(0, var)`` (independent of the rest) for a station heard for the first time,
         keeps the latest broadcast variance as its stationary variance, drops (marginalizes) the states
         of stations unheard for ``clock_bias_drop_s``. Returns ``D`` (m, nb): measurement j sees bias
-        ``D[j] @ beta``."""
-        ids = list(ids)
-        var = np.broadcast_to(np.asarray(var_m2, dtype=float), (len(ids),))
+        ``D[j] @ beta``. A station id ``None`` or a variance <= 0 (no clock correction broadcast):
+        no bias for that measurement (row of zeros)."""
+        var_all = np.broadcast_to(np.asarray(var_m2, dtype=float), (len(ids),))
+        rows = [j for j, (sid, v) in enumerate(zip(ids, var_all)) if sid is not None and v > 0]
+        m_all = len(var_all)
+        ids = [ids[j] for j in rows]
+        var = var_all[rows]
         stale = [k for k, sid in enumerate(self.bias_ids)
                  if sid not in ids and t_s - self._bias_t[k] > self.tuning.clock_bias_drop_s]
         if stale:
@@ -420,8 +424,8 @@ class CvTracker:
             self._bias_var[idx] = var
             self._bias_changed()
         self._bias_t[idx] = t_s
-        D = np.zeros((len(ids), len(self.bias_ids)))
-        D[np.arange(len(ids)), idx] = 1.0
+        D = np.zeros((m_all, len(self.bias_ids)))
+        D[rows, idx] = 1.0
         return D
 
     def predict_to(self, t_s: float) -> None:
@@ -511,6 +515,8 @@ class CvTracker:
                 sig = np.sqrt(np.asarray(sig, dtype=float) ** 2 + np.asarray(bias_var_m2, dtype=float))
         if D is None and self.bias_ids:
             D = np.zeros((stations_m.shape[0], len(self.bias_ids)))
+        if D is not None and D.shape[-1] == 0:
+            D = None
         if self.layout.kind == "pr":
             if station_cov_m2 is None and np.ndim(sig) == 0:  # R does not depend on the state: cache it
                 key = (stations_m.shape[0], float(sig), self._x.shape[:-1])
@@ -727,9 +733,14 @@ class EstimatorConfig:
 class AircraftEstimator:
     """One algorithm for one aircraft, fed by messages; no I/O, no clocks, no truth.
 
-    ``on_measurement(t_s, station_id, station_pos_m, station_cov_m2, rho_m)`` takes one TDMA slot;
-    ``on_epoch(t_s, station_pos_m, station_cov_m2, rho_m)`` a synchronous epoch. Filters start from a
-    snapshot LSQ fix of the first complete batch. ``estimate()`` returns a dict or None.
+    ``on_measurement(t_s, station_id, station_pos_m, station_cov_m2, rho_m, clock_var_m2)`` takes one
+    TDMA slot; ``on_epoch(t_s, station_pos_m, station_cov_m2, rho_m, station_ids, clock_var_m2)`` a
+    synchronous epoch. ``clock_var_m2``: the broadcast clock variance ``c^2 P_theta`` of the station
+    (:func:`aircraft.models.broadcast_clock_var_m2`): the filters carry each station's residual clock
+    error as ``tuning.clock_bias`` says (a Gauss-Markov bias state per station by default); snapshot
+    LSQ and the filter start add it to the range variance (one epoch sees each residual once).
+    Filters start from a snapshot LSQ fix of the first complete batch. ``estimate()`` returns a dict
+    or None.
     """
 
     def __init__(self, algo: str, config: EstimatorConfig | None = None, x0_guess_m: np.ndarray | None = None):
@@ -742,7 +753,7 @@ class AircraftEstimator:
         self.fix: np.ndarray | None = None  # LSQ state (4,) or (3,)
         self.t_s: float | None = None
         self.guess = np.array([0.0, 0.0, 1000.0]) if x0_guess_m is None else np.asarray(x0_guess_m, float)
-        self._pending: dict[int, tuple[float, np.ndarray, np.ndarray, float]] = {}
+        self._pending: dict[int, tuple[float, np.ndarray, np.ndarray, float, float]] = {}
         self._last_geom: tuple[np.ndarray, np.ndarray | None] | None = None  # LSQ covariance
         self.n_updates = 0
         self.n_dropped = 0
@@ -751,26 +762,37 @@ class AircraftEstimator:
         self.init = None  # the InitResult of the latest start (broadcast initializer)
 
     # -- input
-    def on_epoch(self, t_s: float, station_pos_m, station_cov_m2, rho_m) -> None:
+    def on_epoch(self, t_s: float, station_pos_m, station_cov_m2, rho_m, station_ids=None,
+                 clock_var_m2=None) -> None:
         pos = np.asarray(station_pos_m, float)
         cov = None if station_cov_m2 is None else np.asarray(station_cov_m2, float)
         rho = np.asarray(rho_m, float)
         if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(rho))) or pos.shape[0] != rho.shape[0]:
             self.n_dropped += 1
             return
-        self._batch(t_s, pos, cov, rho, np.zeros(len(rho)))
+        m = len(rho)
+        ids = list(range(m)) if station_ids is None else list(station_ids)
+        cvar = np.zeros(m) if clock_var_m2 is None else np.broadcast_to(np.asarray(clock_var_m2, float), (m,))
+        if not np.all(np.isfinite(cvar)) or len(ids) != m:
+            self.n_dropped += 1
+            return
+        self._batch(t_s, pos, cov, rho, np.zeros(m), ids, cvar)
 
-    def on_measurement(self, t_s: float, station_id: int, station_pos_m, station_cov_m2, rho_m: float) -> None:
+    def on_measurement(self, t_s: float, station_id: int, station_pos_m, station_cov_m2, rho_m: float,
+                       clock_var_m2: float = 0.0) -> None:
         pos = np.asarray(station_pos_m, float).reshape(3)
         cov = np.zeros((3, 3)) if station_cov_m2 is None else np.asarray(station_cov_m2, float).reshape(3, 3)
-        if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(cov)) and np.isfinite(rho_m)):
+        cvar = float(clock_var_m2 or 0.0)
+        if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(cov)) and np.isfinite(rho_m)
+                and np.isfinite(cvar) and cvar >= 0):
             self.n_dropped += 1
             return
         if self.tracker is not None and self.model == "pr":
             # sequential scalar update at the slot's own time
             try:
                 self.tracker.predict_to(t_s)
-                nu, S = self.tracker.update(pos[None], np.array([rho_m]), cov[None])
+                nu, S = self.tracker.update(pos[None], np.array([rho_m]), cov[None],
+                                            bias_ids=[station_id], bias_var_m2=np.array([cvar]))
             except np.linalg.LinAlgError:
                 self._reset()
                 return
@@ -781,23 +803,30 @@ class AircraftEstimator:
         # batch: LSQ, TDOA, and filter initialisation collect one cycle (a station repeats -> flush)
         if station_id in self._pending:
             self._flush(t_s)
-        self._pending[station_id] = (t_s, pos, cov, float(rho_m))
+        self._pending[station_id] = (t_s, pos, cov, float(rho_m), cvar)
         self._pending = {k: v for k, v in self._pending.items() if t_s - v[0] <= self.cfg.max_batch_age_s}
 
     def _flush(self, t_now: float) -> None:
-        items = sorted(self._pending.values(), key=lambda v: v[0])
+        items = sorted(self._pending.items(), key=lambda kv: kv[1][0])
         self._pending.clear()
         if len(items) < self.cfg.min_stations:
             return
-        t_last = items[-1][0]
-        pos = np.array([v[1] for v in items])
-        cov = np.array([v[2] for v in items])
-        rho = np.array([v[3] for v in items])
-        dt = np.array([v[0] for v in items]) - t_last
-        self._batch(t_last, pos, cov, rho, dt)
+        t_last = items[-1][1][0]
+        pos = np.array([v[1] for _, v in items])
+        cov = np.array([v[2] for _, v in items])
+        rho = np.array([v[3] for _, v in items])
+        cvar = np.array([v[4] for _, v in items])
+        dt = np.array([v[0] for _, v in items]) - t_last
+        self._batch(t_last, pos, cov, rho, dt, [k for k, _ in items], cvar)
 
-    def _batch(self, t_s, pos, cov, rho, dt) -> None:
+    def _batch(self, t_s, pos, cov, rho, dt, ids=None, cvar=None) -> None:
         m = len(rho)
+        bias_kw, cov_trk = {}, cov
+        if cvar is not None and np.any(cvar > 0):
+            bias_kw = {"bias_ids": list(ids), "bias_var_m2": cvar}
+            # snapshot uses (LSQ, the filter start): each residual seen once, as range variance
+            # (an isotropic term on the station covariance: u^T (P + s I) u = u^T P u + s)
+            cov = (np.zeros((m, 3, 3)) if cov is None else cov) + cvar[:, None, None] * np.eye(3)
         self._last_geom = (pos, cov)
         if m < self.cfg.min_stations:
             self.n_dropped += 1
@@ -854,10 +883,10 @@ class AircraftEstimator:
         try:
             self.tracker.predict_to(t_s)
             if self.cfg.tuning.sequential and self.model == "pr" and not np.any(dt):
-                nu, s_diag = self.tracker.update_sequential(pos, rho, cov)
+                nu, s_diag = self.tracker.update_sequential(pos, rho, cov_trk, **bias_kw)
                 S = np.diag(s_diag)
             else:
-                nu, S = self.tracker.update(pos, rho, cov, dt if np.any(dt) else None)
+                nu, S = self.tracker.update(pos, rho, cov_trk, dt if np.any(dt) else None, **bias_kw)
         except np.linalg.LinAlgError:
             self._reset()
             return

@@ -200,3 +200,37 @@ def test_nees_with_correlated_station_biases_inside_band_and_white_model_overcon
     assert nees > 0.5 * lo, (nees, lo)  # not grossly pessimistic either
     nees_white, _ = _nees_run("white")
     assert nees_white > 1.5 * hi, nees_white  # the white model is overconfident in the same world
+
+
+@pytest.mark.parametrize("algo", ["ekf-pr", "ukf-tdoa"])
+def test_message_api_carries_one_bias_per_station_heard_on_tdma_slots(algo):
+    """The node's path: one TDMA slot at a time with the broadcast clock variance; the filter adds a
+    bias state per station as it is heard, and the final error is within its covariance."""
+    from aircraft import trajectory
+    from aircraft.config import from_scenario
+    from aircraft.estimators import AircraftEstimator, EstimatorConfig
+    from net.scenario import load
+
+    ac = from_scenario(load("seed003"))
+    t = np.arange(0.0, 40.0, 0.1)
+    tr = trajectory.from_config(ac.trajectory, t, ac.centre_m)
+    rng = np.random.default_rng(15)
+    m = len(ac.stations_m)
+    sync_m = 0.6  # 2 ns
+    a = np.exp(-0.1 / 6.0)
+    beta = sync_m * rng.standard_normal(m)
+    e = AircraftEstimator(algo, EstimatorConfig(tuning=ac.tuning), x0_guess_m=ac.centre_m + [0, 0, 1000.0])
+    for k, tk in enumerate(t):
+        beta = a * beta + np.sqrt(1 - a * a) * sync_m * rng.standard_normal(m)
+        j = k % m
+        rho = (np.linalg.norm(tr.pos_m[k] - ac.stations_m[j]) + ac.clock.bias_m(tk) + beta[j]
+               + ac.sigma_m * rng.standard_normal())
+        e.on_measurement(tk, j + 1, ac.stations_m[j], None, rho, clock_var_m2=sync_m**2)
+    assert e.n_resets == 0
+    assert sorted(e.tracker.bias_ids) == list(range(1, m + 1))
+    n = e.tracker.n_base
+    assert e.tracker.x.shape[-1] == n + m
+    est = e.estimate()
+    p, _ = tr.at(est["t_s"])
+    d = np.array(est["pos_m"]) - p
+    assert d @ np.linalg.solve(np.array(est["cov_m2"]), d) < stats.chi2.ppf(0.999, 3)
