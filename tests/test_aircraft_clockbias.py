@@ -234,3 +234,35 @@ def test_message_api_carries_one_bias_per_station_heard_on_tdma_slots(algo):
     p, _ = tr.at(est["t_s"])
     d = np.array(est["pos_m"]) - p
     assert d @ np.linalg.solve(np.array(est["cov_m2"]), d) < stats.chi2.ppf(0.999, 3)
+
+
+def test_live_aircraft_core_models_each_station_clock_from_its_broadcast():
+    """AircraftCore (the process's sans-I/O core): navs whose broadcast clock correction is off by a
+    slowly varying residual; the filters hold one bias state per station with the broadcast variance."""
+    from aircraft.config import from_scenario
+    from aircraft.node import AircraftCore
+    from net.scenario import load
+
+    scn = load("seed003", clock={"model": "perfect"})
+    ac = from_scenario(scn)
+    core = AircraftCore(ac, ("ekf-pr", "ukf-pr"), "ac1", np.random.default_rng(2), horizon_s=60.0)
+    rng = np.random.default_rng(3)
+    ids = list(scn.ids)
+    sync_s = 1e-9
+    resid = {sid: sync_s * rng.standard_normal() for sid in ids}
+    a = np.exp(-scn.tdma.slot_s / 6.0)
+    k = 0
+    for cycle in range(30):
+        for sid in ids:
+            t = k * scn.tdma.slot_s + 0.05
+            k += 1
+            for s2 in ids:
+                resid[s2] = a * resid[s2] + np.sqrt(1 - a * a) * sync_s * rng.standard_normal()
+            # perfect station clock, broadcast offset estimate off by the residual; P_tt = (1 ns)^2
+            msg = {"state": "frame", "src": sid, "pos_m": scn.true_pos(sid).tolist(), "cov_m2": np.zeros((3, 3)).tolist(),
+                   "t_tx_s": t, "clock": [t, resid[sid], 0.0, sync_s**2, 0.0, 0.0]}
+            core.on_nav(msg, {"pos_m": scn.true_pos(sid).tolist(), "t_true_s": t})
+    for algo, est in core.estimators.items():
+        assert est.tracker is not None, algo
+        assert sorted(est.tracker.bias_ids) == sorted(ids), algo
+        np.testing.assert_allclose(est.tracker._bias_var, (299792458.0 * sync_s) ** 2, rtol=1e-9)
