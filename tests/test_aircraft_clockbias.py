@@ -266,3 +266,26 @@ def test_live_aircraft_core_models_each_station_clock_from_its_broadcast():
         assert est.tracker is not None, algo
         assert sorted(est.tracker.bias_ids) == sorted(ids), algo
         np.testing.assert_allclose(est.tracker._bias_var, (299792458.0 * sync_s) ** 2, rtol=1e-9)
+
+
+@pytest.mark.slow
+def test_bench_aircraft_clocks_smoke(tmp_path, capsys):
+    """`larns bench aircraft --clocks`: both worlds on the same draws; the bound with station clocks
+    is above the perfect-clock one at every point (it includes the residual sync errors)."""
+    import json
+
+    from larns.cli import main
+
+    js = tmp_path / "c.json"
+    rc = main(["bench", "aircraft", "--quick", "--clocks", "--trials", "2", "--duration", "1.5", "--warmup", "0.5",
+               "--no-sweep", "--no-speed", "--json", str(js)])
+    assert rc == 0
+    out = json.loads(js.read_text())
+    assert out["bar"]["factor"] == 1.15 and out["settings"]["sync_ns"] == 0.7
+    assert out["settings"]["sync_tau_s"] == 6.0 and out["settings"]["clock_bias"] == "states"
+    pf = out["perfect_clocks"]
+    for kind in ("hover", "turn"):
+        for algo, pts in out["pcrb_m"][kind].items():
+            for d, v in pts.items():
+                assert v > pf["pcrb_m"][kind][algo][d]
+    assert "beside perfect clocks" in capsys.readouterr().out
