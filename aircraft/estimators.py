@@ -671,7 +671,8 @@ class CvTracker:
         bv = None if bias_var_m2 is None else np.broadcast_to(np.asarray(bias_var_m2, dtype=float), (m,))
         for j in range(m):
             c = None if station_cov_m2 is None else station_cov_m2[j : j + 1]
-            kw = {} if bias_ids is None or bv is None else {"bias_ids": [list(bias_ids)[j]], "bias_var_m2": bv[j : j + 1]}
+            kw = ({} if bias_ids is None or bv is None
+                  else {"bias_ids": [list(bias_ids)[j]], "bias_var_m2": bv[j : j + 1]})
             nu, S = self.update(stations_m[j : j + 1], rho_m[..., j : j + 1], c, **kw)
             nus.append(nu[..., 0])
             Ss.append(S[..., 0, 0])

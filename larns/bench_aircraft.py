@@ -153,7 +153,8 @@ def run_point(ac, kind: str, dist_m: float, runs: int, duration_s: float, warmup
             out["pcrb_m"][algo] = pc_cache[model]
             out["nees"][algo] = float(np.mean(res.nees[:, win]))
             n_dof = 6 + (2 if model == "pr" and tuning.drift_state else 1 if model == "pr" else 0)
-            out.setdefault("nees_band", {})[algo] = [float(v) for v in stats.chi2.ppf([0.025, 0.975], runs * n_dof) / runs]
+            band = stats.chi2.ppf([0.025, 0.975], runs * n_dof) / runs
+            out.setdefault("nees_band", {})[algo] = [float(v) for v in band]
             out["nis"][algo] = float(np.mean(res.nis[:, win]))
     out["samples"] = min(out["samples_by_algo"].values())
     return out
@@ -422,7 +423,8 @@ def _print_clocks(out: dict) -> None:
     pf, st = out["perfect_clocks"], out["settings"]
     print(f"\nStation clocks on ({st['sync_ns']:g} ns, Gauss-Markov tau {st['sync_tau_s']:g} s, filters: "
           f"{st['clock_bias']}) beside perfect clocks, same draws. RMSE/PCRB (+- 95 %), PCRB m, mean NEES [band]")
-    hdr = f"{'point':<12} {'algo':<9} {'perfect':>14} {'PCRB':>7} {'NEES':>7}   {'clocks':>14} {'PCRB':>7} {'NEES':>7} {'band':>13}"
+    hdr = (f"{'point':<12} {'algo':<9} {'perfect':>14} {'PCRB':>7} {'NEES':>7}   "
+           f"{'clocks':>14} {'PCRB':>7} {'NEES':>7} {'band':>13}")
     print(hdr)
     for kind in ("hover", "turn"):
         for d in out["height_m"][kind]:

@@ -259,8 +259,8 @@ def test_live_aircraft_core_models_each_station_clock_from_its_broadcast():
             for s2 in ids:
                 resid[s2] = a * resid[s2] + np.sqrt(1 - a * a) * sync_s * rng.standard_normal()
             # perfect station clock, broadcast offset estimate off by the residual; P_tt = (1 ns)^2
-            msg = {"state": "frame", "src": sid, "pos_m": scn.true_pos(sid).tolist(), "cov_m2": np.zeros((3, 3)).tolist(),
-                   "t_tx_s": t, "clock": [t, resid[sid], 0.0, sync_s**2, 0.0, 0.0]}
+            msg = {"state": "frame", "src": sid, "pos_m": scn.true_pos(sid).tolist(),
+                   "cov_m2": np.zeros((3, 3)).tolist(), "t_tx_s": t, "clock": [t, resid[sid], 0.0, sync_s**2, 0.0, 0.0]}
             core.on_nav(msg, {"pos_m": scn.true_pos(sid).tolist(), "t_true_s": t})
     for algo, est in core.estimators.items():
         assert est.tracker is not None, algo
