@@ -20,12 +20,16 @@ import numpy as np
 from scipy.special import erfcx
 
 from nav.kalman import chol_solve, ekf_update, kf_predict, kf_update, symmetrize, ukf_update
+from nav.pcrb import gauss_markov_block
 from nav.ut import SigmaParams, unscented_transform
 
 from . import coords as crd
 from . import models as mdl
 
 ALGOS = mdl.ALGOS
+# correlation time of a station's residual sync error after the broadcast correction, s (measured with
+# the station clock filter on the seed000 world, TCXO clocks: docs/sync.md)
+CLOCK_BIAS_TAU_S = 6.0
 
 
 # --------------------------------------------------------------------------- snapshot LSQ
@@ -196,6 +200,15 @@ class Tuning:
     # ... and only beyond this many array radii (RMS station distance from the centroid) from the
     # reference: close to the array the ranges to single stations dominate the nonlinearity
     inverse_min_radii: float = 3.0
+    # residual station clock errors after the broadcast clock correction (docs/sync.md): "states" = one
+    # first-order Gauss-Markov range bias per station heard, stationary variance = the broadcast clock
+    # variance c^2 P_theta, correlation time ``clock_bias_tau_s`` (added as a station is first heard,
+    # dropped after ``clock_bias_drop_s`` without a measurement); "white" = the broadcast variance added
+    # to each range's variance as if independent between measurements (wrong for a slowly varying
+    # sync error: 4-8 x the bound, docs/sync.md)
+    clock_bias: str = "states"
+    clock_bias_tau_s: float = CLOCK_BIAS_TAU_S
+    clock_bias_drop_s: float = 60.0
 
     def p0(self, layout: mdl.StateLayout) -> np.ndarray:
         d = [self.p0_pos_m] * 3 + [self.p0_vel_m_s] * 3
@@ -237,6 +250,12 @@ class CvTracker:
             raise ValueError(f"x0 must have {self.layout.n} states for {model}, got {x0.shape}")
         if tuning.coords not in ("inverse", "cartesian"):
             raise ValueError(f"unknown coords {tuning.coords!r} (inverse or cartesian)")
+        if tuning.clock_bias not in ("states", "white"):
+            raise ValueError(f"unknown clock_bias {tuning.clock_bias!r} (states or white)")
+        self.n_base = self.layout.n  # states after these: the stations' clock biases (bias_ids order)
+        self.bias_ids: list = []
+        self._bias_var = np.zeros(0)  # their stationary variances (latest broadcast), m^2
+        self._bias_t = np.zeros(0)  # time each was last measured
         self._x = x0.copy()
         P0 = tuning.p0(self.layout) if P0 is None else np.asarray(P0, dtype=float)
         self._P = np.broadcast_to(P0, x0.shape[:-1] + (self.layout.n,) * 2).copy()
@@ -350,10 +369,64 @@ class CvTracker:
             n, tu = self.layout.n, self.tuning
             if len(self._fq) > 64:
                 self._fq.clear()
-            self._fq[key] = (mdl.cv_transition(n, dt),
-                             mdl.cv_noise(n, dt, tu.q_acc, tu.q_clock, tu.q_drift, tu.q_acc_z))
+            F = mdl.cv_transition(n, dt)
+            Q = mdl.cv_noise(n, dt, tu.q_acc, tu.q_clock, tu.q_drift, tu.q_acc_z)
+            nb = len(self.bias_ids)
+            if nb:  # the stations' clock biases: independent first-order Gauss-Markov
+                A, Qb = gauss_markov_block(nb, self._bias_var, tu.clock_bias_tau_s, dt)
+                F = np.block([[F, np.zeros((n, nb))], [np.zeros((nb, n)), A]])
+                Q = np.block([[Q, np.zeros((n, nb))], [np.zeros((nb, n)), Qb]])
+            self._fq[key] = (F, Q)
         self._last_dt, self._last_fq = dt, self._fq[key]
         return self._last_fq
+
+    def _bias_changed(self) -> None:
+        self._fq.clear()
+        self._last_dt = self._last_fq = None
+
+    def _use_biases(self, ids, var_m2, t_s: float) -> np.ndarray:
+        """Clock-bias states for the stations ``ids`` (m,) with broadcast variances ``var_m2`` (m,):
+        adds a state ``N(0, var)`` (independent of the rest) for a station heard for the first time,
+        keeps the latest broadcast variance as its stationary variance, drops (marginalizes) the states
+        of stations unheard for ``clock_bias_drop_s``. Returns ``D`` (m, nb): measurement j sees bias
+        ``D[j] @ beta``. A station id ``None`` or a variance <= 0 (no clock correction broadcast):
+        no bias for that measurement (row of zeros)."""
+        var_all = np.broadcast_to(np.asarray(var_m2, dtype=float), (len(ids),))
+        rows = [j for j, (sid, v) in enumerate(zip(ids, var_all)) if sid is not None and v > 0]
+        m_all = len(var_all)
+        ids = [ids[j] for j in rows]
+        var = var_all[rows]
+        stale = [k for k, sid in enumerate(self.bias_ids)
+                 if sid not in ids and t_s - self._bias_t[k] > self.tuning.clock_bias_drop_s]
+        if stale:
+            keep = np.setdiff1d(np.arange(self._x.shape[-1]), self.n_base + np.array(stale))
+            self._x = self._x[..., keep]
+            self._P = self._P[..., keep[:, None], keep]
+            self.bias_ids = [sid for k, sid in enumerate(self.bias_ids) if k not in stale]
+            kb = np.setdiff1d(np.arange(len(self._bias_var)), stale)
+            self._bias_var, self._bias_t = self._bias_var[kb], self._bias_t[kb]
+            self._bias_changed()
+        new = [(sid, v) for sid, v in zip(ids, var) if sid not in self.bias_ids]
+        if new:
+            k, n = len(new), self._x.shape[-1]
+            vn = np.array([v for _, v in new])
+            self._x = np.concatenate([self._x, np.zeros(self._x.shape[:-1] + (k,))], axis=-1)
+            P = np.zeros(self._P.shape[:-2] + (n + k, n + k))
+            P[..., :n, :n] = self._P
+            P[..., n:, n:] = np.diag(vn)
+            self._P = P
+            self.bias_ids += [sid for sid, _ in new]
+            self._bias_var = np.concatenate([self._bias_var, vn])
+            self._bias_t = np.concatenate([self._bias_t, np.full(k, t_s)])
+            self._bias_changed()
+        idx = np.array([self.bias_ids.index(sid) for sid in ids], dtype=int)
+        if not np.array_equal(self._bias_var[idx], var):
+            self._bias_var[idx] = var
+            self._bias_changed()
+        self._bias_t[idx] = t_s
+        D = np.zeros((m_all, len(self.bias_ids)))
+        D[rows, idx] = 1.0
+        return D
 
     def predict_to(self, t_s: float) -> None:
         """Propagate to ``t_s`` (no-op if ``t_s <= t``: measurements are never processed backwards)."""
@@ -376,14 +449,57 @@ class CvTracker:
             self._P = symmetrize(Fs @ self._P @ np.swapaxes(Fs, -1, -2) + G1 @ Q @ np.swapaxes(G1, -1, -2))
         self.t_s = float(t_s)
 
+    def measurement_model(self, stations_m: np.ndarray, dt_s: np.ndarray | None = None,
+                          D: np.ndarray | None = None):
+        """``(h, jac)`` of one batch on Cartesian states ``[x (n), beta (nb)]`` (..., n + nb).
+
+        Pseudoranges ``h_pr(x) + D beta`` or differences against ``self.base``
+        ``h_tdoa(x) + G D beta``; ``D`` (m, nb) maps the clock-bias states to the stations of the batch
+        (None: no bias states). ``jac`` returns (..., m or m-1, n + nb).
+        """
+        n0 = self.n_base
+        if self.layout.kind == "pr":
+            Db = D
+
+            def h0(X):
+                return mdl.h_pr(X[..., :n0], stations_m, dt_s)
+
+            def j0(X):
+                return mdl.jac_pr(X[..., :n0], stations_m, dt_s)
+        else:
+            b = self.base
+            Db = None if D is None else mdl.g_matrix(stations_m.shape[0], b) @ D
+
+            def h0(X):
+                return mdl.h_tdoa(X[..., :n0], stations_m, b, dt_s)
+
+            def j0(X):
+                return mdl.jac_tdoa(X[..., :n0], stations_m, b, dt_s)
+        if Db is None:
+            return h0, j0
+
+        def h(X):
+            return h0(X) + X[..., n0:] @ Db.T
+
+        def jac(X):
+            J = j0(X)
+            return np.concatenate([J, np.broadcast_to(Db, J.shape[:-1] + Db.shape[-1:])], axis=-1)
+
+        return h, jac
+
     def update(
         self, stations_m: np.ndarray, rho_m: np.ndarray, station_cov_m2: np.ndarray | None = None,
         dt_s: np.ndarray | None = None, sigma_m: float | np.ndarray | None = None,
+        bias_ids=None, bias_var_m2: np.ndarray | float | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """One batch update with pseudoranges ``rho_m`` (M, m) from ``stations_m`` (m, 3).
 
         ``dt_s`` (m,) are the measurement times relative to the filter time (TDMA batches).
         TDOA: the batch is differenced against ``self.base`` (needs m >= 2). Returns (nu, S).
+        ``bias_ids`` (m,) station ids and ``bias_var_m2`` (m,) their broadcast clock variances
+        ``c^2 P_theta``: with ``tuning.clock_bias == "states"`` each station's residual clock error is a
+        Gauss-Markov state (``rho_j = h_j(x) + beta_j + v_j``; differences see ``G beta``), with
+        ``"white"`` its variance is added to the range's.
         """
         stations_m = np.asarray(stations_m, dtype=float)
         if self._ref is None and self.tuning.coords == "inverse":
@@ -391,6 +507,16 @@ class CvTracker:
             self._radius = crd.array_radius(stations_m)
             self._switch()
         sig = self.tuning.sigma_m if sigma_m is None else sigma_m
+        D = None
+        if bias_ids is not None and bias_var_m2 is not None:
+            if self.tuning.clock_bias == "states":
+                D = self._use_biases(bias_ids, bias_var_m2, self.t_s)
+            else:
+                sig = np.sqrt(np.asarray(sig, dtype=float) ** 2 + np.asarray(bias_var_m2, dtype=float))
+        if D is None and self.bias_ids:
+            D = np.zeros((stations_m.shape[0], len(self.bias_ids)))
+        if D is not None and D.shape[-1] == 0:
+            D = None
         if self.layout.kind == "pr":
             if station_cov_m2 is None and np.ndim(sig) == 0:  # R does not depend on the state: cache it
                 key = (stations_m.shape[0], float(sig), self._x.shape[:-1])
@@ -400,21 +526,12 @@ class CvTracker:
             else:
                 R = mdl.r_pr(mdl.range_var(self.x, stations_m, station_cov_m2, sig, dt_s))
             z = rho_m
-
-            def h(X):
-                return mdl.h_pr(X, stations_m, dt_s)
         else:
             b = self.base
             R = mdl.r_tdoa(mdl.range_var(self.x, stations_m, station_cov_m2, sig, dt_s), b)
             z = np.delete(rho_m, b, axis=-1) - rho_m[..., b : b + 1]
-
-            def h(X):
-                return mdl.h_tdoa(X, stations_m, b, dt_s)
+        h, jac = self.measurement_model(stations_m, dt_s, D)
         if self.kind == "ekf":
-            def jac(X):
-                return (mdl.jac_pr(X, stations_m, dt_s) if self.layout.kind == "pr"
-                        else mdl.jac_tdoa(X, stations_m, self.base, dt_s))
-
             if self._inv.any():  # measurement model and Jacobian in the runs' own coordinates
                 hc, jc = h, jac
 
@@ -542,6 +659,7 @@ class CvTracker:
 
     def update_sequential(
         self, stations_m: np.ndarray, rho_m: np.ndarray, station_cov_m2: np.ndarray | None = None,
+        bias_ids=None, bias_var_m2: np.ndarray | float | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Pseudorange epoch as sequential scalar updates (re-linearized / sigma points redrawn after
         each). Equivalent to the batch update for a linear model; for ranges it reduces the EKF's
@@ -549,9 +667,13 @@ class CvTracker:
         if self.layout.kind != "pr":
             raise ValueError("sequential scalar updates need independent pseudoranges (pr model)")
         nus, Ss = [], []
-        for j in range(stations_m.shape[0]):
+        m = stations_m.shape[0]
+        bv = None if bias_var_m2 is None else np.broadcast_to(np.asarray(bias_var_m2, dtype=float), (m,))
+        for j in range(m):
             c = None if station_cov_m2 is None else station_cov_m2[j : j + 1]
-            nu, S = self.update(stations_m[j : j + 1], rho_m[..., j : j + 1], c)
+            kw = ({} if bias_ids is None or bv is None
+                  else {"bias_ids": [list(bias_ids)[j]], "bias_var_m2": bv[j : j + 1]})
+            nu, S = self.update(stations_m[j : j + 1], rho_m[..., j : j + 1], c, **kw)
             nus.append(nu[..., 0])
             Ss.append(S[..., 0, 0])
         return np.stack(nus, axis=-1), np.stack(Ss, axis=-1)
@@ -569,7 +691,7 @@ class CvTracker:
         fz = self.tuning.floor_z_m
         if fz is None:
             return
-        n = self.layout.n
+        n = self._x.shape[-1]
         x = self._x.reshape(-1, n)  # views: in-place edits reach self._x / self._P
         P = self._P.reshape(-1, n, n)
         s2 = P[:, 2, 2]
@@ -612,9 +734,14 @@ class EstimatorConfig:
 class AircraftEstimator:
     """One algorithm for one aircraft, fed by messages; no I/O, no clocks, no truth.
 
-    ``on_measurement(t_s, station_id, station_pos_m, station_cov_m2, rho_m)`` takes one TDMA slot;
-    ``on_epoch(t_s, station_pos_m, station_cov_m2, rho_m)`` a synchronous epoch. Filters start from a
-    snapshot LSQ fix of the first complete batch. ``estimate()`` returns a dict or None.
+    ``on_measurement(t_s, station_id, station_pos_m, station_cov_m2, rho_m, clock_var_m2)`` takes one
+    TDMA slot; ``on_epoch(t_s, station_pos_m, station_cov_m2, rho_m, station_ids, clock_var_m2)`` a
+    synchronous epoch. ``clock_var_m2``: the broadcast clock variance ``c^2 P_theta`` of the station
+    (:func:`aircraft.models.broadcast_clock_var_m2`): the filters carry each station's residual clock
+    error as ``tuning.clock_bias`` says (a Gauss-Markov bias state per station by default); snapshot
+    LSQ and the filter start add it to the range variance (one epoch sees each residual once).
+    Filters start from a snapshot LSQ fix of the first complete batch. ``estimate()`` returns a dict
+    or None.
     """
 
     def __init__(self, algo: str, config: EstimatorConfig | None = None, x0_guess_m: np.ndarray | None = None):
@@ -627,7 +754,7 @@ class AircraftEstimator:
         self.fix: np.ndarray | None = None  # LSQ state (4,) or (3,)
         self.t_s: float | None = None
         self.guess = np.array([0.0, 0.0, 1000.0]) if x0_guess_m is None else np.asarray(x0_guess_m, float)
-        self._pending: dict[int, tuple[float, np.ndarray, np.ndarray, float]] = {}
+        self._pending: dict[int, tuple[float, np.ndarray, np.ndarray, float, float]] = {}
         self._last_geom: tuple[np.ndarray, np.ndarray | None] | None = None  # LSQ covariance
         self.n_updates = 0
         self.n_dropped = 0
@@ -635,26 +762,37 @@ class AircraftEstimator:
         self.init = None  # the InitResult of the latest start (broadcast initializer)
 
     # -- input
-    def on_epoch(self, t_s: float, station_pos_m, station_cov_m2, rho_m) -> None:
+    def on_epoch(self, t_s: float, station_pos_m, station_cov_m2, rho_m, station_ids=None,
+                 clock_var_m2=None) -> None:
         pos = np.asarray(station_pos_m, float)
         cov = None if station_cov_m2 is None else np.asarray(station_cov_m2, float)
         rho = np.asarray(rho_m, float)
         if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(rho))) or pos.shape[0] != rho.shape[0]:
             self.n_dropped += 1
             return
-        self._batch(t_s, pos, cov, rho, np.zeros(len(rho)))
+        m = len(rho)
+        ids = list(range(m)) if station_ids is None else list(station_ids)
+        cvar = np.zeros(m) if clock_var_m2 is None else np.broadcast_to(np.asarray(clock_var_m2, float), (m,))
+        if not np.all(np.isfinite(cvar)) or len(ids) != m:
+            self.n_dropped += 1
+            return
+        self._batch(t_s, pos, cov, rho, np.zeros(m), ids, cvar)
 
-    def on_measurement(self, t_s: float, station_id: int, station_pos_m, station_cov_m2, rho_m: float) -> None:
+    def on_measurement(self, t_s: float, station_id: int, station_pos_m, station_cov_m2, rho_m: float,
+                       clock_var_m2: float = 0.0) -> None:
         pos = np.asarray(station_pos_m, float).reshape(3)
         cov = np.zeros((3, 3)) if station_cov_m2 is None else np.asarray(station_cov_m2, float).reshape(3, 3)
-        if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(cov)) and np.isfinite(rho_m)):
+        cvar = float(clock_var_m2 or 0.0)
+        if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(cov)) and np.isfinite(rho_m)
+                and np.isfinite(cvar) and cvar >= 0):
             self.n_dropped += 1
             return
         if self.tracker is not None and self.model == "pr":
             # sequential scalar update at the slot's own time
             try:
                 self.tracker.predict_to(t_s)
-                self.tracker.update(pos[None], np.array([rho_m]), cov[None])
+                self.tracker.update(pos[None], np.array([rho_m]), cov[None],
+                                    bias_ids=[station_id], bias_var_m2=np.array([cvar]))
             except np.linalg.LinAlgError:
                 self._reset()
                 return
@@ -664,23 +802,30 @@ class AircraftEstimator:
         # batch: LSQ, TDOA, and filter initialisation collect one cycle (a station repeats -> flush)
         if station_id in self._pending:
             self._flush(t_s)
-        self._pending[station_id] = (t_s, pos, cov, float(rho_m))
+        self._pending[station_id] = (t_s, pos, cov, float(rho_m), cvar)
         self._pending = {k: v for k, v in self._pending.items() if t_s - v[0] <= self.cfg.max_batch_age_s}
 
     def _flush(self, t_now: float) -> None:
-        items = sorted(self._pending.values(), key=lambda v: v[0])
+        items = sorted(self._pending.items(), key=lambda kv: kv[1][0])
         self._pending.clear()
         if len(items) < self.cfg.min_stations:
             return
-        t_last = items[-1][0]
-        pos = np.array([v[1] for v in items])
-        cov = np.array([v[2] for v in items])
-        rho = np.array([v[3] for v in items])
-        dt = np.array([v[0] for v in items]) - t_last
-        self._batch(t_last, pos, cov, rho, dt)
+        t_last = items[-1][1][0]
+        pos = np.array([v[1] for _, v in items])
+        cov = np.array([v[2] for _, v in items])
+        rho = np.array([v[3] for _, v in items])
+        cvar = np.array([v[4] for _, v in items])
+        dt = np.array([v[0] for _, v in items]) - t_last
+        self._batch(t_last, pos, cov, rho, dt, [k for k, _ in items], cvar)
 
-    def _batch(self, t_s, pos, cov, rho, dt) -> None:
+    def _batch(self, t_s, pos, cov, rho, dt, ids=None, cvar=None) -> None:
         m = len(rho)
+        bias_kw, cov_trk = {}, cov
+        if cvar is not None and np.any(cvar > 0):
+            bias_kw = {"bias_ids": list(ids), "bias_var_m2": cvar}
+            # snapshot uses (LSQ, the filter start): each residual seen once, as range variance
+            # (an isotropic term on the station covariance: u^T (P + s I) u = u^T P u + s)
+            cov = (np.zeros((m, 3, 3)) if cov is None else cov) + cvar[:, None, None] * np.eye(3)
         self._last_geom = (pos, cov)
         if m < self.cfg.min_stations:
             self.n_dropped += 1
@@ -737,9 +882,9 @@ class AircraftEstimator:
         try:
             self.tracker.predict_to(t_s)
             if self.cfg.tuning.sequential and self.model == "pr" and not np.any(dt):
-                self.tracker.update_sequential(pos, rho, cov)
+                self.tracker.update_sequential(pos, rho, cov_trk, **bias_kw)
             else:
-                self.tracker.update(pos, rho, cov, dt if np.any(dt) else None)
+                self.tracker.update(pos, rho, cov_trk, dt if np.any(dt) else None, **bias_kw)
         except np.linalg.LinAlgError:
             self._reset()
             return

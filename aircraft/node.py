@@ -8,9 +8,10 @@ measures pseudoranges in its own channel layer and runs the estimators (one per 
   time (station 1's oscillator) plus ``c dtau(t) = df lambda t + c tau0`` (seed 001) and timing noise
   ``sigma_m``; pseudorange ``rho = c (t_rx_local - (t_tx - theta_hat(t_tx)))`` from the *station-stamped*
   transmit time ``t_tx`` corrected by the broadcast clock correction ``theta_hat`` (``msg.clock``). Each
-  station's residual sync error reaches the aircraft as in reality; the estimators carry the broadcast
-  clock variance ``c^2 P_theta`` as range variance (an isotropic term added to the station covariance:
-  ``u^T (P + s I) u = u^T P u + s``). The estimator sees the broadcast's *estimated* station position
+  station's residual sync error reaches the aircraft as in reality; the filters carry it as one
+  Gauss-Markov bias state per station whose stationary variance is the broadcast clock variance
+  ``c^2 P_theta`` (``tuning.clock_bias``; snapshot LSQ and the filter start add it to the range
+  variance; docs/sync.md). The estimator sees the broadcast's *estimated* station position
   and covariance (``msg.pos_m``, ``msg.cov_m2``), never ``phy``.
 * **publish**: ``larns/aircraft/<name>/estimate/<algo>`` (``ac_estimate``) after every update and
   ``larns/aircraft/<name>/truth`` (``ac_truth``) with every measurement; liveliness token
@@ -117,7 +118,8 @@ class AircraftCore:
             self.stats["nav_unusable_state"] += 1
             return []
         t_rx, rho, p_true = self.measure(phy, msg)
-        cov = np.asarray(msg["cov_m2"], float) + self.clock_var_m2(msg) * np.eye(3)
+        st_cov = np.asarray(msg["cov_m2"], float)
+        cvar = self.clock_var_m2(msg)
         if not (np.all(np.isfinite(msg["pos_m"])) and math.isfinite(t_rx)):
             self.stats["nav_bad"] += 1
             return []
@@ -125,14 +127,14 @@ class AircraftCore:
         out = [self._msg("ac_truth", t_s=t_rx, pos_m=p_true.tolist(), vel_m_s=self.track.at(t_rx)[1].tolist())]
         for algo, est in self.estimators.items():
             n = est.n_updates
-            est.on_measurement(t_rx, int(msg["src"]), msg["pos_m"], cov, rho)
+            est.on_measurement(t_rx, int(msg["src"]), msg["pos_m"], st_cov, rho, clock_var_m2=cvar)
             if est.n_updates == n:
                 continue
             e = est.estimate()
             if e is None:
                 continue
-            cov = e["cov_m2"] if e["cov_m2"] is not None else np.zeros((3, 3))
-            m = self._msg("ac_estimate", t_s=float(e["t_s"]), pos_m=e["pos_m"], cov_m2=np.asarray(cov).tolist(),
+            e_cov = e["cov_m2"] if e["cov_m2"] is not None else np.zeros((3, 3))
+            m = self._msg("ac_estimate", t_s=float(e["t_s"]), pos_m=e["pos_m"], cov_m2=np.asarray(e_cov).tolist(),
                           algo=algo, n_updates=int(e["n_updates"]))
             if e["vel_m_s"] is not None:
                 m["vel_m_s"] = e["vel_m_s"]

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nav.pcrb import pcrb_linear_gaussian
+from nav.pcrb import augment_biases, pcrb_linear_gaussian, prior_before_first_step
 
 from . import models as mdl
 from .estimators import CvTracker, Tuning, lsq_pr, lsq_tdoa
@@ -51,7 +51,7 @@ def true_state(track: Track, clock: mdl.ReceiverClock, layout: mdl.StateLayout) 
 def run_algo(
     algo: str, track: Track, stations_m: np.ndarray, rho: np.ndarray, tuning: Tuning, clock: mdl.ReceiverClock,
     rng: np.random.Generator, station_cov_m2: np.ndarray | None = None, keep_cov: bool = False,
-    lsq_stride: int = 1,
+    lsq_stride: int = 1, clock_var_m2: np.ndarray | float | None = None,
 ) -> RunResult:
     """Run one algorithm over all epochs of ``rho`` (T, M, m); returns the errors against the truth.
 
@@ -59,6 +59,12 @@ def run_algo(
     CRLB with the same ``P0`` applies); LSQ starts its first epoch from the same kind of coarse fix and
     each later epoch from its previous solution. LSQ is a snapshot method, so it may skip epochs
     (``lsq_stride``): its ``err_m`` then has ``ceil(T / lsq_stride)`` samples per run.
+
+    ``clock_var_m2`` (scalar or (m,)): the stations' broadcast clock variances ``c^2 P_theta``. The
+    filters carry them as ``tuning.clock_bias`` says (one Gauss-Markov bias state per station, or white
+    range variance); LSQ, a snapshot, adds them to each range's variance (one epoch sees each station's
+    residual once; stations independent). NEES is that of the navigation states (the filter's first
+    ``n`` states), the bias states' marginal excluded.
     """
     method, model = algo.split("-")
     T, M, m = rho.shape
@@ -68,6 +74,10 @@ def run_algo(
     P0 = tuning.p0(layout)
     x0 = xt[0] + rng.standard_normal((M, layout.n)) @ np.linalg.cholesky(P0).T
     var = tuning.sigma_m**2
+    m = stations_m.shape[0]
+    cvar = None if clock_var_m2 is None else np.broadcast_to(np.asarray(clock_var_m2, dtype=float), (m,))
+    if cvar is not None and method == "lsq":
+        var = var + cvar
     if method == "lsq":
         x = x0[:, [0, 1, 2, 6]] if model == "pr" else x0[:, :3]
         centre = stations_m.mean(axis=0)
@@ -85,50 +95,66 @@ def run_algo(
             err[:, i] = x[:, :3] - track.pos_m[k]
         return RunResult(err)
     trk = CvTracker(method, model, x0, tuning, t0_s=float(track.t_s[0]))
+    kw = {} if cvar is None else {"bias_ids": list(range(m)), "bias_var_m2": cvar}
+    n = layout.n
     nees = np.empty((M, T))
     nis = np.empty((M, T))
     P_pos = np.empty((M, T, 3, 3)) if keep_cov else None
     for k in range(T):
         trk.predict_to(float(track.t_s[k]))
         if tuning.sequential and model == "pr":
-            nu, s_diag = trk.update_sequential(stations_m, rho[k], station_cov_m2)
+            nu, s_diag = trk.update_sequential(stations_m, rho[k], station_cov_m2, **kw)
             S = s_diag[..., :, None] * np.eye(s_diag.shape[-1])  # NIS of the sequential innovations
         else:
-            nu, S = trk.update(stations_m, rho[k], station_cov_m2)
-        e = trk.x - xt[k]
+            nu, S = trk.update(stations_m, rho[k], station_cov_m2, **kw)
+        x, P = trk.x, trk.P
+        e = x[:, :n] - xt[k]
         err[:, k] = e[:, :3]
-        L = np.linalg.cholesky(trk.P)
+        L = np.linalg.cholesky(P[:, :n, :n])
         w = np.linalg.solve(L, e[..., None])[..., 0]
         nees[:, k] = np.einsum("...i,...i->...", w, w)
         Ls = np.linalg.cholesky(S)
         ws = np.linalg.solve(Ls, nu[..., None])[..., 0]
         nis[:, k] = np.einsum("...i,...i->...", ws, ws)
         if keep_cov:
-            P_pos[:, k] = trk.P[:, :3, :3]
+            P_pos[:, k] = P[:, :3, :3]
     return RunResult(err, nees, nis, P_pos)
 
 
 def pcrb_track(
     model: str, track: Track, stations_m: np.ndarray, tuning: Tuning, clock: mdl.ReceiverClock,
-    station_cov_m2: np.ndarray | None = None,
+    station_cov_m2: np.ndarray | None = None, clock_var_m2: np.ndarray | float | None = None,
+    clock_tau_s: float = 0.0,
 ) -> np.ndarray:
-    """Posterior CRLB of the filter's own model along the true track; position bound (T, 3, 3)."""
+    """Posterior CRLB of the filter's own model along the true track; position bound (T, 3, 3).
+
+    ``clock_var_m2`` (scalar or (m,)) with ``clock_tau_s > 0``: the stations' residual clock errors are
+    first-order Gauss-Markov range biases of that stationary variance and correlation time; the bound
+    is that of the augmented state ``[x, beta]`` (:func:`nav.pcrb.augment_biases`), i.e. of the world
+    with station clocks. ``clock_tau_s == 0``: white, added to the range variance.
+    """
     layout = mdl.StateLayout(model, drift=tuning.drift_state and model == "pr")
     xt = true_state(track, clock, layout)
     dt = float(np.median(np.diff(track.t_s)))
     F = mdl.cv_transition(layout.n, dt)
     Q = mdl.cv_noise(layout.n, dt, tuning.q_acc, tuning.q_clock, tuning.q_drift, tuning.q_acc_z)
-    var = mdl.range_var(xt, stations_m, station_cov_m2, tuning.sigma_m)  # (T, m)
+    m = stations_m.shape[0]
+    white = clock_var_m2 is not None and not clock_tau_s > 0
+    sig = np.sqrt(tuning.sigma_m**2 + (np.broadcast_to(clock_var_m2, (m,)) if white else 0.0))
+    var = mdl.range_var(xt, stations_m, station_cov_m2, sig)  # (T, m)
     if model == "pr":
         H = mdl.jac_pr(xt, stations_m)
         R = mdl.r_pr(var)
+        D = np.eye(m)
     else:
         H = mdl.jac_tdoa(xt, stations_m, 0)
         R = mdl.r_tdoa(var, 0)
-    # the first batch is measured at t0 without a preceding prediction: start one step earlier
+        D = mdl.g_matrix(m, 0)
     P0 = tuning.p0(layout)
-    Finv = np.linalg.inv(F)
-    P_start = Finv @ (P0 - Q) @ Finv.T if np.all(np.linalg.eigvalsh(P0 - Q) > 0) else P0
+    if clock_var_m2 is not None and not white:
+        P0, F, Q, H = augment_biases(P0, F, Q, H, D, clock_var_m2, clock_tau_s, dt)
+    # the first batch is measured at t0 without a preceding prediction: start one step earlier
+    P_start = prior_before_first_step(P0, F, Q)
     P = pcrb_linear_gaussian(P_start, F, Q, H, R)
     return P[:, :3, :3]
 

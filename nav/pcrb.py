@@ -132,3 +132,55 @@ def pcrb_step(P: np.ndarray, Jz: np.ndarray, F: np.ndarray | None = None, Q: np.
     if F is not None:
         P = F @ P @ F.T + Q
     return symmetrize(np.linalg.solve(np.eye(P.shape[-1]) + P @ Jz, P))
+
+def gauss_markov_block(n_bias: int, var_m2: np.ndarray | float, tau_s: float, dt_s: float,
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Transition and process noise of ``n_bias`` independent first-order Gauss-Markov biases.
+
+    ``b_{k+1} = a b_k + w_k``, ``a = exp(-dt / tau)``, ``w ~ N(0, (1 - a^2) var)``: stationary with
+    variance ``var_m2`` (scalar or (n_bias,)) and correlation ``exp(-|t| / tau)``. ``tau_s = inf``
+    gives constant biases. Returns ``(A, Qb)``, both (n_bias, n_bias) diagonal.
+    """
+    if not tau_s > 0:
+        raise ValueError(f"Gauss-Markov correlation time must be > 0, got {tau_s}")
+    a = float(np.exp(-dt_s / tau_s))
+    v = np.broadcast_to(np.asarray(var_m2, dtype=float), (n_bias,))
+    return a * np.eye(n_bias), np.diag((1.0 - a * a) * v)
+
+
+def augment_biases(
+    P0: np.ndarray, F: np.ndarray, Q: np.ndarray, H_seq: np.ndarray, D: np.ndarray,
+    var_m2: np.ndarray | float, tau_s: float, dt_s: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Augment a linear-Gaussian model with slowly varying measurement biases (Gauss-Markov states).
+
+    The biases ``beta`` (nb,) enter the measurements as ``z = h(x) + D beta + v`` (pseudoranges:
+    ``D = I``, one residual clock error per station; range differences: ``D = G``, seed 001 eq. 18)
+    and follow :func:`gauss_markov_block`, starting from their stationary distribution
+    ``N(0, var)`` independent of ``x``. The posterior CRLB of the augmented state
+    ``[x, beta]`` (:func:`pcrb_linear_gaussian` on the returned matrices) is the bound of a world whose
+    measurement errors are time-correlated this way; its ``x`` block bounds any estimator of ``x``.
+
+    Parameters
+    ----------
+    P0 : (n, n) or (..., n, n). F, Q : (n, n). H_seq : (T, ..., m, n). D : (m, nb).
+    var_m2 : stationary bias variances, scalar or (nb,). tau_s : correlation time. dt_s : step.
+
+    Returns
+    -------
+    P0a (..., n+nb, n+nb), Fa, Qa (n+nb, n+nb), Ha (T, ..., m, n+nb).
+    """
+    n = F.shape[-1]
+    D = np.asarray(D, dtype=float)
+    nb = D.shape[-1]
+    A, Qb = gauss_markov_block(nb, var_m2, tau_s, dt_s)
+    Fa = np.zeros((n + nb, n + nb))
+    Fa[:n, :n], Fa[n:, n:] = F, A
+    Qa = np.zeros_like(Fa)
+    Qa[:n, :n], Qa[n:, n:] = Q, Qb
+    P0 = np.asarray(P0, dtype=float)
+    P0a = np.zeros(P0.shape[:-2] + (n + nb, n + nb))
+    P0a[..., :n, :n] = P0
+    P0a[..., n:, n:] = np.diag(np.broadcast_to(np.asarray(var_m2, dtype=float), (nb,)))
+    Ha = np.concatenate([H_seq, np.broadcast_to(D, H_seq.shape[:-1] + (nb,))], axis=-1)
+    return P0a, Fa, Qa, Ha

@@ -15,7 +15,10 @@ import json
 import sys
 import time
 
+from dataclasses import replace
+
 import numpy as np
+from scipy import stats
 
 ALGOS = ("lsq-pr", "lsq-tdoa", "ekf-pr", "ekf-tdoa", "ukf-pr", "ukf-tdoa")
 FILTERS = ("ekf-pr", "ekf-tdoa", "ukf-pr", "ukf-tdoa")
@@ -24,6 +27,10 @@ PAPER = {  # seed 001, conclusions (p. 3): hover and turn at 1000 m
     "turn": {"ukf-pr": {"1000": 30.0}, "ukf-tdoa": {"1000": 140.0}},
 }
 BAR = 1.1
+BAR_CLOCKS = 1.15  # issue 10: pseudorange filters with station clocks on, against the PCRB that includes them
+# the residual station sync error after the broadcast correction that the stations achieve (docs/sync.md:
+# `larns bench sync`, seed000 world, TCXO clocks: 0.66-0.76 ns RMS from 30 s on; correlation time ~6 s)
+CLOCKS_SYNC_NS = 0.7
 HEIGHT_NOTE = "height: 3 deg glide path toward the circle centre (h = d tan 3 deg) unless --height"
 
 
@@ -44,11 +51,17 @@ def register(sub) -> None:
     p.add_argument("--quick", action="store_true", help="small smoke-test version (few runs, short, 2 points each)")
     p.add_argument("--no-sweep", action="store_true", help="skip the height sweep")
     p.add_argument("--no-speed", action="store_true", help="skip the filterpy speed comparison")
-    p.add_argument("--sync-ns", type=float, default=0.0, metavar="NS",
+    p.add_argument("--sync-ns", type=float, default=None, metavar="NS",
                    help="station clocks on: residual sync error of each station after the broadcast correction "
-                        "(1 sigma, ns); the filters and the PCRB carry (c NS)^2 as range variance (default 0)")
-    p.add_argument("--sync-tau", type=float, default=0.0, metavar="S",
-                   help="correlation time of the residual sync errors (first-order Gauss-Markov; 0 = white)")
+                        "(1 sigma, ns), broadcast to the aircraft as its clock variance (default 0; --clocks: 0.7)")
+    p.add_argument("--sync-tau", type=float, default=None, metavar="S",
+                   help="correlation time of the residual sync errors (first-order Gauss-Markov; 0 = white; "
+                        "default 0; --clocks: the filters' clock_bias_tau_s, 6 s)")
+    p.add_argument("--clocks", action="store_true",
+                   help="station clocks on (0.7 ns, 6 s unless --sync-ns/--sync-tau) next to the perfect-clock "
+                        "world with the same draws: both tables, bar RMSE <= 1.15 x PCRB (PCRB with the clocks)")
+    p.add_argument("--clock-bias", choices=("states", "white"), default=None,
+                   help="the filters' model of the residual sync errors (default: the tuning's, states)")
     p.add_argument("--envelope", action="store_true",
                    help="flight envelope instead: heights x distances x bearings, hover and turn, the four "
                         "filters vs their PCRB (table, JSON `envelope`, heat maps; --quick: 8 points)")
@@ -85,9 +98,15 @@ def sync_errors_m(shape: tuple[int, int, int], sync_m: float, tau_s: float, dt_s
 
 def run_point(ac, kind: str, dist_m: float, runs: int, duration_s: float, warmup_s: float,
               height_m: float | None, rng: np.random.Generator, algos=ALGOS, lsq_stride: int = 4,
-              sync_m: float = 0.0, sync_tau_s: float = 0.0) -> dict:
+              sync_m: float = 0.0, sync_tau_s: float = 0.0, clock_bias: str | None = None) -> dict:
     """All algorithms at one point; returns rmse, pcrb (filters), nees/nis means, height, samples, timings.
-    ``sync_m``: residual station clock error (range sigma, m) carried as station covariance ``sync_m^2 I``."""
+
+    ``sync_m``, ``sync_tau_s``: the world's residual station clock errors after the broadcast
+    correction (range sigma, m; first-order Gauss-Markov correlation time, s; 0 = white), broadcast
+    to the aircraft as the clock variance ``sync_m^2``; the filters model them with the tuning's
+    ``clock_bias`` (``clock_bias`` overrides it) and the world's correlation time, the PCRB is that of
+    the world (augmented with one bias per station). NEES: navigation states (n dof), mean over the
+    window, with its 95 % chi-square band treating the runs as independent."""
     from aircraft import sim, trajectory
 
     dt = 1.0 / ac.rate_hz
@@ -95,10 +114,16 @@ def run_point(ac, kind: str, dist_m: float, runs: int, duration_s: float, warmup
     cfg = dict(ac.trajectories.get(kind, {}), kind=kind, distance_m=dist_m)
     track = trajectory.from_config(cfg, t, ac.centre_m, height_m)
     rho = sim.pseudoranges(track, ac.stations_m, ac.clock, ac.sigma_m, runs, rng)
-    st_cov = None
+    cvar = None  # the broadcast clock variance c^2 P_theta of every station
+    tuning = ac.tuning
     if sync_m > 0:
         rho = rho + sync_errors_m(rho.shape, sync_m, sync_tau_s, dt, rng)
-        st_cov = np.broadcast_to(sync_m**2 * np.eye(3), (ac.stations_m.shape[0], 3, 3)).copy()
+        cvar = sync_m**2
+        # the filters' model of the residual: the world's correlation time (white world: white)
+        tuning = replace(tuning, clock_bias=tuning.clock_bias if sync_tau_s > 0 else "white",
+                         clock_bias_tau_s=sync_tau_s if sync_tau_s > 0 else tuning.clock_bias_tau_s)
+        if clock_bias is not None:
+            tuning = replace(tuning, clock_bias=clock_bias)
     win = t >= warmup_s
     out = {"height_m": float(track.pos_m[0, 2] - ac.centre_m[2]), "samples": int(runs * win.sum()),
            "rmse_m": {}, "pcrb_m": {}, "nees": {}, "nis": {}, "sec_per_update_run": {}, "samples_by_algo": {},
@@ -108,8 +133,8 @@ def run_point(ac, kind: str, dist_m: float, runs: int, duration_s: float, warmup
         method, model = algo.split("-")
         t0 = time.perf_counter()
         stride = lsq_stride if method == "lsq" else 1
-        res = sim.run_algo(algo, track, ac.stations_m, rho, ac.tuning, ac.clock, rng, station_cov_m2=st_cov,
-                           lsq_stride=stride)
+        res = sim.run_algo(algo, track, ac.stations_m, rho, tuning, ac.clock, rng, lsq_stride=stride,
+                           clock_var_m2=cvar)
         el = time.perf_counter() - t0
         w = win[::stride]
         out["rmse_m"][algo] = sim.rms_total(res.err_m[:, w])
@@ -122,10 +147,14 @@ def run_point(ac, kind: str, dist_m: float, runs: int, duration_s: float, warmup
         out["sec_per_update_run"][algo] = el / (res.err_m.shape[1] * runs)
         if method != "lsq":
             if model not in pc_cache:
-                P = sim.pcrb_track(model, track, ac.stations_m, ac.tuning, ac.clock, station_cov_m2=st_cov)
+                P = sim.pcrb_track(model, track, ac.stations_m, tuning, ac.clock, clock_var_m2=cvar,
+                                   clock_tau_s=sync_tau_s)
                 pc_cache[model] = float(np.sqrt(np.mean(np.trace(P[win], axis1=1, axis2=2))))
             out["pcrb_m"][algo] = pc_cache[model]
             out["nees"][algo] = float(np.mean(res.nees[:, win]))
+            n_dof = 6 + (2 if model == "pr" and tuning.drift_state else 1 if model == "pr" else 0)
+            band = stats.chi2.ppf([0.025, 0.975], runs * n_dof) / runs
+            out.setdefault("nees_band", {})[algo] = [float(v) for v in band]
             out["nis"][algo] = float(np.mean(res.nis[:, win]))
     out["samples"] = min(out["samples_by_algo"].values())
     return out
@@ -227,14 +256,27 @@ def run(args) -> int:
     if warmup >= duration:
         print("error: --warmup must be shorter than --duration", file=sys.stderr)
         return 2
+    from aircraft.estimators import CLOCK_BIAS_TAU_S
+
+    clocks = bool(getattr(args, "clocks", False))
+    sync_ns = args.sync_ns if args.sync_ns is not None else (CLOCKS_SYNC_NS if clocks else 0.0)
+    sync_tau = args.sync_tau if args.sync_tau is not None else (CLOCK_BIAS_TAU_S if clocks else 0.0)
+    if clocks and not sync_ns > 0:
+        print("error: --clocks needs --sync-ns > 0", file=sys.stderr)
+        return 2
     rng = np.random.default_rng(args.seed)
+    rng_perfect = np.random.default_rng(args.seed)  # same draws; the clock world adds its biases after them
     t_start = time.perf_counter()
     res = {"hover": {}, "turn": {}}
+    res_perfect = {"hover": {}, "turn": {}}
     points = [("hover", d) for d in hover_d] + [("turn", d) for d in turn_d]
     for i, (kind, d) in enumerate(points):
         _progress(f"{i + 1}/{len(points)} {kind} {d:g} m ({runs} runs x {duration:g} s)")
+        if clocks:
+            res_perfect[kind][f"{d:g}"] = run_point(ac, kind, d, runs, duration, warmup, args.height, rng_perfect)
         res[kind][f"{d:g}"] = run_point(ac, kind, d, runs, duration, warmup, args.height, rng,
-                                        sync_m=args.sync_ns * 0.299792458, sync_tau_s=args.sync_tau)
+                                        sync_m=sync_ns * 0.299792458, sync_tau_s=sync_tau,
+                                        clock_bias=getattr(args, "clock_bias", None))
     sweep = {}
     if not args.no_sweep:
         for j, h in enumerate(sweep_h):
@@ -244,8 +286,15 @@ def run(args) -> int:
     speed = None if args.no_speed else speed_vs_filterpy(ac, steps=100 if args.quick else 400)
     wall = time.perf_counter() - t_start
 
-    out = _assemble(res, sweep, speed, runs, duration, warmup, args, ac, wall)
+    out = _assemble(res, sweep, speed, runs, duration, warmup, args, ac, wall,
+                    bar=BAR_CLOCKS if sync_ns > 0 else BAR)
+    out["settings"]["sync_ns"], out["settings"]["sync_tau_s"] = sync_ns, sync_tau
+    out["settings"]["clock_bias"] = getattr(args, "clock_bias", None) or ac.tuning.clock_bias
+    if clocks:
+        out["perfect_clocks"] = _assemble(res_perfect, {}, None, runs, duration, warmup, args, ac, wall)
     _print_table(out)
+    if clocks:
+        _print_clocks(out)
     write_outputs(out, args, _plots)
     return 0
 
@@ -261,12 +310,14 @@ def write_outputs(doc: dict, args, plots) -> None:
             _progress(f"wrote {p}")
 
 
-def _assemble(res, sweep, speed, runs, duration, warmup, args, ac, wall) -> dict:
+def _assemble(res, sweep, speed, runs, duration, warmup, args, ac, wall, bar: float = BAR) -> dict:
+    BAR = bar  # noqa: N806 - the bar of this table
     out = {"rmse_m": {}, "median_m": {}, "pcrb_m": {}, "ratio": {}, "nees": {}, "nis": {}, "height_m": {}, "samples": {},
-           "paper_m": PAPER, "bar": {"factor": BAR, "algos": ["ekf-pr", "ukf-pr"], "violations": [], "significant": []},
-           "ratio_se": {}}
+           "paper_m": PAPER, "bar": {"factor": BAR, "algos": ["ekf-pr", "ukf-pr"], "violations": [], "significant": [],
+                                     "nees_above_band": []},
+           "ratio_se": {}, "nees_band": {}}
     for kind, pts in res.items():
-        for key in ("rmse_m", "median_m", "pcrb_m", "ratio", "ratio_se", "nees", "nis"):
+        for key in ("rmse_m", "median_m", "pcrb_m", "ratio", "ratio_se", "nees", "nis", "nees_band"):
             out[key][kind] = {}
         out["height_m"][kind] = {d: p["height_m"] for d, p in pts.items()}
         out["samples"][kind] = {d: p["samples"] for d, p in pts.items()}
@@ -288,6 +339,10 @@ def _assemble(res, sweep, speed, runs, duration, warmup, args, ac, wall) -> dict
             for algo, v in p["nees"].items():
                 out["nees"][kind].setdefault(algo, {})[d] = v
                 out["nis"][kind].setdefault(algo, {})[d] = p["nis"][algo]
+                band = p["nees_band"][algo]
+                out["nees_band"][kind].setdefault(algo, {})[d] = band
+                if algo in ("ekf-pr", "ukf-pr") and v > band[1]:
+                    out["bar"]["nees_above_band"].append(f"{kind} {d} m {algo}: {v:.1f} > {band[1]:.1f}")
     out["bar"]["pass"] = not out["bar"]["violations"]
     out["bar"]["pass_within_95ci"] = not out["bar"]["significant"]
     out["height_sweep"] = {
@@ -352,12 +407,37 @@ def _print_table(out: dict) -> None:
             print(f"  ours single with the bench tuning ({sp['iterations']} update passes): "
                   f"{sp['ours_single_iterated_s_per_update'] * 1e6:.0f} us")
     bar = out["bar"]
+    BAR = bar["factor"]  # noqa: N806
     print(f"\nBar: RMSE <= {BAR} x PCRB for ekf-pr and ukf-pr at every point: "
           + ("PASS" if bar["pass"] else "FAIL: " + "; ".join(bar["violations"])))
     print("     (+- = 95 % interval of the ratio from the run-to-run spread; "
           + ("no violation is significant" if bar["pass_within_95ci"]
              else "significant: " + "; ".join(bar["significant"])) + ")")
+    print(f"     mean NEES above its 95 % band (pr filters): "
+          + ("none" if not bar["nees_above_band"] else "; ".join(bar["nees_above_band"])))
     print(f"wall time {out['settings']['wall_s']:.0f} s")
+
+
+def _print_clocks(out: dict) -> None:
+    """Perfect clocks beside station clocks: RMSE/PCRB (each world's own PCRB), PCRB, mean NEES."""
+    pf, st = out["perfect_clocks"], out["settings"]
+    print(f"\nStation clocks on ({st['sync_ns']:g} ns, Gauss-Markov tau {st['sync_tau_s']:g} s, filters: "
+          f"{st['clock_bias']}) beside perfect clocks, same draws. RMSE/PCRB (+- 95 %), PCRB m, mean NEES [band]")
+    hdr = (f"{'point':<12} {'algo':<9} {'perfect':>14} {'PCRB':>7} {'NEES':>7}   "
+           f"{'clocks':>14} {'PCRB':>7} {'NEES':>7} {'band':>13}")
+    print(hdr)
+    for kind in ("hover", "turn"):
+        for d in out["height_m"][kind]:
+            for a in FILTERS:
+                c = [o["ratio"][kind].get(a, {}).get(d) for o in (pf, out)]
+                if c[1] is None:
+                    continue
+                se = [o["ratio_se"][kind][a][d] * 1.96 for o in (pf, out)]
+                pc = [o["pcrb_m"][kind][a][d] for o in (pf, out)]
+                ne = [o["nees"][kind][a][d] for o in (pf, out)]
+                band = out["nees_band"][kind][a][d]
+                print(f"{kind + ' ' + d:<12} {a:<9} {c[0]:6.2f} +-{se[0]:5.2f} {pc[0]:7.2f} {ne[0]:7.1f}   "
+                      f"{c[1]:6.2f} +-{se[1]:5.2f} {pc[1]:7.2f} {ne[1]:7.1f} [{band[0]:.1f}, {band[1]:.1f}]")
 
 
 def _plots(out: dict, png_dir: str) -> list[str]:
