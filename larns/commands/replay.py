@@ -21,7 +21,7 @@ log of station broadcasts: its channel layer takes the sender's true position an
 from the recorded ``phy`` part.
 
 Offline (``--offline``, no Zenoh, no sleeping): every station with a recorded core journal is
-rebuilt and re-run (``larns/offline.py``); re-running the recorded estimator reproduces the
+rebuilt and re-run (``larns/analysis/offline.py``); re-running the recorded estimator reproduces the
 recorded estimates bit for bit (checked and reported), ``--estimator`` runs another survey
 estimator on the same inputs, ``--algo`` re-runs the aircraft estimators on the recorded nav
 broadcasts. ``-o out.mcap`` writes the recording with the estimates replaced.

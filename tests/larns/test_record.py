@@ -57,7 +57,7 @@ def test_record_real_traffic(tmp_path):
         msgs = list(reader.iter_messages())
     assert md["larns"]["scenario"] == "unit"
     assert float(md["larns"]["epoch_unix_s"]) == epoch
-    # wire channels (the Foxglove JSON view channels larns/foxglove/** are tested in test_foxglove.py)
+    # wire channels (the Foxglove JSON view channels larns/foxglove/** are tested in tests/larns/test_replay.py)
     topics = {c.topic: c for c in summary.channels.values() if not c.topic.startswith("larns/foxglove/")}
     assert set(topics) == {"larns/station/2/truth", "larns/station/3/truth", "larns/station/2/nav"}
     assert all(c.message_encoding == "msgpack" for c in topics.values())
