@@ -317,8 +317,6 @@ def start(L: es.ErrorLayout, tn: InsTuning, t_rx_s, stations_m, station_cov_m2, 
     return InsStart(float(t_e_s), fx.x[:, 0:3].copy(), v.copy(), C, fx.x[:, 9:11].copy(), tau, P0, sign, fx)
 
 
-def enough(t_rx_s: np.ndarray, stations_m: np.ndarray, cfg: StartConfig) -> bool:
-    """Whether a window's pseudoranges suffice for :func:`start`."""
-    if len(t_rx_s) < cfg.min_meas:
-        return False
-    return len(np.unique(np.round(np.asarray(stations_m, float), 3), axis=0)) >= cfg.min_stations
+def enough(t_rx_s, station_ids, cfg: StartConfig) -> bool:
+    """Whether a window's pseudoranges (reception times, sender ids) suffice for :func:`start`."""
+    return len(t_rx_s) >= cfg.min_meas and len(set(station_ids)) >= cfg.min_stations
