@@ -110,6 +110,8 @@ def simulate(fld: Field, motion: Motion, preset: ImuPreset, cfg: InsRun, tuning:
     if cfg.pcrb:
         rho = np.hstack([rho, r_true[:, None]])
     # --- navigator start: the first window's pseudoranges and IMU increments only ------------------
+    w0 = time.perf_counter()  # the start's time counts in the run's time
+    c0_cpu = time.process_time()
     n_w = int(round(cfg.start.window_s / dt))
     t_e = n_w * dt
     dth_w, dv_w = motion.increments(0.0, dt, n_w)
@@ -146,8 +148,6 @@ def simulate(fld: Field, motion: Motion, preset: ImuPreset, cfg: InsRun, tuning:
     chunk = max(int(round(cfg.chunk_s / dt)), rec_every)
     j = jw  # next measurement
     i_rec = 0
-    w0 = time.perf_counter()
-    c0_cpu = time.process_time()
     sl9 = np.r_[0:9]
     for c0 in range(n_w, n_imu, chunk):
         n = min(chunk, n_imu - c0)
