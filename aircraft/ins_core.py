@@ -158,10 +158,12 @@ class InsAircraftCore:
         p, v, C = self.field.truth(self.motion, np.array([t_s - self.t0_s]))
         return p[0], v[0], C[0]
 
-    def measure(self, phy: dict, msg: dict | None = None) -> tuple[float, float]:
+    def measure(self, phy: dict, msg: dict | None = None, noise: bool = True) -> tuple[float, float]:
         """Channel layer: true reception time and pseudorange from the station-stamped transmit time
         corrected by the broadcast clock correction (:func:`aircraft.models.broadcast_time_error_s`),
-        read on the receiver clock of the scenario."""
+        read on the receiver clock of the scenario. ``noise=False``: without the timing noise (its one
+        draw is then :meth:`noise_m`, taken only for a broadcast the navigator uses, so that a
+        broadcast dropped as late live, and absent from the re-flight, consumes no draw)."""
         p_tx = np.asarray(phy["pos_m"], float)
         t_tx = float(phy["t_true_s"])
         t_rx = t_tx
@@ -171,21 +173,25 @@ class InsAircraftCore:
         p, _, _ = self.truth_n(t_rx)
         rho = float(np.linalg.norm(p - p_tx)) \
             + SPEED_OF_LIGHT_M_S * broadcast_time_error_s(msg, t_tx, t_rx, self.net_clock) \
-            + float(self.ac.clock.bias_m(t_rx)) \
-            + self.ac.sigma_m * float(self.rng.standard_normal())
-        return t_rx, rho
+            + float(self.ac.clock.bias_m(t_rx))
+        return t_rx, rho + (self.noise_m() if noise else 0.0)
+
+    def noise_m(self) -> float:
+        """One draw of the channel's timing noise (m)."""
+        return self.ac.sigma_m * float(self.rng.standard_normal())
 
     def on_nav(self, msg: dict, phy: dict) -> list[dict]:
         """One nav broadcast -> the ``ac_estimate`` of ``ins-ekf`` (with attitude in ``extra``)."""
         if msg.get("state") not in ("frame", "surveying"):
             self.stats["nav_unusable_state"] += 1
             return []
-        t_rx, rho = self.measure(phy, msg)
+        t_rx, rho = self.measure(phy, msg, noise=False)
         s = np.asarray(msg["pos_m"], dtype=float)
         t_nav = self.t0_s + self.imu_steps * self.tn.dt_s if self.ekf is None else self.ekf.t_s
         if not (np.all(np.isfinite(s)) and np.isfinite(t_rx) and np.isfinite(rho)) or t_rx < t_nav - self.tn.dt_s:
             self.stats["nav_bad_or_late"] += 1
             return []
+        rho += self.noise_m()
         cov = np.asarray(msg.get("cov_m2", np.zeros((3, 3))), dtype=float)
         if self.ekf is None and not self._try_start(t_rx):  # still listening: keep it for the start
             self._win.append((t_rx, s, cov, rho, self.tn.sigma_range_m**2 + broadcast_clock_var_m2(msg),
