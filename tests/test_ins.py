@@ -301,14 +301,14 @@ def _nees(e, P, sl):
 
 
 def test_start_from_a_moving_aircraft_matches_its_error_model():
-    """The start on a banked aircraft at 43-54 m/s (seeded, 120 runs, two places on the ellipse): the
+    """The start on a banked aircraft at 43-54 m/s (seeded, 60 runs, two places on the ellipse): the
     position, velocity, clock and levelling errors match ``P0`` (mean NEES inside the 99.9 % band of
     its chi-square; levelling = the two horizontal attitude components); the heading is inside or
     below (its prior carries a crab angle the still-air world does not have); which way +Z points is
     found (the text's frame points down)."""
     from scipy.stats import chi2
 
-    M = 120
+    M = 60
     for t_start, seed in ((0.0, 21), (700.0, 22)):
         st, e, L, speed = _start_world(M, t_start, seed)
         assert speed > 40.0 and st.sign == -1.0
