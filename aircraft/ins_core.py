@@ -38,7 +38,7 @@ from nav.rotations import euler_from_dcm
 
 from .models import broadcast_clock_var_m2, broadcast_time_error_s
 from .navigator.ins_ekf import InsEkf, InsTuning
-from .navigator.ins_start import StartConfig, enough, start
+from .navigator.ins_start import SideTest, StartConfig, enough, moved_on, radio_fix, start
 from .world import clock as wclock
 from .world.field import Field
 from .world.imu import ImuEmulator, preset
@@ -96,6 +96,9 @@ class InsAircraftCore:
         n_w = int(round(self.start_cfg.window_s / self.tn.dt_s))
         self._imu_buf: deque = deque(maxlen=n_w + 30 * int(round(1.0 / self.tn.dt_s)))  # (step, g, a)
         self._win: list[tuple] = []  # (t_rx, station pos, station cov, rho, var, src) of the start window
+        self._sides = SideTest(self.start_cfg, 1)  # which side of the stations' plane (disjoint windows)
+        self._last_window_end = -np.inf
+        self._guess = None
         self.imu_steps = 0
         self.seq: Counter[str] = Counter()
         self.stats: Counter[str] = Counter()
@@ -130,6 +133,8 @@ class InsAircraftCore:
         n_w = int(round(cfg.window_s / dt))
         k_e = int(np.ceil((t_rx - self.t0_s) / dt - 1e-9)) - 1  # window end: grid step k_e, t_e < t_rx
         t_e = self.t0_s + k_e * dt
+        if t_e < self._last_window_end + cfg.window_s - 1e-9:  # the side test's windows are disjoint
+            return False
         self._win = [w for w in self._win if w[0] > t_e - cfg.window_s]
         win = [w for w in self._win if w[0] <= t_e]
         if k_e < n_w or not win or not enough([w[0] for w in win], [w[5] for w in win], cfg):
@@ -142,7 +147,15 @@ class InsAircraftCore:
         g = np.array([steps[k][0] for k in range(k_e - n_w, k_e)])
         a = np.array([steps[k][1] for k in range(k_e - n_w, k_e)])
         t, S, Cs, rho, var, _ = (np.array(x) for x in zip(*win))
-        st = start(self.L, self.tn, t, S, Cs, rho[None], var, g, a, t_e, cfg)
+        fix = radio_fix(t, S, Cs, rho[None], var, t_e, self.tn.sigma_range_m, cfg, self.tn.q_b, self.tn.q_d,
+                        None if self._guess is None else moved_on(*self._guess, t_e - self._last_window_end))
+        self._sides.add(fix)
+        self._last_window_end = t_e
+        self.stats["start_windows"] += 1
+        if not self._sides.decided()[0]:
+            self._guess = (fix, self._sides.side())
+            return False
+        st = start(self.L, self.tn, fix, self._sides.side(), g, a, t_e, cfg)
         self.ekf = InsEkf(self.tn, self.L, st.p, st.v, st.C, st.clock, st.P0, st.tau, st.sign, t0_s=t_e)
         self.stats["start_measurements"] = len(win)
         self.stats["start_at_ms"] = int(round(1e3 * t_e))

@@ -28,7 +28,7 @@ from nav import errorstate as es
 from nav.rotations import log_so3
 
 from .navigator.ins_ekf import InsEkf, InsTuning
-from .navigator.ins_start import StartConfig, start
+from .navigator.ins_start import RadioFix, SideTest, StartConfig, moved_on, radio_fix, start
 from .world import clock as wclock
 from .world.field import Field
 from .world.imu import ImuEmulator, ImuPreset
@@ -69,6 +69,9 @@ class InsResult:
     nees8: np.ndarray | None = None  # (M, K) NEES of [p, v, phi_x, phi_y] (8 dof, without the heading)
     var9: np.ndarray | None = None  # (M, K, 9) the filter's variances of [p, v, phi]
     pcrb9: np.ndarray | None = None  # (K, 9) the bound's variances of [p, v, phi]
+    start_s: float = 0.0  # when the EKF started (end of the deciding window)
+    start_windows: int = 0  # windows listened to before the side of the stations' plane was decided
+    side_wrong: int = 0  # runs that decided the wrong side (world-side count, for the report)
 
     def rmse_h(self) -> np.ndarray:
         return np.sqrt(np.mean(np.sum(self.err_m[..., :2] ** 2, axis=-1), axis=0))
@@ -113,17 +116,33 @@ def simulate(fld: Field, motion: Motion, preset: ImuPreset, cfg: InsRun, tuning:
     w0 = time.perf_counter()  # the start's time counts in the run's time
     c0_cpu = time.process_time()
     n_w = int(round(cfg.start.window_s / dt))
-    t_e = n_w * dt
-    dth_w, dv_w = motion.increments(0.0, dt, n_w)
-    g_w, a_w = imu.measure(dth_w, dv_w)
-    jw = int(np.searchsorted(t_rx, t_e + 1e-12, side="right"))  # measurements of the window
+    W = n_w * dt
     tau_nom = tau_true if cfg.tilt == "oracle" else None  # the oracle is a yardstick only
-    st = start(L, tn, t_rx[:jw], ns[sidx[:jw]], None, rho[:jw, :M].T, tn.sigma_range_m**2, g_w, a_w, t_e,
+    sides = SideTest(cfg.start, MM)  # which side of the stations' plane: consecutive windows
+    guess = None
+    n_win = 0
+    while True:
+        n_win += 1
+        t_e = n_win * W
+        j0 = int(np.searchsorted(t_rx, t_e - W + 1e-12, side="right"))
+        jw = int(np.searchsorted(t_rx, t_e + 1e-12, side="right"))  # measurements of the window
+        fix = radio_fix(t_rx[j0:jw], ns[sidx[j0:jw]], None, rho[j0:jw].T, tn.sigma_range_m**2, t_e,
+                        tn.sigma_range_m, cfg.start, tn.q_b, tn.q_d, guess)
+        sides.add(fix)
+        if np.all(sides.decided()[:M]):
+            break
+        guess = moved_on(fix, sides.side(), W)
+    n_w0 = n_win * n_w  # IMU steps before the EKF starts
+    g_w, a_w = imu.measure(*motion.increments(0.0, dt, n_w0))
+    dth_w, dv_w = motion.increments(t_e - W, dt, n_w)
+    side = sides.side()
+    st = start(L, tn, RadioFix(fix.x[:M], fix.P[:M], fix.cost[:M]), side[:M], g_w[-n_w:], a_w[-n_w:], t_e,
                cfg.start, tau_nom)
     p_hat, v_hat, C_hat, clk0, tau0, P0 = st.p, st.v, st.C, st.clock, st.tau, st.P0
+    sign = np.broadcast_to(st.sign, (M,))
     if cfg.pcrb:  # the bound run: the same start on the noise-free window gives its prior; nominal = truth
-        sb = start(L, tn, t_rx[:jw], ns[sidx[:jw]], None, rho[:jw, M:].T, tn.sigma_range_m**2,
-                   dth_w[:, None], dv_w[:, None], t_e, cfg.start, tau_nom)
+        sb = start(L, tn, RadioFix(fix.x[M:], fix.P[M:], fix.cost[M:]), side[M:], dth_w[:, None], dv_w[:, None],
+                   t_e, cfg.start, tau_nom)
         pe, ve, Ce = (x[0] for x in fld.truth(motion, np.array([t_e])))
         p_hat = np.vstack([p_hat, pe])
         v_hat = np.vstack([v_hat, ve])
@@ -131,11 +150,13 @@ def simulate(fld: Field, motion: Motion, preset: ImuPreset, cfg: InsRun, tuning:
         clk0 = np.vstack([clk0, np.zeros((1, 2))])
         tau0 = np.vstack([tau0, tau_true])
         P0 = np.concatenate([P0, sb.P0])
-    ekf = InsEkf(tn, L, p_hat, v_hat, C_hat, clk0, P0, tau0, st.sign, t0_s=t_e)
+        sign = np.r_[sign, 1.0 if up_true[2] > 0 else -1.0]
+    n_side_wrong = int(np.sum(np.broadcast_to(st.sign, (M,)) != (1.0 if up_true[2] > 0 else -1.0)))
+    ekf = InsEkf(tn, L, p_hat, v_hat, C_hat, clk0, P0, tau0, sign, t0_s=t_e)
     # --- main loop --------------------------------------------------------------------------------
     n_imu = int(round(cfg.duration_s / dt))
     rec_every = max(int(round(cfg.record_every_s / dt)), 1)
-    n_rec = n_imu // rec_every - n_w // rec_every
+    n_rec = n_imu // rec_every - n_w0 // rec_every
     t_rec = np.empty(n_rec)
     err = np.empty((M, n_rec, 3))
     Pp = np.empty((M, n_rec, 3, 3))
@@ -149,7 +170,7 @@ def simulate(fld: Field, motion: Motion, preset: ImuPreset, cfg: InsRun, tuning:
     j = jw  # next measurement
     i_rec = 0
     sl9 = np.r_[0:9]
-    for c0 in range(n_w, n_imu, chunk):
+    for c0 in range(n_w0, n_imu, chunk):
         n = min(chunk, n_imu - c0)
         dth_t, dv_t = motion.increments(c0 * dt, dt, n)
         g_m, a_m = imu.measure(dth_t, dv_t)
@@ -188,7 +209,8 @@ def simulate(fld: Field, motion: Motion, preset: ImuPreset, cfg: InsRun, tuning:
         if progress:
             progress(f"{(c0 + n) * dt:.0f}/{cfg.duration_s:.0f} s")
     wall = time.perf_counter() - w0
-    return InsResult(t_rec, err, Pp, nees, pcrb, wall, cfg.duration_s, M, time.process_time() - c0_cpu, nsq, nees8, var9, pcrb9)
+    return InsResult(t_rec, err, Pp, nees, pcrb, wall, cfg.duration_s, M, time.process_time() - c0_cpu, nsq, nees8, var9,
+                     pcrb9, t_e, n_win, n_side_wrong)
 
 
 def open_loop_drift(fld: Field, motion: Motion, preset: ImuPreset, duration_s: float, runs: int = 64,

@@ -59,27 +59,33 @@ class StartConfig:
     """``window_s``: listening window; ``accel_sigma_m_s2``: manoeuvre prior of the window's constant
     acceleration (per axis); ``crab_sigma_rad``: heading minus course (sideslip + wind crab);
     ``min_meas``: pseudoranges needed in the window (from ``min_stations`` stations);
-    ``mirror_margin``: cost difference required between the fit and its mirror through the stations'
-    plane; ``gn_iters``: Gauss-Newton iterations."""
+    ``decide_llr``: the log-likelihood ratio of the two sides of the stations' plane (summed over
+    consecutive windows) that decides the side (10: odds of 22000 to 1); ``max_windows``: windows
+    after which the likelier side is taken anyway; ``gn_iters``: Gauss-Newton iterations."""
 
     window_s: float = 10.0
     accel_sigma_m_s2: float = 1.0
     crab_sigma_rad: float = 0.02
     min_meas: int = 30
     min_stations: int = 5
-    mirror_margin: float = 25.0
+    decide_llr: float = 10.0
+    max_windows: int = 12
     gn_iters: int = 12
 
 
 @dataclass
 class RadioFix:
-    """``x`` (M, 11) ``[p_e, v_e, a, b_e, d]`` at ``t_e``; ``P`` (M, 11, 11) its covariance; ``cost``
-    (M,) weighted residual sum of squares; ``mirror_cost`` (M,) the same for the mirror solution."""
+    """Both sides of the stations' plane: ``x`` (M, 2, 11) ``[p_e, v_e, a, b_e, d]`` at ``t_e``, ``P``
+    (M, 2, 11, 11) their covariances, ``cost`` (M, 2) their weighted residual sums of squares; side 0
+    lies along the plane's normal ``n`` (``n_z > 0``), side 1 against it."""
 
     x: np.ndarray
     P: np.ndarray
     cost: np.ndarray
-    mirror_cost: np.ndarray
+
+    def llr(self) -> np.ndarray:
+        """Log-likelihood ratio (M,) of side 0 against side 1, ``(cost_1 - cost_0) / 2``."""
+        return 0.5 * (self.cost[:, 1] - self.cost[:, 0])
 
 
 @dataclass
@@ -158,8 +164,8 @@ def _gauss_newton(x, tau, s, cov, rho, var, Rclk, cfg: StartConfig):
 
 
 def radio_fix(t_rx_s: np.ndarray, stations_m: np.ndarray, station_cov_m2: np.ndarray | None, rho_m: np.ndarray,
-              var_m2, t_e_s: float, sigma_m: float, cfg: StartConfig, q_b: float = 0.0, q_d: float = 0.0
-              ) -> RadioFix:
+              var_m2, t_e_s: float, sigma_m: float, cfg: StartConfig, q_b: float = 0.0, q_d: float = 0.0,
+              guess: np.ndarray | None = None) -> RadioFix:
     """Position, velocity, acceleration and clock at ``t_e`` from the window's pseudoranges.
 
     Parameters
@@ -169,6 +175,8 @@ def radio_fix(t_rx_s: np.ndarray, stations_m: np.ndarray, station_cov_m2: np.nda
     var_m2 : (K,) or (M, K) range noise variances (without the station term). t_e_s : reference time.
     sigma_m : range sigma for the first-guess snapshot fix. q_b, q_d : the receiver clock's noise
     (m^2/s, m^2/s^3): its departure from a line over the window is correlated measurement noise.
+    guess : (M, 11) first guess (e.g. the previous window's fit moved on); default the initializer's
+    snapshot of the window's first second.
     """
     t = np.asarray(t_rx_s, float)
     s = np.asarray(stations_m, float)
@@ -176,25 +184,30 @@ def radio_fix(t_rx_s: np.ndarray, stations_m: np.ndarray, station_cov_m2: np.nda
     M, K = rho.shape
     tau = t - t_e_s
     # first guess: the broadcast-only initializer's multi-start snapshot on the first cycle
-    first = _first_cycle(t)
-    c_first = None if station_cov_m2 is None else station_cov_m2[first]
-    x0 = np.zeros((M, NX))
-    for m in range(M):
-        fix, _, _, _ = snapshot_fix("pr", s[first], c_first, rho[m, first], sigma_m, floor_z_m=None)
-        x0[m, 0:3] = fix[:3]
-        x0[m, 9] = fix[3]
+    if guess is None:
+        first = _first_cycle(t)
+        c_first = None if station_cov_m2 is None else station_cov_m2[first]
+        x0 = np.zeros((M, NX))
+        for m in range(M):
+            fix, _, _, _ = snapshot_fix("pr", s[first], c_first, rho[m, first], sigma_m, floor_z_m=None)
+            x0[m, 0:3] = fix[:3]
+            x0[m, 9] = fix[3]
+    else:
+        x0 = np.array(guess, dtype=float)
     # velocity guess from the range rates is left to Gauss-Newton (ranges are nearly linear in v)
     var = np.asarray(var_m2, float)
     c, nrm = _station_plane(s)
+    nrm = nrm if nrm[2] >= 0 else -nrm
     mir = x0.copy()
     mir[:, 0:3] -= 2.0 * ((x0[:, 0:3] - c) @ nrm)[:, None] * nrm
     Rclk = clock_window_cov(tau, q_b, q_d)
     xa, Pa, ca = _gauss_newton(x0, tau, s, station_cov_m2, rho, var, Rclk, cfg)
     xb, Pb, cb = _gauss_newton(mir, tau, s, station_cov_m2, rho, var, Rclk, cfg)
-    pick = (cb < ca)[:, None]
-    x = np.where(pick, xb, xa)
-    P = np.where(pick[..., None], Pb, Pa)
-    return RadioFix(x, P, np.minimum(ca, cb), np.maximum(ca, cb))
+    a_up = ((xa[:, 0:3] - c) @ nrm >= 0)  # whether the first solution lies on side 0
+    x = np.where(a_up[:, None, None], np.stack([xa, xb], 1), np.stack([xb, xa], 1))
+    P = np.where(a_up[:, None, None, None], np.stack([Pa, Pb], 1), np.stack([Pb, Pa], 1))
+    cost = np.where(a_up[:, None], np.stack([ca, cb], 1), np.stack([cb, ca], 1))
+    return RadioFix(x, P, cost)
 
 
 def _first_cycle(t_s: np.ndarray, span_s: float = 1.0) -> np.ndarray:
@@ -288,33 +301,66 @@ def start_covariance(L: es.ErrorLayout, tn: InsTuning, fixP: np.ndarray, C: np.n
     return 0.5 * (P + np.swapaxes(P, -1, -2))
 
 
-def start(L: es.ErrorLayout, tn: InsTuning, t_rx_s, stations_m, station_cov_m2, rho_m, var_m2, dth, dv,
-          t_e_s: float, cfg: StartConfig | None = None, tau_nominal: np.ndarray | None = None) -> InsStart:
-    """The navigator's start at ``t_e`` from the window's pseudoranges and IMU increments (module doc).
+def start(L: es.ErrorLayout, tn: InsTuning, fix: RadioFix, side: np.ndarray, dth, dv, t_e_s: float,
+          cfg: StartConfig | None = None, tau_nominal: np.ndarray | None = None) -> InsStart:
+    """The navigator's start at ``t_e`` from a window's radio fix and IMU increments (module doc).
 
     Parameters
     ----------
-    L, tn : the EKF's layout and tuning. t_rx_s (K,), stations_m (K, 3), station_cov_m2 (K, 3, 3) or
-    None, rho_m (M, K), var_m2 (K,) or (M, K): the window's pseudoranges (as in :func:`radio_fix`).
+    L, tn : the EKF's layout and tuning. fix : :func:`radio_fix` of the window ending at ``t_e``.
+    side : (M,) 0/1, the side of the stations' plane decided (:class:`SideTest`); the aircraft flies
+    above the stations, so that side is physically up and fixes which way +Z points.
     dth, dv : (N, M, 3) the window's IMU increments, the last one ending at ``t_e``.
     tau_nominal : (2,) nominal frame tilt (default 0: the frame assumed level; the tilt states and
     ``P0`` carry the difference).
     """
     cfg = cfg or StartConfig()
-    rho = np.atleast_2d(rho_m)
-    M = rho.shape[0]
-    fx = radio_fix(t_rx_s, stations_m, station_cov_m2, rho, var_m2, t_e_s, tn.sigma_range_m, cfg, tn.q_b, tn.q_d)
-    s = np.asarray(stations_m, float)
-    # the aircraft flies above the stations: the fix's side of their plane is physically up
-    sign = float(np.sign(np.median(fx.x[:, 2]) - s[:, 2].mean()))
+    side = np.asarray(side, dtype=int)
+    M = side.shape[0]
+    x = fix.x[np.arange(M), side]
+    Pf = fix.P[np.arange(M), side]
+    sign = np.where(side == 0, 1.0, -1.0)  # side 0 lies along n (n_z > 0): there +Z points up
     tau = np.broadcast_to(np.zeros(2) if tau_nominal is None else tau_nominal, (M, 2)).copy()
     g_n = es.gravity(tau, sign)
-    s_n = fx.x[:, 6:9] - g_n
+    s_n = x[:, 6:9] - g_n
     f_b = window_specific_force(np.asarray(dth, float), np.asarray(dv, float)) / tn.dt_s
-    v = fx.x[:, 3:6]
+    v = x[:, 3:6]
     C = triad(f_b, s_n, v)
-    P0 = start_covariance(L, tn, fx.P, C, f_b, s_n, v, tau, sign, dth.shape[0] * tn.dt_s, cfg.crab_sigma_rad)
-    return InsStart(float(t_e_s), fx.x[:, 0:3].copy(), v.copy(), C, fx.x[:, 9:11].copy(), tau, P0, sign, fx)
+    P0 = start_covariance(L, tn, Pf, C, f_b, s_n, v, tau, sign, dth.shape[0] * tn.dt_s, cfg.crab_sigma_rad)
+    return InsStart(float(t_e_s), x[:, 0:3].copy(), v.copy(), C, x[:, 9:11].copy(), tau, P0,
+                    sign if M > 1 else float(sign[0]), fix)
+
+
+class SideTest:
+    """Which side of the stations' plane the aircraft is on, from consecutive windows: the summed
+    log-likelihood ratio of the two sides' fits (a sequential probability ratio test; the windows'
+    data are disjoint). A small-height station set (the text's: 30-50 m out of plane) separates the
+    sides by a few units of LLR per 10 s at 250 m and by tens at 1000 m."""
+
+    def __init__(self, cfg: StartConfig, M: int):
+        self.cfg = cfg
+        self.llr = np.zeros(M)
+        self.windows = 0
+
+    def add(self, fix: RadioFix) -> None:
+        self.llr = self.llr + fix.llr()
+        self.windows += 1
+
+    def decided(self) -> np.ndarray:
+        """(M,) bool: decided, or out of windows (then the likelier side is taken)."""
+        return (np.abs(self.llr) >= self.cfg.decide_llr) | (self.windows >= self.cfg.max_windows)
+
+    def side(self) -> np.ndarray:
+        return np.where(self.llr >= 0.0, 0, 1)
+
+
+def moved_on(fix: RadioFix, side: np.ndarray, dt_s: float) -> np.ndarray:
+    """First guess (M, 11) for the next window: the decided-so-far side's fit moved on by ``dt_s``."""
+    x = fix.x[np.arange(side.shape[0]), side].copy()
+    x[:, 0:3] += x[:, 3:6] * dt_s + 0.5 * x[:, 6:9] * dt_s**2
+    x[:, 3:6] += x[:, 6:9] * dt_s
+    x[:, 9] += x[:, 10] * dt_s
+    return x
 
 
 def enough(t_rx_s, station_ids, cfg: StartConfig) -> bool:
