@@ -258,7 +258,7 @@ def test_ins_ekf_seeded_nees_and_pcrb():
 def _start_world(M: int, t_start_s: float, seed: int):
     """Seed 003 field, ADIS16480, ellipse at 1000 m: the first 10 s window after ``t_start_s`` as the
     navigator receives it (pseudoranges with a drifting receiver clock, IMU increments), and the truth."""
-    from aircraft.navigator.ins_start import StartConfig, start
+    from aircraft.navigator.ins_start import StartConfig, radio_fix, start
     from aircraft.world import clock as wclock
     from aircraft.world.field import Field
     from net.scenario import load
@@ -281,7 +281,8 @@ def _start_world(M: int, t_start_s: float, seed: int):
     clk = wclock.sample(cm, np.r_[t_rx, t_e], M, rng)
     rho = r[:, None] + clk[:-1, :, 0] + 0.9 * rng.standard_normal((t_rx.size, M))
     L = es.ErrorLayout()
-    st = start(L, tn, t_rx, fld.stations_n[sl], None, rho.T, 0.81, g, a, t_e, cfg)
+    fix = radio_fix(t_rx, fld.stations_n[sl], None, rho.T, 0.81, t_e, 0.9, cfg, tn.q_b, tn.q_d)
+    st = start(L, tn, fix, np.where(fix.llr() >= 0.0, 0, 1), g, a, t_e, cfg)  # one window decides at 1000 m
     pt, vt, Ct = (x[0] for x in fld.truth(mo, np.array([t_e])))
     up = fld.up_n
     e = np.zeros((M, L.n))  # true - nominal, in the filter's error convention
@@ -311,7 +312,7 @@ def test_start_from_a_moving_aircraft_matches_its_error_model():
     M = 60
     for t_start, seed in ((0.0, 21), (700.0, 22)):
         st, e, L, speed = _start_world(M, t_start, seed)
-        assert speed > 40.0 and st.sign == -1.0
+        assert speed > 40.0 and np.all(st.sign == -1.0)
         band = lambda dof: (chi2.ppf(0.0005, dof * M) / M, chi2.ppf(0.9995, dof * M) / M)  # noqa: E731
         for name, sl in (("p", L.P), ("v", L.V), ("clock", L.CLK)):
             dof = sl.stop - sl.start
@@ -333,6 +334,45 @@ def test_start_from_a_moving_aircraft_matches_its_error_model():
         assert np.sqrt(np.mean(e[:, 6:8] ** 2)) < 0.012
 
 
+def test_side_of_the_stations_plane_decided_over_windows_at_250_m():
+    """The text's stations are 30-50 m out of plane: at 250 m one 10 s window cannot tell the aircraft's
+    side of their plane from its mirror (some runs' |LLR| is below the decision level), the summed
+    log-likelihood ratio of consecutive windows does, and picks the true side in every run."""
+    from aircraft.navigator.ins_start import SideTest, StartConfig, moved_on, radio_fix
+    from aircraft.world.field import Field
+    from net.scenario import load
+
+    fld = Field.from_scenario(load("seed003-text"))
+    mo = Ellipse((15000.0, 0.0), (20000.0, 15000.0), 250.0, 50.0)
+    cfg = StartConfig()
+    M = 16
+    rng = np.random.default_rng(31)
+    k = np.arange(int(round(cfg.max_windows * cfg.window_s / 0.1)))
+    sl = k % 8
+    t_rx, r = fld.reception(mo, 0.1 * k, sl)
+    rho = r[:, None] + 0.9 * rng.standard_normal((t_rx.size, M))  # a synchronized clock, for brevity
+    sides = SideTest(cfg, M)
+    guess, first = None, None
+    for w in range(cfg.max_windows):
+        t_e = (w + 1) * cfg.window_s
+        j = (t_rx > t_e - cfg.window_s) & (t_rx <= t_e)
+        fix = radio_fix(t_rx[j], fld.stations_n[sl[j]], None, rho[j].T, 0.81, t_e, 0.9, cfg, guess=guess)
+        sides.add(fix)
+        first = np.abs(sides.llr) if first is None else first
+        if np.all(sides.decided()):
+            break
+        guess = moved_on(fix, sides.side(), cfg.window_s)
+    assert np.any(first < cfg.decide_llr)
+    # side 0 lies along the plane's normal with n_z > 0; the truth is on the side of physical up
+    up = fld.up_n
+    c = fld.stations_n.mean(axis=0)
+    _, _, vt = np.linalg.svd(fld.stations_n - c)
+    n = vt[2] if vt[2][2] >= 0 else -vt[2]
+    true_side = 0 if (fld.truth(mo, np.array([t_e]))[0][0] - c) @ n >= 0 else 1
+    assert (n @ up > 0) == (true_side == 0)
+    assert np.all(sides.side() == true_side), sides.llr
+
+
 def test_start_never_reads_truth(monkeypatch):
     """The navigator's start module imports nothing of the world (not even indirectly), and while it
     runs in the Monte Carlo harness every world-side truth accessor raises."""
@@ -352,15 +392,16 @@ def test_start_never_reads_truth(monkeypatch):
     from net.scenario import load
 
     inside = {"start": False, "calls": 0}
-    real_start = ins_sim.start
 
-    def guarded_start(*a, **k):
-        inside["start"] = True
-        inside["calls"] += 1
-        try:
-            return real_start(*a, **k)
-        finally:
-            inside["start"] = False
+    def guarded(fn):
+        def run(*a, **k):
+            inside["start"] = True
+            inside["calls"] += 1
+            try:
+                return fn(*a, **k)
+            finally:
+                inside["start"] = False
+        return run
 
     def guard(fn):
         def wrapped(*a, **k):
@@ -368,15 +409,17 @@ def test_start_never_reads_truth(monkeypatch):
             return fn(*a, **k)
         return wrapped
 
-    monkeypatch.setattr(ins_sim, "start", guarded_start)
+    monkeypatch.setattr(ins_sim, "start", guarded(ins_sim.start))
+    monkeypatch.setattr(ins_sim, "radio_fix", guarded(ins_sim.radio_fix))
     for name in ("truth", "reception"):
         monkeypatch.setattr(Field, name, guard(getattr(Field, name)))
     for name in ("pva", "attitude", "increments"):
         monkeypatch.setattr(wmotion.Ellipse, name, guard(getattr(wmotion.Ellipse, name)))
     fld = Field.from_scenario(load("seed003-text"))
     mo = wmotion.Ellipse((15000.0, 0.0), (20000.0, 15000.0), 1000.0, 50.0)
-    res = simulate(fld, mo, preset("adis16480"), InsRun(runs=2, duration_s=12.0, seed=3))
-    assert inside["calls"] == 2 and res.t_s[0] > 10.0  # the runs' start and the bound run's prior
+    res = simulate(fld, mo, preset("adis16480"), InsRun(runs=2, duration_s=40.0, seed=3))
+    # a radio fix per window, then the runs' start and the bound run's prior
+    assert inside["calls"] == res.start_windows + 2 and res.t_s[0] > 10.0
 
 
 # -- seed 003 fictitious stations ------------------------------------------------------------------------
