@@ -69,7 +69,7 @@ class StartConfig:
     min_meas: int = 30
     min_stations: int = 5
     decide_llr: float = 10.0
-    max_windows: int = 12
+    max_windows: int = 60
     gn_iters: int = 12
 
 
