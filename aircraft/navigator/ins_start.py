@@ -199,7 +199,9 @@ def radio_fix(t_rx_s: np.ndarray, stations_m: np.ndarray, station_cov_m2: np.nda
     c, nrm = _station_plane(s)
     nrm = nrm if nrm[2] >= 0 else -nrm
     mir = x0.copy()
-    mir[:, 0:3] -= 2.0 * ((x0[:, 0:3] - c) @ nrm)[:, None] * nrm
+    mir[:, 0:3] -= 2.0 * ((x0[:, 0:3] - c) @ nrm)[:, None] * nrm  # the mirror track: position,
+    mir[:, 3:6] -= 2.0 * (x0[:, 3:6] @ nrm)[:, None] * nrm  # velocity and acceleration reflected
+    mir[:, 6:9] -= 2.0 * (x0[:, 6:9] @ nrm)[:, None] * nrm
     Rclk = clock_window_cov(tau, q_b, q_d)
     xa, Pa, ca = _gauss_newton(x0, tau, s, station_cov_m2, rho, var, Rclk, cfg)
     xb, Pb, cb = _gauss_newton(mir, tau, s, station_cov_m2, rho, var, Rclk, cfg)
