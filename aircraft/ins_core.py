@@ -11,6 +11,13 @@ The IMU runs on its own fixed grid ``k / rate``: :meth:`advance_to` integrates e
 (the node calls it continuously with the fleet time, and before each measurement with its reception
 time), so no step is skipped whatever the message timing; ``imu_steps`` counts them.
 
+Start (honest, :mod:`aircraft.navigator.ins_start`): until it has a window's worth of broadcasts and
+IMU samples, the core buffers both (publishing ``ac_truth`` for every broadcast it measured, so that
+the offline re-flight feeds the same ones) and publishes no estimate; the start is tried at each
+measured broadcast (window ending at the last IMU grid time before it), so it depends only on the
+sequence of measured broadcasts, not on the node's loop timing. Then the EKF runs from the window's
+end over the buffered IMU samples that follow it.
+
 Determinism (exact offline re-flight, ``larns replay --offline --algo ins-ekf``): the IMU samples are
 emulated in fixed blocks of ``BLOCK`` steps, block ``b`` from its own generator
 ``(seed, "imu", aircraft, b)``, so sample ``k`` does not depend on how the node's loop chunked time; the
@@ -20,7 +27,7 @@ broadcasts (the aircraft's ``ac_truth`` topic identifies it), the estimates are 
 
 from __future__ import annotations
 
-from collections import Counter
+from collections import Counter, deque
 from typing import Any
 
 import numpy as np
@@ -29,9 +36,9 @@ from nav import errorstate as es
 from nav.geometry import SPEED_OF_LIGHT_M_S
 from nav.rotations import euler_from_dcm
 
-from .ins_sim import emulated_start
 from .models import broadcast_clock_var_m2, broadcast_time_error_s
 from .navigator.ins_ekf import InsEkf, InsTuning
+from .navigator.ins_start import SideTest, StartConfig, enough, moved_on, radio_fix, start
 from .world import clock as wclock
 from .world.field import Field
 from .world.imu import ImuEmulator, preset
@@ -76,13 +83,19 @@ class InsAircraftCore:
         cm = wclock.ClockModel()
         self.tn = InsTuning.from_preset(self.preset, sigma_range_m=ac.sigma_m, q_b=cm.q_b_m2_s, q_d=cm.q_d_m2_s3,
                                         p0_clock_m=cm.b0_sigma_m, p0_drift_m_s=cm.d0_sigma_m_s)
-        L = es.ErrorLayout()
-        st = emulated_start(self.field, self.motion, self.tn, L, rng, 1)
+        self.L = es.ErrorLayout()
+        self.start_cfg = StartConfig()
         self.imu = ImuEmulator(self.preset, 1, rng)
         self._imu_seed = [int(sc.seed if seed is None else seed), 0x1B0, sum(map(ord, name))]
         self._block_id = -1
         self._block: tuple[np.ndarray, np.ndarray] | None = None
-        self.ekf = InsEkf(self.tn, L, st.p, st.v, st.C, np.zeros((1, 2)), st.P0, st.tau, st.sign, t0_s=self.t0_s)
+        self.ekf: InsEkf | None = None  # created by the start (navigator/ins_start.py)
+        n_w = int(round(self.start_cfg.window_s / self.tn.dt_s))
+        self._imu_buf: deque = deque(maxlen=n_w + 30 * int(round(1.0 / self.tn.dt_s)))  # (step, g, a)
+        self._win: list[tuple] = []  # (t_rx, station pos, station cov, rho, var, src) of the start window
+        self._sides = SideTest(self.start_cfg, 1)  # which side of the stations' plane (disjoint windows)
+        self._last_window_end = -np.inf
+        self._guess = None
         self.imu_steps = 0
         self.seq: Counter[str] = Counter()
         self.stats: Counter[str] = Counter()
@@ -101,19 +114,66 @@ class InsAircraftCore:
                 self._block = self.imu.measure(dth, dv)
                 self._block_id = b
             g, a = self._block
-            self.ekf.imu(g[i], a[i])
-            self.ekf.maybe_propagate()
+            if self.ekf is None:
+                self._imu_buf.append((self.imu_steps, g[i], a[i]))
+            else:
+                self.ekf.imu(g[i], a[i])
+                self.ekf.maybe_propagate()
             self.imu_steps += 1
         return n
+
+    def _try_start(self, t_rx: float) -> bool:
+        """Start the EKF at the last IMU grid time before ``t_rx`` if the window before it holds enough
+        measured broadcasts (:func:`aircraft.navigator.ins_start.enough`); else drop the ones older
+        than the window."""
+        dt, cfg = self.tn.dt_s, self.start_cfg
+        n_w = int(round(cfg.window_s / dt))
+        k_e = int(np.ceil((t_rx - self.t0_s) / dt - 1e-9)) - 1  # window end: grid step k_e, t_e < t_rx
+        t_e = self.t0_s + k_e * dt
+        if t_e < self._last_window_end + cfg.window_s - 1e-9:  # the side test's windows are disjoint
+            return False
+        self._win = [w for w in self._win if w[0] > t_e - cfg.window_s]
+        win = [w for w in self._win if w[0] <= t_e]
+        if k_e < n_w or not win or not enough([w[0] for w in win], [w[5] for w in win], cfg):
+            return False
+        self.advance_to(t_e)
+        steps = {k: (g, a) for k, g, a in self._imu_buf}
+        if any(k not in steps for k in range(k_e - n_w, k_e)):
+            self.stats["start_imu_missing"] += 1
+            return False
+        g = np.array([steps[k][0] for k in range(k_e - n_w, k_e)])
+        a = np.array([steps[k][1] for k in range(k_e - n_w, k_e)])
+        t, S, Cs, rho, var, _ = (np.array(x) for x in zip(*win))
+        fix = radio_fix(t, S, Cs, rho[None], var, t_e, self.tn.sigma_range_m, cfg, self.tn.q_b, self.tn.q_d,
+                        None if self._guess is None else moved_on(*self._guess, t_e - self._last_window_end))
+        self._sides.add(fix)
+        self._last_window_end = t_e
+        self.stats["start_windows"] += 1
+        if not self._sides.decided()[0]:
+            self._guess = (fix, self._sides.side())
+            return False
+        st = start(self.L, self.tn, fix, self._sides.side(), g, a, t_e, cfg)
+        self.ekf = InsEkf(self.tn, self.L, st.p, st.v, st.C, st.clock, st.P0, st.tau, st.sign, t0_s=t_e)
+        self.stats["start_measurements"] = len(win)
+        self.stats["start_at_ms"] = int(round(1e3 * t_e))
+        for k in sorted(steps):  # IMU samples the node already integrated past the window's end
+            if k >= k_e:
+                self.ekf.imu(*steps[k])
+                self.ekf.maybe_propagate()
+        self._imu_buf.clear()
+        self._win = []
+        return True
 
     def truth_n(self, t_s: float):
         p, v, C = self.field.truth(self.motion, np.array([t_s - self.t0_s]))
         return p[0], v[0], C[0]
 
-    def measure(self, phy: dict, msg: dict | None = None) -> tuple[float, float]:
+    def measure(self, phy: dict, msg: dict | None = None, noise: bool = True) -> tuple[float, float]:
         """Channel layer: true reception time and pseudorange from the station-stamped transmit time
         corrected by the broadcast clock correction (:func:`aircraft.models.broadcast_time_error_s`),
-        read on the receiver clock of the scenario."""
+        read on the receiver clock of the scenario. ``noise=False``: without the timing noise (its one
+        draw is then :meth:`noise_m`, taken only for a broadcast the navigator uses, so that a
+        broadcast dropped as late live, and absent from the re-flight, consumes no draw)."""
         p_tx = np.asarray(phy["pos_m"], float)
         t_tx = float(phy["t_true_s"])
         t_rx = t_tx
@@ -123,34 +183,47 @@ class InsAircraftCore:
         p, _, _ = self.truth_n(t_rx)
         rho = float(np.linalg.norm(p - p_tx)) \
             + SPEED_OF_LIGHT_M_S * broadcast_time_error_s(msg, t_tx, t_rx, self.net_clock) \
-            + float(self.ac.clock.bias_m(t_rx)) \
-            + self.ac.sigma_m * float(self.rng.standard_normal())
-        return t_rx, rho
+            + float(self.ac.clock.bias_m(t_rx))
+        return t_rx, rho + (self.noise_m() if noise else 0.0)
+
+    def noise_m(self) -> float:
+        """One draw of the channel's timing noise (m)."""
+        return self.ac.sigma_m * float(self.rng.standard_normal())
 
     def on_nav(self, msg: dict, phy: dict) -> list[dict]:
         """One nav broadcast -> the ``ac_estimate`` of ``ins-ekf`` (with attitude in ``extra``)."""
         if msg.get("state") not in ("frame", "surveying"):
             self.stats["nav_unusable_state"] += 1
             return []
-        t_rx, rho = self.measure(phy, msg)
+        t_rx, rho = self.measure(phy, msg, noise=False)
         s = np.asarray(msg["pos_m"], dtype=float)
-        if not (np.all(np.isfinite(s)) and np.isfinite(t_rx) and np.isfinite(rho)) or t_rx < self.ekf.t_s - self.tn.dt_s:
+        t_nav = self.t0_s + self.imu_steps * self.tn.dt_s if self.ekf is None else self.ekf.t_s
+        if not (np.all(np.isfinite(s)) and np.isfinite(t_rx) and np.isfinite(rho)) or t_rx < t_nav - self.tn.dt_s:
             self.stats["nav_bad_or_late"] += 1
             return []
+        rho += self.noise_m()
+        cov = np.asarray(msg.get("cov_m2", np.zeros((3, 3))), dtype=float)
+        if self.ekf is None and not self._try_start(t_rx):  # still listening: keep it for the start
+            self._win.append((t_rx, s, cov, rho, self.tn.sigma_range_m**2 + broadcast_clock_var_m2(msg),
+                              str(msg.get("src"))))
+            self.stats["start_buffered"] += 1
+            return [self._truth_msg(t_rx)]
         self.advance_to(t_rx + self.tn.dt_s)  # the step that contains t_rx
         if self.ekf.t_s < t_rx:
             self.advance_to(self.ekf.t_s + self.tn.dt_s)
         d = self.ekf.position_at(t_rx)[0] - s
         u = d / np.linalg.norm(d)
-        cov = np.asarray(msg.get("cov_m2", np.zeros((3, 3))), dtype=float)
         var = self.tn.sigma_range_m**2 + float(u @ cov @ u) + broadcast_clock_var_m2(msg)
         self.ekf.pseudorange(t_rx, s, np.array([rho]), var)
         self.stats["measurements"] += 1
+        return [self._truth_msg(t_rx), self.estimate_msg()]
+
+    def _truth_msg(self, t_rx: float) -> dict[str, Any]:
+        """World side: the ``ac_truth`` record of a measured broadcast (identifies it for re-flight)."""
         pt, vt, _ = self.truth_n(t_rx)
         self.seq["ac_truth"] += 1
-        truth = {"kind": "ac_truth", "src": self.name, "seq": self.seq["ac_truth"], "stamp_s": t_rx, "t_s": t_rx,
-                 "pos_m": pt.tolist(), "vel_m_s": vt.tolist()}
-        return [truth, self.estimate_msg()]
+        return {"kind": "ac_truth", "src": self.name, "seq": self.seq["ac_truth"], "stamp_s": t_rx, "t_s": t_rx,
+                "pos_m": pt.tolist(), "vel_m_s": vt.tolist()}
 
     def estimate_msg(self) -> dict[str, Any]:
         e = self.ekf

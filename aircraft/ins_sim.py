@@ -4,16 +4,17 @@ Joins the world (:mod:`aircraft.world`: 6-DOF motion, IMU emulator, receiver clo
 and the navigator (:mod:`aircraft.navigator.ins_ekf`): the filter only receives IMU increments,
 pseudoranges with their reception times and the broadcast station positions.
 
-Initialization (emulated, see docs/ins.md): position, velocity and clock as an initial LARNS fix
-drawn from the filter's prior; attitude as a levelling + track-heading alignment *against the
-assumed-level frame* (``tau^ = 0``), so its level error contains the frame's true tilt, plus an
-alignment error drawn from the prior; biases at zero (the emulator draws the true ones from the same
-prior). Which way +Z points comes from the initial fix: the aircraft flies above the stations.
+Start (honest, :mod:`aircraft.navigator.ins_start`): the navigator listens for the first
+``StartConfig.window_s`` seconds and starts its EKF at the window's end from that window's
+pseudoranges and IMU increments alone (radio fix with motion, levelling, heading from the track, a
+prior ``P0`` from their error models). Nothing of the truth enters the start.
 
 The posterior CRLB is computed by one extra run appended to the batch: a perfect IMU, a perfect
 clock, noise-free ranges and a zero initial error, so its nominal stays on the truth and its
 covariance is the Kalman recursion with every Jacobian evaluated along the true trajectory (the
-Tichavsky bound of the linearized model, as :mod:`nav.pcrb` does for the CV filters).
+Tichavsky bound of the linearized model, as :mod:`nav.pcrb` does for the CV filters). Its prior is
+the start's own ``P0``, computed by the same start on the noise-free window (the information the
+start actually has), so the bound stays the bound of this start.
 """
 
 from __future__ import annotations
@@ -24,9 +25,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from nav import errorstate as es
-from nav.rotations import exp_so3, log_so3
+from nav.rotations import log_so3
 
-from .navigator.ins_ekf import InsEkf, InsTuning, initial_covariance, tilt_attitude_jacobian
+from .navigator.ins_ekf import InsEkf, InsTuning
+from .navigator.ins_start import RadioFix, SideTest, StartConfig, moved_on, radio_fix, start
 from .world import clock as wclock
 from .world.field import Field
 from .world.imu import ImuEmulator, ImuPreset
@@ -49,6 +51,7 @@ class InsRun:
     seed: int = 1
     clock: wclock.ClockModel = field(default_factory=wclock.ClockModel)
     pcrb: bool = True
+    start: StartConfig = field(default_factory=StartConfig)
 
 
 @dataclass
@@ -66,56 +69,15 @@ class InsResult:
     nees8: np.ndarray | None = None  # (M, K) NEES of [p, v, phi_x, phi_y] (8 dof, without the heading)
     var9: np.ndarray | None = None  # (M, K, 9) the filter's variances of [p, v, phi]
     pcrb9: np.ndarray | None = None  # (K, 9) the bound's variances of [p, v, phi]
+    start_s: float = 0.0  # when the EKF started (end of the deciding window)
+    start_windows: int = 0  # windows listened to before the side of the stations' plane was decided
+    side_wrong: int = 0  # runs that decided the wrong side (world-side count, for the report)
 
     def rmse_h(self) -> np.ndarray:
         return np.sqrt(np.mean(np.sum(self.err_m[..., :2] ** 2, axis=-1), axis=0))
 
     def pcrb_h(self) -> np.ndarray:
         return np.sqrt(self.pcrb_pos[:, 0, 0] + self.pcrb_pos[:, 1, 1])
-
-
-@dataclass
-class Start:
-    """Emulated initial fix and alignment (nominal states (M, ...)), prior, and the truth at t0."""
-
-    p: np.ndarray
-    v: np.ndarray
-    C: np.ndarray
-    tau: np.ndarray
-    P0: np.ndarray
-    sign: float
-    p_true: np.ndarray
-    v_true: np.ndarray
-    C_true: np.ndarray
-    tau_true: np.ndarray
-
-
-def emulated_start(fld: Field, motion: Motion, tn: InsTuning, L: es.ErrorLayout, rng: np.random.Generator,
-                   M: int, tilt: str = "estimate", t0_s: float = 0.0) -> Start:
-    """World-side emulation of the navigator's start (module doc): an initial LARNS fix (position,
-    velocity drawn from the prior around the truth), a levelling + track-heading alignment against
-    the assumed-level frame (its level error is the frame's true tilt plus a drawn alignment error),
-    the tilt prior at zero (``tilt="estimate"``/``"ignore"``) or at the truth (``"oracle"``, a
-    yardstick only). Which way +Z points is decided from the fix (the aircraft is above the stations).
-    """
-    p0, v0, C0 = (x[0] for x in fld.truth(motion, np.array([t0_s])))
-    up_true = fld.up_n
-    sign = 1.0 if up_true[2] > 0 else -1.0
-    tau_true = sign * up_true[:2]
-    tau_nom = np.zeros(2) if tilt != "oracle" else tau_true.copy()
-    P0 = initial_covariance(L, tn, tau_nom, sign)
-    J = tilt_attitude_jacobian(tau_nom, sign)
-    Ls = es.ErrorLayout(turn_on=True, tilt=True, clock=True)
-    P0s = initial_covariance(Ls, tn, tau_nom, sign)
-    A = P0s[Ls.ATT, Ls.ATT] - J @ (tn.p0_tilt_rad**2 * np.eye(2)) @ J.T  # alignment part only
-    d_pos = rng.standard_normal((M, 3)) * tn.p0_pos_m
-    d_vel = rng.standard_normal((M, 3)) * tn.p0_vel_m_s
-    phi_al = rng.standard_normal((M, 3)) @ np.linalg.cholesky(A + 1e-30 * np.eye(3)).T
-    phi0 = phi_al + (J @ (tau_true - tau_nom))[None, :]
-    p_hat = p0 - d_pos
-    nav_sign = float(np.sign(np.median(p_hat[:, 2]) - np.mean(fld.stations_n[:, 2])))
-    return Start(p_hat, v0 - d_vel, exp_so3(-phi0) @ C0, np.broadcast_to(tau_nom, (M, 2)).copy(), P0, nav_sign,
-                 p0, v0, C0, tau_true)
 
 
 def _in_outage(t: float, outages) -> bool:
@@ -133,19 +95,11 @@ def simulate(fld: Field, motion: Motion, preset: ImuPreset, cfg: InsRun, tuning:
                                          p0_drift_m_s=cfg.clock.d0_sigma_m_s)
     L = es.ErrorLayout(turn_on=True, tilt=(cfg.tilt == "estimate"), clock=True)
     dt = tn.dt_s
-    # --- world: truth at t = 0, true tilt, emulated initial fix/alignment -------------------------
-    start = emulated_start(fld, motion, tn, L, rng, M, cfg.tilt)
-    p_hat, v_hat, C_hat, tau0, P0, nav_sign = start.p, start.v, start.C, start.tau, start.P0, start.sign
-    p0, v0, C0, tau_true = start.p_true, start.v_true, start.C_true, start.tau_true
+    # --- world: IMU and measurement schedule ---------------------------------------------------
     ns = fld.stations_n
     imu = ImuEmulator(preset, M, rng)
-    if cfg.pcrb:
-        p_hat = np.vstack([p_hat, p0])
-        v_hat = np.vstack([v_hat, v0])
-        C_hat = np.concatenate([C_hat, C0[None]])
-        tau0 = np.vstack([tau0, tau_true])
-    ekf = InsEkf(tn, L, p_hat, v_hat, C_hat, np.zeros((MM, 2)), P0, tau0, nav_sign)
-    # --- measurement schedule -------------------------------------------------------------------
+    up_true = fld.up_n
+    tau_true = (1.0 if up_true[2] > 0 else -1.0) * up_true[:2]  # world side: for the oracle and the bound
     m = len(ns)
     n_slots = int(np.floor(cfg.duration_s / cfg.slot_s))
     k = np.arange(n_slots)
@@ -158,10 +112,51 @@ def simulate(fld: Field, motion: Motion, preset: ImuPreset, cfg: InsRun, tuning:
     rho = r_true[:, None] + clk[:, :, 0] + cfg.sigma_m * rng.standard_normal((t_rx.size, M))
     if cfg.pcrb:
         rho = np.hstack([rho, r_true[:, None]])
+    # --- navigator start: the first window's pseudoranges and IMU increments only ------------------
+    w0 = time.perf_counter()  # the start's time counts in the run's time
+    c0_cpu = time.process_time()
+    n_w = int(round(cfg.start.window_s / dt))
+    W = n_w * dt
+    tau_nom = tau_true if cfg.tilt == "oracle" else None  # the oracle is a yardstick only
+    sides = SideTest(cfg.start, MM)  # which side of the stations' plane: consecutive windows
+    guess = None
+    n_win = 0
+    while True:
+        n_win += 1
+        t_e = n_win * W
+        j0 = int(np.searchsorted(t_rx, t_e - W + 1e-12, side="right"))
+        jw = int(np.searchsorted(t_rx, t_e + 1e-12, side="right"))  # measurements of the window
+        fix = radio_fix(t_rx[j0:jw], ns[sidx[j0:jw]], None, rho[j0:jw].T, tn.sigma_range_m**2, t_e,
+                        tn.sigma_range_m, cfg.start, tn.q_b, tn.q_d, guess)
+        sides.add(fix)
+        if np.all(sides.decided()[:M]):
+            break
+        guess = moved_on(fix, sides.side(), W)
+    n_w0 = n_win * n_w  # IMU steps before the EKF starts
+    g_w, a_w = imu.measure(*motion.increments(0.0, dt, n_w0))
+    dth_w, dv_w = motion.increments(t_e - W, dt, n_w)
+    side = sides.side()
+    st = start(L, tn, RadioFix(fix.x[:M], fix.P[:M], fix.cost[:M]), side[:M], g_w[-n_w:], a_w[-n_w:], t_e,
+               cfg.start, tau_nom)
+    p_hat, v_hat, C_hat, clk0, tau0, P0 = st.p, st.v, st.C, st.clock, st.tau, st.P0
+    sign = np.broadcast_to(st.sign, (M,))
+    if cfg.pcrb:  # the bound run: the same start on the noise-free window gives its prior; nominal = truth
+        sb = start(L, tn, RadioFix(fix.x[M:], fix.P[M:], fix.cost[M:]), side[M:], dth_w[:, None], dv_w[:, None],
+                   t_e, cfg.start, tau_nom)
+        pe, ve, Ce = (x[0] for x in fld.truth(motion, np.array([t_e])))
+        p_hat = np.vstack([p_hat, pe])
+        v_hat = np.vstack([v_hat, ve])
+        C_hat = np.concatenate([C_hat, Ce[None]])
+        clk0 = np.vstack([clk0, np.zeros((1, 2))])
+        tau0 = np.vstack([tau0, tau_true])
+        P0 = np.concatenate([P0, sb.P0])
+        sign = np.r_[sign, 1.0 if up_true[2] > 0 else -1.0]
+    n_side_wrong = int(np.sum(np.broadcast_to(st.sign, (M,)) != (1.0 if up_true[2] > 0 else -1.0)))
+    ekf = InsEkf(tn, L, p_hat, v_hat, C_hat, clk0, P0, tau0, sign, t0_s=t_e)
     # --- main loop --------------------------------------------------------------------------------
     n_imu = int(round(cfg.duration_s / dt))
     rec_every = max(int(round(cfg.record_every_s / dt)), 1)
-    n_rec = n_imu // rec_every
+    n_rec = n_imu // rec_every - n_w0 // rec_every
     t_rec = np.empty(n_rec)
     err = np.empty((M, n_rec, 3))
     Pp = np.empty((M, n_rec, 3, 3))
@@ -172,12 +167,10 @@ def simulate(fld: Field, motion: Motion, preset: ImuPreset, cfg: InsRun, tuning:
     pcrb9 = np.empty((n_rec, 9)) if cfg.pcrb else None
     pcrb = np.empty((n_rec, 3, 3)) if cfg.pcrb else None
     chunk = max(int(round(cfg.chunk_s / dt)), rec_every)
-    j = 0  # next measurement
+    j = jw  # next measurement
     i_rec = 0
-    w0 = time.perf_counter()
-    c0_cpu = time.process_time()
     sl9 = np.r_[0:9]
-    for c0 in range(0, n_imu, chunk):
+    for c0 in range(n_w0, n_imu, chunk):
         n = min(chunk, n_imu - c0)
         dth_t, dv_t = motion.increments(c0 * dt, dt, n)
         g_m, a_m = imu.measure(dth_t, dv_t)
@@ -216,7 +209,8 @@ def simulate(fld: Field, motion: Motion, preset: ImuPreset, cfg: InsRun, tuning:
         if progress:
             progress(f"{(c0 + n) * dt:.0f}/{cfg.duration_s:.0f} s")
     wall = time.perf_counter() - w0
-    return InsResult(t_rec, err, Pp, nees, pcrb, wall, cfg.duration_s, M, time.process_time() - c0_cpu, nsq, nees8, var9, pcrb9)
+    return InsResult(t_rec, err, Pp, nees, pcrb, wall, cfg.duration_s, M, time.process_time() - c0_cpu, nsq, nees8, var9,
+                     pcrb9, t_e, n_win, n_side_wrong)
 
 
 def open_loop_drift(fld: Field, motion: Motion, preset: ImuPreset, duration_s: float, runs: int = 64,

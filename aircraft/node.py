@@ -233,6 +233,10 @@ class AircraftNode:
         self._last_status = t
         if self.ins is not None:
             e = self.ins.ekf
+            if e is None:  # still listening for its start window (aircraft/navigator/ins_start.py)
+                print(f"[aircraft {self.opts.name}] t={t:7.1f}s imu={self.ins.preset.name} steps={self.ins.imu_steps} "
+                      f"starting: {self.ins.stats['start_buffered']} broadcasts", file=sys.stderr, flush=True)
+                return
             pt = self.ins.truth_n(e.t_s)[0]
             print(f"[aircraft {self.opts.name}] t={t:7.1f}s imu={self.ins.preset.name} steps={self.ins.imu_steps} "
                   f"t_ins={e.t_s:.2f}s pos=({pt[0]:.0f},{pt[1]:.0f},{pt[2]:.0f}) meas={self.ins.stats['measurements']} "
@@ -283,7 +287,7 @@ class AircraftNode:
                 pt, _ = self.core.track.at(e["t_s"])
                 out["estimates"][a] = {"t_s": e["t_s"], "err_m": float(np.linalg.norm(np.asarray(e["pos_m"]) - pt)),
                                        "n_updates": e["n_updates"]}
-        if self.ins is not None:
+        if self.ins is not None and self.ins.ekf is not None:
             e = self.ins.ekf
             pt = self.ins.truth_n(e.t_s)[0]
             out["measurements"] = int(self.ins.stats["measurements"])

@@ -114,8 +114,8 @@ class InsEkf:
     ----------
     tn : InsTuning. L : ErrorLayout.
     p_m, v_m_s : (M, 3) initial nominal position/velocity; C_nb : (M, 3, 3); clock : (M, 2) ``[b, d]``.
-    P0 : (n, n) or (M, n, n). tau : (M, 2) nominal tilt; sign : +-1, which way the frame's +Z points
-    (from the aircraft's own fix: the aircraft flies above the stations). t0_s : time of the state.
+    P0 : (n, n) or (M, n, n). tau : (M, 2) nominal tilt; sign : +-1 (scalar or (M,)), which way the
+    frame's +Z points (from the aircraft's own fix: the aircraft flies above the stations). t0_s : time of the state.
     """
 
     def __init__(self, tn: InsTuning, L: es.ErrorLayout, p_m, v_m_s, C_nb, clock, P0, tau, sign, t0_s: float = 0.0):
@@ -127,7 +127,7 @@ class InsEkf:
         self.C = np.array(C_nb, dtype=float)
         self.clk = np.array(clock, dtype=float) if clock is not None else np.zeros((M, 2))
         self.tau = np.array(tau, dtype=float)
-        self.sign = float(sign)
+        self.sign = np.asarray(sign, dtype=float)  # scalar, or (M,) when runs decided differently
         self.ba = np.zeros((M, 3))
         self.bg = np.zeros((M, 3))
         self.bac = np.zeros((M, 3))
