@@ -96,3 +96,38 @@ def test_the_parser_sees_local_and_relative_imports():
     assert names == ["numpy", "stations", "aircraft.node", "net.bus", "vehicle.sim"]
     assert [n for n in names if n.split(".")[0] in PACKAGES and n.split(".")[0] not in ALLOWED["net"] | {"net"}] \
         == ["stations", "aircraft.node", "vehicle.sim"]
+
+
+def test_every_module_imports():
+    """Every module of ours imports, and every relative import in it - also inside a function -
+    names a module that exists (one left behind by a move fails here, not in a subprocess deep inside
+    an end-to-end test)."""
+    import importlib
+    import importlib.util
+
+    missing = []
+    for path in sorted(ROOT.glob("*/**/*.py")):
+        rel = path.relative_to(ROOT)
+        if rel.parts[0] not in PACKAGES or path.name == "__main__.py":
+            continue
+        mod = _module_name(path)
+        importlib.import_module(mod)
+        pkg = mod if path.name == "__init__.py" else mod.rpartition(".")[0]
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.level:
+                target = importlib.util.resolve_name("." * node.level + (node.module or ""), pkg)
+                if importlib.util.find_spec(target) is None:
+                    missing.append(f"{rel}:{node.lineno} {target}")
+    assert not missing, missing
+
+
+def test_the_command_line_starts_without_heavy_imports():
+    """``larns --help`` (and every process's start) builds the whole parser: registration must not
+    import scipy, matplotlib or zenoh (a recorder that starts seconds late misses the fleet's start)."""
+    import subprocess
+    import sys
+
+    code = ("import sys, larns.cli as c; c.build_parser(); "
+            "print(sorted({m.split('.')[0] for m in sys.modules} & {'scipy', 'matplotlib', 'zenoh'}))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT)
+    assert out.stdout.strip() == "[]", out.stdout

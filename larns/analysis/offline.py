@@ -225,7 +225,7 @@ def write_output(output: str | Path, logs: Sequence[LogFile], msgs: Sequence[Msg
         for m in wire:
             w.write(m.topic, m.data, m.log_time, m.publish_time)
         if any(m.encoding == "json" for m in msgs):
-            from .foxglove import iter_json, schema_for
+            from ..viz.foxglove import iter_json, schema_for
 
             for lt, pt, topic, sname, data in iter_json(wire):
                 w.write(topic, data, lt, pt, "json", schema_for(sname))

@@ -18,7 +18,6 @@ import time
 from dataclasses import replace
 
 import numpy as np
-from scipy import stats
 
 ALGOS = ("lsq-pr", "lsq-tdoa", "ekf-pr", "ekf-tdoa", "ukf-pr", "ukf-tdoa")
 FILTERS = ("ekf-pr", "ekf-tdoa", "ukf-pr", "ukf-tdoa")
@@ -153,6 +152,8 @@ def run_point(ac, kind: str, dist_m: float, runs: int, duration_s: float, warmup
             out["pcrb_m"][algo] = pc_cache[model]
             out["nees"][algo] = float(np.mean(res.nees[:, win]))
             n_dof = 6 + (2 if model == "pr" and tuning.drift_state else 1 if model == "pr" else 0)
+            from scipy import stats
+
             band = stats.chi2.ppf([0.025, 0.975], runs * n_dof) / runs
             out.setdefault("nees_band", {})[algo] = [float(v) for v in band]
             out["nis"][algo] = float(np.mean(res.nis[:, win]))
