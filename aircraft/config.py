@@ -41,7 +41,7 @@ def from_scenario(sc) -> AircraftConfig:
     if unknown:
         raise ValueError(f"unknown keys in [aircraft]: {sorted(unknown)}; known: {sorted(_KNOWN)}")
     algos = list(a.get("algos", ["ukf-pr"]))
-    bad = [x for x in algos if x not in ALGOS + ("ins-ekf",)]
+    bad = [x for x in algos if x not in ALGOS + ("ins-ekf", "triad")]
     if bad:
         raise ValueError(f"unknown algorithms {bad}; choose from {ALGOS}")
     sigma = float(a.get("sigma_m", sc.channel.sigma_d_m))
