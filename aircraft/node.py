@@ -337,11 +337,13 @@ def main_args(args: argparse.Namespace) -> int:
     cli.setup_logging()
     scn = load_cli(args.scenario, args.n_stations)
     ac = from_scenario(scn)
-    algos = args.algo or (("triad",) if args.satellites is not None else ("ins-ekf",) if args.imu else ac.algos)
+    algos = args.algo or (("triad",) if (args.satellites if args.satellites is not None else ac.satellites)
+                          is not None else ("ins-ekf",) if args.imu else ac.algos)
     opts = AircraftOptions(name=args.name or ac.name, algos=tuple(algos), speed=args.speed,
                            epoch_unix_s=args.epoch, duration_s=args.duration, seed=args.seed,
                            height_m=args.height, status_every_s=args.status_every, quiet=args.quiet,
-                           imu=args.imu or ac.imu, satellites=args.satellites)
+                           imu=args.imu or ac.imu,
+                           satellites=args.satellites if args.satellites is not None else ac.satellites)
     args.secure_cn = f"aircraft-{opts.name}"
     bus = cli.open_bus(f"aircraft {opts.name}", lambda: Bus(**bus_kwargs(args)))
     rep = cli.serve(args, bus, lambda: AircraftNode(scn, opts, bus))

@@ -71,3 +71,33 @@ def test_triad_fewer_satellites_and_bad_options():
     sc = load("seed003-text")
     with pytest.raises(ValueError, match="above the mask"):
         TriadAircraftCore(sc, from_scenario(sc), "ac1", n_sv=40)
+
+
+@pytest.mark.slow
+@pytest.mark.e2e
+def test_triad_live_fleet_recorded_and_reflown(tmp_path):
+    """A real fleet (seed003-text stations over Zenoh, the triad aircraft with 2 satellites, the
+    recorder): the recorded triad estimates are re-flown offline bit for bit (~40 s)."""
+    import re
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from larns.analysis.offline import reestimate_triad
+    from larns.log import read_logs
+
+    text = (Path(__file__).parents[2] / "net" / "scenarios" / "seed003-text.toml").read_text()
+    text = re.sub(r'^algos = \["ins-ekf"\].*$', 'algos = ["triad"]\nsatellites = 2', text, flags=re.M)
+    text = re.sub(r'^imu = .*\n', "", text, flags=re.M)
+    scn = tmp_path / "triad_live.toml"
+    scn.write_text(text)
+    rec = tmp_path / "triad.mcap"
+    r = subprocess.run([sys.executable, "-m", "larns", "fleet", "--scenario", str(scn), "--duration", "25",
+                        "--aircraft", "--record", str(rec), "--no-table"], capture_output=True, text=True, timeout=180)
+    assert r.returncode == 0, r.stderr[-3000:]
+    logs = read_logs([rec])
+    msgs = [m for lf in logs for m in lf.messages]
+    res = reestimate_triad(logs, msgs, scenario=str(scn))["ac1"]["triad"]
+    assert res["recorded"] > 50
+    assert res["equal"] == res["compared"] == res["recorded"]
+    assert res["rms_err_m"] < 10.0
