@@ -40,7 +40,8 @@ import numpy as np
 
 from nav.constellation import gps_like, tropo_delay_m
 from nav.geometry import SPEED_OF_LIGHT_M_S
-from nav.rotations import euler_from_dcm
+from nav.rotations import dcm_from_euler, euler_from_dcm
+from nav.strapdown import G0_M_S2
 
 from .ins_core import motion_from_config
 from .models import broadcast_clock_var_m2, broadcast_time_error_s
@@ -117,6 +118,7 @@ class TriadAircraftCore:
         self._window: list[np.ndarray] = []  # (N_vis,) pseudoranges per start epoch
         self._window_t: list[float] = []
         self._f_sum = np.zeros(3)
+        self._w_sum = np.zeros(3)
         self._broadcast: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # src -> network pos, cov
         self.imu_steps = 0
         self.seq: Counter[str] = Counter()
@@ -196,6 +198,16 @@ class TriadAircraftCore:
                                    self.sigma_sat_m, t_ref)
         f_mean = self._f_sum / self.INIT_WINDOW_S
         st = start_from_window(self.tn, x, cov, f_mean[None], cost, 0)
+        # a coordinated turn seen by the window's mean yaw rate (gyro, body z ~ up): the levelling reads
+        # no bank (the specific force stays on the body z axis) and the constant-velocity fix's track is
+        # the mid-window one; add the bank -atan(V w / g) and turn the heading and the velocity by w W / 2
+        w_z = float(self._w_sum[2]) / self.INIT_WINDOW_S
+        speed = float(np.linalg.norm(st.v[0, :2]))
+        roll, pitch, yaw = euler_from_dcm(st.C[0])
+        dpsi = w_z * self.INIT_WINDOW_S / 2
+        st.C[0] = dcm_from_euler(roll - np.arctan(speed * w_z / G0_M_S2), pitch, yaw + dpsi)
+        c, s_ = np.cos(dpsi), np.sin(dpsi)
+        st.v[0, :2] = np.array([[c, -s_], [s_, c]]) @ st.v[0, :2]  # the velocity turned likewise
         # the levelling and the track-as-heading assume straight flight over the window; in a turn the
         # bank angle and the track's rotation are missed: widen the attitude prior to cover them
         att = TRIAD_LAYOUT.ATT
@@ -219,6 +231,7 @@ class TriadAircraftCore:
             g, a = self._block
             if self.ekf is None:
                 self._f_sum += a[i, 0]
+                self._w_sum += g[i, 0]
             else:
                 self.ekf.imu(g[i], a[i])
                 self.ekf.maybe_propagate()
