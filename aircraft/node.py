@@ -322,7 +322,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--imu", default=None, metavar="PRESET",
                    help="fly with an IMU (adis16480, tactical, navigation) and run ins-ekf (docs/ins.md)")
     p.add_argument("--satellites", type=int, default=None, metavar="N",
-                   help="run the triad: INS (--imu, default navigation) + N GPS-like satellites + the stations "
+                   help="run the triad: INS (--imu, else [aircraft] imu, else navigation; 10 Hz) + N GPS-like satellites + the stations "
                         "+ baro in one filter, algorithm triad (docs/triad.md)")
     cli.add_output_args(p)
 
