@@ -11,7 +11,8 @@ from .estimators import ALGOS, Tuning
 from .models import ReceiverClock
 
 _KNOWN = {"name", "algos", "rate_hz", "sync", "sigma_m", "df_hz", "lambda_m", "tau0_s", "height_m",
-          "trajectory", "tuning", "turn", "hover", "bench", "crlb", "init_sigma_m", "imu"}
+          "trajectory", "tuning", "turn", "hover", "bench", "crlb", "init_sigma_m", "imu",
+          "satellites"}
 
 
 @dataclass
@@ -32,6 +33,7 @@ class AircraftConfig:
     crlb: dict[str, Any] = field(default_factory=dict)
     init_sigma_m: float | None = None  # coarse external fix of the start point (node); None: LSQ start
     imu: str | None = None  # IMU preset of the inertial aircraft (ins-ekf, docs/ins.md)
+    satellites: int | None = None  # the triad's satellites (algo triad, docs/triad.md)
 
 
 def from_scenario(sc) -> AircraftConfig:
@@ -41,7 +43,7 @@ def from_scenario(sc) -> AircraftConfig:
     if unknown:
         raise ValueError(f"unknown keys in [aircraft]: {sorted(unknown)}; known: {sorted(_KNOWN)}")
     algos = list(a.get("algos", ["ukf-pr"]))
-    bad = [x for x in algos if x not in ALGOS + ("ins-ekf",)]
+    bad = [x for x in algos if x not in ALGOS + ("ins-ekf", "triad")]
     if bad:
         raise ValueError(f"unknown algorithms {bad}; choose from {ALGOS}")
     sigma = float(a.get("sigma_m", sc.channel.sigma_d_m))
@@ -69,4 +71,5 @@ def from_scenario(sc) -> AircraftConfig:
         crlb=dict(a.get("crlb", {})),
         init_sigma_m=None if a.get("init_sigma_m") is None else float(a["init_sigma_m"]),
         imu=None if a.get("imu") is None else str(a["imu"]),
+        satellites=None if a.get("satellites") is None else int(a["satellites"]),
     )

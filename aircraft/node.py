@@ -57,6 +57,7 @@ class AircraftOptions:
     status_every_s: float = 5.0
     quiet: bool = False
     imu: str | None = None  # IMU preset: fly the 6-DOF world with an IMU and run ins-ekf (docs/ins.md)
+    satellites: int | None = None  # run the triad (INS + N satellites + stations + baro, docs/triad.md)
 
 
 class AircraftCore:
@@ -168,7 +169,10 @@ class AircraftNode:
         from net.channel import draw_clock, station_rng
 
         net_clock = None if scn.clock.perfect else draw_clock(scn.clock, station_rng(seed, scn.ids[0], 0))
-        ins_algos, opts.algos = _split_ins(opts)
+        triad = opts.satellites is not None or "triad" in opts.algos  # the triad: aircraft/triad_core.py
+        if triad and set(opts.algos) - {"triad"}:
+            raise ValueError(f"triad runs alone in its 6-DOF world; drop {sorted(set(opts.algos) - {'triad'})}")
+        ins_algos, opts.algos = ((), ()) if triad else _split_ins(opts)
         self.core = AircraftCore(self.ac, opts.algos, opts.name, rng, opts.height_m, horizon_s=horizon,
                                  net_clock=net_clock)
         self.ins = None
@@ -180,6 +184,13 @@ class AircraftNode:
                                        seed=int(seed), t0_s=max(0.0, math.floor(self.fleet_now())),
                                        net_clock=net_clock)
             self.ins.seq = self.core.seq  # one sequence per (aircraft, kind)
+        if triad:
+            from .triad_core import TriadAircraftCore
+
+            self.ins = TriadAircraftCore(scn, self.ac, opts.name, n_sv=4 if opts.satellites is None else opts.satellites,
+                                         imu=opts.imu, height_m=opts.height_m, seed=int(seed),
+                                         t0_s=max(0.0, math.floor(self.fleet_now())), net_clock=net_clock)
+            self.ins.seq = self.core.seq
         self.drops = M.DropCounter(f"aircraft {opts.name}")
         self._inbox: queue.SimpleQueue = queue.SimpleQueue()
         self._stop = threading.Event()
@@ -233,14 +244,16 @@ class AircraftNode:
         self._last_status = t
         if self.ins is not None:
             e = self.ins.ekf
-            if e is None:  # still listening for its start window (aircraft/navigator/ins_start.py)
-                print(f"[aircraft {self.opts.name}] t={t:7.1f}s imu={self.ins.preset.name} steps={self.ins.imu_steps} "
-                      f"starting: {self.ins.stats['start_buffered']} broadcasts", file=sys.stderr, flush=True)
+            if e is None:  # still in its start window (aircraft/navigator/ins_start.py; the triad's window fix)
+                buffered = getattr(self.ins, "stats", {}).get("start_buffered")
+                if buffered is not None:
+                    print(f"[aircraft {self.opts.name}] t={t:7.1f}s imu={self.ins.preset.name} steps={self.ins.imu_steps} "
+                          f"starting: {buffered} broadcasts", file=sys.stderr, flush=True)
                 return
             pt = self.ins.truth_n(e.t_s)[0]
             print(f"[aircraft {self.opts.name}] t={t:7.1f}s imu={self.ins.preset.name} steps={self.ins.imu_steps} "
                   f"t_ins={e.t_s:.2f}s pos=({pt[0]:.0f},{pt[1]:.0f},{pt[2]:.0f}) meas={self.ins.stats['measurements']} "
-                  f"err ins-ekf={np.linalg.norm(e.p[0] - pt):.1f}m late={self.ins.stats['nav_bad_or_late']} "
+                  f"err {getattr(self.ins, 'algo', 'ins-ekf')}={np.linalg.norm(e.p[0] - pt):.1f}m late={self.ins.stats['nav_bad_or_late']} "
                   f"drops={self.drops.total}", file=sys.stderr, flush=True)
             return
         p, _ = self.core.track.at(max(t, 0.0))
@@ -291,7 +304,7 @@ class AircraftNode:
             e = self.ins.ekf
             pt = self.ins.truth_n(e.t_s)[0]
             out["measurements"] = int(self.ins.stats["measurements"])
-            out["estimates"]["ins-ekf"] = {"t_s": e.t_s, "err_m": float(np.linalg.norm(e.p[0] - pt)),
+            out["estimates"][getattr(self.ins, "algo", "ins-ekf")] = {"t_s": e.t_s, "err_m": float(np.linalg.norm(e.p[0] - pt)),
                                            "n_updates": e.n_updates, "imu_steps": self.ins.imu_steps,
                                            "imu_steps_expected": int(np.floor((e.t_s - self.ins.t0_s)
                                                                                * self.ins.preset.rate_hz + 1e-9))}
@@ -305,13 +318,16 @@ def add_args(p: argparse.ArgumentParser) -> None:
 
     from .models import ALGOS
 
-    p.add_argument("--algo", action="append", choices=ALGOS + ("ins-ekf",), default=None,
+    p.add_argument("--algo", action="append", choices=ALGOS + ("ins-ekf", "triad"), default=None,
                    help="estimator to run (repeatable; default: the scenario's [aircraft] algos)")
     p.add_argument("--name", default=None, help="aircraft name (default: scenario's, ac1)")
     p.add_argument("--height", type=float, default=None, help="fixed flight height, m (overrides the scenario)")
     cli.add_process_args(p, scenario="seed003", what="aircraft", net_faults=False)
     p.add_argument("--imu", default=None, metavar="PRESET",
                    help="fly with an IMU (adis16480, tactical, navigation) and run ins-ekf (docs/ins.md)")
+    p.add_argument("--satellites", type=int, default=None, metavar="N",
+                   help="run the triad: INS (--imu, else [aircraft] imu, else navigation; 10 Hz) + N GPS-like satellites + the stations "
+                        "+ baro in one filter, algorithm triad (docs/triad.md)")
     cli.add_output_args(p)
 
 
@@ -325,19 +341,23 @@ def main_args(args: argparse.Namespace) -> int:
     cli.setup_logging()
     scn = load_cli(args.scenario, args.n_stations)
     ac = from_scenario(scn)
-    algos = args.algo or (("ins-ekf",) if args.imu else ac.algos)
+    algos = args.algo or (("triad",) if (args.satellites if args.satellites is not None else ac.satellites)
+                          is not None else ("ins-ekf",) if args.imu else ac.algos)
     opts = AircraftOptions(name=args.name or ac.name, algos=tuple(algos), speed=args.speed,
                            epoch_unix_s=args.epoch, duration_s=args.duration, seed=args.seed,
                            height_m=args.height, status_every_s=args.status_every, quiet=args.quiet,
-                           imu=args.imu or ac.imu)
+                           imu=args.imu or ac.imu,
+                           satellites=args.satellites if args.satellites is not None else ac.satellites)
     args.secure_cn = f"aircraft-{opts.name}"
     bus = cli.open_bus(f"aircraft {opts.name}", lambda: Bus(**bus_kwargs(args)))
     rep = cli.serve(args, bus, lambda: AircraftNode(scn, opts, bus))
     if rep is None:  # bad options (algorithm mix, IMU preset, trajectory kind): the error was printed
         return 2
-    if not args.quiet and "ins-ekf" in rep["estimates"]:
-        v = rep["estimates"]["ins-ekf"]
-        print(f"[aircraft {opts.name}] ins-ekf: IMU steps {v['imu_steps']} of {v['imu_steps_expected']} "
+    for a in ("ins-ekf", "triad"):
+        if args.quiet or a not in rep["estimates"]:
+            continue
+        v = rep["estimates"][a]
+        print(f"[aircraft {opts.name}] {a}: IMU steps {v['imu_steps']} of {v['imu_steps_expected']} "
               f"expected at t = {v['t_s']:.2f} s", file=sys.stderr, flush=True)
     if not args.quiet:
         print(f"[aircraft {opts.name}] stopped: measurements={rep['measurements']} "

@@ -324,6 +324,8 @@ def reestimate_aircraft(logs: Sequence[LogFile], msgs: Sequence[Msg], algos: Seq
 
     if "ins-ekf" in algos:
         return reestimate_ins(logs, msgs, scenario, name, seed, height_m)
+    if "triad" in algos:
+        return reestimate_triad(logs, msgs, scenario, name, seed, height_m)
     md, scn, ac, name, seed = _aircraft_world(logs, scenario, name, seed)
     horizon = float(md.get("duration_s", 7200.0)) + 10.0
     rng = np.random.default_rng([int(seed), 0xA1C, sum(map(ord, name))])  # as aircraft.node.AircraftNode
@@ -408,6 +410,45 @@ def reestimate_ins(logs: Sequence[LogFile], msgs: Sequence[Msg], scenario: str |
                                "rms_err_m": float(np.sqrt(np.mean(tail**2))) if tail.size else math.nan,
                                "recorded": len(recorded), "compared": len(same), "equal": int(sum(same)),
                                "equal_prefix": prefix, "sequence": order, "estimates": est, "truth": truth}}}
+
+
+def reestimate_triad(logs: Sequence[LogFile], msgs: Sequence[Msg], scenario: str | None = None,
+                     name: str | None = None, seed: int | None = None, height_m: float | None = None) -> dict[str, dict]:
+    """Re-fly the triad aircraft (``triad``, aircraft/triad_core.py) over the recorded broadcasts, as
+    :func:`reestimate_ins` (bit for bit: ``equal == compared``). The number of satellites, the IMU
+    preset and rate and the start time come from the recorded estimates' ``extra``."""
+    import numpy as np
+
+    from aircraft.triad_core import DEFAULT_IMU, TriadAircraftCore
+    from aircraft.world.imu import PRESETS
+
+    md, scn, ac, name, seed = _aircraft_world(logs, scenario, name, seed)
+    key = f"larns/aircraft/{name}/estimate/triad"
+    recorded = [msg for _m, msg, _phy in decoded(m for m in msgs if m.encoding == "msgpack" and m.topic == key)]
+    x = recorded[0].get("extra", {}) if recorded else {}
+    from net.channel import draw_clock, station_rng
+
+    net_clock = None if scn.clock.perfect else draw_clock(scn.clock, station_rng(seed, scn.ids[0], 0))
+    imu = list(PRESETS)[int(x["imu_preset"])] if "imu_preset" in x else DEFAULT_IMU
+    core = TriadAircraftCore(scn, ac, name, n_sv=int(x.get("n_sv", 4)), imu=imu, imu_rate_hz=float(x.get("imu_rate_hz", 10.0)),
+                             height_m=height_m, seed=int(seed), t0_s=float(x.get("t0_s", 0.0)), net_clock=net_clock)
+    ep = logs[0].epoch_unix_s if logs else None
+    speed = logs[0].speed if logs else 1.0
+    navs, order = aircraft_nav_sequence(msgs, name)
+    truth, flown = _refly(core, navs, ep, speed)
+    est = [rec for _o, rec in flown]
+    err = [float(np.linalg.norm(np.asarray(o["pos_m"]) - core.truth_n(o["t_s"])[0])) for o, _rec in flown]
+    new = [decode(x.data)[0] for x in est]
+    keys = ("t_s", "pos_m", "cov_m2", "vel_m_s", "n_updates", "extra")
+    rec_by_n = {y.get("n_updates"): y for y in recorded}
+    same = [all(x.get(k) == rec_by_n[x["n_updates"]].get(k) for k in keys) for x in new if x["n_updates"] in rec_by_n]
+    prefix = same.index(False) if False in same else len(same)
+    e = np.asarray(err)
+    tail = e[len(e) // 10:] if e.size else e
+    return {name: {"triad": {"n": int(e.size), "final_err_m": float(e[-1]) if e.size else math.nan,
+                             "rms_err_m": float(np.sqrt(np.mean(tail**2))) if tail.size else math.nan,
+                             "recorded": len(recorded), "compared": len(same), "equal": int(sum(same)),
+                             "equal_prefix": prefix, "sequence": order, "estimates": est, "truth": truth}}}
 
 
 def format_result(res: OfflineResult, compare: bool = True) -> str:

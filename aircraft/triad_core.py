@@ -1,0 +1,307 @@
+"""Sans-I/O triad aircraft for the live process (``--satellites N``, algorithm ``triad``, seed 002).
+
+World side (truth, inside the process): the scenario's physical coordinates are taken as the ENU
+frame :class:`aircraft.navigator.triad_ekf.TriadFrame` at a geodetic origin (``ORIGIN``, the triad
+benchmark's); the 6-DOF motion of ``[aircraft.trajectory]`` in it; the GPS-like almanac's sky
+(:func:`nav.constellation.gps_like`, almanac time = fleet time); the receiver clock of the scenario
+(``[aircraft]``, the same one the station pseudoranges carry); the IMU (fixed, separately seeded
+blocks as :class:`aircraft.ins_core.InsAircraftCore`); the baro (Gauss-Markov bias,
+:mod:`aircraft.world.baro`); the geodetic survey of the tie stations (the first three by id).
+
+Measurements: every whole second of the IMU grid, the pseudoranges of the ``N`` satellites highest
+at the start that are above the mask (``|p - s(t_tx)| + b + tropo(el) - c dt_sat + n``, as
+:mod:`aircraft.triad_sim`) and the baro altitude; every station nav broadcast, a pseudorange formed
+as the INS core forms it (reception time from the sender's true position and transmit time,
+broadcast clock correction residual, receiver clock, timing noise).
+
+Navigator side (no truth): :class:`aircraft.navigator.triad_ekf.TriadEkf` (24 states). Start: a
+constant-velocity window fix over the first ``INIT_WINDOW_S`` from every satellite above the mask
+(the full sky, as the benchmark: the degradation to ``N`` satellites starts after it) and a levelling
+(:func:`aircraft.navigator.triad_ekf.initial_fix`, :func:`start_from_window`); broadcasts before it
+are counted (``nav_before_start``) and give no estimate. Earth tie: from the latest broadcast network-frame
+positions of the tie stations and their geodetic survey (:func:`aircraft.navigator.field_tie.tie`,
+recomputed per broadcast); the tie's covariance along the line of sight is added to the range
+variance (the white treatment). Broadcasts before the three tie stations have been heard are
+counted (``nav_no_tie``) and give no estimate. Every broadcast received in time (its positions feed the
+tie) is published as ``ac_truth``, so the re-flight sees the same ones. Estimates and ``ac_truth`` are in the Earth-tied frame.
+
+Determinism (exact re-flight, ``larns reestimate --algo triad``): the IMU blocks, each satellite epoch
+and each station measurement draw from their own generators keyed by the world seed and the block,
+epoch or (station, broadcast seq), so the estimates depend only on the sequence of broadcasts the
+aircraft measured, not on the loop's timing or on what it dropped.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from typing import Any
+
+import numpy as np
+
+from nav.constellation import gps_like, tropo_delay_m
+from nav.geometry import SPEED_OF_LIGHT_M_S
+from nav.rotations import dcm_from_euler, euler_from_dcm
+from nav.strapdown import G0_M_S2
+
+from .ins_core import motion_from_config
+from .models import broadcast_clock_var_m2, broadcast_time_error_s
+from .navigator import field_tie as ft
+from .navigator.ins_ekf import InsTuning
+from .navigator.triad_ekf import (TRIAD_LAYOUT, Epoch, TriadEkf, TriadFrame, initial_fix, satellite_elevation_deg,
+                                  start_from_window)
+from .world import baro as wbaro
+from .world import clock as wclock
+from .world.field import Field
+from .world.imu import PRESETS, ImuEmulator, preset
+
+ORIGIN = (55.75, 37.62, 0.0)  # geodetic origin of the physical frame (deg, deg, m): the triad bench's
+DEFAULT_IMU = "navigation"
+
+
+class TriadAircraftCore:
+    """Pure apart from its seeded generators: ``advance_to(t)`` and ``on_nav(msg, phy)`` (module doc)."""
+
+    algo = "triad"
+    lag_s = 0.25
+    BLOCK = 100
+    INIT_WINDOW_S = 10.0
+    EPOCH_S = 1.0
+    START_ATT_SIGMA_RAD = np.radians(2.0)  # added to the start's attitude prior (turning flight)
+
+    def __init__(self, sc, ac, name: str, n_sv: int = 4, imu: str | None = None, imu_rate_hz: float = 10.0,
+                 height_m: float | None = None, seed: int | None = None, t0_s: float = 0.0, net_clock=None,
+                 sigma_sat_m: float = 3.0, mask_deg: float = 10.0, baro: wbaro.BaroModel | None = None,
+                 sigma_tie_m: tuple = (0.05, 0.05, 0.1)):
+        if n_sv < 0:
+            raise ValueError("--satellites must be >= 0")
+        self.name, self.ac, self.net_clock = name, ac, net_clock
+        self.n_sv = int(n_sv)
+        self.t0_s = float(t0_s)
+        self.seed = int(sc.seed if seed is None else seed)
+        self._key = [self.seed, 0x7A1, sum(map(ord, name))]
+        self.field = Field.from_scenario(sc)
+        self.frame = TriadFrame(*ORIGIN)
+        self.alm = gps_like()
+        self.motion = motion_from_config(ac.trajectory, height_m if height_m is not None else ac.height_m)
+        self.imu_name = imu or DEFAULT_IMU
+        self.preset = preset(self.imu_name).with_(rate_hz=float(imu_rate_hz))
+        self.sigma_sat_m, self.mask_deg = float(sigma_sat_m), float(mask_deg)
+        self.baro_model = baro or wbaro.BaroModel()
+        cm = wclock.ClockModel()
+        self.tn = InsTuning.from_preset(self.preset, sigma_range_m=ac.sigma_m, q_b=cm.q_b_m2_s, q_d=cm.q_d_m2_s3,
+                                        sigma_baro_m=self.baro_model.sigma_m,
+                                        sigma_baro_bias_m=self.baro_model.sigma_bias_m,
+                                        tc_baro_s=self.baro_model.tc_s, max_prop_s=1.0)
+        self.spe = int(round(self.EPOCH_S * self.preset.rate_hz))
+        self.n_init = int(round(self.INIT_WINDOW_S * self.preset.rate_hz))
+        self.imu = ImuEmulator(self.preset, 1, np.random.default_rng(self._key + [1]))
+        self._block_id, self._block = -1, None
+        # --- world: the sky at the start, the tie stations' geodetic survey, the baro bias --------
+        p0 = self.motion.pva(np.array([0.0]))[0][0]
+        s0 = self.frame.from_ecef(self.alm.ecef(self.t0_s)[0])
+        el0 = satellite_elevation_deg(s0, p0[None, :])
+        vis = np.flatnonzero(el0 >= self.mask_deg)
+        self.visible = vis[np.argsort(-el0[vis])]  # the full sky of the start window, highest first
+        if self.n_sv > self.visible.size:
+            raise ValueError(f"--satellites {self.n_sv}: only {self.visible.size} above the mask at the start")
+        self.sat_ids = self.visible[: self.n_sv]
+        self.station_ids = [int(s["id"]) for s in sorted(sc.raw["stations"], key=lambda s: int(s["id"]))]
+        self.tie_ids = self.station_ids[:3]
+        rng_s = np.random.default_rng(self._key + [2])
+        self.sigma_tie_m = np.asarray(sigma_tie_m, float)
+        true_l = self.to_local(self.field.stations_n[:3])
+        self.tie_surveyed_m = true_l + self.sigma_tie_m * rng_s.standard_normal((3, 3))  # navigator's database
+        self._baro_b = float(np.random.default_rng(self._key + [3]).normal(0.0, self.baro_model.sigma_bias_m))
+        self._baro_t = self.t0_s
+        # --- navigator ---------------------------------------------------------------------------
+        self.ekf: TriadEkf | None = None
+        self._window: list[np.ndarray] = []  # (N_vis,) pseudoranges per start epoch
+        self._window_t: list[float] = []
+        self._f_sum = np.zeros(3)
+        self._w_sum = np.zeros(3)
+        self._broadcast: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # src -> network pos, cov
+        self.imu_steps = 0
+        self.seq: Counter[str] = Counter()
+        self.stats: Counter[str] = Counter()
+        self._epoch(0)
+
+    # ---------------------------------------------------------------------------- world
+    def to_local(self, p_n: np.ndarray) -> np.ndarray:
+        """Network-frame truth (..., 3) -> the physical (Earth-tied) frame (world side)."""
+        return np.asarray(p_n, float) @ self.field.R + self.field.t
+
+    def truth_n(self, t_s: float):
+        """True position, velocity, attitude in the Earth-tied frame at fleet time ``t_s``."""
+        p, v, _ = self.motion.pva(np.array([t_s - self.t0_s]))
+        return p[0], v[0], self.motion.attitude(np.array([t_s - self.t0_s]))[0]
+
+    def _sky(self, k: int, ids: np.ndarray) -> np.ndarray:
+        """World: pseudoranges (len(ids),) at epoch ``k`` (NaN below the mask)."""
+        t = self.t0_s + k * self.EPOCH_S
+        p = self.truth_n(t)[0]
+        t_tx = np.full(ids.size, t)
+        for _ in range(3):
+            s = self.frame.from_ecef(self.alm.ecef(t_tx)[0][np.arange(ids.size), ids])
+            r = np.linalg.norm(p - s, axis=-1)
+            t_tx = t - r / SPEED_OF_LIGHT_M_S
+        el = satellite_elevation_deg(s, p[None, :])
+        rng = np.random.default_rng(self._key + [4, k])
+        rho = (r + tropo_delay_m(el) - SPEED_OF_LIGHT_M_S * (self.alm.af0_s[ids] + self.alm.af1[ids] * t_tx)
+               + float(self.ac.clock.bias_m(t)) + self.sigma_sat_m * rng.standard_normal(ids.size))
+        return np.where(el >= self.mask_deg, rho, np.nan)
+
+    def _baro(self, k: int) -> float:
+        t = self.t0_s + k * self.EPOCH_S
+        m = self.baro_model
+        a = np.exp(-(t - self._baro_t) / m.tc_s)
+        rng = np.random.default_rng(self._key + [5, k])
+        self._baro_b = a * self._baro_b + m.sigma_bias_m * np.sqrt(1.0 - a * a) * rng.standard_normal()
+        self._baro_t = t
+        return float(self.truth_n(t)[0][2] + self.frame.h_m + self._baro_b + m.sigma_m * rng.standard_normal())
+
+    def measure(self, phy: dict, msg: dict) -> tuple[float, float]:
+        """Station pseudorange on the receiver clock (as :meth:`InsAircraftCore.measure`), its noise
+        drawn from the generator of (station, broadcast seq)."""
+        p_tx = self.to_local(np.asarray(phy["pos_m"], float))
+        t_tx = float(phy["t_true_s"])
+        t_rx = t_tx
+        for _ in range(2):
+            t_rx = t_tx + float(np.linalg.norm(self.truth_n(t_rx)[0] - p_tx)) / SPEED_OF_LIGHT_M_S
+        rng = np.random.default_rng(self._key + [6, sum(map(ord, str(msg.get("src")))), int(msg.get("seq", 0))])
+        rho = float(np.linalg.norm(self.truth_n(t_rx)[0] - p_tx)) \
+            + SPEED_OF_LIGHT_M_S * broadcast_time_error_s(msg, t_tx, t_rx, self.net_clock) \
+            + float(self.ac.clock.bias_m(t_rx)) + self.ac.sigma_m * float(rng.standard_normal())
+        return t_rx, rho
+
+    # ---------------------------------------------------------------------------- navigator
+    def _epoch(self, k: int) -> None:
+        """Epoch ``k`` (the IMU step ending at ``t0 + k``): window data before the start, then the
+        filter's satellite + baro update."""
+        t = self.t0_s + k * self.EPOCH_S
+        if self.ekf is None:
+            self._window.append(self._sky(k, self.visible))
+            self._window_t.append(t)
+            if k * self.spe >= self.n_init:
+                self._start()
+            return
+        z = self._sky(k, self.sat_ids)
+        ok = np.isfinite(z)
+        baro = self._baro(k)
+        s = self.ekf.epoch(Epoch(self.ekf.t_s, self.sat_ids[ok], z[None, ok], baro_m=np.array([baro])))
+        self.stats["sat_used"] += s["sat_used"]
+        self.stats["sat_masked"] += s["sat_masked"] + int(np.sum(~ok))
+
+    def _start(self) -> None:
+        rho = np.stack(self._window)[None]  # (1, K, N_vis)
+        t_ref = self._window_t[-1]
+        x, cov, cost = initial_fix(self.alm, self.frame, np.asarray(self._window_t), self.visible, rho,
+                                   self.sigma_sat_m, t_ref)
+        f_mean = self._f_sum / self.INIT_WINDOW_S
+        st = start_from_window(self.tn, x, cov, f_mean[None], cost, 0)
+        # a coordinated turn seen by the window's mean yaw rate (gyro, body z ~ up): the levelling reads
+        # no bank (the specific force stays on the body z axis) and the constant-velocity fix's track is
+        # the mid-window one; add the bank -atan(V w / g) and turn the heading and the velocity by w W / 2
+        w_z = float(self._w_sum[2]) / self.INIT_WINDOW_S
+        speed = float(np.linalg.norm(st.v[0, :2]))
+        roll, pitch, yaw = euler_from_dcm(st.C[0])
+        dpsi = w_z * self.INIT_WINDOW_S / 2
+        st.C[0] = dcm_from_euler(roll - np.arctan(speed * w_z / G0_M_S2), pitch, yaw + dpsi)
+        c, s_ = np.cos(dpsi), np.sin(dpsi)
+        st.v[0, :2] = np.array([[c, -s_], [s_, c]]) @ st.v[0, :2]  # the velocity turned likewise
+        # the levelling and the track-as-heading assume straight flight over the window; in a turn the
+        # bank angle and the track's rotation are missed: widen the attitude prior to cover them
+        att = TRIAD_LAYOUT.ATT
+        st.P0[:, att, att] += np.diag([self.START_ATT_SIGMA_RAD**2] * 3)
+        self.ekf = TriadEkf(self.tn, self.alm, self.frame, st.p, st.v, st.C, st.clk, st.P0, self.sigma_sat_m,
+                            self.mask_deg, t_ref)
+        self.init_sigma_m = float(np.sqrt(np.trace(cov[0, :3, :3])))
+        self._baro(int(round((t_ref - self.t0_s) / self.EPOCH_S)))  # the bias walks from the start
+
+    def advance_to(self, t_s: float) -> int:
+        """Integrate every IMU step that ends at or before ``t_s`` (with the epochs on whole seconds)."""
+        dt = self.tn.dt_s
+        n = int(np.floor((t_s - self.t0_s) / dt + 1e-9)) - self.imu_steps
+        for _ in range(max(n, 0)):
+            b, i = divmod(self.imu_steps, self.BLOCK)
+            if b != self._block_id:
+                dth, dv = self.motion.increments(b * self.BLOCK * dt, dt, self.BLOCK)
+                self.imu.rng = np.random.default_rng(self._key + [1, b])
+                self._block = self.imu.measure(dth, dv)
+                self._block_id = b
+            g, a = self._block
+            if self.ekf is None:
+                self._f_sum += a[i, 0]
+                self._w_sum += g[i, 0]
+            else:
+                self.ekf.imu(g[i], a[i])
+                self.ekf.maybe_propagate()
+            self.imu_steps += 1
+            if self.imu_steps % self.spe == 0:
+                self._epoch(self.imu_steps // self.spe)
+        return max(n, 0)
+
+    def _station_local(self, src: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """The broadcast station ``src`` in the Earth-tied frame and its covariance (3, 3), via the tie."""
+        if any(i not in self._broadcast for i in self.tie_ids):
+            return None
+        ids = self.tie_ids + ([] if src in self.tie_ids else [src])
+        pn = np.stack([self._broadcast[i][0] for i in ids])
+        sig_n = float(np.sqrt(max(np.max(np.diag(self._broadcast[i][1])) for i in ids)))
+        t = ft.tie(pn, sig_n, np.arange(3), self.tie_surveyed_m, self.sigma_tie_m)
+        j = ids.index(src)
+        return t.stations_m[j], t.cov_m2[j]
+
+    def on_nav(self, msg: dict, phy: dict) -> list[dict]:
+        """One nav broadcast -> ``ac_truth`` + the ``ac_estimate`` of ``triad``."""
+        if msg.get("state") not in ("frame", "surveying"):
+            self.stats["nav_unusable_state"] += 1
+            return []
+        src = int(msg["src"])
+        s_n = np.asarray(msg["pos_m"], dtype=float)
+        cov_n = np.asarray(msg.get("cov_m2", np.zeros((3, 3))), dtype=float)
+        if not (np.all(np.isfinite(s_n)) and np.all(np.isfinite(cov_n))):
+            self.stats["nav_bad"] += 1
+            return []
+        t_rx, rho = self.measure(phy, msg)
+        if not np.isfinite(t_rx) or t_rx < self.t0_s + self.imu_steps * self.tn.dt_s - self.tn.dt_s:
+            self.stats["nav_bad_or_late"] += 1
+            return []
+        # received: it enters the navigator's state (the tie's broadcast positions) whatever follows,
+        # so its ac_truth is published (the re-flight's sequence, larns/analysis/offline.py)
+        self._broadcast[src] = (s_n, cov_n)
+        pt, vt, _ = self.truth_n(t_rx)
+        self.seq["ac_truth"] += 1
+        out = [{"kind": "ac_truth", "src": self.name, "seq": self.seq["ac_truth"], "stamp_s": t_rx, "t_s": t_rx,
+                "pos_m": pt.tolist(), "vel_m_s": vt.tolist()}]
+        self.advance_to(t_rx + self.tn.dt_s)  # the step that contains t_rx
+        if self.ekf is None:
+            self.stats["nav_before_start"] += 1
+            return out
+        if self.ekf.t_s < t_rx:
+            self.advance_to(self.ekf.t_s + self.tn.dt_s)
+        loc = self._station_local(src)
+        if loc is None:
+            self.stats["nav_no_tie"] += 1
+            return out
+        s, cov = loc
+        d = self.ekf.position_at(t_rx)[0] - s
+        u = d / np.linalg.norm(d)
+        var = self.tn.sigma_range_m**2 + float(u @ cov @ u) + broadcast_clock_var_m2(msg)
+        self.ekf.pseudorange(t_rx, s, np.array([rho]), var)
+        self.stats["measurements"] += 1
+        return out + [self.estimate_msg()]
+
+    def estimate_msg(self) -> dict[str, Any]:
+        e = self.ekf
+        roll, pitch, yaw = euler_from_dcm(e.C[0])
+        extra = {"roll_rad": float(roll), "pitch_rad": float(pitch), "yaw_rad": float(yaw),
+                 "clock_m": float(e.clk[0, 0]), "imu_steps": float(self.imu_steps), "t0_s": self.t0_s,
+                 "n_sv": float(self.n_sv), "imu_preset": float(list(PRESETS).index(self.imu_name)),
+                 "imu_rate_hz": float(self.preset.rate_hz), "sat_used": float(self.stats["sat_used"]),
+                 "baro_bias_m": float(e.bh[0]),
+                 "init_sigma_m": self.init_sigma_m}
+        self.seq["ac_estimate"] += 1
+        return {"kind": "ac_estimate", "src": self.name, "seq": self.seq["ac_estimate"], "stamp_s": float(e.t_s),
+                "t_s": float(e.t_s), "pos_m": e.p[0].tolist(), "cov_m2": e.P[0, :3, :3].tolist(),
+                "vel_m_s": e.v[0].tolist(), "vel_cov": e.P[0, 3:6, 3:6].tolist(), "algo": self.algo,
+                "n_updates": int(e.n_updates), "extra": extra}
