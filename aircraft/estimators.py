@@ -507,6 +507,22 @@ class CvTracker:
             self._radius = crd.array_radius(stations_m)
             self._switch()
         sig = self.tuning.sigma_m if sigma_m is None else sigma_m
+        D, sig = self._bias_map(stations_m, sig, bias_ids, bias_var_m2)
+        R, z = self._noise_and_z(stations_m, rho_m, station_cov_m2, sig, dt_s)
+        h, jac = self.measurement_model(stations_m, dt_s, D)
+        if self.kind == "ekf":
+            x1, P1, nu, S = self._update_ekf(stations_m, dt_s, z, h, jac, R)
+        else:
+            x1, P1, nu, S = self._update_ukf(z, h, R)
+        self._x, self._P = x1, P1
+        self._truncate_floor()
+        if self._ref is not None:
+            self._switch()
+        return nu, S  # innovation and its covariance of the first (plain) linearization
+
+    def _bias_map(self, stations_m, sig, bias_ids, bias_var_m2):
+        """``(D, sig)`` of one batch: the map (m, nb) of the clock-bias states to its stations (None:
+        no bias states) and the range sigma (the broadcast clock variance added with ``"white"``)."""
         D = None
         if bias_ids is not None and bias_var_m2 is not None:
             if self.tuning.clock_bias == "states":
@@ -517,6 +533,11 @@ class CvTracker:
             D = np.zeros((stations_m.shape[0], len(self.bias_ids)))
         if D is not None and D.shape[-1] == 0:
             D = None
+        return D, sig
+
+    def _noise_and_z(self, stations_m, rho_m, station_cov_m2, sig, dt_s):
+        """``(R, z)``: the measurement covariance and vector (pseudoranges, or TDOA differences
+        against ``self.base``)."""
         if self.layout.kind == "pr":
             if station_cov_m2 is None and np.ndim(sig) == 0:  # R does not depend on the state: cache it
                 key = (stations_m.shape[0], float(sig), self._x.shape[:-1])
@@ -530,61 +551,64 @@ class CvTracker:
             b = self.base
             R = mdl.r_tdoa(mdl.range_var(self.x, stations_m, station_cov_m2, sig, dt_s), b)
             z = np.delete(rho_m, b, axis=-1) - rho_m[..., b : b + 1]
-        h, jac = self.measurement_model(stations_m, dt_s, D)
-        if self.kind == "ekf":
-            if self._inv.any():  # measurement model and Jacobian in the runs' own coordinates
-                hc, jc = h, jac
+        return R, z
 
-                def h(X):
-                    return hc(self._cart(X))
+    def _update_ekf(self, stations_m, dt_s, z, h, jac, R):
+        """EKF update (second-order terms, iterated for runs with large linearization error);
+        returns ``(x, P, nu, S)``."""
+        if self._inv.any():  # measurement model and Jacobian in the runs' own coordinates
+            hc, jc = h, jac
 
-                def jac(X):
-                    return jc(self._cart(X)) @ self._T(X)
+            def h(X):
+                return hc(self._cart(X))
 
-            if self.tuning.ekf_second_order:
-                # Gaussian second-order terms of the ranges, from the Cartesian moments
-                c2, S2 = self._second_order(stations_m, dt_s)
-                if self.layout.kind == "tdoa":
-                    G = mdl.g_matrix(stations_m.shape[0], self.base)
-                    c2, S2 = np.einsum("ij,...j->...i", G, c2), G @ S2 @ G.T
-                h1, R = h, R + S2
+            def jac(X):
+                return jc(self._cart(X)) @ self._T(X)
 
-                def h(X):
-                    return h1(X) + c2
+        if self.tuning.ekf_second_order:
+            # Gaussian second-order terms of the ranges, from the Cartesian moments
+            c2, S2 = self._second_order(stations_m, dt_s)
+            if self.layout.kind == "tdoa":
+                G = mdl.g_matrix(stations_m.shape[0], self.base)
+                c2, S2 = np.einsum("ij,...j->...i", G, c2), G @ S2 @ G.T
+            h1, R = h, R + S2
 
-            x1, P1, nu, S = ekf_update(self._x, self._P, z, h, jac(self._x), R)
-            if self.tuning.iterations > 1:
-                om = ((lambda: S2) if self.tuning.ekf_second_order  # already computed above
-                      else (lambda: self._om_ekf(stations_m, dt_s)))
-                mask = self._needs_iteration(R, om)
-                if np.any(mask):
-                    xi, Pi = x1, P1
-                    for _ in range(self.tuning.iterations - 1):
-                        xi, Pi = self._iekf_step(xi, z, h, jac, R)
-                    x1, P1 = self._select(mask, xi, Pi, x1, P1)
-        else:
-            if self._inv.any():
-                hc = h
+            def h(X):
+                return h1(X) + c2
 
-                def h(X):
-                    return hc(self._cart(X))
+        x1, P1, nu, S = ekf_update(self._x, self._P, z, h, jac(self._x), R)
+        if self.tuning.iterations > 1:
+            om = ((lambda: S2) if self.tuning.ekf_second_order  # already computed above
+                  else (lambda: self._om_ekf(stations_m, dt_s)))
+            mask = self._needs_iteration(R, om)
+            if np.any(mask):
+                xi, Pi = x1, P1
+                for _ in range(self.tuning.iterations - 1):
+                    xi, Pi = self._iekf_step(xi, z, h, jac, R)
+                x1, P1 = self._select(mask, xi, Pi, x1, P1)
+        return x1, P1, nu, S
 
-            x1, P1, nu, S = ukf_update(self._x, self._P, z, h, R, self.params)
-            if self.tuning.iterations > 1:
-                def om():
-                    ut = unscented_transform(h, self._x, self._P, self.params)
-                    return ut.cov - np.swapaxes(ut.cross, -1, -2) @ chol_solve(self._P, ut.cross)
-                mask = self._needs_iteration(R, om)
-                if np.any(mask):
-                    xi, Pi = x1, P1
-                    for _ in range(self.tuning.iterations - 1):
-                        xi, Pi = self._iplf_step(xi, Pi, z, h, R)
-                    x1, P1 = self._select(mask, xi, Pi, x1, P1)
-        self._x, self._P = x1, P1
-        self._truncate_floor()
-        if self._ref is not None:
-            self._switch()
-        return nu, S  # innovation and its covariance of the first (plain) linearization
+    def _update_ukf(self, z, h, R):
+        """UKF update (iterated posterior linearization for runs with large linearization error);
+        returns ``(x, P, nu, S)``."""
+        if self._inv.any():
+            hc = h
+
+            def h(X):
+                return hc(self._cart(X))
+
+        x1, P1, nu, S = ukf_update(self._x, self._P, z, h, R, self.params)
+        if self.tuning.iterations > 1:
+            def om():
+                ut = unscented_transform(h, self._x, self._P, self.params)
+                return ut.cov - np.swapaxes(ut.cross, -1, -2) @ chol_solve(self._P, ut.cross)
+            mask = self._needs_iteration(R, om)
+            if np.any(mask):
+                xi, Pi = x1, P1
+                for _ in range(self.tuning.iterations - 1):
+                    xi, Pi = self._iplf_step(xi, Pi, z, h, R)
+                x1, P1 = self._select(mask, xi, Pi, x1, P1)
+        return x1, P1, nu, S
 
     def _needs_iteration(self, R, omega):
         """Runs whose linearization error over the prior is large: ``tr(R^-1 Omega) > threshold``."""
@@ -830,54 +854,8 @@ class AircraftEstimator:
         if m < self.cfg.min_stations:
             self.n_dropped += 1
             return
-        tu = self.cfg.tuning
-        var = tu.sigma_m**2
         if self.tracker is None:
-            if self.cfg.guess_sigma_m is None and (self.fix is None or self.method != "lsq"):
-                # start from the broadcasts alone: multi-start snapshot fix (or a wide prior)
-                from .initializer import initial_state
-
-                init = initial_state(self.model, tu, pos, cov, rho, self.cfg.init)
-                self.fix = init.fix.copy()
-                self.init = init
-                self.t_s = t_s
-                self.n_updates += 1
-                if self.method != "lsq":
-                    self.tracker = CvTracker(self.method, self.model, init.x0, tu, t0_s=t_s, P0=init.P0,
-                                             ref_m=crd.reference_point(pos),
-                                             ref_radius_m=crd.array_radius(pos))
-                return
-            first = self.fix is None
-            if first:
-                self.fix = np.append(self.guess, 0.0) if self.model == "pr" else self.guess.copy()
-            # the first fix may start far away: more iterations and a wide trust region
-            kw = dict(floor_z_m=tu.floor_z_m, iters=50 if first else 10, max_step_m=5000.0 if first else 200.0)
-            if self.model == "pr":
-                x0 = self.fix if self.fix.size == 4 else np.append(self.fix, 0.0)
-                self.fix = lsq_pr(rho[None], pos, x0[None], var, cov, **kw)[0]
-            else:
-                self.fix = lsq_tdoa(rho[None], pos, self.fix[:3][None], var, cov, **kw)[0]
-            self.t_s = t_s
-            self.n_updates += 1
-            if self.method == "lsq":
-                return
-            # external coarse fix (guess_sigma_m): start from the guess with that sigma; the clock from
-            # the ranges to the guessed position
-            gs = self.cfg.guess_sigma_m
-            self.fix[:3] = self.guess
-            C = np.diag([gs**2] * 3 + ([(tu.p0_clock_m + gs) ** 2] if self.model == "pr" else []))
-            if self.model == "pr":
-                self.fix[3] = float(np.mean(rho - np.linalg.norm(self.guess - pos, axis=1)))
-            x0 = np.concatenate([self.fix[:3], np.zeros(3)])
-            if self.model == "pr":
-                x0 = np.append(x0, self.fix[3])
-                if tu.drift_state:
-                    x0 = np.append(x0, 0.0)
-            P0 = tu.p0(self.tracker_layout())
-            idx = [0, 1, 2, 6] if self.model == "pr" else [0, 1, 2]
-            P0[np.ix_(idx, idx)] = C
-            self.tracker = CvTracker(self.method, self.model, x0, tu, t0_s=t_s, P0=P0, ref_m=crd.reference_point(pos),
-                                             ref_radius_m=crd.array_radius(pos))
+            self._start(t_s, pos, cov, rho)
             return
         try:
             self.tracker.predict_to(t_s)
@@ -893,6 +871,64 @@ class AircraftEstimator:
             return
         self.t_s = t_s
         self.n_updates += 1
+
+    def _start(self, t_s, pos, cov, rho) -> None:
+        """No filter yet: a snapshot fix from the batch (LSQ), or the filter's start."""
+        if self.cfg.guess_sigma_m is None and (self.fix is None or self.method != "lsq"):
+            self._start_from_broadcasts(t_s, pos, cov, rho)
+            return
+        tu = self.cfg.tuning
+        var = tu.sigma_m**2
+        first = self.fix is None
+        if first:
+            self.fix = np.append(self.guess, 0.0) if self.model == "pr" else self.guess.copy()
+        # the first fix may start far away: more iterations and a wide trust region
+        kw = dict(floor_z_m=tu.floor_z_m, iters=50 if first else 10, max_step_m=5000.0 if first else 200.0)
+        if self.model == "pr":
+            x0 = self.fix if self.fix.size == 4 else np.append(self.fix, 0.0)
+            self.fix = lsq_pr(rho[None], pos, x0[None], var, cov, **kw)[0]
+        else:
+            self.fix = lsq_tdoa(rho[None], pos, self.fix[:3][None], var, cov, **kw)[0]
+        self.t_s = t_s
+        self.n_updates += 1
+        if self.method == "lsq":
+            return
+        self._start_from_guess(t_s, pos, rho)
+
+    def _start_from_broadcasts(self, t_s, pos, cov, rho) -> None:
+        """Start from the broadcasts alone: multi-start snapshot fix (or a wide prior)."""
+        from .initializer import initial_state
+
+        tu = self.cfg.tuning
+        init = initial_state(self.model, tu, pos, cov, rho, self.cfg.init)
+        self.fix = init.fix.copy()
+        self.init = init
+        self.t_s = t_s
+        self.n_updates += 1
+        if self.method != "lsq":
+            self.tracker = CvTracker(self.method, self.model, init.x0, tu, t0_s=t_s, P0=init.P0,
+                                     ref_m=crd.reference_point(pos),
+                                     ref_radius_m=crd.array_radius(pos))
+
+    def _start_from_guess(self, t_s, pos, rho) -> None:
+        """External coarse fix (``guess_sigma_m``): the filter starts from the guess with that sigma; the
+        clock from the ranges to the guessed position."""
+        tu = self.cfg.tuning
+        gs = self.cfg.guess_sigma_m
+        self.fix[:3] = self.guess
+        C = np.diag([gs**2] * 3 + ([(tu.p0_clock_m + gs) ** 2] if self.model == "pr" else []))
+        if self.model == "pr":
+            self.fix[3] = float(np.mean(rho - np.linalg.norm(self.guess - pos, axis=1)))
+        x0 = np.concatenate([self.fix[:3], np.zeros(3)])
+        if self.model == "pr":
+            x0 = np.append(x0, self.fix[3])
+            if tu.drift_state:
+                x0 = np.append(x0, 0.0)
+        P0 = tu.p0(self.tracker_layout())
+        idx = [0, 1, 2, 6] if self.model == "pr" else [0, 1, 2]
+        P0[np.ix_(idx, idx)] = C
+        self.tracker = CvTracker(self.method, self.model, x0, tu, t0_s=t_s, P0=P0, ref_m=crd.reference_point(pos),
+                                 ref_radius_m=crd.array_radius(pos))
 
     def tracker_layout(self) -> mdl.StateLayout:
         return mdl.StateLayout(self.model, drift=self.cfg.tuning.drift_state and self.model == "pr")

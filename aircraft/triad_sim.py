@@ -115,6 +115,97 @@ def _truth_sat(alm, frame, motion, t_s, ids):
     return s, r, satellite_elevation_deg(s, p[:, None, :]), t_tx
 
 
+def _world_sky(case, alm, frame, motion, t_ep, p_tr, M, rng):
+    """The sky: visible satellites (N,), the case's satellites, receiver clocks (K, M, 2) and pseudoranges
+    (K, MM, N), NaN when below the mask; the last run noise-free when ``case.pcrb``."""
+    T0, W = case.epoch_t0_s, case.init_window_s
+    K = t_ep.size
+    e0, _ = alm.ecef(T0 + W)
+    el0 = satellite_elevation_deg(frame.from_ecef(e0), p_tr[int(W)][None, :])
+    visible = np.flatnonzero(el0 >= case.mask_deg)
+    case_ids = visible[np.argsort(-el0[visible])][: case.n_sv]
+    s_all, r_all, el_all, ttx_all = _truth_sat(alm, frame, motion, t_ep, visible)
+    clk = wclock.sample(case.clock, t_ep, M, rng)  # (K, M, 2)
+    sat_clk = (SPEED_OF_LIGHT_M_S * (alm.af0_s[visible] + alm.af1[visible] * ttx_all))  # (K, N)
+    clean = r_all + tropo_delay_m(el_all) - sat_clk
+    rho_sat = clean[:, None, :] + clk[:, :, 0:1] + case.sigma_sat_m * rng.standard_normal((K, M, visible.size))
+    tracked = el_all >= case.mask_deg
+    if case.pcrb:
+        rho_sat = np.concatenate([rho_sat, clean[:, None, :]], axis=1)
+    rho_sat = np.where(tracked[:, None, :], rho_sat, np.nan)  # (K, MM, N)
+    return visible, case_ids, clk, rho_sat
+
+
+def _world_ground_ranges(case, p_tr, clk, M, rng):
+    """Indices (j,) of the ranged ground stations and their pseudoranges (K, MM, j)."""
+    K = p_tr.shape[0]
+    g_true = np.asarray(case.stations_m, float)
+    gidx = np.asarray(case.gs_idx, dtype=int)
+    r_g = np.linalg.norm(p_tr[:, None, :] - g_true[None, gidx], axis=-1)  # (K, j)
+    rho_gs = r_g[:, None, :] + clk[:, :, 0:1] + case.sigma_gs_m * rng.standard_normal((K, M, gidx.size))
+    if case.pcrb:
+        rho_gs = np.concatenate([rho_gs, r_g[:, None, :]], axis=1)
+    return gidx, rho_gs
+
+
+def _world_ties(case, frame, M, rng) -> ft.FieldTie:
+    """The field ties of all runs (stacked; the truth appended when ``case.pcrb``)."""
+    g_true = np.asarray(case.stations_m, float)
+    pn_true, _, _ = to_network_frame(g_true, z_ref=min(3, len(g_true) - 1))
+    tidx = np.asarray(case.tie_idx, dtype=int)
+    lat_t, lon_t, h_t = frame.to_geodetic(g_true[tidx])
+    # survey errors are drawn whatever the tie mode, so a perfect tie sees the same world otherwise
+    pn_err = case.sigma_n_m * rng.standard_normal((M,) + pn_true.shape)
+    geo_err = np.asarray(case.sigma_tie_m) * rng.standard_normal((M, tidx.size, 3))
+    ties = []
+    for m in range(M):
+        if case.tie == "perfect":
+            ties.append(ft.perfect(g_true))
+            continue
+        surveyed = frame.from_geodetic(lat_t, lon_t, h_t) + geo_err[m]
+        ties.append(ft.tie(pn_true + pn_err[m], case.sigma_n_m, tidx, surveyed, np.asarray(case.sigma_tie_m)))
+    if case.pcrb:
+        ties.append(ft.FieldTie(g_true, ties[0].cov_m2, np.eye(3), np.zeros(3), ties[0].cov_full_m2))
+    return ft.stack(ties)
+
+
+def _start_filters(case, pre, alm, frame, x, cov, f_mean, cost, tie_all, t0_s):
+    """Our filter and (``case.paper_filter``, else None) the paper's, started from the window's fix."""
+    tn = InsTuning.from_preset(pre, q_b=case.clock.q_b_m2_s, q_d=case.clock.q_d_m2_s3,
+                               sigma_baro_m=case.baro.sigma_m, sigma_baro_bias_m=case.baro.sigma_bias_m,
+                               tc_baro_s=case.baro.tc_s, max_prop_s=1.0)
+    st = start_from_window(tn, x, cov, f_mean, cost, 0)
+    ekf = TriadEkf(tn, alm, frame, st.p, st.v, st.C, st.clk, st.P0, case.sigma_sat_m, case.mask_deg, t0_s,
+                   stations=tie_all if case.station_states else None)
+    paper = None
+    if case.paper_filter:
+        paper = PaperFilter(tn, case.paper, alm, frame, st.p, st.v, st.C, st.clk, paper_p0(st.P_pvc, case.paper, tn),
+                            case.sigma_sat_m, case.mask_deg, t0_s)
+    return ekf, paper
+
+
+def _epoch_update(ekf, paper, ep, stats) -> None:
+    """One epoch's update of the filters; our filter's counts added to ``stats``."""
+    for f in (ekf, paper) if paper else (ekf,):
+        s = f.epoch(ep)
+        if f is ekf:
+            for key in stats:
+                stats[key] += s[key]
+
+
+def _record_buffers(M, n_rec):
+    """Empty position errors (M, n_rec, 3), covariances (M, n_rec, 3, 3) and NEES (M, n_rec)."""
+    return np.empty((M, n_rec, 3)), np.empty((M, n_rec, 3, 3)), np.empty((M, n_rec))
+
+
+def _record(f, pt, M, i, err, Pp, nees) -> None:
+    """Position error, covariance and NEES of filter ``f``'s first ``M`` runs into column ``i``."""
+    e = f.p[:M] - pt
+    err[:, i] = e
+    Pp[:, i] = f.P[:M, :3, :3]
+    nees[:, i] = np.einsum("mi,mi->m", e, np.linalg.solve(Pp[:, i], e[..., None])[..., 0])
+
+
 def simulate(case: TriadCase, progress=None) -> TriadResult:
     """Run ``case`` (module doc)."""
     rng = np.random.default_rng([case.seed, 2002, case.runs])
@@ -132,45 +223,10 @@ def simulate(case: TriadCase, progress=None) -> TriadResult:
     W = case.init_window_s
     t_end = W + case.duration_s
     t_ep = T0 + np.arange(0.0, t_end + 1e-9, 1.0)  # epochs
-    K = t_ep.size
-    # --- world: sky ---------------------------------------------------------------------------------
     p_tr = motion.pva(t_ep)[0]
-    e0, _ = alm.ecef(T0 + W)
-    el0 = satellite_elevation_deg(frame.from_ecef(e0), p_tr[int(W)][None, :])
-    visible = np.flatnonzero(el0 >= case.mask_deg)
-    case_ids = visible[np.argsort(-el0[visible])][: case.n_sv]
-    s_all, r_all, el_all, ttx_all = _truth_sat(alm, frame, motion, t_ep, visible)
-    clk = wclock.sample(case.clock, t_ep, M, rng)  # (K, M, 2)
-    sat_clk = (SPEED_OF_LIGHT_M_S * (alm.af0_s[visible] + alm.af1[visible] * ttx_all))  # (K, N)
-    clean = r_all + tropo_delay_m(el_all) - sat_clk
-    rho_sat = clean[:, None, :] + clk[:, :, 0:1] + case.sigma_sat_m * rng.standard_normal((K, M, visible.size))
-    tracked = el_all >= case.mask_deg
-    if case.pcrb:
-        rho_sat = np.concatenate([rho_sat, clean[:, None, :]], axis=1)
-    rho_sat = np.where(tracked[:, None, :], rho_sat, np.nan)  # (K, MM, N)
-    # --- world: ground stations, tie ------------------------------------------------------------
-    g_true = np.asarray(case.stations_m, float)
-    gidx = np.asarray(case.gs_idx, dtype=int)
-    r_g = np.linalg.norm(p_tr[:, None, :] - g_true[None, gidx], axis=-1)  # (K, j)
-    rho_gs = r_g[:, None, :] + clk[:, :, 0:1] + case.sigma_gs_m * rng.standard_normal((K, M, gidx.size))
-    if case.pcrb:
-        rho_gs = np.concatenate([rho_gs, r_g[:, None, :]], axis=1)
-    pn_true, _, _ = to_network_frame(g_true, z_ref=min(3, len(g_true) - 1))
-    tidx = np.asarray(case.tie_idx, dtype=int)
-    lat_t, lon_t, h_t = frame.to_geodetic(g_true[tidx])
-    # survey errors are drawn whatever the tie mode, so a perfect tie sees the same world otherwise
-    pn_err = case.sigma_n_m * rng.standard_normal((M,) + pn_true.shape)
-    geo_err = np.asarray(case.sigma_tie_m) * rng.standard_normal((M, tidx.size, 3))
-    ties = []
-    for m in range(M):
-        if case.tie == "perfect":
-            ties.append(ft.perfect(g_true))
-            continue
-        surveyed = frame.from_geodetic(lat_t, lon_t, h_t) + geo_err[m]
-        ties.append(ft.tie(pn_true + pn_err[m], case.sigma_n_m, tidx, surveyed, np.asarray(case.sigma_tie_m)))
-    if case.pcrb:
-        ties.append(ft.FieldTie(g_true, ties[0].cov_m2, np.eye(3), np.zeros(3), ties[0].cov_full_m2))
-    tie_all = ft.stack(ties).subset(gidx)
+    visible, case_ids, clk, rho_sat = _world_sky(case, alm, frame, motion, t_ep, p_tr, M, rng)
+    gidx, rho_gs = _world_ground_ranges(case, p_tr, clk, M, rng)
+    tie_all = _world_ties(case, frame, M, rng).subset(gidx)
     # --- world: baro, IMU ------------------------------------------------------------------------
     baro = wbaro.sample(case.baro, p_tr[:, 2] + frame.h_m, t_ep, M, rng)
     if case.pcrb:
@@ -193,28 +249,15 @@ def simulate(case: TriadCase, progress=None) -> TriadResult:
     kW = int(round(W)) + 1
     rho_w = np.swapaxes(rho_sat[:kW], 0, 1)  # (MM, kW, N)
     x, cov, cost = initial_fix(alm, frame, t_ep[:kW], visible, rho_w, case.sigma_sat_m, T0 + W)
-    tn = InsTuning.from_preset(pre, q_b=case.clock.q_b_m2_s, q_d=case.clock.q_d_m2_s3,
-                               sigma_baro_m=case.baro.sigma_m, sigma_baro_bias_m=case.baro.sigma_bias_m,
-                               tc_baro_s=case.baro.tc_s, max_prop_s=1.0)
-    st = start_from_window(tn, x, cov, f_mean, cost, 0)
-    ekf = TriadEkf(tn, alm, frame, st.p, st.v, st.C, st.clk, st.P0, case.sigma_sat_m, case.mask_deg, T0 + W,
-                   stations=tie_all if case.station_states else None)
-    paper = None
-    if case.paper_filter:
-        paper = PaperFilter(tn, case.paper, alm, frame, st.p, st.v, st.C, st.clk, paper_p0(st.P_pvc, case.paper, tn),
-                            case.sigma_sat_m, case.mask_deg, T0 + W)
+    ekf, paper = _start_filters(case, pre, alm, frame, x, cov, f_mean, cost, tie_all, T0 + W)
     # --- main loop --------------------------------------------------------------------------------
     col = {int(s): i for i, s in enumerate(visible)}
     cidx = np.array([col[int(s)] for s in case_ids], dtype=int)
     n_rec = int(round(case.duration_s))
     t_rec = np.empty(n_rec)
-    err = np.empty((M, n_rec, 3))
-    Pp = np.empty((M, n_rec, 3, 3))
-    nees = np.empty((M, n_rec))
+    err, Pp, nees = _record_buffers(M, n_rec)
     pcrb = np.empty((n_rec, 3, 3)) if case.pcrb else None
-    errp = np.empty((M, n_rec, 3)) if paper else None
-    Ppp = np.empty((M, n_rec, 3, 3)) if paper else None
-    neesp = np.empty((M, n_rec)) if paper else None
+    errp, Ppp, neesp = _record_buffers(M, n_rec) if paper else (None, None, None)
     stats = {"sat_used": 0, "sat_masked": 0, "gs_used": 0}
     w0 = time.perf_counter()
     chunk = 100 * steps_per_epoch
@@ -232,24 +275,14 @@ def simulate(case: TriadCase, progress=None) -> TriadResult:
             ok = np.all(np.isfinite(rs[:M]), axis=0)  # tracked by the receiver (the same sky for every run)
             ep = Epoch(t_ep[k], case_ids[ok], rs[:, ok], tie_all, rho_gs[k], case.sigma_gs_m,
                        baro[k] if case.use_baro else None)
-            for f in (ekf, paper) if paper else (ekf,):
-                s = f.epoch(ep)
-                if f is ekf:
-                    for key in stats:
-                        stats[key] += s[key]
+            _epoch_update(ekf, paper, ep, stats)
             pt = p_tr[k]
             t_rec[i_rec] = t_ep[k] - T0 - W
-            e = ekf.p[:M] - pt
-            err[:, i_rec] = e
-            Pp[:, i_rec] = ekf.P[:M, :3, :3]
-            nees[:, i_rec] = np.einsum("mi,mi->m", e, np.linalg.solve(Pp[:, i_rec], e[..., None])[..., 0])
+            _record(ekf, pt, M, i_rec, err, Pp, nees)
             if case.pcrb:
                 pcrb[i_rec] = ekf.P[M, :3, :3]
             if paper:
-                e = paper.p[:M] - pt
-                errp[:, i_rec] = e
-                Ppp[:, i_rec] = paper.P[:M, :3, :3]
-                neesp[:, i_rec] = np.einsum("mi,mi->m", e, np.linalg.solve(Ppp[:, i_rec], e[..., None])[..., 0])
+                _record(paper, pt, M, i_rec, errp, Ppp, neesp)
             i_rec += 1
         if progress:
             progress(f"{case.name}: {(c0 + n) * dt - W:.0f}/{case.duration_s:.0f} s")

@@ -236,13 +236,9 @@ def speed_vs_filterpy(ac, steps: int = 400, runs: int = 64) -> dict:
             "max_abs_state_diff": diff, "max_rel_state_diff": diff / scale, "steps": steps}
 
 
-def run(args) -> int:
-    sc, ac = setup(args.scenario)
-    if getattr(args, "envelope", False):
-        from . import envelope as bench_aircraft_envelope
-
-        return bench_aircraft_envelope.main(ac, args, _progress)
-    b = ac.bench
+def _grid(args, b: dict):
+    """``(runs, duration_s, warmup_s, hover_m, turn_m, sweep_heights_m)`` from the arguments, the
+    scenario's ``bench`` section ``b`` and the defaults (``--quick``: a small version)."""
     runs = args.trials or int(b.get("runs", 64))
     duration = args.duration or float(b.get("duration_s", 30.0))
     warmup = args.warmup if args.warmup is not None else float(b.get("warmup_s", 10.0))
@@ -254,14 +250,40 @@ def run(args) -> int:
         duration = args.duration or 6.0
         warmup = args.warmup if args.warmup is not None else 2.0
         hover_d, turn_d, sweep_h = [100.0, 1000.0], [1000.0], [52.4, 300.0]
-    if warmup >= duration:
-        print("error: --warmup must be shorter than --duration", file=sys.stderr)
-        return 2
+    return runs, duration, warmup, hover_d, turn_d, sweep_h
+
+
+def _clock_settings(args):
+    """``(clocks, sync_ns, sync_tau_s)``: station clocks on and their residual sync error."""
     from aircraft.estimators import CLOCK_BIAS_TAU_S
 
     clocks = bool(getattr(args, "clocks", False))
     sync_ns = args.sync_ns if args.sync_ns is not None else (CLOCKS_SYNC_NS if clocks else 0.0)
     sync_tau = args.sync_tau if args.sync_tau is not None else (CLOCK_BIAS_TAU_S if clocks else 0.0)
+    return clocks, sync_ns, sync_tau
+
+
+def _height_sweep(ac, sweep_h, runs, duration, warmup, rng) -> dict:
+    """Hover at 1000 m for each height of ``sweep_h``: the four filters."""
+    sweep = {}
+    for j, h in enumerate(sweep_h):
+        _progress(f"height sweep {j + 1}/{len(sweep_h)}: hover 1000 m at h = {h:g} m")
+        sweep[f"{h:g}"] = run_point(ac, "hover", 1000.0, runs, duration, warmup, h, rng,
+                                    algos=("ekf-pr", "ukf-pr", "ekf-tdoa", "ukf-tdoa"))
+    return sweep
+
+
+def run(args) -> int:
+    sc, ac = setup(args.scenario)
+    if getattr(args, "envelope", False):
+        from . import envelope as bench_aircraft_envelope
+
+        return bench_aircraft_envelope.main(ac, args, _progress)
+    runs, duration, warmup, hover_d, turn_d, sweep_h = _grid(args, ac.bench)
+    if warmup >= duration:
+        print("error: --warmup must be shorter than --duration", file=sys.stderr)
+        return 2
+    clocks, sync_ns, sync_tau = _clock_settings(args)
     if clocks and not sync_ns > 0:
         print("error: --clocks needs --sync-ns > 0", file=sys.stderr)
         return 2
@@ -278,12 +300,7 @@ def run(args) -> int:
         res[kind][f"{d:g}"] = run_point(ac, kind, d, runs, duration, warmup, args.height, rng,
                                         sync_m=sync_ns * 0.299792458, sync_tau_s=sync_tau,
                                         clock_bias=getattr(args, "clock_bias", None))
-    sweep = {}
-    if not args.no_sweep:
-        for j, h in enumerate(sweep_h):
-            _progress(f"height sweep {j + 1}/{len(sweep_h)}: hover 1000 m at h = {h:g} m")
-            sweep[f"{h:g}"] = run_point(ac, "hover", 1000.0, runs, duration, warmup, h, rng,
-                                        algos=("ekf-pr", "ukf-pr", "ekf-tdoa", "ukf-tdoa"))
+    sweep = {} if args.no_sweep else _height_sweep(ac, sweep_h, runs, duration, warmup, rng)
     speed = None if args.no_speed else speed_vs_filterpy(ac, steps=100 if args.quick else 400)
     wall = time.perf_counter() - t_start
 
