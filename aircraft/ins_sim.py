@@ -84,6 +84,29 @@ def _in_outage(t: float, outages) -> bool:
     return any(a <= t < a + L for a, L in outages)
 
 
+def _record(ekf: InsEkf, fld: Field, motion: Motion, t: float, M: int, i_rec: int, t_rec, err, Pp, nees, var9,
+            nees8, nsq, pcrb, pcrb9) -> None:
+    """World side: errors of the ``M`` runs against truth at ``t`` into the record buffers (slot
+    ``i_rec``); the bound run's covariance (index ``M``) into ``pcrb``/``pcrb9`` when they exist."""
+    ekf.propagate()
+    pt, vt, Ct = (x[0] for x in fld.truth(motion, np.array([t])))
+    e_p = ekf.p[:M] - pt
+    t_rec[i_rec] = t
+    err[:, i_rec] = e_p
+    Pp[:, i_rec] = ekf.P[:M, :3, :3]
+    d = np.concatenate([-e_p, vt - ekf.v[:M], log_so3(Ct @ np.swapaxes(ekf.C[:M], -1, -2))], axis=-1)
+    sl9 = np.r_[0:9]
+    P9 = ekf.P[:M][:, sl9][:, :, sl9]
+    nees[:, i_rec] = np.einsum("mi,mi->m", d, np.linalg.solve(P9, d[..., None])[..., 0])
+    var9[:, i_rec] = np.einsum("mii->mi", P9)
+    d8 = d[:, :8]
+    nees8[:, i_rec] = np.einsum("mi,mi->m", d8, np.linalg.solve(P9[:, :8, :8], d8[..., None])[..., 0])
+    nsq[:, i_rec] = d**2 / var9[:, i_rec]
+    if pcrb is not None:
+        pcrb[i_rec] = ekf.P[M, :3, :3]
+        pcrb9[i_rec] = np.diag(ekf.P[M])[:9]
+
+
 def simulate(fld: Field, motion: Motion, preset: ImuPreset, cfg: InsRun, tuning: InsTuning | None = None,
              progress=None) -> InsResult:
     """Fly ``motion`` over ``fld`` with ``cfg.runs`` IMUs (plus one bound run); see the module doc."""
@@ -169,7 +192,6 @@ def simulate(fld: Field, motion: Motion, preset: ImuPreset, cfg: InsRun, tuning:
     chunk = max(int(round(cfg.chunk_s / dt)), rec_every)
     j = jw  # next measurement
     i_rec = 0
-    sl9 = np.r_[0:9]
     for c0 in range(n_w0, n_imu, chunk):
         n = min(chunk, n_imu - c0)
         dth_t, dv_t = motion.increments(c0 * dt, dt, n)
@@ -189,22 +211,7 @@ def simulate(fld: Field, motion: Motion, preset: ImuPreset, cfg: InsRun, tuning:
             if not did:
                 ekf.maybe_propagate()
             if (c0 + i + 1) % rec_every == 0 and i_rec < n_rec:
-                ekf.propagate()
-                pt, vt, Ct = (x[0] for x in fld.truth(motion, np.array([t])))
-                e_p = ekf.p[:M] - pt
-                t_rec[i_rec] = t
-                err[:, i_rec] = e_p
-                Pp[:, i_rec] = ekf.P[:M, :3, :3]
-                d = np.concatenate([-e_p, vt - ekf.v[:M], log_so3(Ct @ np.swapaxes(ekf.C[:M], -1, -2))], axis=-1)
-                P9 = ekf.P[:M][:, sl9][:, :, sl9]
-                nees[:, i_rec] = np.einsum("mi,mi->m", d, np.linalg.solve(P9, d[..., None])[..., 0])
-                var9[:, i_rec] = np.einsum("mii->mi", P9)
-                d8 = d[:, :8]
-                nees8[:, i_rec] = np.einsum("mi,mi->m", d8, np.linalg.solve(P9[:, :8, :8], d8[..., None])[..., 0])
-                nsq[:, i_rec] = d**2 / var9[:, i_rec]
-                if cfg.pcrb:
-                    pcrb[i_rec] = ekf.P[M, :3, :3]
-                    pcrb9[i_rec] = np.diag(ekf.P[M])[:9]
+                _record(ekf, fld, motion, t, M, i_rec, t_rec, err, Pp, nees, var9, nees8, nsq, pcrb, pcrb9)
                 i_rec += 1
         if progress:
             progress(f"{(c0 + n) * dt:.0f}/{cfg.duration_s:.0f} s")

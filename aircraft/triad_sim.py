@@ -210,7 +210,6 @@ def simulate(case: TriadCase, progress=None) -> TriadResult:
     """Run ``case`` (module doc)."""
     rng = np.random.default_rng([case.seed, 2002, case.runs])
     M = case.runs
-    MM = M + (1 if case.pcrb else 0)
     pre = imu_preset(case.imu).with_(rate_hz=case.imu_rate_hz)
     dt = 1.0 / case.imu_rate_hz
     steps_per_epoch = int(round(case.imu_rate_hz))

@@ -131,3 +131,16 @@ def test_the_command_line_starts_without_heavy_imports():
             "print(sorted({m.split('.')[0] for m in sys.modules} & {'scipy', 'matplotlib', 'zenoh'}))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT)
     assert out.stdout.strip() == "[]", out.stdout
+
+
+def test_no_function_above_cyclomatic_complexity_25():
+    """docs/architecture.md: no function of ours above a cyclomatic complexity of 25 (radon)."""
+    radon = pytest.importorskip("radon.complexity", reason="radon is in the test extras")
+    over = []
+    for pkg in PACKAGES:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            for block in radon.cc_visit(path.read_text()):
+                for b in [block, *getattr(block, "closures", []), *getattr(block, "methods", [])]:
+                    if b.complexity > 25:
+                        over.append(f"{path.relative_to(ROOT)}:{b.lineno} {b.name} {b.complexity}")
+    assert not over, over

@@ -305,6 +305,51 @@ def _refly(core, navs, ep: float | None, speed: float) -> tuple[list[Msg], list[
     return truth, flown
 
 
+def _compare(new: list[dict], recorded: list[dict], keys: Sequence[str]) -> tuple[list[bool], int]:
+    """Re-flown vs recorded estimates matched by the per-algorithm update count (robust to recorded
+    estimates lost on the way): (equal flags, length of the equal prefix)."""
+    rec_by_n = {y.get("n_updates"): y for y in recorded}
+    same = [all(x.get(k) == rec_by_n[x.get("n_updates")].get(k) for k in keys)
+            for x in new if x.get("n_updates") in rec_by_n]
+    return same, (same.index(False) if False in same else len(same))
+
+
+def _algo_result(err: Sequence[float], recorded: list[dict], new: list[dict], keys: Sequence[str], order: str,
+                 est: list[Msg], truth: list[Msg]) -> dict:
+    """One algorithm's re-flight: error statistics (RMS after the first 10 %: filter start-up) and the
+    comparison with the recorded estimates."""
+    import numpy as np
+
+    e = np.asarray(err)
+    tail = e[len(e) // 10:] if e.size else e
+    same, prefix = _compare(new, recorded, keys)
+    return {"n": int(e.size), "final_err_m": float(e[-1]) if e.size else math.nan,
+            "rms_err_m": float(np.sqrt(np.mean(tail**2))) if tail.size else math.nan,
+            "recorded": len(recorded), "compared": len(same), "equal": int(sum(same)),
+            "equal_prefix": prefix, "sequence": order, "estimates": est, "truth": truth}
+
+
+def _refly_inertial(core, logs: Sequence[LogFile], msgs: Sequence[Msg], name: str, algo: str,
+                    recorded: list[dict]) -> dict[str, dict]:
+    """Re-fly an inertial core (INS, triad) over the broadcasts it measured; bit for bit."""
+    import numpy as np
+
+    ep = logs[0].epoch_unix_s if logs else None
+    speed = logs[0].speed if logs else 1.0
+    navs, order = aircraft_nav_sequence(msgs, name)
+    truth, flown = _refly(core, navs, ep, speed)
+    est = [rec for _o, rec in flown]
+    err = [float(np.linalg.norm(np.asarray(o["pos_m"]) - core.truth_n(o["t_s"])[0])) for o, _rec in flown]
+    new = [decode(x.data)[0] for x in est]
+    keys = ("t_s", "pos_m", "cov_m2", "vel_m_s", "n_updates", "extra")
+    return {name: {algo: _algo_result(err, recorded, new, keys, order, est, truth)}}
+
+
+def _recorded_estimates(msgs: Sequence[Msg], name: str, algo: str) -> list[dict]:
+    key = f"larns/aircraft/{name}/estimate/{algo}"
+    return [msg for _m, msg, _phy in decoded(m for m in msgs if m.encoding == "msgpack" and m.topic == key)]
+
+
 def reestimate_aircraft(logs: Sequence[LogFile], msgs: Sequence[Msg], algos: Sequence[str],
                         scenario: str | None = None, name: str | None = None, seed: int | None = None,
                         height_m: float | None = None) -> dict[str, dict]:
@@ -350,23 +395,9 @@ def reestimate_aircraft(logs: Sequence[LogFile], msgs: Sequence[Msg], algos: Seq
     for _m, msg, _phy in decoded(mine):
         if msg["kind"] == "ac_estimate" and msg["algo"] in recorded:
             recorded[msg["algo"]].append(msg)
-    res = {}
-    for a, d in out.items():
-        e = np.asarray(d["err"])
-        # skip the first 10 % (filter start-up) for the RMS
-        tail = e[len(e) // 10:] if e.size else e
-        new = [decode(x.data)[0] for x in d["estimates"]] if recorded[a] else []
-        keys = ("t_s", "pos_m", "cov_m2", "n_updates")
-        # match by the per-algorithm update count (robust to recorded estimates lost on the way)
-        rec_by_n = {y.get("n_updates"): y for y in recorded[a]}
-        same = [all(x.get(k) == rec_by_n[x.get("n_updates")].get(k) for k in keys)
-                for x in new if x.get("n_updates") in rec_by_n]
-        prefix = same.index(False) if False in same else len(same)
-        res[a] = {"n": int(e.size), "final_err_m": float(e[-1]) if e.size else math.nan,
-                  "rms_err_m": float(np.sqrt(np.mean(tail**2))) if tail.size else math.nan,
-                  "recorded": len(recorded[a]), "compared": len(same), "equal": int(sum(same)),
-                  "equal_prefix": prefix, "sequence": order, "estimates": d["estimates"], "truth": truth}
-    return {name: res}
+    keys = ("t_s", "pos_m", "cov_m2", "n_updates")
+    return {name: {a: _algo_result(d["err"], recorded[a], [decode(x.data)[0] for x in d["estimates"]] if recorded[a] else [],
+                                   keys, order, d["estimates"], truth) for a, d in out.items()}}
 
 
 def reestimate_ins(logs: Sequence[LogFile], msgs: Sequence[Msg], scenario: str | None = None,
@@ -385,31 +416,14 @@ def reestimate_ins(logs: Sequence[LogFile], msgs: Sequence[Msg], scenario: str |
 
     md, scn, ac, name, seed = _aircraft_world(logs, scenario, name, seed)
     rng = np.random.default_rng([int(seed), 0x1A5, sum(map(ord, name))])  # as aircraft.node.AircraftNode
-    key = f"larns/aircraft/{name}/estimate/ins-ekf"
-    recorded = [msg for _m, msg, _phy in decoded(m for m in msgs if m.encoding == "msgpack" and m.topic == key)]
+    recorded = _recorded_estimates(msgs, name, "ins-ekf")
     t0 = float(recorded[0].get("extra", {}).get("t0_s", 0.0)) if recorded else 0.0  # the aircraft's start
     from net.channel import draw_clock, station_rng
 
     net_clock = None if scn.clock.perfect else draw_clock(scn.clock, station_rng(seed, scn.ids[0], 0))
     core = InsAircraftCore(scn, ac, name, rng, imu=imu or ac.imu or "adis16480", height_m=height_m, seed=int(seed),
                            t0_s=t0, net_clock=net_clock)
-    ep = logs[0].epoch_unix_s if logs else None
-    speed = logs[0].speed if logs else 1.0
-    navs, order = aircraft_nav_sequence(msgs, name)
-    truth, flown = _refly(core, navs, ep, speed)
-    est = [rec for _o, rec in flown]
-    err = [float(np.linalg.norm(np.asarray(o["pos_m"]) - core.truth_n(o["t_s"])[0])) for o, _rec in flown]
-    new = [decode(x.data)[0] for x in est]
-    keys = ("t_s", "pos_m", "cov_m2", "vel_m_s", "n_updates", "extra")
-    rec_by_n = {y.get("n_updates"): y for y in recorded}
-    same = [all(x.get(k) == rec_by_n[x["n_updates"]].get(k) for k in keys) for x in new if x["n_updates"] in rec_by_n]
-    prefix = same.index(False) if False in same else len(same)
-    e = np.asarray(err)
-    tail = e[len(e) // 10:] if e.size else e
-    return {name: {"ins-ekf": {"n": int(e.size), "final_err_m": float(e[-1]) if e.size else math.nan,
-                               "rms_err_m": float(np.sqrt(np.mean(tail**2))) if tail.size else math.nan,
-                               "recorded": len(recorded), "compared": len(same), "equal": int(sum(same)),
-                               "equal_prefix": prefix, "sequence": order, "estimates": est, "truth": truth}}}
+    return _refly_inertial(core, logs, msgs, name, "ins-ekf", recorded)
 
 
 def reestimate_triad(logs: Sequence[LogFile], msgs: Sequence[Msg], scenario: str | None = None,
@@ -417,14 +431,12 @@ def reestimate_triad(logs: Sequence[LogFile], msgs: Sequence[Msg], scenario: str
     """Re-fly the triad aircraft (``triad``, aircraft/triad_core.py) over the recorded broadcasts, as
     :func:`reestimate_ins` (bit for bit: ``equal == compared``). The number of satellites, the IMU
     preset and rate and the start time come from the recorded estimates' ``extra``."""
-    import numpy as np
 
     from aircraft.triad_core import DEFAULT_IMU, TriadAircraftCore
     from aircraft.world.imu import PRESETS
 
     md, scn, ac, name, seed = _aircraft_world(logs, scenario, name, seed)
-    key = f"larns/aircraft/{name}/estimate/triad"
-    recorded = [msg for _m, msg, _phy in decoded(m for m in msgs if m.encoding == "msgpack" and m.topic == key)]
+    recorded = _recorded_estimates(msgs, name, "triad")
     x = recorded[0].get("extra", {}) if recorded else {}
     from net.channel import draw_clock, station_rng
 
@@ -432,23 +444,7 @@ def reestimate_triad(logs: Sequence[LogFile], msgs: Sequence[Msg], scenario: str
     imu = list(PRESETS)[int(x["imu_preset"])] if "imu_preset" in x else DEFAULT_IMU
     core = TriadAircraftCore(scn, ac, name, n_sv=int(x.get("n_sv", 4)), imu=imu, imu_rate_hz=float(x.get("imu_rate_hz", 10.0)),
                              height_m=height_m, seed=int(seed), t0_s=float(x.get("t0_s", 0.0)), net_clock=net_clock)
-    ep = logs[0].epoch_unix_s if logs else None
-    speed = logs[0].speed if logs else 1.0
-    navs, order = aircraft_nav_sequence(msgs, name)
-    truth, flown = _refly(core, navs, ep, speed)
-    est = [rec for _o, rec in flown]
-    err = [float(np.linalg.norm(np.asarray(o["pos_m"]) - core.truth_n(o["t_s"])[0])) for o, _rec in flown]
-    new = [decode(x.data)[0] for x in est]
-    keys = ("t_s", "pos_m", "cov_m2", "vel_m_s", "n_updates", "extra")
-    rec_by_n = {y.get("n_updates"): y for y in recorded}
-    same = [all(x.get(k) == rec_by_n[x["n_updates"]].get(k) for k in keys) for x in new if x["n_updates"] in rec_by_n]
-    prefix = same.index(False) if False in same else len(same)
-    e = np.asarray(err)
-    tail = e[len(e) // 10:] if e.size else e
-    return {name: {"triad": {"n": int(e.size), "final_err_m": float(e[-1]) if e.size else math.nan,
-                             "rms_err_m": float(np.sqrt(np.mean(tail**2))) if tail.size else math.nan,
-                             "recorded": len(recorded), "compared": len(same), "equal": int(sum(same)),
-                             "equal_prefix": prefix, "sequence": order, "estimates": est, "truth": truth}}}
+    return _refly_inertial(core, logs, msgs, name, "triad", recorded)
 
 
 def format_result(res: OfflineResult, compare: bool = True) -> str:

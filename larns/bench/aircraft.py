@@ -431,7 +431,7 @@ def _print_table(out: dict) -> None:
     print("     (+- = 95 % interval of the ratio from the run-to-run spread; "
           + ("no violation is significant" if bar["pass_within_95ci"]
              else "significant: " + "; ".join(bar["significant"])) + ")")
-    print(f"     mean NEES above its 95 % band (pr filters): "
+    print("     mean NEES above its 95 % band (pr filters): "
           + ("none" if not bar["nees_above_band"] else "; ".join(bar["nees_above_band"])))
     print(f"wall time {out['settings']['wall_s']:.0f} s")
 
