@@ -214,8 +214,12 @@ def test_offline_aircraft_other_algorithm(run, tmp_path):
                 continue
             w.write(m.topic, m.data, m.log_time, m.publish_time)
     g = run_offline([gap], algos=["ukf-pr"], scenario=str(scn)).aircraft["ac1"]["ukf-pr"]
-    assert g["sequence"] == "aircraft up to measurement 59, then recorder", g["sequence"]
-    assert g["equal_prefix"] >= 40, {k: v for k, v in g.items() if k not in ("estimates", "truth")}
+    # the sequence breaks at the first hole: ours at 60, or an earlier truth sample the recorder's link
+    # lost (seen once on a fresh-clone CI run: seq 9, in the first seconds while six processes start)
+    seqs = {M.decode(m.data)[0]["seq"] for m in lg.messages if m.topic == "larns/aircraft/ac1/truth"}
+    hole = min(min(s for s in range(1, 61) if s not in seqs or s == 60), 60)
+    assert g["sequence"] == f"aircraft up to measurement {hole - 1}, then recorder", (g["sequence"], hole)
+    assert g["equal_prefix"] >= min(40, 0.9 * (hole - 1) - 5), {k: v for k, v in g.items() if k not in ("estimates", "truth")}
 
 
 def _ac_topics(path: Path) -> set[str]:
