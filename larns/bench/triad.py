@@ -23,6 +23,8 @@ import sys
 
 import numpy as np
 
+from .ins import nees_band  # the benches' chi-square band of a run-mean NEES
+
 BAR_RATIO_PCRB = 1.15
 BAR_IMPROVEMENT = 2.0
 # the paper's numbers (spec sec. 1.7): 4 sv "78 m" read as 7-8 m (2 sigma); 3 sv 30-60 m; 2 sv 36 m and
@@ -55,11 +57,6 @@ def register(sub) -> None:
 def _progress(msg: str) -> None:
     print(f"[bench triad] {msg}", file=sys.stderr, flush=True)
 
-
-def nees_band(dof: int, runs: int) -> tuple[float, float]:
-    from scipy.stats import chi2
-
-    return float(chi2.ppf(0.025, dof * runs) / runs), float(chi2.ppf(0.975, dof * runs) / runs)
 
 
 def _rms(x: np.ndarray) -> float:
