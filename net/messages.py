@@ -226,6 +226,65 @@ def _journal(v: Any, name: str) -> list[list[Any]]:
     return out
 
 
+# vehicle journal (docs/protocol.md "Vehicle journal"): the navigator's init record and inputs
+VEH_RECORD_NUMBERS = ("t0_s", "dt_s", "q_gyro", "q_accel", "q_odo", "q_b", "q_d", "k_odo", "gyro_offset_rad_s",
+                      "sigma_rho_m", "sigma_rate_m_s", "sigma_q0_m", "sigma_v0_m_s", "sigma_att0_arcmin",
+                      "sigma_b0_m", "sigma_d0_m_s")
+VEH_MAX_POINTS = 64
+
+
+def _vec3_list(max_n: int) -> Callable[[Any, str], list[list[float]]]:
+    def check(v: Any, name: str) -> list[list[float]]:
+        if not isinstance(v, (list, tuple)) or len(v) > max_n:
+            raise MessageError("shape", f"{name} must be a list of <= {max_n} 3-vectors")
+        return [_vec3(x, name) for x in v]
+    return check
+
+
+def _num_list(max_n: int) -> Callable[[Any, str], list[float]]:
+    def check(v: Any, name: str) -> list[float]:
+        if not isinstance(v, (list, tuple)) or len(v) > max_n:
+            raise MessageError("shape", f"{name} must be a list of <= {max_n} numbers")
+        return [_num(x, name) for x in v]
+    return check
+
+
+def _veh_record(v: Any, name: str) -> dict[str, Any]:
+    """The vehicle navigator's init record: the map and its settings (vehicle/navigator/live.py)."""
+    shaped = {"route_enu_m": _vec3_list(VEH_MAX_POINTS), "origin_deg": _vec3,
+              "speeds_m_s": _num_list(VEH_MAX_POINTS - 1), "net_to_enu": _mat33, "net_offset_m": _vec3}
+    need = set(shaped) | set(VEH_RECORD_NUMBERS)
+    if not isinstance(v, dict) or set(v) != need:
+        raise MessageError("shape", f"{name} must be a map with exactly {sorted(need)}")
+    out = {k: f(v[k], f"{name}.{k}") for k, f in shaped.items()}
+    out.update({k: _num(v[k], f"{name}.{k}") for k in VEH_RECORD_NUMBERS})
+    if len(out["route_enu_m"]) < 2 or len(out["speeds_m_s"]) != len(out["route_enu_m"]) - 1:
+        raise MessageError("shape", f"{name}: a route of >= 2 points and one speed per leg")
+    return out
+
+
+def _veh_journal(v: Any, name: str) -> list[list[Any]]:
+    """``[["imu", k0, gyro (n, 3), accel (n, 3), odo (n,)] | ["m", tau, src, pos_n, cov_n, clock_var, rho,
+    rate], ...]``."""
+    if not isinstance(v, (list, tuple)) or len(v) > MAX_LIST:
+        raise MessageError("shape", f"{name} must be a list of <= {MAX_LIST} entries")
+    out: list[list[Any]] = []
+    for e in v:
+        if isinstance(e, (list, tuple)) and len(e) == 5 and e[0] == "imu":
+            g, a, z = (_vec3_list(MAX_LIST)(e[2], name), _vec3_list(MAX_LIST)(e[3], name),
+                       _num_list(MAX_LIST)(e[4], name))
+            if not len(g) == len(a) == len(z):
+                raise MessageError("shape", f"{name}: imu entry with unequal gyro / accel / odometer lengths")
+            out.append(["imu", _count(e[1], name), g, a, z])
+        elif isinstance(e, (list, tuple)) and len(e) == 8 and e[0] == "m":
+            out.append(["m", _num(e[1], name), _station_id(e[2], name), _vec3(e[3], name), _cov33(e[4], name),
+                        _nonneg(e[5], name), _num(e[6], name), _num(e[7], name)])
+        else:
+            raise MessageError("shape", f"{name} entries must be ['imu', k0, gyro, accel, odo] or "
+                                        "['m', tau, src, pos, cov, clock_var, rho, rate]")
+    return out
+
+
 # kind -> (required fields, optional fields); common fields added below
 _COMMON_STATION = {"src": _station_id, "seq": _count, "stamp_s": _num}
 _COMMON_AIRCRAFT = {"src": _name, "seq": _count, "stamp_s": _num}
@@ -251,6 +310,12 @@ SCHEMAS: dict[str, tuple[dict[str, Callable], dict[str, Callable]]] = {
                     {"vel_m_s": _vec3, "vel_cov": _cov33, "n_updates": _count, "extra": _extra}),
     "ac_truth": ({**_COMMON_AIRCRAFT, "t_s": _num, "pos_m": _vec3},
                  {"vel_m_s": _vec3, "extra": _extra}),
+    # the vehicle process (vehicle/core.py; docs/vehicle.md "The vehicle process")
+    "veh_estimate": ({**_COMMON_AIRCRAFT, "t_s": _num, "pos_m": _vec3, "cov_m2": _cov33, "vel_m_s": _vec3,
+                      "algo": _name, "n_updates": _count}, {"vel_cov": _cov33, "extra": _extra}),
+    "veh_truth": ({**_COMMON_AIRCRAFT, "t_s": _num, "pos_m": _vec3, "vel_m_s": _vec3}, {"extra": _extra}),
+    "veh_init": ({**_COMMON_AIRCRAFT, "record": _veh_record}, {}),
+    "veh_input": ({**_COMMON_AIRCRAFT, "entries": _veh_journal}, {}),
 }
 DECISIONS = ("exclude", "readmit")
 
@@ -425,6 +490,10 @@ def aircraft_key(name: str, *rest: str) -> str:
     return "/".join([KEY_PREFIX, "aircraft", name, *rest])
 
 
+def vehicle_key(name: str, *rest: str) -> str:
+    return "/".join([KEY_PREFIX, "vehicle", name, *rest])
+
+
 def alive_key(role: str, name: str | int) -> str:
     return f"{KEY_PREFIX}/alive/{role}/{name}"
 
@@ -449,6 +518,9 @@ def key_for(msg: dict[str, Any]) -> str:
         return aircraft_key(src, "estimate", msg["algo"])
     if kind == "ac_truth":
         return aircraft_key(src, "truth")
+    if kind.startswith("veh_"):
+        return vehicle_key(src, {"veh_estimate": "estimate", "veh_truth": "truth", "veh_init": "init",
+                                 "veh_input": "input"}[kind])
     raise MessageError("kind", f"no key for kind {kind!r}")
 
 

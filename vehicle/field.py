@@ -18,11 +18,12 @@ from vehicle.route import Route, straight_route
 DEFAULT_ORIGIN = (47.23, 39.72, 0.0)  # the field near Rostov-on-Don, like seed 004's route
 
 
-def field_layout(scenario: str = "seed000"):
-    """Physical (local-level) station positions (n, 3) and the network frame ``(pos_net, R, t)``."""
+def field_layout(scenario="seed000"):
+    """Physical (local-level) station positions (n, 3) and the network frame ``(pos_net, R, t)``;
+    ``scenario`` a name / TOML path or a loaded :class:`net.scenario.Scenario`."""
     from net.scenario import load, order_for_frame, random_layout
 
-    sc = load(scenario)
+    sc = load(scenario) if isinstance(scenario, str) else scenario
     lay = sc.raw.get("layout", {})
     if "stations" in sc.raw:
         phys = np.array([[float(v) for v in s["pos_m"]] for s in sc.raw["stations"]])
