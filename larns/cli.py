@@ -29,6 +29,7 @@ COMMANDS: list[str] = [
     "larns.commands.export",
     "larns.commands.report",
     "larns.commands.aircraft",
+    "larns.commands.vehicle",
     "larns.commands.keys",
     "larns.commands.attack",
 ]

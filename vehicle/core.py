@@ -108,7 +108,7 @@ class VehicleCore:
     """World + navigator + journal; ``advance_to(t)`` and ``on_nav(msg, phy)`` return messages to publish."""
 
     algo = "cdekf-map"
-    lag_s = 0.25  # the node integrates this far (fleet seconds x speed) behind fleet time
+    lag_s = 1.0  # the node integrates this far (wall seconds x speed) behind fleet time: later broadcasts are late
 
     def __init__(self, scn, name: str = "veh1", seed: int | None = None, t0_s: float = 0.0, net_clock=None,
                  route_file: str | Path | None = None, imu_rate_hz: float = 20.0, speed_m_s: float | None = None,

@@ -37,6 +37,12 @@ def register(sub) -> None:
                    help="fleet time at which the scenario's join stations join (default 20)")
     p.add_argument("--n-stations", type=int, default=None, help="override the station count of a random layout")
     p.add_argument("--aircraft", action="store_true", help="also run the aircraft process (if available)")
+    p.add_argument("--vehicle", action="store_true",
+                   help="also run the ground vehicle process (larns vehicle, docs/vehicle.md)")
+    p.add_argument("--vehicle-route", default=None, metavar="FILE",
+                   help="the vehicle's route file (straight legs in the network frame; implies --vehicle)")
+    p.add_argument("--vehicle-outage", default=None, metavar="START,END",
+                   help="the vehicle's station outage, vehicle seconds (implies --vehicle)")
     p.add_argument("--net-delay", type=float, default=None, metavar="S", help="wire delay, s (all stations)")
     p.add_argument("--net-jitter", type=float, default=None, metavar="S", help="wire jitter, s")
     p.add_argument("--net-loss", type=float, default=None, metavar="P", help="wire loss probability")

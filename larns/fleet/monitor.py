@@ -41,6 +41,8 @@ class Monitor:
     alive: set = field(default_factory=set)
     aircraft: dict[tuple[str, str], dict] = field(default_factory=dict)  # (name, algo) -> last estimate
     ac_truth: dict[str, deque] = field(default_factory=dict)              # name -> recent truths
+    vehicle: dict[str, dict] = field(default_factory=dict)                # name -> last veh_estimate
+    veh_truth: dict[str, dict] = field(default_factory=dict)              # name -> {t_s: veh_truth}, recent
 
     def on_sample(self, key: str, data: bytes) -> None:
         from net import messages as M
@@ -55,6 +57,9 @@ class Monitor:
                     self.ac_truth.setdefault(msg["src"], deque(maxlen=256)).append(msg)
                 else:
                     self.aircraft[(msg["src"], msg["algo"])] = msg
+            return
+        if msg["kind"] in ("veh_estimate", "veh_truth"):
+            self._on_vehicle(msg)
             return
         if msg["kind"] not in ("estimate", "truth"):
             return
@@ -78,6 +83,28 @@ class Monitor:
                 v.t_s = msg["t_s"]
                 v.n_estimates += 1
                 v.sigma_m = float(sigma_m(msg["cov_m2"]))
+
+    def _on_vehicle(self, msg: dict) -> None:
+        """The vehicle publishes its truth at each estimate's time: matched by ``t_s``."""
+        with self.lock:
+            if msg["kind"] == "veh_truth":
+                hist = self.veh_truth.setdefault(msg["src"], {})
+                hist[msg["t_s"]] = msg
+                while len(hist) > 64:
+                    hist.pop(next(iter(hist)))
+            else:
+                self.vehicle[msg["src"]] = msg
+
+    def vehicle_lines(self) -> list[str]:
+        """One line per vehicle: its last estimate's error against its truth at the same time."""
+        out = []
+        with self.lock:
+            for name, m in sorted(self.vehicle.items()):
+                tr = self.veh_truth.get(name, {}).get(m["t_s"])
+                err = math.dist(m["pos_m"], tr["pos_m"]) if tr else math.nan
+                out.append(f"vehicle  {name:>6} {m['algo']:>10}: t={m['t_s']:7.1f} s  sigma "
+                           f"{float(sigma_m(m['cov_m2'])):7.2f} m  error {err:7.2f} m  updates {m['n_updates']}")
+        return out
 
     def on_alive(self, key: str, alive: bool) -> None:
         with self.lock:

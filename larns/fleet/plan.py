@@ -121,7 +121,33 @@ def plan_fleet(args: argparse.Namespace) -> FleetPlan:
                   file=sys.stderr)
         else:
             p.children.append(_aircraft_child(args, p, common))
+    if wants_vehicle(args):
+        if p.secure:
+            print("[fleet] --vehicle: not supported with --secure yet (no vehicle subject in the access rules); skipped",
+                  file=sys.stderr)
+        else:
+            p.children.append(_vehicle_child(args, p, common))
     return p
+
+
+def wants_vehicle(args: argparse.Namespace) -> bool:
+    """``--vehicle`` (or a vehicle route / outage, which imply it)."""
+    return bool(getattr(args, "vehicle", False) or getattr(args, "vehicle_route", None)
+                or getattr(args, "vehicle_outage", None))
+
+
+def _vehicle_child(args: argparse.Namespace, p: FleetPlan, common: list[str]) -> Child:
+    from net.bus import bus_argv
+
+    cmd = [sys.executable, "-m", "vehicle", *common]  # (net-fault flags accepted, not applied: as the aircraft)
+    if args.duration:
+        cmd += ["--duration", repr(args.duration)]
+    if getattr(args, "vehicle_route", None):
+        cmd += ["--route", str(args.vehicle_route)]
+    if getattr(args, "vehicle_outage", None):
+        cmd += ["--outage", str(args.vehicle_outage)]
+    cmd += bus_argv(["tcp/127.0.0.1:0"], p.seeds, args.zenoh_config, p.mode, p.secure)
+    return Child("vehicle", cmd, _log(p, "vehicle.log"))
 
 
 def _log(p: FleetPlan, name: str) -> Path | None:

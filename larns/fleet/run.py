@@ -30,7 +30,7 @@ def _final(args: argparse.Namespace, p: FleetPlan, monitor: Monitor, final: list
            interrupted: bool) -> int:
     """Final table, exit codes, ``--json``; the launcher's exit code."""
     t_f = (time.time() - p.epoch) * args.speed
-    print("\n".join([format_table(final, t_f), *monitor.aircraft_lines()]))
+    print("\n".join([format_table(final, t_f), *monitor.aircraft_lines(), *monitor.vehicle_lines()]))
     rc = {c.name: (c.proc.returncode if c.proc else None) for c in p.children}
     bad = {k: v for k, v in rc.items() if v not in (0, None)}
     if bad:

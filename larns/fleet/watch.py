@@ -16,12 +16,17 @@ def open_monitor(args: argparse.Namespace, p: FleetPlan, monitor: Monitor):
     """The launcher observes like any peer (spawn the children first: no fork of a live runtime)."""
     from net.bus import Bus
 
+    from .plan import wants_vehicle
+
     bus = Bus(listen=[] if p.mode == "client" else [p.monitor_ep], connect=p.seeds, config_file=args.zenoh_config,
               mode=p.mode, secure=(p.secure, "monitor") if p.secure else None)
     bus.subscribe("larns/station/*/estimate", monitor.on_sample)
     bus.subscribe("larns/station/*/truth", monitor.on_sample)
     if args.aircraft:
         bus.subscribe("larns/aircraft/**", monitor.on_sample)
+    if wants_vehicle(args):
+        bus.subscribe("larns/vehicle/*/estimate", monitor.on_sample)
+        bus.subscribe("larns/vehicle/*/truth", monitor.on_sample)
     bus.subscribe_liveliness("larns/alive/**", monitor.on_alive)
     return bus
 
@@ -37,7 +42,7 @@ def finished(args: argparse.Namespace, p: FleetPlan, now: float) -> bool:
 def print_table(args: argparse.Namespace, p: FleetPlan, monitor: Monitor, now: float, tty: bool) -> None:
     t_f = (now - p.epoch) * args.speed
     n_alive = sum(1 for c in p.children if c.proc is not None and c.proc.poll() is None)
-    txt = "\n".join([format_table(monitor.snapshot(), t_f, n_alive), *monitor.aircraft_lines()])
+    txt = "\n".join([format_table(monitor.snapshot(), t_f, n_alive), *monitor.aircraft_lines(), *monitor.vehicle_lines()])
     sys.stdout.write("\x1b[H\x1b[2J" + txt + "\n" if tty else txt + "\n\n")
     sys.stdout.flush()
 

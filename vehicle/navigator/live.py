@@ -19,8 +19,10 @@ is emitted; an estimate is emitted after every measurement too.
 
 Start (no truth): attitude = the map's track frame at the route's first node (body x along the first
 leg, z up; a 1 arcmin prior), ``q`` = the first node (``sigma_q0_m``), ``V`` = the first odometer
-sample (``sigma_v0_m_s``), clock offset acquired from the first pseudorange (``rho - |s - p|``, prior
-``sigma_b0_m``), drift 0 (``sigma_d0_m_s``).
+sample (``sigma_v0_m_s``), clock offset acquired from the first pseudorange whose variance (noise +
+broadcast position + broadcast clock) is below ``ACQUIRE_VAR_M2`` (``rho - |s - p|``, prior
+``sigma_b0_m``; the ones before are skipped), drift 0 (``sigma_d0_m_s``). A pseudorange whose
+innovation exceeds ``GATE_SIGMA`` sigma is refused (counted).
 
 Determinism: the result depends only on the sequence of calls and their arguments, which is what the
 vehicle's journal records (``larns/vehicle/<name>/init`` and ``.../input``) so that
@@ -29,6 +31,7 @@ vehicle's journal records (``larns/vehicle/<name>/init`` and ``.../input``) so t
 
 from __future__ import annotations
 
+from collections import Counter
 from typing import Any, Iterable
 
 import numpy as np
@@ -94,6 +97,11 @@ def track_frame(route: Route) -> np.ndarray:
 class VehicleNavigator:
     """Sans-I/O navigator (module doc). Outputs are estimate dicts (:meth:`estimate`)."""
 
+    #: the clock offset is acquired from the first pseudorange whose variance is below this (m^2)
+    ACQUIRE_VAR_M2 = 25.0
+    #: pseudoranges whose innovation exceeds this many sigma are refused (counted: ``stats["gated"]``)
+    GATE_SIGMA = 5.0
+
     def __init__(self, rec: dict[str, Any]):
         missing = [k for k in RECORD_KEYS if k not in rec]
         if missing:
@@ -116,6 +124,7 @@ class VehicleNavigator:
         self.n_updates = 0
         self.clock_acquired = False
         self.last_nis = float("nan")
+        self.stats: Counter[str] = Counter()
 
     # ------------------------------------------------------------------ inputs
     def imu_block(self, k0: int, gyro, accel, odo) -> None:
@@ -189,16 +198,26 @@ class VehicleNavigator:
         f = self.filt
         s_g = self.tie.to_greenwich(np.asarray(pos_n, float))
         cov_g = self.tie.cov_to_greenwich(np.asarray(cov_n, float))
-        p, _ = f.pos_vel(tau)
+        p, _, Jp, _ = f.geometry(tau, f.x)
         d = s_g - p[0]
         r = float(np.linalg.norm(d))
         u = d / r
-        if not self.clock_acquired:  # the receiver clock offset from the first pseudorange
-            f.x[0, f.ib] = float(rho_m) - r
-            self.clock_acquired = True
         rec = self.rec
         var_rho = float(rec["sigma_rho_m"]) ** 2 + float(u @ cov_g @ u) + float(clock_var_m2)
         var_rate = float(rec["sigma_rate_m_s"]) ** 2
+        if not self.clock_acquired:  # the receiver clock offset from a well-synchronized broadcast
+            if var_rho > self.ACQUIRE_VAR_M2:
+                self.stats["before_clock"] += 1
+                return out
+            f.x[0, f.ib] = float(rho_m) - r
+            self.clock_acquired = True
+        H = -u @ Jp[0]
+        H[f.ib] = 1.0
+        s2 = float(H @ f.P[0] @ H) + var_rho
+        nu = float(rho_m) - r - float(f.x[0, f.ib])
+        if nu * nu > self.GATE_SIGMA**2 * s2:  # an outlier (a broadcast with a bad clock or position)
+            self.stats["gated"] += 1
+            return out
         f.update(tau, s_g[None], np.zeros((1, 3)), np.array([[float(rho_m)]]), np.array([[float(rate_m_s)]]),
                  np.array([var_rho]), np.array([var_rate]), use_rate=True)
         self.last_nis = float(f.last_nis[0])
