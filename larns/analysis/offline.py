@@ -27,7 +27,9 @@ from typing import Any, Sequence
 from ..log import LogFile, LogWriter, Msg, merge, read_logs
 from ..log.series import Journal, collect_journals, decode, decoded
 
-JOURNAL_TOPICS = ["larns/station/*/init", "larns/station/*/input", "larns/station/*/estimate"]
+JOURNAL_TOPICS = ["larns/station/*/init", "larns/station/*/input", "larns/station/*/estimate",
+                  "larns/vehicle/*/init", "larns/vehicle/*/input", "larns/vehicle/*/estimate", "larns/vehicle/*/truth"]
+VEHICLE_FIELDS = ("t_s", "pos_m", "cov_m2", "vel_m_s", "vel_cov", "algo", "n_updates", "extra", "seq", "stamp_s")
 ESTIMATE_FIELDS = ("t_s", "pos_m", "cov_m2", "n_updates", "estimator", "state", "seq", "stamp_s")
 
 
@@ -121,6 +123,7 @@ class OfflineResult:
     cpu_s: float = 0.0  # CPU time of this process (robust against other load on the machine)
     output: str | None = None
     aircraft: dict[str, Any] = field(default_factory=dict)
+    vehicles: dict[str, Any] = field(default_factory=dict)
 
     @property
     def speedup(self) -> float:
@@ -138,7 +141,8 @@ class OfflineResult:
                                    "bit_exact": r.bit_exact, "missing_from": r.missing_from, "error": r.error}
                              for sid, r in self.stations.items()},
                 "aircraft": {k: {a: {kk: vv for kk, vv in v.items() if kk not in ("estimates", "truth")}
-                                 for a, v in d.items()} for k, d in self.aircraft.items()}}
+                                 for a, v in d.items()} for k, d in self.aircraft.items()},
+                "vehicles": {k: {kk: vv for kk, vv in v.items() if kk != "estimates"} for k, v in self.vehicles.items()}}
 
 
 def fleet_span_s(logs: Sequence[LogFile], msgs: Sequence[Msg]) -> float:
@@ -183,8 +187,9 @@ def run_offline(paths: Sequence[str | Path], output: str | Path | None = None, e
     res = OfflineResult(results, len(msgs), fleet_span_s(logs, msgs))
     if algos:
         res.aircraft = reestimate_aircraft(logs, msgs, algos, scenario)
+    res.vehicles = reestimate_vehicles(msgs, ep, speed)
     if output is not None:
-        write_output(output, logs, msgs, results, estimator, res.aircraft)
+        write_output(output, logs, msgs, results, estimator, res.aircraft, res.vehicles)
         res.output = str(output)
     res.wall_s = time.perf_counter() - t0
     res.cpu_s = time.process_time() - c0
@@ -193,7 +198,7 @@ def run_offline(paths: Sequence[str | Path], output: str | Path | None = None, e
 
 def write_output(output: str | Path, logs: Sequence[LogFile], msgs: Sequence[Msg],
                  results: dict[int, StationResult], estimator: str | None,
-                 aircraft: dict[str, dict] | None = None) -> None:
+                 aircraft: dict[str, dict] | None = None, vehicles: dict[str, dict] | None = None) -> None:
     """The recording with the re-estimated stations' ``estimate`` topics replaced."""
     import heapq
 
@@ -217,6 +222,10 @@ def write_output(output: str | Path, logs: Sequence[LogFile], msgs: Sequence[Msg
         replaced.add(f"larns/aircraft/{name}/truth")
         first = next(iter(per_algo.values()), {})
         new += first.get("truth", [])
+    for name, d in (vehicles or {}).items():
+        if d.get("estimates"):
+            replaced.add(f"larns/vehicle/{name}/estimate")
+            new += d["estimates"]
     new.sort(key=lambda m: m.log_time)
     # wire messages only; the Foxglove view is regenerated from the new estimates
     kept = [m for m in msgs if m.topic not in replaced and m.encoding == "msgpack"]
@@ -447,6 +456,71 @@ def reestimate_triad(logs: Sequence[LogFile], msgs: Sequence[Msg], scenario: str
     return _refly_inertial(core, logs, msgs, name, "triad", recorded)
 
 
+def reestimate_vehicles(msgs: Sequence[Msg], epoch_unix_s: float | None = None, speed: float = 1.0) -> dict[str, dict]:
+    """Re-run every recorded vehicle's navigator on its journal (``vehicle.navigator.live.replay``).
+
+    Needs the ``veh_init`` record and the ``veh_input`` journal from seq 1 (a hole stops the replay
+    there, reported as ``missing_from``). The re-estimated ``veh_estimate`` messages are compared
+    with the recorded ones of the same seq, every field exactly (``equal == compared``: bit for bit);
+    their errors against the recorded truth of the same time. Returns ``{name: {"n", "compared",
+    "equal", "bit_exact", "missing_from", "error", "rms_err_m", "max_err_m", "final_err_m",
+    "estimates": [Msg]}}``."""
+    from collections import Counter
+
+    import numpy as np
+
+    from net import messages as M
+    from vehicle.core import estimate_msg
+    from vehicle.navigator.live import replay
+
+    from ..log.series import Recording, VehicleSeries
+
+    vehicles: dict[str, VehicleSeries] = {}
+    rec_log: dict[tuple[str, int], int] = {}
+    mine = (m for m in msgs if m.encoding == "msgpack" and m.topic.startswith("larns/vehicle/"))
+    for m, msg, _phy in decoded(mine):
+        if msg["kind"].startswith("veh_"):
+            Recording._add_vehicle(vehicles.setdefault(msg["src"], VehicleSeries(msg["src"])), msg)
+            if msg["kind"] == "veh_estimate":
+                rec_log[(msg["src"], msg["seq"])] = m.log_time
+    out: dict[str, dict] = {}
+    for name, v in sorted(vehicles.items()):
+        d: dict[str, Any] = {"n": 0, "compared": 0, "equal": 0, "bit_exact": False, "missing_from": None,
+                             "error": None, "estimates": []}
+        out[name] = d
+        entries, d["missing_from"] = v.journal()
+        if v.init is None or not entries:
+            d["error"] = "no veh_init record" if v.init is None else "no veh_input journal from seq 1"
+            continue
+        try:
+            ests = replay(v.init, entries)
+        except Exception as e:  # a bad journal must not kill the whole run
+            d["error"] = f"replay failed: {type(e).__name__}: {e}"
+            continue
+        recorded = {e["seq"]: e for e in v.estimates}
+        seq: Counter[str] = Counter()
+        errs = []
+        for e in ests:
+            o = M.validate_msg(M.to_plain(estimate_msg(name, seq, e)))
+            r = recorded.get(o["seq"])
+            if r is not None:
+                d["compared"] += 1
+                d["equal"] += all(o.get(k) == r.get(k) for k in VEHICLE_FIELDS)
+            t = v.truths.get(o["t_s"])
+            if t is not None:
+                errs.append(float(np.linalg.norm(np.subtract(o["pos_m"], t["pos_m"]))))
+            lt = rec_log.get((name, o["seq"]))
+            pub = int(round((epoch_unix_s + o["stamp_s"] / speed) * 1e9)) if epoch_unix_s is not None else lt
+            d["estimates"].append(Msg(M.key_for(o), lt if lt is not None else (pub or 0), pub or 0, o["seq"],
+                                      M.encode(o)))
+        e_arr = np.asarray(errs)
+        d.update(n=len(ests), bit_exact=d["compared"] > 0 and d["equal"] == d["compared"],
+                 recorded=len(v.estimates), rms_err_m=float(np.sqrt(np.mean(e_arr**2))) if e_arr.size else math.nan,
+                 max_err_m=float(e_arr.max()) if e_arr.size else math.nan,
+                 final_err_m=float(e_arr[-1]) if e_arr.size else math.nan)
+    return out
+
+
 def format_result(res: OfflineResult, compare: bool = True) -> str:
     lines = [f"{'station':>7} {'estimator':>9} {'inputs':>6} {'entries':>7} {'estimates':>9} "
              f"{'compared':>8} {'bit-exact':>9}  notes"]
@@ -473,4 +547,12 @@ def format_result(res: OfflineResult, compare: bool = True) -> str:
             lines.append(f"aircraft {name} {a}: {d['n']} estimates, final error {d['final_err_m']:.2f} m, "
                          f"RMS error (after the first 10 %) {d['rms_err_m']:.2f} m{cmp} "
                          f"[broadcast sequence: {d.get('sequence', '-')}'s]")
+    for name, d in res.vehicles.items():
+        if d.get("error"):
+            lines.append(f"vehicle {name}: not re-estimated: {d['error']}")
+            continue
+        hole = "" if d["missing_from"] is None else f"; journal hole at input {d['missing_from']}: stopped there"
+        lines.append(f"vehicle {name} cdekf-map: {d['n']} estimates re-run from its journal; vs the {d['recorded']} "
+                     f"recorded: {d['equal']}/{d['compared']} identical{hole}; error RMS {d['rms_err_m']:.2f} m, "
+                     f"max {d['max_err_m']:.2f} m, final {d['final_err_m']:.2f} m")
     return "\n".join(lines)

@@ -2,7 +2,8 @@
 
 Per file: size, whether it was finished cleanly (a SIGKILLed recording is stream-read up to the
 damage), duration, start/end, metadata (scenario, epoch, speed). Per topic: message count, rate,
-encoding, kinds. Stations and aircraft found (last state, estimator / algorithms). Loss statistics
+encoding, kinds. Stations, aircraft and ground vehicles found (last state, estimator / algorithms; a
+vehicle's position error against its truth). Loss statistics
 from the ``seq`` field (per sender and kind: a gap between two recorded sequence numbers is a
 message the recorder never got), duplicates, undecodable payloads, and latency ``log_time -
 publish_time`` (receive time minus the sender's stamp) per kind.
@@ -26,16 +27,34 @@ def summarize(paths: Sequence[str | Path], logs=None, rec=None) -> dict[str, Any
         rec = Recording.from_logs(logs if logs is not None else read_logs(paths))
     out: dict[str, Any] = {"files": [_file_info(lg) for lg in rec.logs], "messages": len(rec.messages)}
     if not rec.messages:
-        out.update(duration_s=0.0, topics={}, stations={}, aircraft={}, loss={}, latency_ms={})
+        out.update(duration_s=0.0, topics={}, stations={}, aircraft={}, vehicles={}, loss={}, latency_ms={})
         return out
     out.update(_times(rec))
     out["topics"] = _topics(rec.net.topics)
     out["stations"] = station_table(rec)
     out["aircraft"] = {name: {"messages": a.messages, "algos": a.algos} for name, a in sorted(rec.aircraft.items())}
+    out["vehicles"] = {name: vehicle_row(v) for name, v in sorted(rec.vehicles.items())}
     out["loss"], out["loss_total"] = rec.net.loss()
     out["invalid"] = dict(rec.net.invalid)
     out["latency_ms"] = rec.net.latency_summary()
     return out
+
+
+def vehicle_row(v) -> dict[str, Any]:
+    """A ground vehicle's estimates against its truth of the same time: count, RMS / 95th percentile /
+    max / final 3-D position error, final sigma, and the RMS over the second half of the run."""
+    import numpy as np
+
+    e = v.errors()
+    err, sig = e["err_m"], e["sigma_m"]
+    row: dict[str, Any] = {"messages": v.messages, "estimates": len(v.estimates), "matched": int(err.size),
+                           "journal": v.init is not None and 1 in v.inputs}
+    if err.size:
+        half = err[err.size // 2:]
+        row.update(rms_err_m=float(np.sqrt(np.mean(err**2))), p95_err_m=float(np.percentile(err, 95)),
+                   max_err_m=float(err.max()), final_err_m=float(err[-1]), final_sigma_m=float(sig[-1]),
+                   rms_err_second_half_m=float(np.sqrt(np.mean(half**2))), t_end_s=float(e["t_s"][-1]))
+    return row
 
 
 def _file_info(lg) -> dict[str, Any]:

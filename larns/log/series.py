@@ -8,6 +8,8 @@ final table, the tests - reads these series, so their numbers cannot diverge:
 * per station (:class:`StationSeries`): estimates, truth, clock estimate against clock truth of the
   same stamp, state, drops, nav broadcasts and completed exchanges, journal presence, integrity;
 * per aircraft (:class:`AircraftSeries`): estimates per algorithm and the truth track;
+* per ground vehicle (:class:`VehicleSeries`): estimates, the truth at each estimate's time, the
+  navigator journal;
 * the network (:class:`NetworkStats`): per-topic counts, loss from sequence gaps per sender and
   kind, duplicates, reordering, undecodable payloads and latency ``log_time - publish_time``;
 * the TDMA exchanges (range requests and which were answered) and the broadcasts' physical truth;
@@ -276,6 +278,38 @@ class AircraftSeries:
 
 
 @dataclass
+class VehicleSeries:
+    """One ground vehicle (``larns vehicle``): its estimates, its truth at each estimate's time and its
+    navigator journal (init record and inputs by seq), in log order."""
+
+    name: str
+    messages: int = 0
+    estimates: list[dict] = field(default_factory=list)     # veh_estimate msgs
+    truths: dict[float, dict] = field(default_factory=dict)  # t_s -> veh_truth
+    init: dict | None = None                                  # the navigator's init record
+    inputs: dict[int, list] = field(default_factory=dict)    # veh_input seq -> entries
+
+    def errors(self) -> dict[str, np.ndarray]:
+        """Estimates with a truth of the same time: ``t_s`` (K,), ``err_m`` (K,) 3-D position error,
+        ``sigma_m`` (K,) root of the position covariance trace, ``updated`` (K,) bool (after a
+        measurement, else a whole-second estimate)."""
+        rows = sorted(((e["t_s"], float(np.linalg.norm(np.subtract(e["pos_m"], self.truths[e["t_s"]]["pos_m"]))),
+                        float(sigma_m(e["cov_m2"])), bool(e.get("extra", {}).get("updated", 0.0)))
+                       for e in self.estimates if e["t_s"] in self.truths), key=lambda r: r[0])
+        a = np.array(rows, float).reshape(-1, 4)
+        return {"t_s": a[:, 0], "err_m": a[:, 1], "sigma_m": a[:, 2], "updated": a[:, 3].astype(bool)}
+
+    def journal(self) -> tuple[list[list], int | None]:
+        """The journal's entries from input 1 on, in order, and the first missing input seq (None: none)."""
+        out: list[list] = []
+        k = 1
+        while k in self.inputs:
+            out += self.inputs[k]
+            k += 1
+        return out, (k if self.inputs and k <= max(self.inputs) else None)
+
+
+@dataclass
 class NetworkStats:
     """What the recorder saw of the network, per topic, sender and kind."""
 
@@ -350,6 +384,7 @@ class Recording:
     timebase: Timebase
     stations: dict[int, StationSeries] = field(default_factory=dict)
     aircraft: dict[str, AircraftSeries] = field(default_factory=dict)
+    vehicles: dict[str, VehicleSeries] = field(default_factory=dict)
     net: NetworkStats = field(default_factory=NetworkStats)
     records: list[tuple[Msg, dict | None]] = field(default_factory=list)
     range_requests: list[tuple] = field(default_factory=list)  # (stamp_s, src, dst, seq, cycle)
@@ -392,6 +427,8 @@ class Recording:
             self.range_replies.add((msg["dst"], src, msg["req_seq"]))
         if isinstance(src, int):
             self._add_station(self.stations.setdefault(src, StationSeries(src)), m, msg, phy)
+        elif kind.startswith("veh_"):
+            self._add_vehicle(self.vehicles.setdefault(src, VehicleSeries(src)), msg)
         else:
             self._add_aircraft(self.aircraft.setdefault(src, AircraftSeries(src)), msg)
 
@@ -424,6 +461,19 @@ class Recording:
             a.estimates.setdefault(msg["algo"], []).append(msg)
         elif msg["kind"] == "ac_truth":
             a.truths.append(msg)
+
+    @staticmethod
+    def _add_vehicle(v: VehicleSeries, msg: dict) -> None:
+        v.messages += 1
+        kind = msg["kind"]
+        if kind == "veh_estimate":
+            v.estimates.append(msg)
+        elif kind == "veh_truth":
+            v.truths[msg["t_s"]] = msg
+        elif kind == "veh_init" and v.init is None:
+            v.init = msg["record"]
+        elif kind == "veh_input":
+            v.inputs.setdefault(msg["seq"], msg["entries"])
 
     # ------------------------------------------------------------------ derived views
 
