@@ -18,6 +18,16 @@ def _size(n: float) -> str:
     return str(n)
 
 
+def vehicle_line(name: str, v: dict) -> str:
+    """One ground vehicle of ``larns info``: its position error against its truth."""
+    if "rms_err_m" not in v:
+        return f"Vehicle {name}:      {v['estimates']} estimates, none matched with a truth"
+    return (f"Vehicle {name}:      {v['estimates']} estimates to t = {v['t_end_s']:.1f} s; position error RMS "
+            f"{v['rms_err_m']:.2f} m (second half {v['rms_err_second_half_m']:.2f} m), p95 {v['p95_err_m']:.2f} m, "
+            f"max {v['max_err_m']:.2f} m, final {v['final_err_m']:.2f} m (sigma {v['final_sigma_m']:.2f} m); "
+            f"journal {'yes' if v['journal'] else 'no'}")
+
+
 def format_info(s: dict[str, Any]) -> str:
     L = []
     for f in s["files"]:
@@ -53,14 +63,7 @@ def format_info(s: dict[str, Any]) -> str:
     ac = s["aircraft"]
     L.append(f"Aircraft:          {len(ac)}" + ("  " + ", ".join(f"{k} ({', '.join(v['algos']) or 'no estimates'})"
                                                                for k, v in ac.items()) if ac else ""))
-    for name, v in s.get("vehicles", {}).items():
-        if "rms_err_m" not in v:
-            L.append(f"Vehicle {name}:      {v['estimates']} estimates, none matched with a truth")
-            continue
-        L.append(f"Vehicle {name}:      {v['estimates']} estimates to t = {v['t_end_s']:.1f} s; position error RMS "
-                 f"{v['rms_err_m']:.2f} m (second half {v['rms_err_second_half_m']:.2f} m), p95 {v['p95_err_m']:.2f} m, "
-                 f"max {v['max_err_m']:.2f} m, final {v['final_err_m']:.2f} m (sigma {v['final_sigma_m']:.2f} m); "
-                 f"journal {'yes' if v['journal'] else 'no'}")
+    L += [vehicle_line(name, v) for name, v in s.get("vehicles", {}).items()]
     L.append("Topics:")
     w = max(len(k) for k in s["topics"])
     for k, t in s["topics"].items():
