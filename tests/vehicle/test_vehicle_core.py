@@ -106,3 +106,41 @@ def test_navigator_refuses_bad_records_and_route_files(tmp_path):
         vehicle_map(scn, gc)
     m = vehicle_map(scn, "docs/routes/field-straight.toml")
     assert m["route_enu_m"][0] == [-1500.0, 1000.0, 20.0] and m["speeds_m_s"] == [5.0]
+
+
+def test_hostile_vehicle_messages_are_refused_with_the_key_named(run40):
+    _, _, out = run40
+    inp = next(m for m in out if m["kind"] == "veh_input")
+    init = next(m for m in out if m["kind"] == "veh_init")
+    bad = [dict(inp, entries=[["imu", 0, [[0.0, 0.0, 0.0]], [], [1.0]]]),            # unequal lengths
+           dict(inp, entries=[["m", 1.0, 0, [0.0] * 3, [[0.0] * 3] * 3, 0.0, 1.0, 0.0]]),  # station id 0
+           dict(inp, entries=[["m", float("nan"), 1, [0.0] * 3, [[0.0] * 3] * 3, 0.0, 1.0, 0.0]]),
+           dict(inp, entries=[["x"]]),
+           dict(init, record={k: v for k, v in init["record"].items() if k != "dt_s"}),
+           dict(init, record=dict(init["record"], speeds_m_s=[]))]
+    for m in bad:
+        with pytest.raises(M.MessageError):
+            M.validate_msg(M.to_plain(m))
+
+
+def test_cli_flags_and_fleet_child():
+    import argparse
+
+    from larns.fleet.plan import _vehicle_child, wants_vehicle
+    from vehicle.node import build_parser
+
+    a = build_parser().parse_args(["--route", "docs/routes/field-straight.toml", "--outage", "100,400",
+                                   "--imu-rate", "10", "--speed", "2", "--net-loss", "0.1"])
+    assert a.outage == (100.0, 400.0) and a.imu_rate == 10.0 and a.scenario == "seed000"
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["--outage", "400,100"])
+    ns = argparse.Namespace(vehicle=False, vehicle_route="r.toml", vehicle_outage="1,2", duration=30.0,
+                            zenoh_config=None)
+    assert wants_vehicle(ns)
+
+    class P:
+        seeds, mode, secure, logdir = ["tcp/127.0.0.1:7447"], "peer", None, None
+
+    c = _vehicle_child(ns, P(), ["--scenario", "seed000", "--speed", "2.0", "--epoch", "5.0"])
+    assert c.cmd[1:3] == ["-m", "vehicle"] and c.cmd[c.cmd.index("--route") + 1] == "r.toml"
+    assert c.cmd[c.cmd.index("--outage") + 1] == "1,2" and "--duration" in c.cmd
