@@ -144,6 +144,10 @@ def cmd_offline(args: argparse.Namespace) -> int:
         if bad or not any(r.bit_exact for r in res.stations.values()):
             print(f"[offline] --check failed: stations not reproduced bit for bit: {bad}", file=sys.stderr)
             return 3
+    bad_v = [n for n, d in res.vehicles.items() if not d.get("bit_exact")]
+    if args.check and bad_v:
+        print(f"[offline] --check failed: vehicles not reproduced bit for bit: {bad_v}", file=sys.stderr)
+        return 3
     return 0
 
 
