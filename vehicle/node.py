@@ -105,7 +105,8 @@ class VehicleNode:
             elif m["kind"] == "veh_truth":
                 self._last_truth = m
             try:
-                self.bus.publish(M.key_for(m), M.encode(m))
+                # the journal waits for room (a hole would stop its offline re-run there); the rest drops
+                self.bus.publish(M.key_for(m), M.encode(m), block=m["kind"] in ("veh_init", "veh_input"))
             except M.MessageError as e:
                 log.error("vehicle %s: refusing to send invalid %s: %s", self.opts.name, m["kind"], e)
 
