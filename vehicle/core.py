@@ -108,6 +108,7 @@ class VehicleCore:
     """World + navigator + journal; ``advance_to(t)`` and ``on_nav(msg, phy)`` return messages to publish."""
 
     algo = "cdekf-map"
+    MAX_AHEAD_S = 60.0  # a broadcast received this far (vehicle s) past the filter time is refused
     lag_s = 1.0  # the node integrates this far (wall seconds x speed) behind fleet time: later broadcasts are late
 
     def __init__(self, scn, name: str = "veh1", seed: int | None = None, t0_s: float = 0.0, net_clock=None,
@@ -227,6 +228,9 @@ class VehicleCore:
         tau = t_rx - self.t0_s
         if tau < 0:
             self.stats["nav_before_start"] += 1
+            return self._take()
+        if tau > self.nav.t + self.MAX_AHEAD_S:  # not from the present (a bad stamp): would stall the IMU
+            self.stats["nav_future"] += 1
             return self._take()
         if self.outage_s is not None and self.outage_s[0] <= tau <= self.outage_s[1]:
             self.stats["nav_outage"] += 1

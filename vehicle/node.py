@@ -121,6 +121,9 @@ class VehicleNode:
         if msg["kind"] != "nav" or phy is None or pk is None or pk[0] != "station" or pk[1] != msg["src"]:
             self.drops.drop("key", f"{msg['kind']} on {key}")
             return
+        if phy["t_true_s"] > self.fleet_now() + 10.0 * self.opts.speed:  # never drained: refuse it now
+            self.drops.drop("future", f"nav from {msg['src']} at t = {phy['t_true_s']:.1f} s")
+            return
         self._n_in += 1
         heapq.heappush(self._held, (phy["t_true_s"], self._n_in, msg, phy))
 

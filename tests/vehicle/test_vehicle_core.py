@@ -94,6 +94,9 @@ def test_outage_and_late_broadcasts_are_counted():
     msg, phy = next(_broadcasts(scn, 0.0))
     core.on_nav(msg, phy)
     assert core.stats["nav_late"] == 1 and core.stats["measurements"] == n
+    # one from the far future (a bad stamp) is refused, not integrated towards
+    core.on_nav(msg, dict(phy, t_true_s=1e9))
+    assert core.stats["nav_future"] == 1 and core.blocks < 20
 
 
 def test_navigator_refuses_bad_records_and_route_files(tmp_path):
