@@ -147,3 +147,34 @@ def test_cli_flags_and_fleet_child():
     c = _vehicle_child(ns, P(), ["--scenario", "seed000", "--speed", "2.0", "--epoch", "5.0"])
     assert c.cmd[1:3] == ["-m", "vehicle"] and c.cmd[c.cmd.index("--route") + 1] == "r.toml"
     assert c.cmd[c.cmd.index("--outage") + 1] == "1,2" and "--duration" in c.cmd
+
+
+def test_offline_reestimation_of_a_written_recording(run40, tmp_path):
+    """The core's messages written as the recorder writes them (one estimate lost on the way):
+    ``larns reestimate``'s run re-runs the navigator from the journal, every recorded estimate equal."""
+    from larns.analysis.offline import format_result, run_offline
+    from larns.log import LogWriter
+
+    _, _, out = run40
+    path = tmp_path / "veh.mcap"
+    epoch = 1.7e9
+    lost = next(m["seq"] for m in out if m["kind"] == "veh_estimate" and m["seq"] > 20)
+    with LogWriter(path, {"larns": {"epoch_unix_s": repr(epoch), "speed": "1.0"}}) as w:
+        for m in out:
+            if m["kind"] == "veh_estimate" and m["seq"] == lost:
+                continue
+            t = int((epoch + m["stamp_s"]) * 1e9)
+            w.write(M.key_for(m), M.encode(m), t, t)
+    res = run_offline([path])
+    d = res.vehicles["veh1"]
+    n_live = sum(m["kind"] == "veh_estimate" for m in out)
+    assert d["error"] is None and d["recorded"] == n_live - 1 and d["compared"] == n_live - 1 and d["bit_exact"]
+    assert "vehicle veh1 cdekf-map" in format_result(res) and res.as_dict()["vehicles"]["veh1"]["bit_exact"]
+    # a hole in the journal stops the re-run there, reported
+    with LogWriter(tmp_path / "hole.mcap", {"larns": {"epoch_unix_s": repr(epoch)}}) as w:
+        for m in out:
+            if not (m["kind"] == "veh_input" and m["seq"] == 5):
+                t = int((epoch + m["stamp_s"]) * 1e9)
+                w.write(M.key_for(m), M.encode(m), t, t)
+    d = run_offline([tmp_path / "hole.mcap"]).vehicles["veh1"]
+    assert d["missing_from"] == 5 and d["bit_exact"] and d["n"] < n_live
