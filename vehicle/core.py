@@ -254,11 +254,11 @@ class VehicleCore:
         return out
 
     def _wrap(self, ests: list[dict]) -> list[dict]:
-        for e in ests:
-            self._pending.append(estimate_msg(self.name, self.seq, e))
+        for e in ests:  # the truth first: a viewer pairs an estimate with the latest truth
             p, v = self.truth(e["t_s"] - self.t0_s)
             self._pending.append(self._msg("veh_truth", e["t_s"], t_s=e["t_s"], pos_m=self.tie.to_network(p).tolist(),
                                            vel_m_s=self.tie.vec_to_network(v).tolist()))
+            self._pending.append(estimate_msg(self.name, self.seq, e))
         return self._take()
 
     def _msg(self, kind: str, stamp_s: float, **fields: Any) -> dict:

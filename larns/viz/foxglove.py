@@ -7,10 +7,11 @@ NaN or infinity anywhere):
 
 | topic | schema | what |
 |---|---|---|
-| ``larns/foxglove/tf`` | ``foxglove.FrameTransform`` | frame ``network`` -> ``station_<id>`` (estimate), ``station_<id>_truth``, ``<aircraft>_<algo>``, ``<aircraft>_truth`` |
+| ``larns/foxglove/tf`` | ``foxglove.FrameTransform`` | frame ``network`` -> ``station_<id>`` (estimate), ``station_<id>_truth``, ``<aircraft>_<algo>``, ``<aircraft>_truth`` (and ``<vehicle>_...``) |
 | ``larns/foxglove/scene`` | ``foxglove.SceneUpdate`` | 3D: station / aircraft estimates as 3-sigma covariance ellipsoids, truth as small cubes, labels |
 | ``larns/foxglove/station/<id>`` | ``larns.StationEstimate`` | plottable numbers: position, sigmas, 3-sigma bound, error vs truth, updates |
 | ``larns/foxglove/aircraft/<name>/<algo>`` | ``larns.AircraftEstimate`` | same for each aircraft algorithm |
+| ``larns/foxglove/vehicle/<name>/<algo>`` | ``larns.AircraftEstimate`` | same for a ground vehicle (``larns vehicle``) |
 
 Open a recording in Foxglove and load ``docs/foxglove-layout.json`` (3D panel + error plots).
 The conversion is a pure function of the wire messages (:class:`FoxgloveView`), shared by the
@@ -211,7 +212,7 @@ class FoxgloveView:
 
     def __init__(self) -> None:
         self.truth: dict[int, list[float]] = {}
-        self.ac_truth: dict[str, tuple[float, list[float]]] = {}
+        self.ac_truth: dict[tuple[str, str], tuple[float, list[float]]] = {}  # (role, name) -> (t_s, pos)
         self.count = 0
 
     def convert(self, msg: dict, log_ns: int) -> list[tuple[str, str, dict]]:
@@ -243,31 +244,40 @@ class FoxgloveView:
             out.append((TF_TOPIC, "foxglove.FrameTransform", _tf(log_ns, f"station_{sid}", msg["pos_m"])))
             out.append((SCENE_TOPIC, "foxglove.SceneUpdate", {"deletions": [], "entities": [ent]}))
             out.append((f"larns/foxglove/station/{sid}", "larns.StationEstimate", rec))
-        elif kind == "ac_truth":
-            name = msg["src"]
-            self.ac_truth[name] = (msg["t_s"], msg["pos_m"])
-            ent = _empty_entity(log_ns, f"aircraft/{name}/truth")
-            ent["cubes"].append({"pose": {"position": _vec(msg["pos_m"]), "orientation": dict(IDENTITY)},
-                                 "size": _vec([5.0, 5.0, 5.0]), "color": _color(COLORS["ac_truth"])})
-            out.append((TF_TOPIC, "foxglove.FrameTransform", _tf(log_ns, f"{name}_truth", msg["pos_m"])))
-            out.append((SCENE_TOPIC, "foxglove.SceneUpdate", {"deletions": [], "entities": [ent]}))
-        elif kind == "ac_estimate":
-            name, algo = msg["src"], msg["algo"]
-            size, q = ellipsoid(msg["cov_m2"])
-            ent = _empty_entity(log_ns, f"aircraft/{name}/{algo}")
-            ent["spheres"].append({"pose": {"position": _vec(msg["pos_m"]), "orientation": q}, "size": size,
-                                   "color": _color(COLORS["aircraft"])})
-            ent["texts"].append(_label(msg["pos_m"], f"{name} {algo}", COLORS["aircraft"][:3] + (1.0,)))
-            tr = self.ac_truth.get(name)
-            truth = tr[1] if tr is not None and abs(tr[0] - msg["t_s"]) < 0.5 else None
-            rec = {"t_s": _f(msg["t_s"]), "name": name, "algo": algo, **_numbers(msg["pos_m"], msg["cov_m2"], truth)}
-            if "n_updates" in msg:
-                rec["n_updates"] = int(msg["n_updates"])
-            out.append((TF_TOPIC, "foxglove.FrameTransform", _tf(log_ns, f"{name}_{algo}", msg["pos_m"])))
-            out.append((SCENE_TOPIC, "foxglove.SceneUpdate", {"deletions": [], "entities": [ent]}))
-            out.append((f"larns/foxglove/aircraft/{name}/{algo}", "larns.AircraftEstimate", rec))
+        elif kind in ("ac_truth", "veh_truth"):
+            out += self._mobile_truth(msg, log_ns, "aircraft" if kind == "ac_truth" else "vehicle")
+        elif kind in ("ac_estimate", "veh_estimate"):
+            out += self._mobile_estimate(msg, log_ns, "aircraft" if kind == "ac_estimate" else "vehicle")
         self.count += len(out)
         return out
+
+    def _mobile_truth(self, msg: dict, log_ns: int, role: str) -> list[tuple[str, str, dict]]:
+        """An aircraft's or a ground vehicle's truth: a cube and its transform."""
+        name = msg["src"]
+        self.ac_truth[(role, name)] = (msg["t_s"], msg["pos_m"])
+        ent = _empty_entity(log_ns, f"{role}/{name}/truth")
+        ent["cubes"].append({"pose": {"position": _vec(msg["pos_m"]), "orientation": dict(IDENTITY)},
+                             "size": _vec([5.0, 5.0, 5.0]), "color": _color(COLORS["ac_truth"])})
+        return [(TF_TOPIC, "foxglove.FrameTransform", _tf(log_ns, f"{name}_truth", msg["pos_m"])),
+                (SCENE_TOPIC, "foxglove.SceneUpdate", {"deletions": [], "entities": [ent]})]
+
+    def _mobile_estimate(self, msg: dict, log_ns: int, role: str) -> list[tuple[str, str, dict]]:
+        """An aircraft's or a ground vehicle's estimate: ellipsoid, label, transform and the numbers
+        (``larns.AircraftEstimate``) against its latest truth within 0.5 s."""
+        name, algo = msg["src"], msg["algo"]
+        size, q = ellipsoid(msg["cov_m2"])
+        ent = _empty_entity(log_ns, f"{role}/{name}/{algo}")
+        ent["spheres"].append({"pose": {"position": _vec(msg["pos_m"]), "orientation": q}, "size": size,
+                               "color": _color(COLORS["aircraft"])})
+        ent["texts"].append(_label(msg["pos_m"], f"{name} {algo}", COLORS["aircraft"][:3] + (1.0,)))
+        tr = self.ac_truth.get((role, name))
+        truth = tr[1] if tr is not None and abs(tr[0] - msg["t_s"]) < 0.5 else None
+        rec = {"t_s": _f(msg["t_s"]), "name": name, "algo": algo, **_numbers(msg["pos_m"], msg["cov_m2"], truth)}
+        if "n_updates" in msg:
+            rec["n_updates"] = int(msg["n_updates"])
+        return [(TF_TOPIC, "foxglove.FrameTransform", _tf(log_ns, f"{name}_{algo}", msg["pos_m"])),
+                (SCENE_TOPIC, "foxglove.SceneUpdate", {"deletions": [], "entities": [ent]}),
+                (f"larns/foxglove/{role}/{name}/{algo}", "larns.AircraftEstimate", rec)]
 
     def convert_bytes(self, key: str, data: bytes, log_ns: int) -> list[tuple[str, str, bytes]]:
         """Wire bytes -> [(topic, schema name, JSON bytes)]; anything undecodable yields nothing."""
