@@ -15,6 +15,7 @@ Figures (``DIR/*.png``):
 * ``aircraft_errors.png`` - aircraft error per algorithm vs time with the posterior CRLB of the
   pseudorange filters' model for the recorded sequence of broadcasts, and the one-cycle snapshot
   CRLB (seed 003 eq. 7, ``nav.pcrb``) along the true track (if aircraft topics are present);
+* ``vehicle_errors.png`` - each ground vehicle's position error and 3-sigma vs time (if present);
 * ``tdma_timeline.png`` - who ranged whom when (first cycles; green = answered, red = no reply
   recorded) and the exchange count matrix over the whole run;
 * ``network.png`` - message loss per kind (sequence gaps) and latency distributions per kind;
@@ -215,6 +216,37 @@ def fig_aircraft(d: dict, path: Path, sigma_m: float | None, tuning=None) -> dic
     return out
 
 
+def fig_vehicles(rec, path: Path) -> dict[str, dict]:
+    """Each ground vehicle's 3-D position error against its truth of the same time, with its 3-sigma
+    (root of the covariance trace), vs fleet time; returns :func:`larns.analysis.summary.vehicle_row`."""
+    from ..analysis.summary import vehicle_row
+
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(9, 4.5))
+    out = {}
+    for name, v in sorted(rec.vehicles.items()):
+        e = v.errors()
+        out[name] = vehicle_row(v)
+        if not e["t_s"].size:
+            continue
+        ax.plot(e["t_s"], np.maximum(e["err_m"], 1e-3), lw=0.8, label=f"{name} error")
+        ax.plot(e["t_s"], 3 * e["sigma_m"], lw=0.8, ls="--", label=f"{name} 3 sigma")
+    _save_log_plot(plt, fig, ax, "position error, m", "ground vehicle: error and 3-sigma", path)
+    return out
+
+
+def _vehicle_markdown(vehicles: dict[str, dict]) -> list[str]:
+    if not vehicles:
+        return []
+    L = ["## Ground vehicles", "", "| vehicle | estimates | RMS error m | second half m | p95 m | max m | final m "
+         "| final sigma m |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for name, v in vehicles.items():
+        L.append(f"| {name} | {v['estimates']} | {_fmt(v.get('rms_err_m'))} | {_fmt(v.get('rms_err_second_half_m'))} | "
+                 f"{_fmt(v.get('p95_err_m'))} | {_fmt(v.get('max_err_m'))} | {_fmt(v.get('final_err_m'))} | "
+                 f"{_fmt(v.get('final_sigma_m'))} |")
+    return L + [""]
+
+
 def fig_tdma(d: dict, path: Path, n_cycles: int = 4) -> dict[str, Any]:
     plt = _plt()
     reqs = sorted(d["reqs"])
@@ -373,6 +405,9 @@ def make_report(paths: Sequence[str | Path], outdir: str | Path, scenario: str |
             tuning = replace(Tuning(), sigma_m=float(sig or 0.5))
         res["aircraft"] = fig_aircraft(d, out / "aircraft_errors.png", sig, tuning)
         figs.append(("Aircraft errors with the CRLB", "aircraft_errors.png"))
+    if rec.vehicles:
+        res["vehicles"] = fig_vehicles(rec, out / "vehicle_errors.png")
+        figs.append(("Ground vehicle error and 3-sigma", "vehicle_errors.png"))
     res["tdma"] = fig_tdma(d, out / "tdma_timeline.png")
     if res["tdma"]:
         figs.append(("TDMA timeline", "tdma_timeline.png"))
@@ -438,6 +473,7 @@ def markdown(res: dict, info: dict, figs: list[tuple[str, str]]) -> str:
             if "crlb_median_m" in per:
                 L.append(f"| {name} | one-cycle CRLB (median) | | {_fmt(per['crlb_median_m'])} | |")
         L.append("")
+    L += _vehicle_markdown(res.get("vehicles", {}))
     t = res.get("tdma") or {}
     if t:
         L.append(f"## TDMA\n\n{t['requests']} range requests recorded, {t['answered']} answered "
