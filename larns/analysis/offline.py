@@ -465,14 +465,6 @@ def reestimate_vehicles(msgs: Sequence[Msg], epoch_unix_s: float | None = None, 
     their errors against the recorded truth of the same time. Returns ``{name: {"n", "compared",
     "equal", "bit_exact", "missing_from", "error", "rms_err_m", "max_err_m", "final_err_m",
     "estimates": [Msg]}}``."""
-    from collections import Counter
-
-    import numpy as np
-
-    from net import messages as M
-    from vehicle.core import estimate_msg
-    from vehicle.navigator.live import replay
-
     from ..log.series import Recording, VehicleSeries
 
     vehicles: dict[str, VehicleSeries] = {}
@@ -483,42 +475,57 @@ def reestimate_vehicles(msgs: Sequence[Msg], epoch_unix_s: float | None = None, 
             Recording._add_vehicle(vehicles.setdefault(msg["src"], VehicleSeries(msg["src"])), msg)
             if msg["kind"] == "veh_estimate":
                 rec_log[(msg["src"], msg["seq"])] = m.log_time
-    out: dict[str, dict] = {}
-    for name, v in sorted(vehicles.items()):
-        d: dict[str, Any] = {"n": 0, "compared": 0, "equal": 0, "bit_exact": False, "missing_from": None,
-                             "error": None, "estimates": []}
-        out[name] = d
-        entries, d["missing_from"] = v.journal()
-        if v.init is None or not entries:
-            d["error"] = "no veh_init record" if v.init is None else "no veh_input journal from seq 1"
-            continue
+    return {name: rerun_vehicle(v, rec_log, epoch_unix_s, speed) for name, v in sorted(vehicles.items())}
+
+
+def rerun_vehicle(v, rec_log: dict[tuple[str, int], int], epoch_unix_s: float | None, speed: float) -> dict:
+    """One vehicle of :func:`reestimate_vehicles` (``v`` a :class:`larns.log.series.VehicleSeries`;
+    ``rec_log`` the log time of each recorded estimate)."""
+    from collections import Counter
+
+    import numpy as np
+
+    from net import messages as M
+    from vehicle.core import estimate_msg
+    from vehicle.navigator.live import replay
+
+    name = v.name
+    d: dict[str, Any] = {"n": 0, "compared": 0, "equal": 0, "bit_exact": False, "missing_from": None,
+                         "error": None, "invalid": 0, "recorded": len(v.estimates), "estimates": []}
+    entries, d["missing_from"] = v.journal()
+    if v.init is None or not entries:
+        d["error"] = "no veh_init record" if v.init is None else "no veh_input journal from seq 1"
+        return d
+    try:
+        ests = replay(v.init, entries)
+    except Exception as e:  # a bad journal must not kill the whole run
+        d["error"] = f"replay failed: {type(e).__name__}: {e}"
+        return d
+    recorded = {e["seq"]: e for e in v.estimates}
+    seq: Counter[str] = Counter()
+    errs = []
+    for e in ests:
         try:
-            ests = replay(v.init, entries)
-        except Exception as e:  # a bad journal must not kill the whole run
-            d["error"] = f"replay failed: {type(e).__name__}: {e}"
-            continue
-        recorded = {e["seq"]: e for e in v.estimates}
-        seq: Counter[str] = Counter()
-        errs = []
-        for e in ests:
             o = M.validate_msg(M.to_plain(estimate_msg(name, seq, e)))
-            r = recorded.get(o["seq"])
-            if r is not None:
-                d["compared"] += 1
-                d["equal"] += all(o.get(k) == r.get(k) for k in VEHICLE_FIELDS)
-            t = v.truths.get(o["t_s"])
-            if t is not None:
-                errs.append(float(np.linalg.norm(np.subtract(o["pos_m"], t["pos_m"]))))
-            lt = rec_log.get((name, o["seq"]))
-            pub = int(round((epoch_unix_s + o["stamp_s"] / speed) * 1e9)) if epoch_unix_s is not None else lt
-            d["estimates"].append(Msg(M.key_for(o), lt if lt is not None else (pub or 0), pub or 0, o["seq"],
-                                      M.encode(o)))
-        e_arr = np.asarray(errs)
-        d.update(n=len(ests), bit_exact=d["compared"] > 0 and d["equal"] == d["compared"],
-                 recorded=len(v.estimates), rms_err_m=float(np.sqrt(np.mean(e_arr**2))) if e_arr.size else math.nan,
-                 max_err_m=float(e_arr.max()) if e_arr.size else math.nan,
-                 final_err_m=float(e_arr[-1]) if e_arr.size else math.nan)
-    return out
+        except M.MessageError:  # the live process refused to send it too (counted, not compared)
+            d["invalid"] += 1
+            continue
+        r = recorded.get(o["seq"])
+        if r is not None:
+            d["compared"] += 1
+            d["equal"] += all(o.get(k) == r.get(k) for k in VEHICLE_FIELDS)
+        t = v.truths.get(o["t_s"])
+        if t is not None:
+            errs.append(float(np.linalg.norm(np.subtract(o["pos_m"], t["pos_m"]))))
+        lt = rec_log.get((name, o["seq"]))
+        pub = int(round((epoch_unix_s + o["stamp_s"] / speed) * 1e9)) if epoch_unix_s is not None else lt
+        d["estimates"].append(Msg(M.key_for(o), lt if lt is not None else (pub or 0), pub or 0, o["seq"], M.encode(o)))
+    e_arr = np.asarray(errs)
+    d.update(n=len(ests), bit_exact=d["compared"] > 0 and d["equal"] == d["compared"],
+             rms_err_m=float(np.sqrt(np.mean(e_arr**2))) if e_arr.size else math.nan,
+             max_err_m=float(e_arr.max()) if e_arr.size else math.nan,
+             final_err_m=float(e_arr[-1]) if e_arr.size else math.nan)
+    return d
 
 
 def format_result(res: OfflineResult, compare: bool = True) -> str:

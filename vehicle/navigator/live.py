@@ -231,8 +231,8 @@ class VehicleNavigator:
         f = self.filt
         p_g, v_g, Jp, Jv = f.geometry(self.t, f.x)
         P = f.P[0]
-        cov_p = self.tie.cov_to_network(Jp[0] @ P @ Jp[0].T)
-        cov_v = self.tie.cov_to_network(Jv[0] @ P @ Jv[0].T)
+        cov_p = _psd(self.tie.cov_to_network(Jp[0] @ P @ Jp[0].T))
+        cov_v = _psd(self.tie.cov_to_network(Jv[0] @ P @ Jv[0].T))
         extra = {"along_m": float(f.x[0, 9]), "speed_m_s": float(f.x[0, 10]), "clock_m": float(f.x[0, 11]),
                  "drift_m_s": float(f.x[0, 12]), "leg": float(f.seg[0]), "t0_s": self.t0_s,
                  "updated": 1.0 if why == "update" else 0.0}
@@ -242,6 +242,15 @@ class VehicleNavigator:
         return {"t_s": self.t0_s + self.t, "pos_m": self.tie.to_network(p_g[0]).tolist(), "cov_m2": cov_p.tolist(),
                 "vel_m_s": self.tie.vec_to_network(v_g[0]).tolist(), "vel_cov": cov_v.tolist(), "algo": ALGO,
                 "n_updates": self.n_updates, "extra": extra}
+
+
+def _psd(C: np.ndarray) -> np.ndarray:
+    """Symmetrized, with the variances clipped at 0: the map makes the cross-track and vertical
+    variances zero in exact arithmetic, a rounding error of -1e-17 m^2 in floating point."""
+    C = 0.5 * (C + C.T)
+    i = np.arange(C.shape[0])
+    C[i, i] = np.maximum(C[i, i], 0.0)
+    return C
 
 
 def replay(rec: dict[str, Any], entries: Iterable[list]) -> list[dict]:
