@@ -141,14 +141,15 @@ def run_algo(
 def pcrb_track(
     model: str, track: Track, stations_m: np.ndarray, tuning: Tuning, clock: mdl.ReceiverClock,
     station_cov_m2: np.ndarray | None = None, clock_var_m2: np.ndarray | float | None = None,
-    clock_tau_s: float = 0.0,
+    clock_tau_s: float = 0.0, lost: np.ndarray | None = None,
 ) -> np.ndarray:
     """Posterior CRLB of the filter's own model along the true track; position bound (T, 3, 3).
 
     ``clock_var_m2`` (scalar or (m,)) with ``clock_tau_s > 0``: the stations' residual clock errors are
     first-order Gauss-Markov range biases of that stationary variance and correlation time; the bound
     is that of the augmented state ``[x, beta]`` (:func:`nav.pcrb.augment_biases`), i.e. of the world
-    with station clocks. ``clock_tau_s == 0``: white, added to the range variance.
+    with station clocks. ``clock_tau_s == 0``: white, added to the range variance. ``lost`` (T, m) bool:
+    measurements not available (their information is left out: e.g. a station from its exclusion on).
     """
     layout = mdl.StateLayout(model, drift=tuning.drift_state and model == "pr")
     xt = true_state(track, clock, layout)
@@ -159,6 +160,8 @@ def pcrb_track(
     white = clock_var_m2 is not None and not clock_tau_s > 0
     sig = np.sqrt(tuning.sigma_m**2 + (np.broadcast_to(clock_var_m2, (m,)) if white else 0.0))
     var = mdl.range_var(xt, stations_m, station_cov_m2, sig)  # (T, m)
+    if lost is not None:  # no information: a variance of (100 km)^2 (differences: the others' remain)
+        var = np.where(np.asarray(lost, dtype=bool), 1e10, var)
     if model == "pr":
         H = mdl.jac_pr(xt, stations_m)
         R = mdl.r_pr(var)
