@@ -130,3 +130,25 @@ def test_estimator_publishes_integrity_fields_and_they_round_trip():
         M.validate_msg({**msg, "hpl_m": -1.0})
     with pytest.raises(M.MessageError, match="excluded"):
         M.validate_msg({**msg, "excluded": ["x"]})
+
+
+def test_tdma_slots_exclude_the_biased_station():
+    """The node's path: one station per slot, scalar updates (w = nu^2 / S); the window's per-station
+    sums identify the biased one."""
+    rng = np.random.default_rng(5)
+    slot_s = 0.025
+    t = np.arange(480) * slot_s
+    track = _track(480, rate_hz=1.0 / slot_s)
+    clock = mdl.ReceiverClock()
+    ids = [11, 12, 13, 14]
+    est = AircraftEstimator("ukf-pr", EstimatorConfig(tuning=TUNING), x0_guess_m=track.pos_m[0] + 30.0)
+    for k in range(t.size):
+        j = k % 4
+        r = np.linalg.norm(track.pos_m[k] - STATIONS[j]) + clock.bias_m(t[k]) + 0.5 * rng.standard_normal()
+        r += 30.0 if (j == 2 and t[k] >= 6.0) else 0.0
+        est.on_measurement(float(t[k]), ids[j], STATIONS[j], np.zeros((3, 3)), float(r))
+    e = est.estimate()
+    assert e["excluded"] == [13]
+    (t_ex, _, sid, _, _), = est.fde.events
+    assert sid == 13 and 6.0 <= t_ex <= 6.5
+    assert np.linalg.norm(np.asarray(e["pos_m"]) - track.pos_m[-1]) < 30.0
