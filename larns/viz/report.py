@@ -365,7 +365,7 @@ def _integrity_md(ig: dict | None) -> list[str]:
     for sid, by in ig["stations"].items():
         L.append(f"- station {sid} EXCLUDED by {','.join(map(str, by))}")
     if ig["aircraft"]:
-        L += ["", "| aircraft | algorithm | excluded (first t s) | HPL median m | VPL median m | error > HPL |",
+        L += ([""] if ig["stations"] else []) + ["| aircraft | algorithm | excluded (first t s) | HPL median m | VPL median m | error > HPL |",
               "|---|---|---|---:|---:|---:|"]
         for name, per in ig["aircraft"].items():
             for algo, r in per.items():
