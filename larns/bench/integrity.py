@@ -6,6 +6,10 @@ clean centralized CRLB of the same realized links, their mean NEES (3 dof), and 
 ``integrity`` decisions: whether the faulty station was excluded by a non-faulty neighbour, how soon
 after the fault's onset, and the false exclusions (a non-faulty station excluding a non-faulty one)
 per station-hour.
+
+``--aircraft``: snapshot RAIM/FDE (``aircraft/raim.py``) and the aircraft filters' integrity
+(``aircraft/fde.py``: gate, windowed test, exclusion, HPL/VPL) on the seed001/seed003 worlds with one
+station biased by 30 m from t = 20 s (JSON ``aircraft[*].filter_integrity``).
 """
 
 from __future__ import annotations
