@@ -25,6 +25,7 @@ from nav.ut import SigmaParams, unscented_transform
 
 from . import coords as crd
 from . import models as mdl
+from .fde import FdeConfig, FilterFde, protection_levels
 
 ALGOS = mdl.ALGOS
 # correlation time of a station's residual sync error after the broadcast correction, s (measured with
@@ -428,6 +429,18 @@ class CvTracker:
         D[rows, idx] = 1.0
         return D
 
+    def save(self) -> tuple:
+        """The filter's state (mean, covariance, coordinates, clock-bias states) for :meth:`restore`."""
+        return (self._x, self._P, self._inv, list(self.bias_ids), self._bias_var.copy(), self._bias_t.copy(),
+                self._ref, self._radius, self.t_s)
+
+    def restore(self, saved: tuple) -> None:
+        """Back to a :meth:`save`d state (an update re-run with other measurements: aircraft/fde.py)."""
+        (self._x, self._P, self._inv, ids, bv, bt, self._ref, self._radius, self.t_s) = saved
+        self.bias_ids, self._bias_var, self._bias_t = list(ids), bv.copy(), bt.copy()
+        self._bias_changed()
+        self._r_key = None
+
     def predict_to(self, t_s: float) -> None:
         """Propagate to ``t_s`` (no-op if ``t_s <= t``: measurements are never processed backwards)."""
         dt = t_s - self.t_s
@@ -753,6 +766,8 @@ class EstimatorConfig:
     max_batch_age_s: float = 5.0  # TDMA: measurements older than this are dropped from a batch
     # start from the broadcasts alone (aircraft/initializer.py): snapshot fix or wide prior
     init: "InitConfig | None" = None
+    # filters: innovation gate, windowed residual test, exclusion, HPL/VPL (aircraft/fde.py); None = off
+    fde: FdeConfig | None = field(default_factory=FdeConfig)
 
 
 class AircraftEstimator:
@@ -784,6 +799,7 @@ class AircraftEstimator:
         self.n_dropped = 0
         self.n_resets = 0
         self.init = None  # the InitResult of the latest start (broadcast initializer)
+        self.fde = None if self.cfg.fde is None else FilterFde(self.cfg.fde)
 
     # -- input
     def on_epoch(self, t_s: float, station_pos_m, station_cov_m2, rho_m, station_ids=None,
@@ -815,8 +831,8 @@ class AircraftEstimator:
             # sequential scalar update at the slot's own time
             try:
                 self.tracker.predict_to(t_s)
-                self.tracker.update(pos[None], np.array([rho_m]), cov[None],
-                                    bias_ids=[station_id], bias_var_m2=np.array([cvar]))
+                self._update(pos[None], np.array([rho_m]), cov[None], None, [station_id],
+                             bias_ids=[station_id], bias_var_m2=np.array([cvar]))
             except np.linalg.LinAlgError:
                 self._reset()
                 return
@@ -862,7 +878,7 @@ class AircraftEstimator:
             if self.cfg.tuning.sequential and self.model == "pr" and not np.any(dt):
                 self.tracker.update_sequential(pos, rho, cov_trk, **bias_kw)
             else:
-                self.tracker.update(pos, rho, cov_trk, dt if np.any(dt) else None, **bias_kw)
+                self._update(pos, rho, cov_trk, dt if np.any(dt) else None, ids, **bias_kw)
         except np.linalg.LinAlgError:
             self._reset()
             return
@@ -871,6 +887,14 @@ class AircraftEstimator:
             return
         self.t_s = t_s
         self.n_updates += 1
+
+    def _update(self, pos, rho, cov, dt, ids, **bias_kw) -> None:
+        """One filter update, through the integrity monitor when there is one."""
+        if self.fde is None:
+            self.tracker.update(pos, rho, cov, dt, **bias_kw)
+        else:
+            self.fde.update(self.tracker, pos, rho, list(range(len(rho))) if ids is None else ids, cov, dt,
+                            **bias_kw)
 
     def _start(self, t_s, pos, cov, rho) -> None:
         """No filter yet: a snapshot fix from the batch (LSQ), or the filter's start."""
@@ -940,11 +964,14 @@ class AircraftEstimator:
         self.tracker = None
         self.fix = None
         self.n_resets += 1
+        if self.fde is not None:  # exclusions stand; the new filter's transient passes before the gate
+            self.fde.restart()
 
     # -- output
     def estimate(self) -> dict | None:
         """Latest estimate: ``t_s``, ``pos_m`` [3], ``cov_m2`` [3][3] (LSQ: its ``(H^T W H)^-1``), ``vel_m_s``,
-        ``clock_m``, ``n_updates``."""
+        ``clock_m``, ``n_updates``; filters with integrity monitoring (``config.fde``) add ``hpl_m``,
+        ``vpl_m`` (aircraft/fde.py) and ``excluded`` (station ids)."""
         if self.t_s is None:
             return None
         if self.tracker is None:
@@ -960,6 +987,10 @@ class AircraftEstimator:
             return {"t_s": self.t_s, "pos_m": self.fix[:3].tolist(), "cov_m2": C, "vel_m_s": None,
                     "clock_m": float(self.fix[3]) if self.fix.size == 4 else None, "n_updates": self.n_updates}
         x, P = self.tracker.x, self.tracker.P
-        return {"t_s": self.tracker.t_s, "pos_m": x[:3].tolist(), "cov_m2": P[:3, :3].tolist(),
-                "vel_m_s": x[3:6].tolist(), "clock_m": float(x[6]) if x.size > 6 else None,
-                "n_updates": self.n_updates}
+        out = {"t_s": self.tracker.t_s, "pos_m": x[:3].tolist(), "cov_m2": P[:3, :3].tolist(),
+               "vel_m_s": x[3:6].tolist(), "clock_m": float(x[6]) if x.size > 6 else None,
+               "n_updates": self.n_updates}
+        if self.fde is not None:
+            hpl, vpl = protection_levels(P[:3, :3], self.fde.cfg.integrity_risk)
+            out.update(hpl_m=float(hpl), vpl_m=float(vpl), excluded=self.fde.excluded())
+        return out

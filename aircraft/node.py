@@ -139,12 +139,22 @@ class AircraftCore:
                           algo=algo, n_updates=int(e["n_updates"]))
             if e["vel_m_s"] is not None:
                 m["vel_m_s"] = e["vel_m_s"]
+            m.update(integrity_fields(e))
             out.append(m)
         return out
 
     def _msg(self, kind: str, **fields: Any) -> dict:
         self.seq[kind] += 1
         return {"kind": kind, "src": self.name, "seq": self.seq[kind], "stamp_s": float(fields["t_s"]), **fields}
+
+
+def integrity_fields(e: dict) -> dict:
+    """The optional ``ac_estimate`` integrity fields of an estimate: ``hpl_m``, ``vpl_m`` (finite only),
+    ``excluded`` (station ids)."""
+    out = {k: float(e[k]) for k in ("hpl_m", "vpl_m") if e.get(k) is not None and math.isfinite(e[k])}
+    if e.get("excluded") is not None:
+        out["excluded"] = [int(i) for i in e["excluded"]]
+    return out
 
 
 class AircraftNode:
@@ -299,7 +309,8 @@ class AircraftNode:
             if e is not None:
                 pt, _ = self.core.track.at(e["t_s"])
                 out["estimates"][a] = {"t_s": e["t_s"], "err_m": float(np.linalg.norm(np.asarray(e["pos_m"]) - pt)),
-                                       "n_updates": e["n_updates"]}
+                                       "n_updates": e["n_updates"], **({"excluded": e["excluded"]}
+                                                                       if e.get("excluded") else {})}
         if self.ins is not None and self.ins.ekf is not None:
             e = self.ins.ekf
             pt = self.ins.truth_n(e.t_s)[0]

@@ -14,6 +14,7 @@ from nav.pcrb import augment_biases, pcrb_linear_gaussian, prior_before_first_st
 
 from . import models as mdl
 from .estimators import CvTracker, Tuning, lsq_pr, lsq_tdoa
+from .fde import FilterFde, protection_levels
 from .trajectory import Track
 
 
@@ -26,6 +27,9 @@ class RunResult:
     nees: np.ndarray | None = None
     nis: np.ndarray | None = None
     P_pos: np.ndarray | None = None  # (M, T, 3, 3) filter position covariance (filters only)
+    hpl_m: np.ndarray | None = None  # (M, T) protection levels (filters with ``fde``)
+    vpl_m: np.ndarray | None = None
+    fde: object | None = None  # the aircraft.fde.FilterFde (gate/exclusion record)
 
 
 def pseudoranges(
@@ -51,7 +55,8 @@ def true_state(track: Track, clock: mdl.ReceiverClock, layout: mdl.StateLayout) 
 def run_algo(
     algo: str, track: Track, stations_m: np.ndarray, rho: np.ndarray, tuning: Tuning, clock: mdl.ReceiverClock,
     rng: np.random.Generator, station_cov_m2: np.ndarray | None = None, keep_cov: bool = False,
-    lsq_stride: int = 1, clock_var_m2: np.ndarray | float | None = None,
+    lsq_stride: int = 1, clock_var_m2: np.ndarray | float | None = None, fde=None,
+    bias_m: np.ndarray | None = None,
 ) -> RunResult:
     """Run one algorithm over all epochs of ``rho`` (T, M, m); returns the errors against the truth.
 
@@ -65,8 +70,13 @@ def run_algo(
     range variance); LSQ, a snapshot, adds them to each range's variance (one epoch sees each station's
     residual once; stations independent). NEES is that of the navigation states (the filter's first
     ``n`` states), the bias states' marginal excluded.
+
+    ``fde`` (:class:`aircraft.fde.FdeConfig`): filters gate, test and exclude stations (ids 0..m-1) and
+    report HPL/VPL. ``bias_m`` (T, m): a fault added to the ranges (the estimators never see it apart).
     """
     method, model = algo.split("-")
+    if bias_m is not None:
+        rho = rho + bias_m[:, None, :]
     T, M, m = rho.shape
     err = np.empty((M, T, 3))
     layout = mdl.StateLayout(model, drift=tuning.drift_state and model == "pr")
@@ -100,9 +110,14 @@ def run_algo(
     nees = np.empty((M, T))
     nis = np.empty((M, T))
     P_pos = np.empty((M, T, 3, 3)) if keep_cov else None
+    mon = None if fde is None else FilterFde(fde, (M,))
+    hpl = None if fde is None else np.empty((M, T))
+    vpl = None if fde is None else np.empty((M, T))
     for k in range(T):
         trk.predict_to(float(track.t_s[k]))
-        if tuning.sequential and model == "pr":
+        if mon is not None:
+            nu, S = mon.update(trk, stations_m, rho[k], list(range(m)), station_cov_m2, **kw)
+        elif tuning.sequential and model == "pr":
             nu, s_diag = trk.update_sequential(stations_m, rho[k], station_cov_m2, **kw)
             S = s_diag[..., :, None] * np.eye(s_diag.shape[-1])  # NIS of the sequential innovations
         else:
@@ -118,20 +133,23 @@ def run_algo(
         nis[:, k] = np.einsum("...i,...i->...", ws, ws)
         if keep_cov:
             P_pos[:, k] = P[:, :3, :3]
-    return RunResult(err, nees, nis, P_pos)
+        if mon is not None:
+            hpl[:, k], vpl[:, k] = protection_levels(P[:, :3, :3], fde.integrity_risk)
+    return RunResult(err, nees, nis, P_pos, hpl, vpl, mon)
 
 
 def pcrb_track(
     model: str, track: Track, stations_m: np.ndarray, tuning: Tuning, clock: mdl.ReceiverClock,
     station_cov_m2: np.ndarray | None = None, clock_var_m2: np.ndarray | float | None = None,
-    clock_tau_s: float = 0.0,
+    clock_tau_s: float = 0.0, lost: np.ndarray | None = None,
 ) -> np.ndarray:
     """Posterior CRLB of the filter's own model along the true track; position bound (T, 3, 3).
 
     ``clock_var_m2`` (scalar or (m,)) with ``clock_tau_s > 0``: the stations' residual clock errors are
     first-order Gauss-Markov range biases of that stationary variance and correlation time; the bound
     is that of the augmented state ``[x, beta]`` (:func:`nav.pcrb.augment_biases`), i.e. of the world
-    with station clocks. ``clock_tau_s == 0``: white, added to the range variance.
+    with station clocks. ``clock_tau_s == 0``: white, added to the range variance. ``lost`` (T, m) bool:
+    measurements not available (their information is left out: e.g. a station from its exclusion on).
     """
     layout = mdl.StateLayout(model, drift=tuning.drift_state and model == "pr")
     xt = true_state(track, clock, layout)
@@ -142,6 +160,8 @@ def pcrb_track(
     white = clock_var_m2 is not None and not clock_tau_s > 0
     sig = np.sqrt(tuning.sigma_m**2 + (np.broadcast_to(clock_var_m2, (m,)) if white else 0.0))
     var = mdl.range_var(xt, stations_m, station_cov_m2, sig)  # (T, m)
+    if lost is not None:  # no information: a variance of (100 km)^2 (differences: the others' remain)
+        var = np.where(np.asarray(lost, dtype=bool), 1e10, var)
     if model == "pr":
         H = mdl.jac_pr(xt, stations_m)
         R = mdl.r_pr(var)

@@ -50,6 +50,8 @@ def register(sub) -> None:
     p.add_argument("--quick", action="store_true", help="small smoke-test version (few runs, short, 2 points each)")
     p.add_argument("--no-sweep", action="store_true", help="skip the height sweep")
     p.add_argument("--no-speed", action="store_true", help="skip the filterpy speed comparison")
+    p.add_argument("--no-fde", action="store_true",
+                   help="filters without the integrity gate/exclusion (aircraft/fde.py; default: on)")
     p.add_argument("--sync-ns", type=float, default=None, metavar="NS",
                    help="station clocks on: residual sync error of each station after the broadcast correction "
                         "(1 sigma, ns), broadcast to the aircraft as its clock variance (default 0; --clocks: 0.7)")
@@ -97,7 +99,8 @@ def sync_errors_m(shape: tuple[int, int, int], sync_m: float, tau_s: float, dt_s
 
 def run_point(ac, kind: str, dist_m: float, runs: int, duration_s: float, warmup_s: float,
               height_m: float | None, rng: np.random.Generator, algos=ALGOS, lsq_stride: int = 4,
-              sync_m: float = 0.0, sync_tau_s: float = 0.0, clock_bias: str | None = None) -> dict:
+              sync_m: float = 0.0, sync_tau_s: float = 0.0, clock_bias: str | None = None,
+              fde: bool = True) -> dict:
     """All algorithms at one point; returns rmse, pcrb (filters), nees/nis means, height, samples, timings.
 
     ``sync_m``, ``sync_tau_s``: the world's residual station clock errors after the broadcast
@@ -105,8 +108,10 @@ def run_point(ac, kind: str, dist_m: float, runs: int, duration_s: float, warmup
     to the aircraft as the clock variance ``sync_m^2``; the filters model them with the tuning's
     ``clock_bias`` (``clock_bias`` overrides it) and the world's correlation time, the PCRB is that of
     the world (augmented with one bias per station). NEES: navigation states (n dof), mean over the
-    window, with its 95 % chi-square band treating the runs as independent."""
+    window, with its 95 % chi-square band treating the runs as independent. ``fde``: the filters gate,
+    test and exclude stations (aircraft/fde.py, the default; on clean data a gated measurement is rare)."""
     from aircraft import sim, trajectory
+    from aircraft.fde import FdeConfig
 
     dt = 1.0 / ac.rate_hz
     t = np.arange(0.0, duration_s, dt)
@@ -133,7 +138,7 @@ def run_point(ac, kind: str, dist_m: float, runs: int, duration_s: float, warmup
         t0 = time.perf_counter()
         stride = lsq_stride if method == "lsq" else 1
         res = sim.run_algo(algo, track, ac.stations_m, rho, tuning, ac.clock, rng, lsq_stride=stride,
-                           clock_var_m2=cvar)
+                           clock_var_m2=cvar, fde=FdeConfig() if fde and method != "lsq" else None)
         el = time.perf_counter() - t0
         w = win[::stride]
         out["rmse_m"][algo] = sim.rms_total(res.err_m[:, w])
@@ -263,13 +268,13 @@ def _clock_settings(args):
     return clocks, sync_ns, sync_tau
 
 
-def _height_sweep(ac, sweep_h, runs, duration, warmup, rng) -> dict:
+def _height_sweep(ac, sweep_h, runs, duration, warmup, rng, fde: bool = True) -> dict:
     """Hover at 1000 m for each height of ``sweep_h``: the four filters."""
     sweep = {}
     for j, h in enumerate(sweep_h):
         _progress(f"height sweep {j + 1}/{len(sweep_h)}: hover 1000 m at h = {h:g} m")
         sweep[f"{h:g}"] = run_point(ac, "hover", 1000.0, runs, duration, warmup, h, rng,
-                                    algos=("ekf-pr", "ukf-pr", "ekf-tdoa", "ukf-tdoa"))
+                                    algos=("ekf-pr", "ukf-pr", "ekf-tdoa", "ukf-tdoa"), fde=fde)
     return sweep
 
 
@@ -287,6 +292,7 @@ def run(args) -> int:
     if clocks and not sync_ns > 0:
         print("error: --clocks needs --sync-ns > 0", file=sys.stderr)
         return 2
+    fde = not getattr(args, "no_fde", False)
     rng = np.random.default_rng(args.seed)
     rng_perfect = np.random.default_rng(args.seed)  # same draws; the clock world adds its biases after them
     t_start = time.perf_counter()
@@ -296,11 +302,12 @@ def run(args) -> int:
     for i, (kind, d) in enumerate(points):
         _progress(f"{i + 1}/{len(points)} {kind} {d:g} m ({runs} runs x {duration:g} s)")
         if clocks:
-            res_perfect[kind][f"{d:g}"] = run_point(ac, kind, d, runs, duration, warmup, args.height, rng_perfect)
+            res_perfect[kind][f"{d:g}"] = run_point(ac, kind, d, runs, duration, warmup, args.height, rng_perfect,
+                                                    fde=fde)
         res[kind][f"{d:g}"] = run_point(ac, kind, d, runs, duration, warmup, args.height, rng,
                                         sync_m=sync_ns * 0.299792458, sync_tau_s=sync_tau,
-                                        clock_bias=getattr(args, "clock_bias", None))
-    sweep = {} if args.no_sweep else _height_sweep(ac, sweep_h, runs, duration, warmup, rng)
+                                        clock_bias=getattr(args, "clock_bias", None), fde=fde)
+    sweep = {} if args.no_sweep else _height_sweep(ac, sweep_h, runs, duration, warmup, rng, fde)
     speed = None if args.no_speed else speed_vs_filterpy(ac, steps=100 if args.quick else 400)
     wall = time.perf_counter() - t_start
 
@@ -308,6 +315,7 @@ def run(args) -> int:
                     bar=BAR_CLOCKS if sync_ns > 0 else BAR)
     out["settings"]["sync_ns"], out["settings"]["sync_tau_s"] = sync_ns, sync_tau
     out["settings"]["clock_bias"] = getattr(args, "clock_bias", None) or ac.tuning.clock_bias
+    out["settings"]["fde"] = fde
     if clocks:
         out["perfect_clocks"] = _assemble(res_perfect, {}, None, runs, duration, warmup, args, ac, wall)
     _print_table(out)

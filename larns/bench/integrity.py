@@ -6,6 +6,10 @@ clean centralized CRLB of the same realized links, their mean NEES (3 dof), and 
 ``integrity`` decisions: whether the faulty station was excluded by a non-faulty neighbour, how soon
 after the fault's onset, and the false exclusions (a non-faulty station excluding a non-faulty one)
 per station-hour.
+
+``--aircraft``: snapshot RAIM/FDE (``aircraft/raim.py``) and the aircraft filters' integrity
+(``aircraft/fde.py``: gate, windowed test, exclusion, HPL/VPL) on the seed001/seed003 worlds with one
+station biased by 30 m from t = 20 s (JSON ``aircraft[*].filter_integrity``).
 """
 
 from __future__ import annotations
@@ -54,6 +58,10 @@ def register(sub) -> None:
                    help="also run aircraft RAIM/FDE on these scenarios' [aircraft] worlds (default when given "
                         "without names: seed001 seed003): one station biased by 30 m from t = 20 s, and clean")
     p.add_argument("--ac-runs", type=int, default=40, help="aircraft Monte Carlo runs per world (default 40)")
+    p.add_argument("--ac-filters", nargs="*", default=list(AC_FILTERS), metavar="ALGO",
+                   help=f"aircraft filters with integrity monitoring (aircraft/fde.py) on the same worlds at the "
+                        f"scenario's epoch rate, {AC_FILTER_DURATION_S:g} s (default: {' '.join(AC_FILTERS)}; "
+                        "none: snapshot RAIM only)")
     p.set_defaults(func=main)
 
 
@@ -122,6 +130,104 @@ def aircraft_raim(scenario: str, runs: int, seed: int, duration_s: float = 40.0)
         crlb_without_station_m=float(np.sqrt(np.mean(crlb))) if crlb else None,
         false_alarm_rate=alarms / n_clean, hpl_exceed_rate=exceed_h / n_clean, vpl_exceed_rate=exceed_v / n_clean,
     )
+    return out
+
+
+AC_FILTERS = ("ekf-pr", "ukf-pr", "ukf-tdoa")
+AC_FILTER_DURATION_S = 40.0
+AC_DETECT_WITHIN_S = 5.0
+AC_SETTLE_S = 5.0  # RMSE after exclusion: from onset + this to the end
+
+
+def _filter_case(algo, track, ac, rho, bias, fde, onset_s, bad_id, seed):
+    """One filter over the runs with the fault ``bias`` (T, m) or clean (None): detection, errors, PLs."""
+    from aircraft import sim
+
+    r = sim.run_algo(algo, track, ac.stations_m, rho, ac.tuning, ac.clock, np.random.default_rng([seed, 15]),
+                     fde=fde, bias_m=bias)
+    t = track.t_s
+    mon = r.fde
+    M = rho.shape[1]
+    h = np.hypot(r.err_m[..., 0], r.err_m[..., 1])
+    armed = np.arange(t.size) >= fde.arm_after
+    first = {}
+    for t_e, run, sid, _, _ in mon.events:
+        first.setdefault(run, []).append((t_e, sid))
+    out = {"false_exclusions": sum(1 for ev in first.values() for te, sid in ev if sid != bad_id or te < onset_s)}
+    out["alarms"] = int(mon.alarms.sum())
+    out["epochs_tested"] = int(M * armed.sum())
+    out["gated"] = int(mon.gated.sum())
+    out["hpl_exceed"] = int((h[:, armed] > r.hpl_m[:, armed]).sum())
+    out["hpl_exceed_runs"] = int((h[:, armed] > r.hpl_m[:, armed]).any(axis=1).sum())  # exceedances are correlated in time
+    out["vpl_exceed"] = int((np.abs(r.err_m[:, armed, 2]) > r.vpl_m[:, armed]).sum())
+    out["hpl_median_m"] = float(np.median(r.hpl_m[:, armed]))
+    if bias is not None:
+        det = [next((te - onset_s for te, sid in first.get(k, []) if sid == bad_id and te >= onset_s), None)
+               for k in range(M)]
+        w = t >= onset_s + AC_SETTLE_S
+        out["detect_times_s"] = det
+        out["rmse_after_m"] = sim.rms_total(r.err_m[:, w])
+        out["nees_after"] = float(np.mean(r.nees[:, w]))
+    else:
+        w = t >= onset_s
+        out["rmse_clean_m"] = sim.rms_total(r.err_m[:, w])
+        out["nees_clean"] = float(np.mean(r.nees[:, w]))
+    return out
+
+
+def aircraft_filters(scenario: str, runs: int, seed: int, algos=AC_FILTERS,
+                     duration_s: float = AC_FILTER_DURATION_S) -> dict:
+    """The aircraft filters' integrity (aircraft/fde.py) on the scenario's track at its epoch rate:
+    one station's pseudoranges biased by ``AC_BIAS_M`` from ``AC_ONSET_S`` (detection and exclusion,
+    RMSE from onset + 5 s against the PCRB without that station from the onset), and the same draws
+    without the fault (false alarms per tested epoch, HPL/VPL exceedances). Filters start like the
+    seed-001 bench (truth + a draw from their prior); station positions are the true ones."""
+    from aircraft import sim, trajectory
+    from aircraft.config import from_scenario
+    from aircraft.fde import FdeConfig
+    from net.scenario import load
+
+    sc = load(scenario)
+    ac = from_scenario(sc)
+    fde = FdeConfig()
+    t = np.arange(0.0, duration_s, 1.0 / ac.rate_hz)
+    track = trajectory.from_config(dict(ac.trajectory), t, ac.centre_m, ac.height_m)
+    rho = sim.pseudoranges(track, ac.stations_m, ac.clock, ac.sigma_m, runs, np.random.default_rng([seed, 16]))
+    m = ac.stations_m.shape[0]
+    bad = m // 2
+    bias = np.zeros((t.size, m))
+    bias[t >= AC_ONSET_S, bad] = AC_BIAS_M
+    lost = np.zeros((t.size, m), dtype=bool)
+    lost[t >= AC_ONSET_S, bad] = True
+    w = t >= AC_ONSET_S + AC_SETTLE_S
+    out = {"scenario": scenario, "stations": m, "runs": runs, "faulty_station_index": bad, "faulty_station": int(sc.ids[bad]), "bias_m": AC_BIAS_M,
+           "onset_s": AC_ONSET_S, "duration_s": duration_s, "epochs_per_s": ac.rate_hz,
+           "p_gate": fde.p_gate, "p_fa": fde.p_fa, "window": fde.window, "integrity_risk": fde.integrity_risk,
+           "filters": {}}
+    for algo in algos:
+        model = algo.split("-")[1]
+        f = _filter_case(algo, track, ac, rho, bias, fde, AC_ONSET_S, bad, seed)
+        c = _filter_case(algo, track, ac, rho, None, fde, AC_ONSET_S, bad, seed)
+        P = sim.pcrb_track(model, track, ac.stations_m, ac.tuning, ac.clock, lost=lost)
+        P_all = sim.pcrb_track(model, track, ac.stations_m, ac.tuning, ac.clock)
+        det = f.pop("detect_times_s")
+        found = [d for d in det if d is not None]
+        pcrb = float(np.sqrt(np.mean(np.trace(P[w], axis1=1, axis2=2))))
+        out["filters"][algo] = {
+            "detect_exclude_prob_5s": float(np.mean([d is not None and d <= AC_DETECT_WITHIN_S for d in det])),
+            "detect_exclude_time_s": float(np.median(found)) if found else None,
+            "detect_exclude_time_max_s": float(np.max(found)) if found else None,
+            "rmse_after_exclusion_m": f["rmse_after_m"], "pcrb_without_station_m": pcrb,
+            "ratio": f["rmse_after_m"] / pcrb, "nees_after": f["nees_after"],
+            "false_exclusions_fault_runs": f["false_exclusions"],
+            "rmse_clean_m": c["rmse_clean_m"], "pcrb_clean_m": float(np.sqrt(np.mean(np.trace(P_all[t >= AC_ONSET_S],
+                                                                                              axis1=1, axis2=2)))),
+            "nees_clean": c["nees_clean"],
+            "false_alarms": c["alarms"], "false_exclusions": c["false_exclusions"], "epochs_tested": c["epochs_tested"],
+            "false_alarm_rate": c["alarms"] / c["epochs_tested"], "gated_clean": c["gated"],
+            "hpl_exceed_rate": c["hpl_exceed"] / c["epochs_tested"], "vpl_exceed_rate": c["vpl_exceed"] / c["epochs_tested"],
+            "hpl_median_m": c["hpl_median_m"], "hpl_exceed_runs": c["hpl_exceed_runs"],
+        }
     return out
 
 
@@ -245,6 +351,66 @@ def plot(rows: list[dict], png_dir: Path) -> Path:
     return f
 
 
+def print_filter_table(ac_rows: list[dict]) -> None:
+    """The aircraft filters' integrity table (one row per world and filter)."""
+    f0 = ac_rows[0]["filter_integrity"]
+    print(f"\naircraft filters with integrity monitoring (aircraft/fde.py: gate p = {f0['p_gate']:g} per measurement, "
+          f"window test p_fa = {f0['p_fa']:g} per epoch over {f0['window']} epochs, HPL/VPL for integrity risk "
+          f"{f0['integrity_risk']:g} per epoch; station biased {AC_BIAS_M:g} m from t = {AC_ONSET_S:g} s; "
+          f"RMSE from onset + {AC_SETTLE_S:g} s vs the PCRB without that station)")
+    hdr = ("world", "filter", "P_exc5s", "t_exc_s", "rmse_m", "pcrb_m", "ratio", "NEES", "FA_rate", "FA_n",
+           "HPL_exc", "VPL_exc", "HPL_med_m", "exc_runs")
+    print("  ".join(f"{h:>9}" for h in hdr))
+    for r in ac_rows:
+        fi = r["filter_integrity"]
+        for algo, v in fi["filters"].items():
+            vals = [v["detect_exclude_prob_5s"], v["detect_exclude_time_s"], v["rmse_after_exclusion_m"],
+                    v["pcrb_without_station_m"], v["ratio"], v["nees_after"], v["false_alarm_rate"]]
+            print(f"{fi['scenario']:>9}  {algo:>9}  " + "  ".join(f"{'-':>9}" if x is None else f"{x:9.4g}" for x in vals)
+                  + f"  {v['false_alarms']:>4}/{v['epochs_tested']:<6}" + "  ".join(
+                      f"{x:9.2e}" for x in (v["hpl_exceed_rate"], v["vpl_exceed_rate"])) + f"  {v['hpl_median_m']:9.3g}"
+                  + f"  {v.get('hpl_exceed_runs', '-'):>4}/{fi['runs']}")
+
+
+def plot_filters(ac_rows: list[dict], png_dir: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    png_dir.mkdir(parents=True, exist_ok=True)
+    labels, pdet, ratio, hex_, risk = [], [], [], [], None
+    for r in ac_rows:
+        fi = r["filter_integrity"]
+        risk = fi["integrity_risk"]
+        for algo, v in fi["filters"].items():
+            labels.append(f"{fi['scenario']}\n{algo}")
+            pdet.append(v["detect_exclude_prob_5s"])
+            ratio.append(v["ratio"])
+            hex_.append(max(v["hpl_exceed_rate"], 1e-7))
+    x = np.arange(len(labels))
+    fig, axs = plt.subplots(1, 3, figsize=(13, 4))
+    axs[0].bar(x, pdet, 0.6)
+    axs[0].axhline(0.95, color="k", ls="--", lw=0.8)
+    axs[0].set_ylabel("P(detected and excluded within 5 s)")
+    axs[1].bar(x, ratio, 0.6, color="tab:green")
+    axs[1].axhline(1.2, color="k", ls="--", lw=0.8)
+    axs[1].set_ylabel("RMSE after exclusion / PCRB without the station")
+    axs[2].bar(x, hex_, 0.6, color="tab:red")
+    axs[2].axhline(risk, color="k", ls="--", lw=0.8)
+    axs[2].set_yscale("log")
+    axs[2].set_ylabel("clean: P(horizontal error > HPL) (1e-7 = none)")
+    for a in axs:
+        a.set_xticks(x, labels, fontsize=7)
+        a.grid(alpha=0.3)
+    fig.suptitle(f"Aircraft filters: one station biased {AC_BIAS_M:g} m from {AC_ONSET_S:g} s; clean runs for HPL")
+    fig.tight_layout()
+    f = png_dir / "integrity_aircraft.png"
+    fig.savefig(f, dpi=110)
+    plt.close(fig)
+    return f
+
+
 def main(args) -> int:
     from .progress import progress
 
@@ -285,6 +451,12 @@ def main(args) -> int:
                 f"{'-':>11}" if v is None else f"{v:11.4f}" for v in vals))
             if "note" in r:
                 print(f"  note: {r['note']}")
+    if ac_rows and args.ac_filters:
+        for r in ac_rows:
+            r["filter_integrity"] = aircraft_filters(r["scenario"], args.ac_runs, args.seed, tuple(args.ac_filters))
+        print_filter_table(ac_rows)
+        if args.png_dir:
+            print(f"wrote {plot_filters(ac_rows, Path(args.png_dir))}")
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps({"estimator": args.estimator, "runs": rows, "aircraft": ac_rows},

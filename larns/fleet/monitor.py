@@ -24,6 +24,7 @@ class StationView:
     n_estimates: int = 0
     clock_est: dict = field(default_factory=dict)   # estimate stamp -> estimated clock offset, s
     sync_ns: float = math.nan                       # estimated minus true offset vs network time, ns
+    excludes: list = field(default_factory=list)    # peers its latest integrity message excludes
 
     @property
     def err_m(self) -> float:
@@ -60,6 +61,11 @@ class Monitor:
             return
         if msg["kind"] in ("veh_estimate", "veh_truth"):
             self._on_vehicle(msg)
+            return
+        if msg["kind"] == "integrity":
+            with self.lock:
+                v = self.views.setdefault(msg["src"], StationView(msg["src"]))
+                v.excludes = sorted(msg.get("excluded", []))
             return
         if msg["kind"] not in ("estimate", "truth"):
             return
@@ -124,8 +130,12 @@ class Monitor:
                 tr = min(hist, key=lambda h: abs(h["t_s"] - m["t_s"])) if hist else None
                 err = math.dist(m["pos_m"], tr["pos_m"]) if tr else math.nan
                 sig = float(sigma_m(m["cov_m2"]))
-                out.append(f"aircraft {name:>6} {algo:>10}: t={m['t_s']:7.1f} s  sigma {sig:7.2f} m  "
-                           f"error {err:7.2f} m")
+                line = f"aircraft {name:>6} {algo:>10}: t={m['t_s']:7.1f} s  sigma {sig:7.2f} m  error {err:7.2f} m"
+                if "hpl_m" in m:
+                    line += f"  HPL {m['hpl_m']:7.2f} m  VPL {m.get('vpl_m', math.nan):7.2f} m"
+                if m.get("excluded"):
+                    line += f"  EXCLUDED {','.join(map(str, m['excluded']))}"
+                out.append(line)
         return out
 
 
@@ -138,6 +148,10 @@ def format_table(views: list[StationView], t_s: float, n_alive: int | None = Non
         lines.append(f"{v.id:>7} {v.state:>9} {'-' if v.slot is None else v.slot:>4} {v.n_updates:>7} "
                      f"{p[0]:>9.2f} {p[1]:>9.2f} {p[2]:>8.2f} {v.sigma_m:>8.2f} {v.err_m:>8.2f} {v.dropped:>5} "
                      f"{v.sync_ns:>8.2f}")
+    for v in views:  # integrity (issue 14): who is excluded by whom
+        by = [o.id for o in views if v.id in o.excludes]
+        if by:
+            lines.append(f"{'':>7} station {v.id} EXCLUDED by {','.join(map(str, by))}")
     errs = [v.err_m for v in views if v.state != "frame" and not math.isnan(v.err_m)]
     if errs:
         rms = math.sqrt(sum(e * e for e in errs) / len(errs))

@@ -22,6 +22,7 @@ def open_monitor(args: argparse.Namespace, p: FleetPlan, monitor: Monitor):
               mode=p.mode, secure=(p.secure, "monitor") if p.secure else None)
     bus.subscribe("larns/station/*/estimate", monitor.on_sample)
     bus.subscribe("larns/station/*/truth", monitor.on_sample)
+    bus.subscribe("larns/station/*/integrity", monitor.on_sample)
     if args.aircraft:
         bus.subscribe("larns/aircraft/**", monitor.on_sample)
     if wants_vehicle(args):

@@ -267,6 +267,20 @@ class AircraftSeries:
         return {"t_s": np.array([r["t_s"] for r in rows]), "pos_m": np.array([r["pos_m"] for r in rows], float),
                 "cov_m2": np.array([r["cov_m2"] for r in rows], float)}
 
+    def integrity(self, algo: str) -> dict:
+        """One algorithm's integrity series (issue 14; optional ``ac_estimate`` fields) sorted by time:
+        ``t_s`` (K,), ``hpl_m`` / ``vpl_m`` (K,; NaN where not published), ``excluded`` (list of K id
+        lists), ``exclusions`` {station id: first time it was reported excluded}."""
+        rows = sorted(self.estimates[algo], key=lambda r: r["t_s"])
+        first: dict[int, float] = {}
+        for r in rows:
+            for i in r.get("excluded") or ():
+                first.setdefault(int(i), float(r["t_s"]))
+        return {"t_s": np.array([r["t_s"] for r in rows], float),
+                "hpl_m": np.array([r.get("hpl_m", np.nan) for r in rows], float),
+                "vpl_m": np.array([r.get("vpl_m", np.nan) for r in rows], float),
+                "excluded": [list(r.get("excluded") or ()) for r in rows], "exclusions": first}
+
     def truth_track(self) -> dict[str, np.ndarray] | None:
         """True ``t_s`` (K,), ``pos_m`` (K, 3), ``vel_m_s`` (K, 3; zeros where not recorded)."""
         if not self.truths:

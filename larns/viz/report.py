@@ -50,7 +50,10 @@ def extract(rec) -> dict[str, Any]:
     aircraft = {name: {algo: a.track(algo) for algo in a.algos} for name, a in sorted(rec.aircraft.items())
                 if a.estimates}
     ac_tr = {name: a.truth_track() for name, a in rec.aircraft.items() if a.truths}
-    return {"stations": stations, "aircraft": aircraft, "ac_truth": ac_tr, "reqs": rec.range_requests,
+    ac_int = {name: {algo: a.integrity(algo) for algo in a.algos} for name, a in sorted(rec.aircraft.items())
+              if a.estimates}
+    return {"stations": stations, "aircraft": aircraft, "ac_truth": ac_tr, "ac_integrity": ac_int,
+            "reqs": rec.range_requests,
             "rsps": rec.range_replies, "init": rec.init_record, "latency_ms": rec.net.latency_ms,
             "truth": rec.truth_positions, "slots": {sid: st.slot for sid, st in rec.stations.items()},
             "navs": rec.nav_truth}
@@ -361,6 +364,49 @@ def fig_sync(series: dict[int, np.ndarray], path: Path, after_s: float = 60.0) -
     return M.sync_numbers(st, rms, after_s)
 
 
+def integrity_numbers(d: dict, info: dict) -> dict[str, Any]:
+    """Exclusions (issue 14): stations excluded by their neighbours (``info`` from the summary) and, per
+    aircraft algorithm, the excluded stations with the first time, HPL/VPL medians and how often the
+    horizontal error (truth interpolated to the estimate times) exceeded the published HPL."""
+    out: dict[str, Any] = {"stations": {sid: v["excluded_by"] for sid, v in (info.get("stations") or {}).items()
+                                        if v.get("excluded_by")}, "aircraft": {}}
+    for name, per in d.get("ac_integrity", {}).items():
+        tr = d["ac_truth"].get(name)
+        for algo, ig in per.items():
+            has = np.isfinite(ig["hpl_m"])
+            if not has.any() and not ig["exclusions"]:
+                continue
+            row = {"exclusions": {str(k): v for k, v in sorted(ig["exclusions"].items())},
+                   "hpl_median_m": float(np.median(ig["hpl_m"][has])) if has.any() else None,
+                   "vpl_median_m": float(np.nanmedian(ig["vpl_m"])) if np.isfinite(ig["vpl_m"]).any() else None,
+                   "hpl_exceed": None}
+            if tr is not None and has.any() and len(tr["t_s"]) > 1:
+                p = d["aircraft"][name][algo]["pos_m"][has]
+                t = ig["t_s"][has]
+                e = [p[:, k] - np.interp(t, tr["t_s"], tr["pos_m"][:, k]) for k in (0, 1)]
+                row["hpl_exceed"] = int(np.sum(np.hypot(*e) > ig["hpl_m"][has]))
+                row["hpl_samples"] = int(has.sum())
+            out["aircraft"].setdefault(name, {})[algo] = row
+    return out
+
+
+def _integrity_md(ig: dict | None) -> list[str]:
+    if not ig or not (ig["stations"] or ig["aircraft"]):
+        return []
+    L = ["## Integrity", ""]
+    for sid, by in ig["stations"].items():
+        L.append(f"- station {sid} EXCLUDED by {','.join(map(str, by))}")
+    if ig["aircraft"]:
+        L += ([""] if ig["stations"] else []) + ["| aircraft | algorithm | excluded (first t s) | HPL median m | VPL median m | error > HPL |",
+              "|---|---|---|---:|---:|---:|"]
+        for name, per in ig["aircraft"].items():
+            for algo, r in per.items():
+                ex = ", ".join(f"{k} ({v:.1f})" for k, v in r["exclusions"].items()) or "-"
+                hx = "-" if r["hpl_exceed"] is None else f"{r['hpl_exceed']}/{r['hpl_samples']}"
+                L.append(f"| {name} | {algo} | {ex} | {_fmt(r['hpl_median_m'])} | {_fmt(r['vpl_median_m'])} | {hx} |")
+    return L + [""]
+
+
 def make_report(paths: Sequence[str | Path], outdir: str | Path, scenario: str | None = None,
                 sigma_m: float | None = None) -> dict[str, Any]:
     from ..analysis.summary import summarize
@@ -408,6 +454,7 @@ def make_report(paths: Sequence[str | Path], outdir: str | Path, scenario: str |
     if rec.vehicles:
         res["vehicles"] = fig_vehicles(rec, out / "vehicle_errors.png")
         figs.append(("Ground vehicle error and 3-sigma", "vehicle_errors.png"))
+    res["integrity"] = integrity_numbers(d, info)
     res["tdma"] = fig_tdma(d, out / "tdma_timeline.png")
     if res["tdma"]:
         figs.append(("TDMA timeline", "tdma_timeline.png"))
@@ -474,6 +521,7 @@ def markdown(res: dict, info: dict, figs: list[tuple[str, str]]) -> str:
                 L.append(f"| {name} | one-cycle CRLB (median) | | {_fmt(per['crlb_median_m'])} | |")
         L.append("")
     L += _vehicle_markdown(res.get("vehicles", {}))
+    L += _integrity_md(res.get("integrity"))
     t = res.get("tdma") or {}
     if t:
         L.append(f"## TDMA\n\n{t['requests']} range requests recorded, {t['answered']} answered "

@@ -71,3 +71,7 @@ def test_aircraft_process_in_a_fleet_from_mcap(tmp_path):
         assert np.linalg.norm(err) <= 4.0 * sig + 1.0, (algo, err, sig)
         if algo != "lsq-pr":
             assert np.linalg.norm(err) < 15.0, (algo, err)
+            # integrity (issue 14, aircraft/fde.py): protection levels on every filter estimate, and no
+            # station excluded in a clean fleet
+            assert all(m["hpl_m"] > 0 and m["vpl_m"] > 0 for m in ms), algo
+            assert all(not m["excluded"] for m in ms), (algo, [m["excluded"] for m in ms if m["excluded"]][:3])

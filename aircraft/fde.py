@@ -1,0 +1,220 @@
+"""Integrity of the aircraft filters: innovation gating, a windowed residual test with leave-one-out
+exclusion, and protection levels from the filter covariance (issue 14, sans-I/O, batched over runs).
+
+Every batch update of a :class:`aircraft.estimators.CvTracker` returns its innovation ``nu`` (..., d)
+and covariance ``S`` (..., d, d) about the prior (pseudoranges: ``d = m``; range differences against
+the base: ``d = m - 1``). A fault on station ``i`` moves the innovation along ``f_i`` (pseudoranges:
+the unit vector ``e_i``; differences: column ``i`` of ``G``). Per epoch (Teunissen's DIA / Baarda's
+data snooping on the innovations):
+
+* ``q = nu^T S^-1 nu`` (NIS), chi-square with ``d`` dof without a fault;
+* ``w_i = (f_i^T S^-1 nu)^2 / (f_i^T S^-1 f_i)``, the normalized innovation of station ``i`` (the test of
+  a bias on ``i`` alone), chi-square with 1 dof;
+* ``q - w_i``: the NIS with station ``i``'s bias estimated, i.e. the consistency of the other
+  measurements without ``i`` (leave-one-out), chi-square with ``d - 1`` dof.
+
+**Gate** (each epoch): the station with the largest ``w_i`` is left out of this epoch's update when
+``w_i > chi2.ppf(1 - p_gate, 1)`` (``p_gate = 1e-4``: 3.9 sigma, one clean measurement in 10^4; one
+station per epoch: the single-fault assumption; after ``max_gated_streak`` consecutive gated updates
+the gate opens for one update, so that a filter that is itself lost cannot lock its measurements out). **Window test**: over the last ``window`` epochs
+``Q = sum q`` against ``chi2.ppf(1 - p_fa, sum d)`` (``p_fa`` = false-alarm probability per epoch's
+test). On an alarm the station ``i`` with the largest window sum of ``w_i`` is excluded if the rest
+passes without it: ``sum (q - w_i) <= chi2.ppf(1 - p_fa, sum d - n_i)`` (RTKLIB's leave-one-out, in
+the filter's innovations); the window restarts after every alarm. An excluded station stays excluded
+for the flight; at least ``min_stations`` stay in use. The prediction supplies the redundancy a
+snapshot lacks: with 4 stations (seed001) a pseudorange snapshot cannot detect, the filter can.
+
+**Protection levels** (fault-free hypothesis, K-sigma on the filter covariance, integrity risk
+``I`` per epoch for each of H and V): ``HPL = K_H sigma_major`` with ``sigma_major^2`` the largest
+eigenvalue of the horizontal position covariance and ``K_H = sqrt(-2 ln I)`` (a 2-D Gaussian leaves
+``|e_h| > k sigma_major`` with probability <= ``exp(-k^2 / 2)``, equality when circular);
+``VPL = K_V sigma_z`` with ``K_V = Phi^-1(1 - I / 2)``. A fault below the gate and the window test
+is not covered by them (the test's own false-alarm / detection figures are measured by
+``larns bench integrity --aircraft``).
+
+Implementation: the masked measurements get a range sigma of ``sigma_out_m`` (1e5 m) in the update,
+which removes their information (for differences too: an inflated base variance leaves the others'
+differences); a gated epoch is re-run from the saved prior with the gated station masked.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.special import chdtri, ndtri
+
+from nav.kalman import chol_solve
+
+from . import models as mdl
+
+
+@dataclass(frozen=True)
+class FdeConfig:
+    """Integrity settings of the aircraft filters (see the module docstring)."""
+
+    p_gate: float = 1e-4  # per measurement: gate threshold chi2(1) quantile
+    p_fa: float = 1e-5  # per epoch: the window test's false-alarm probability
+    window: int = 10  # epochs (batch updates) in the window test
+    integrity_risk: float = 1e-3  # per epoch, for HPL and for VPL (fault-free K-sigma bound)
+    arm_after: int = 20  # updates before the gate and the test start (the filter's first transient)
+    min_stations: int = 3  # never exclude below this many stations
+    sigma_out_m: float = 1e5  # range sigma given to a masked measurement
+    max_gated_streak: int = 10  # consecutive gated updates after which the gate opens (a lost filter, not a station)
+
+
+_Q_CACHE: dict = {}
+
+
+def chi2_quantile(p: float, dof) -> np.ndarray:
+    """``chi2.ppf(1 - p, dof)`` for integer dof >= 1 (array), cached per (p, dof)."""
+    d = np.asarray(dof, dtype=int)
+    u, inv = np.unique(d, return_inverse=True)
+    vals = np.empty(u.shape)
+    for k, v in enumerate(u):
+        key = (p, int(v))
+        if key not in _Q_CACHE:
+            _Q_CACHE[key] = float(chdtri(float(v), p))
+        vals[k] = _Q_CACHE[key]
+    return vals[inv].reshape(d.shape)
+
+
+def protection_levels(P_pos: np.ndarray, integrity_risk: float) -> tuple[np.ndarray, np.ndarray]:
+    """HPL, VPL (...) from position covariances P_pos (..., 3, 3) (K-sigma, module docstring)."""
+    a, b, c = P_pos[..., 0, 0], P_pos[..., 0, 1], P_pos[..., 1, 1]
+    major = 0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b**2)
+    k_h = np.sqrt(-2.0 * np.log(integrity_risk))
+    k_v = ndtri(1.0 - 0.5 * integrity_risk)
+    return k_h * np.sqrt(np.maximum(major, 0.0)), k_v * np.sqrt(np.maximum(P_pos[..., 2, 2], 0.0))
+
+
+def fault_vectors(model: str, m: int, base: int = 0) -> np.ndarray:
+    """F (d, m): the innovation direction of a unit bias on each station."""
+    return np.eye(m) if model == "pr" else mdl.g_matrix(m, base)
+
+
+def snooping(nu: np.ndarray, S: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(q, w)``: the NIS (...) and each station's normalized innovation ``w`` (..., m)."""
+    A = chol_solve(S, np.broadcast_to(F, S.shape[:-1] + F.shape[-1:]).copy())  # S^-1 F (..., d, m)
+    g = np.einsum("...dm,...d->...m", A, nu)  # F^T S^-1 nu
+    den = np.einsum("dm,...dm->...m", F, A)  # diag(F^T S^-1 F)
+    Sinu = chol_solve(S, nu[..., None])[..., 0]
+    q = np.einsum("...d,...d->...", nu, Sinu)
+    return q, g**2 / np.maximum(den, 1e-300)
+
+
+class FilterFde:
+    """Gate, window test and exclusion for one batched :class:`CvTracker` (runs ``shape``)."""
+
+    def __init__(self, cfg: FdeConfig, shape: tuple = ()):
+        self.cfg = cfg
+        self.shape = tuple(shape)
+        self.out: dict = {}  # station id -> (shape) bool: excluded
+        self.win: deque = deque()  # (ids, q, d, w, valid) per epoch, the last ``window`` epochs
+        self.W: dict = {}  # station id -> window sums of (w, measurements) per run
+        self.Q = self.D = np.zeros(self.shape)  # window sums of the NIS and of its dof per run
+        self.n_updates = 0
+        self.alarms = np.zeros(self.shape, dtype=int)  # window-test alarms per run
+        self.gated = np.zeros(self.shape, dtype=int)  # measurements gated per run
+        self.events: list[tuple] = []  # (t_s, run index, station id, statistic, threshold)
+        self.g_thr = float(chi2_quantile(cfg.p_gate, 1))
+        self.streak = np.zeros(self.shape, dtype=int)  # consecutive gated updates per run
+
+    def restart(self) -> None:
+        """A new filter (after a reset): empty window, unarmed; the exclusions stand."""
+        self.win.clear()
+        self.W = {}
+        self.Q = self.D = np.zeros(self.shape)
+        self.n_updates = 0
+        self.streak = np.zeros(self.shape, dtype=int)
+
+    # -- state
+    def excluded(self, run=None) -> list:
+        """Excluded station ids (of one run; ``run=None`` for an unbatched filter)."""
+        return sorted(i for i, v in self.out.items() if (v if run is None else v[run]))
+
+    def mask(self, ids) -> np.ndarray:
+        """(shape + (m,)) bool: measurement j of the batch is excluded."""
+        cols = [self.out.get(i, np.zeros(self.shape, dtype=bool)) for i in ids]
+        return np.stack(cols, axis=-1) if cols else np.zeros(self.shape + (0,), dtype=bool)
+
+    def _sigma(self, tuning, masked: np.ndarray):
+        return None if not masked.any() else np.where(masked, self.cfg.sigma_out_m, tuning.sigma_m)
+
+    # -- the update
+    def update(self, trk, stations_m, rho_m, ids, station_cov_m2=None, dt_s=None, **bias_kw):
+        """``trk.update`` with the gate, the window test and exclusion; returns its (nu, S)."""
+        ids = list(ids)
+        masked = self.mask(ids)
+        armed = self.n_updates >= self.cfg.arm_after
+        saved = trk.save() if armed else None
+        nu, S = trk.update(stations_m, rho_m, station_cov_m2, dt_s, sigma_m=self._sigma(trk.tuning, masked),
+                           **bias_kw)
+        self.n_updates += 1
+        if not armed:
+            return nu, S
+        F = fault_vectors(trk.layout.kind, len(ids), trk.base)
+        q, w = snooping(nu, S, F)
+        w = np.where(masked, 0.0, w)
+        d = (~masked).sum(-1) - (trk.layout.kind != "pr")
+        jmax = np.argmax(w, axis=-1)
+        gate = (np.take_along_axis(w, jmax[..., None], -1)[..., 0] > self.g_thr) & (self.streak < self.cfg.max_gated_streak)
+        self.streak = np.where(gate, self.streak + 1, 0)
+        if np.any(gate):
+            trk.restore(saved)
+            masked2 = masked | (gate[..., None] & (np.arange(len(ids)) == jmax[..., None]))
+            trk.update(stations_m, rho_m, station_cov_m2, dt_s, sigma_m=self._sigma(trk.tuning, masked2), **bias_kw)
+            self.gated += gate
+        self._push(ids, q, d, w)
+        self._test(trk.t_s)
+        return nu, S
+
+    def _push(self, ids, q, d, w) -> None:
+        """Add one epoch to the window sums (dropping the oldest beyond ``window`` epochs)."""
+        if len(self.win) == self.cfg.window:
+            self._add(*self.win.popleft(), sign=-1.0)
+        entry = (ids, q, d, w, np.ones(self.shape, dtype=bool))
+        self.win.append(entry)
+        self._add(*entry, sign=1.0)
+
+    def _add(self, ids, q, d, w, valid, sign: float) -> None:
+        z = np.zeros(self.shape)
+        self.Q = self.Q + sign * np.where(valid, q, 0.0)
+        self.D = self.D + sign * np.where(valid, d, 0)
+        for j, i in enumerate(ids):
+            Wi, Ni = self.W.get(i, (z, z))
+            self.W[i] = (Wi + sign * np.where(valid, w[..., j], 0.0), Ni + sign * (valid & (w[..., j] > 0)))
+
+    def _restart(self, runs: np.ndarray) -> None:
+        """Empty the window of the runs ``runs`` (bool, shape)."""
+        for e in self.win:
+            e[4][...] = e[4] & ~runs
+        self.Q = np.where(runs, 0.0, self.Q)
+        self.D = np.where(runs, 0.0, self.D)
+        self.W = {i: (np.where(runs, 0.0, a), np.where(runs, 0.0, b)) for i, (a, b) in self.W.items()}
+
+    def _test(self, t_s: float) -> None:
+        """The window test and leave-one-out exclusion (module docstring)."""
+        Q, D = self.Q, np.rint(self.D)
+        T = np.where(D > 0, chi2_quantile(self.cfg.p_fa, np.maximum(D, 1)), np.inf)
+        alarm = Q > T
+        if not np.any(alarm):
+            return
+        self.alarms += alarm
+        cand = list(self.W)
+        Ws = np.stack([self.W[i][0] for i in cand], axis=-1)
+        k = np.argmax(Ws, axis=-1)
+        R = Q - np.take_along_axis(Ws, k[..., None], -1)[..., 0]
+        Dr = D - np.rint(np.take_along_axis(np.stack([self.W[i][1] for i in cand], axis=-1), k[..., None], -1)[..., 0])
+        ok = np.where(Dr > 0, R <= chi2_quantile(self.cfg.p_fa, np.maximum(Dr, 1)), True)
+        n_in = len(cand) - np.stack([self.out.get(i, np.zeros(self.shape, dtype=bool)) for i in cand], -1).sum(-1)
+        excl = alarm & ok & (n_in > self.cfg.min_stations)
+        for j, i in enumerate(cand):
+            hit = excl & (k == j)
+            if np.any(hit):
+                self.out[i] = self.out.get(i, np.zeros(self.shape, dtype=bool)) | hit
+                for r in zip(*np.nonzero(np.atleast_1d(hit))):
+                    self.events.append((t_s, int(r[0]) if self.shape else None, i, float(np.atleast_1d(Q)[r]),
+                                        float(np.atleast_1d(T)[r])))
+        self._restart(alarm)
