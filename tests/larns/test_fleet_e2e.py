@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+import multiprocessing
 import os
 import signal
 import subprocess
@@ -82,6 +83,27 @@ def sim_stats(path: Path, t_s: float, ids: list[int], seeds: int = 4,
     return float(np.mean(rms)), np.mean(sig, axis=0)
 
 
+class Background:
+    """``fn(*args, **kw)`` in a forked process at the lowest CPU priority (nice 19), started while a
+    fleet runs in real time: the reference simulation uses the idle CPU instead of adding its own
+    seconds to the test, and the fleet's processes keep the CPU they need. ``get()`` the result."""
+
+    def __init__(self, fn, *args, **kw):
+        self._pool = multiprocessing.get_context("fork").Pool(1, initializer=os.nice, initargs=(19,))
+        self._res = self._pool.apply_async(fn, args, kw)
+        self._pool.close()
+
+    def get(self, timeout: float = 300.0):
+        try:
+            return self._res.get(timeout)
+        finally:
+            self.close()
+
+    def close(self) -> None:
+        self._pool.terminate()
+        self._pool.join()
+
+
 def count_messages(path: Path) -> int:
     """Messages readable from a (possibly truncated, SIGKILLed) MCAP file by streaming."""
     from mcap.records import Message
@@ -131,6 +153,8 @@ def fleet7(tmp_path_factory):
     scn = write_scenario(d, 7, join_ids=[7])
     out, js = d / "run.mcap", d / "fleet.json"
     dur, t_join = 60.0, 20.0
+    # reference: the simulator with the joiner starting at the same fleet time (while the fleet runs)
+    sim = Background(sim_stats, scn, dur, [2, 3, 4, 5, 6], start_s={7: t_join})
     fleet = subprocess.Popen([PY, "-m", "larns", "fleet", "--scenario", str(scn), "--duration", str(dur),
                               "--speed", str(SPEED), "--record", str(out), "--no-table", "--json", str(js),
                               "--join-time", str(t_join)],
@@ -145,8 +169,9 @@ def fleet7(tmp_path_factory):
         log, _ = fleet.communicate(timeout=120)
         left = station_pids(str(scn))
         yield {"scn": scn, "out": out, "js": js, "dur": dur, "t_join": t_join, "seen": seen, "log": log,
-               "rc": fleet.returncode, "left": left}
+               "rc": fleet.returncode, "left": left, "sim": sim.get()}
     finally:
+        sim.close()
         if fleet.poll() is None:
             fleet.kill()
             fleet.wait(10)
@@ -174,8 +199,7 @@ def test_fleet_six_stations_converge_from_mcap(fleet7):
         if sid != 7:
             assert len(s["t_s"]) >= 60  # one estimate per cycle, published while running
         assert np.all(np.diff(s["n_updates"]) >= 0)
-    # reference: the simulator with the joiner starting at the same fleet time
-    sim = sim_stats(f["scn"], f["dur"], [2, 3, 4, 5, 6], start_s={7: f["t_join"]})
+    sim = f["sim"]  # the simulator with the joiner starting at the same fleet time
     rms = assert_accuracy_class(summary, [2, 3, 4, 5, 6], sim)
     print(f"networked RMS {rms:.2f} m vs simulator {sim[0]:.2f} m")
     # every kind of traffic is in the file
@@ -300,6 +324,8 @@ def test_kill_station_and_recorder_and_fuzz(tmp_path, spawn):
              "--report-json", "--listen", eps[i], *sum((["--connect", s] for s in seeds if s != eps[i]), [])],
             stdout=subprocess.PIPE, text=True)
     fuzz = spawn([PY, "-c", FUZZ, seeds[0], "3000", json.dumps(ids)], stdout=subprocess.PIPE, text=True)
+    # reference: the simulator with the same station dying at the same fleet time (while the fleet runs)
+    sim = Background(sim_stats, scn, dur, [2, 3, 4, 5], stop_s={6: 25.0})
 
     def wait_fleet(t):
         time.sleep(max(0.0, epoch + t / SPEED - time.time()))
@@ -339,9 +365,9 @@ def test_kill_station_and_recorder_and_fuzz(tmp_path, spawn):
         assert s["log_time_ns"][-1] > t_kill_ns + 0.6 * remaining_ns
         # every payload sent to it was rejected and counted
         drops = reports[sid]["drops"]["total"]
-        assert 0.9 * fz["expect"][str(sid)] <= drops <= fz["expect"][str(sid)], (sid, drops, fz["expect"])
+        assert 0.9 * fz["expect"][str(sid)] <= drops <= fz["expect"][str(sid)], (sid, drops, fz["expect"], {k: v for k, v in reports[sid].items() if k in ("drops", "rx", "slots")})
     # reference: the simulator with the same station dying at the same fleet time
-    assert_accuracy_class(summary, [2, 3, 4, 5], sim_stats(scn, dur, [2, 3, 4, 5], stop_s={6: 25.0}))
+    assert_accuracy_class(summary, [2, 3, 4, 5], sim.get())
     # the killed recorder's file is still readable up to its last flushed chunk
     assert count_messages(tmp_path / "a.mcap") > 0
 
