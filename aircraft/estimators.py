@@ -15,6 +15,7 @@ Shapes: ``M`` runs, ``m`` stations in a batch, ``n`` states. Stations are shared
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.special import erfcx
@@ -26,6 +27,9 @@ from nav.ut import SigmaParams, unscented_transform
 from . import coords as crd
 from . import models as mdl
 from .fde import FdeConfig, FilterFde, protection_levels
+
+if TYPE_CHECKING:  # aircraft.initializer imports this module: annotation only, no import cycle
+    from .initializer import InitConfig
 
 ALGOS = mdl.ALGOS
 # correlation time of a station's residual sync error after the broadcast correction, s (measured with
@@ -765,7 +769,7 @@ class EstimatorConfig:
     guess_sigma_m: float | None = None
     max_batch_age_s: float = 5.0  # TDMA: measurements older than this are dropped from a batch
     # start from the broadcasts alone (aircraft/initializer.py): snapshot fix or wide prior
-    init: "InitConfig | None" = None
+    init: InitConfig | None = None
     # filters: innovation gate, windowed residual test, exclusion, HPL/VPL (aircraft/fde.py); None = off
     fde: FdeConfig | None = field(default_factory=FdeConfig)
 

@@ -308,7 +308,7 @@ def cmd_bench_scale(args: argparse.Namespace) -> int:
     if args.secure:  # one keystore for the largest N (a temporary one unless given)
         import tempfile
 
-        from larns.commands.keys import init_keystore
+        from net.keystore import init_keystore
 
         secure = str(Path(tempfile.mkdtemp(prefix="larns-bench-keys-")) / "keys")
         init_keystore(secure, list(range(1, max(ns) + 1)), [], recorder=False)

@@ -4,6 +4,8 @@ For every point of a horizontal grid at a fixed height, the Fisher information o
 position and velocity at the start of a TDMA cycle (every station transmits once, in its own slot,
 while the aircraft moves uniformly) is inverted; the horizontal ``sqrt(var x + var y)`` and vertical
 ``sqrt(var z)`` bounds are drawn as PNG maps and summarized by distance from the station area.
+The numbers are :mod:`larns.analysis.crlb`, the figure :mod:`larns.viz.crlb`; this is the argparse
+adapter (defaults from the scenario's ``[aircraft.crlb]``, the printed table, the JSON file).
 """
 
 from __future__ import annotations
@@ -39,39 +41,9 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def compute(stations_m, height_m, sigma_m, t_rel_s, velocity_m_s, params, clock, extent, step):
-    """Bounds on a grid: returns x (nx,), y (ny,), horiz (ny, nx), vert (ny, nx), dist_area (ny, nx)."""
-    from nav.pcrb import crlb_cycle, fisher_cycle
-
-    x = np.arange(extent[0], extent[1] + 0.5 * step, step)
-    y = np.arange(extent[2], extent[3] + 0.5 * step, step)
-    X, Y = np.meshgrid(x, y)
-    r0 = np.stack([X, Y, np.full_like(X, height_m)], axis=-1)
-    J = fisher_cycle(r0, np.asarray(velocity_m_s, float), stations_m, t_rel_s, sigma_m,
-                     clock=clock, velocity=(params == "posvel"))
-    b = crlb_cycle(J)
-    lo, hi = stations_m[:, :2].min(axis=0), stations_m[:, :2].max(axis=0)
-    dx = np.maximum(np.maximum(lo[0] - X, X - hi[0]), 0.0)
-    dy = np.maximum(np.maximum(lo[1] - Y, Y - hi[1]), 0.0)
-    return x, y, b["horiz_m"], b["vert_m"], np.hypot(dx, dy)
-
-
-def summary(horiz, vert, dist, bands=((0, 0), (0, 10e3), (10e3, 20e3), (20e3, 30e3))):
-    """Median / min / max bounds inside the station area (0, 0) and in distance bands from it."""
-    out = []
-    for a, b in bands:
-        m = (dist == 0) if b == 0 else (dist > a) & (dist <= b)
-        if not np.any(m):
-            continue
-        h, v = horiz[m], vert[m]
-        out.append({"band_km": [a / 1e3, b / 1e3], "horiz_median_m": float(np.median(h)),
-                    "horiz_min_m": float(np.min(h)), "horiz_max_m": float(np.max(h)),
-                    "vert_median_m": float(np.median(v)), "vert_min_m": float(np.min(v)),
-                    "vert_max_m": float(np.max(v)), "points": int(m.sum())})
-    return out
-
-
 def run(args) -> int:
+    from larns.analysis.crlb import compute, summary
+    from larns.viz.crlb import plot_maps
     from net.scenario import load
 
     sc = load(args.scenario)
@@ -101,7 +73,7 @@ def run(args) -> int:
         lab = "inside" if s["band_km"][1] == 0 else f"{s['band_km'][0]:g}-{s['band_km'][1]:g} km"
         print(f"{lab:>28} {s['horiz_median_m']:10.2f} [{s['horiz_min_m']:.2f}..{s['horiz_max_m']:.2f}]"
               f"{'':>4}{s['vert_median_m']:10.2f} [{s['vert_min_m']:.2f}..{s['vert_max_m']:.2f}]")
-    _plot(args.png, x, y, hz, vt, S, f"{sc.name}: {what}, h = {height:g} m (fixed, above station 1), "
+    plot_maps(args.png, x, y, hz, vt, S, f"{sc.name}: {what}, h = {height:g} m (fixed, above station 1), "
           f"sigma_t = {sigma_t_ns:g} ns, slot {slot:g} s, v = {vel} m/s")
     print(f"wrote {args.png}")
     if args.json:
@@ -112,34 +84,3 @@ def run(args) -> int:
                        "vert_m": np.where(np.isfinite(vt), vt, -1).tolist(), "summary": summ}, f)
         print(f"wrote {args.json}")
     return 0
-
-
-def _plot(path, x, y, hz, vt, S, title):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.colors import LogNorm
-
-    fig, axes = plt.subplots(1, 2, figsize=(13, 5.2))
-    for ax, Z, name in ((axes[0], hz, "horizontal sqrt(var x + var y)"), (axes[1], vt, "vertical sqrt(var z)")):
-        Zf = np.where(np.isfinite(Z), Z, np.nan)
-        lo = max(np.nanmin(Zf), 1e-2)
-        hi = max(np.nanpercentile(Zf, 99), lo * 10)
-        im = ax.pcolormesh(x / 1e3, y / 1e3, np.clip(Zf, lo, hi), norm=LogNorm(lo, hi), shading="auto", cmap="viridis")
-        levels = [v for v in (1, 2, 3, 5, 10, 20, 50, 100, 200, 500, 1000) if lo < v < hi]
-        if levels:
-            cs = ax.contour(x / 1e3, y / 1e3, Zf, levels=levels, colors="w", linewidths=0.6)
-            ax.clabel(cs, fmt="%g m", fontsize=7)
-        ax.plot(S[:, 0] / 1e3, S[:, 1] / 1e3, "r^", ms=7)
-        for i, s in enumerate(S):
-            ax.annotate(f"{i + 1} ({s[2]:.0f} m)", (s[0] / 1e3, s[1] / 1e3), fontsize=7, color="w")
-        fig.colorbar(im, ax=ax, label="m")
-        ax.set_title(f"CRLB {name}", fontsize=10)
-        ax.set_xlabel("x, km (network frame)")
-        ax.set_ylabel("y, km")
-        ax.set_aspect("equal")
-    fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)

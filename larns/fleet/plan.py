@@ -223,7 +223,7 @@ def _fleet_keystore(args: argparse.Namespace, scn) -> str:
         return str(args.secure)
     import tempfile
 
-    from larns.commands.keys import init_keystore
+    from net.keystore import init_keystore
 
     root = Path(tempfile.mkdtemp(prefix="larns-keys-")) / "keys"
     name = str(scn.aircraft.get("name", "ac1")) if isinstance(getattr(scn, "aircraft", None), dict) else "ac1"

@@ -26,22 +26,18 @@ MESSAGE_ENCODING = "msgpack"
 
 
 class McapSink:
-    """Writes wire samples into an MCAP file: one channel per key. Not thread-safe (one writer)."""
+    """Writes wire samples into an MCAP file (a :class:`larns.log.writer.LogWriter`): one channel per
+    key, the Foxglove view's JSON channels next to them. Not thread-safe (one writer)."""
 
     def __init__(self, path: str | Path, metadata: dict[str, str] | None = None,
                  epoch_unix_s: float | None = None, speed: float = 1.0, foxglove: bool = True):
-        from mcap.writer import CompressionType, Writer
-
         from net.messages import peek_stamp
+
+        from .writer import LogWriter
 
         self._peek = peek_stamp
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._f = open(self.path, "wb")
-        self.writer = Writer(self._f, compression=CompressionType.ZSTD, chunk_size=256 * 1024)
-        self.writer.start(profile="", library="larns-record")
-        self.channels: dict[str, int] = {}
-        self.seq: dict[str, int] = {}
+        self.channels: dict[str, int] = {}   # wire key -> channel id
         self.count = 0
         self.bytes = 0
         self.epoch_unix_s = epoch_unix_s
@@ -51,25 +47,22 @@ class McapSink:
         if epoch_unix_s is not None:
             md["epoch_unix_s"] = repr(float(epoch_unix_s))
         md.update({k: str(v) for k, v in (metadata or {}).items()})
-        self.writer.add_metadata("larns", md)
-        self.finished = False
+        self.log = LogWriter(self.path, {"larns": md}, library="larns-record", chunk_size=256 * 1024)
         # Foxglove view (larns/viz/foxglove.py): JSON channels next to the wire channels
         self.fox = None
-        self.json_channels: dict[str, int] = {}
-        self.json_schemas: dict[str, int] = {}
         self.json_count = 0
         if foxglove:
             from ..viz.foxglove import FoxgloveView
 
             self.fox = FoxgloveView()
 
+    @property
+    def finished(self) -> bool:
+        return self.log.finished
+
     def write(self, key: str, data: bytes, recv_ns: int) -> None:
-        ch = self.channels.get(key)
-        if ch is None:
-            ch = self.writer.register_channel(topic=key, message_encoding=MESSAGE_ENCODING,
-                                              schema_id=0, metadata={"source": "zenoh"})
-            self.channels[key] = ch
-            self.seq[key] = 0
+        if key not in self.channels:
+            self.channels[key] = self.log.channel(key, MESSAGE_ENCODING, metadata=_WIRE_CHANNEL)
         pub_ns = recv_ns
         if self.epoch_unix_s is not None:
             stamp = self._peek(data)
@@ -77,9 +70,7 @@ class McapSink:
                 t = self.epoch_unix_s + stamp / self.speed
                 if 0.0 < t < 4e9:
                     pub_ns = int(round(t * 1e9))
-        self.writer.add_message(channel_id=ch, log_time=recv_ns, data=data, publish_time=pub_ns,
-                                sequence=self.seq[key])
-        self.seq[key] += 1
+        self.log.write(key, data, recv_ns, pub_ns, MESSAGE_ENCODING)
         self.count += 1
         self.bytes += len(data)
         if self.fox is not None:
@@ -92,30 +83,19 @@ class McapSink:
     def _write_json(self, topic: str, schema: str, data: bytes, recv_ns: int) -> None:
         from ..viz.foxglove import SCHEMA_BYTES
 
-        ch = self.json_channels.get(topic)
-        if ch is None:
-            sid = self.json_schemas.get(schema)
-            if sid is None:
-                sid = self.writer.register_schema(name=schema, encoding="jsonschema", data=SCHEMA_BYTES[schema])
-                self.json_schemas[schema] = sid
-            ch = self.writer.register_channel(topic=topic, message_encoding="json", schema_id=sid,
-                                              metadata={"source": "larns foxglove view"})
-            self.json_channels[topic] = ch
-            self.seq[topic] = 0
-        self.writer.add_message(channel_id=ch, log_time=recv_ns, data=data, publish_time=recv_ns,
-                                sequence=self.seq[topic])
-        self.seq[topic] += 1
+        self.log.write(topic, data, recv_ns, recv_ns, encoding="json", schema=(schema, SCHEMA_BYTES[schema]),
+                       channel_metadata=_VIEW_CHANNEL)
         self.json_count += 1
 
     def flush(self) -> None:
-        self.writer.flush()
+        self.log.flush()
 
     def finish(self) -> None:
-        if self.finished:
-            return
-        self.finished = True
-        self.writer.finish()
-        self._f.close()
+        self.log.finish()
+
+
+_WIRE_CHANNEL = {"source": "zenoh"}
+_VIEW_CHANNEL = {"source": "larns foxglove view"}
 
 
 def run_recorder(out: str, bus_kw: dict, keyexpr: str = "larns/**", duration_s: float | None = None,

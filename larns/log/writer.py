@@ -1,5 +1,6 @@
-"""Writing MCAP files: :class:`LogWriter` (indexed, chunked, zstd), used by ``larns export``,
-``larns recover``, offline re-estimation and the replay benchmark."""
+"""Writing MCAP files: :class:`LogWriter` (indexed, chunked, zstd), used by the recorder
+(``larns record``, :class:`larns.log.record.McapSink`), ``larns export``, ``larns recover``, offline
+re-estimation and the replay benchmark."""
 
 from __future__ import annotations
 
@@ -31,7 +32,10 @@ class LogWriter:
             self.writer.add_metadata(name, {str(k): str(v) for k, v in md.items()})
         self.finished = False
 
-    def channel(self, topic: str, encoding: str = "msgpack", schema: tuple[str, bytes] | None = None) -> int:
+    def channel(self, topic: str, encoding: str = "msgpack", schema: tuple[str, bytes] | None = None,
+                metadata: dict[str, str] | None = None) -> int:
+        """The channel id of ``topic`` (registered on first use, with ``metadata``; default
+        ``{"source": "larns"}``)."""
         ch = self.channels.get((topic, encoding))
         if ch is None:
             sid = 0
@@ -41,21 +45,25 @@ class LogWriter:
                     sid = self.writer.register_schema(name=schema[0], encoding="jsonschema", data=schema[1])
                     self.schemas[schema] = sid
             ch = self.writer.register_channel(topic=topic, message_encoding=encoding, schema_id=sid,
-                                              metadata={"source": "larns"})
+                                              metadata=metadata or {"source": "larns"})
             self.channels[(topic, encoding)] = ch
             self.seq[ch] = 0
         return ch
 
     def write(self, topic: str, data: bytes, log_time: int, publish_time: int | None = None,
               encoding: str = "msgpack", schema: tuple[str, bytes] | None = None,
-              sequence: int | None = None) -> None:
-        ch = self.channel(topic, encoding, schema)
+              sequence: int | None = None, channel_metadata: dict[str, str] | None = None) -> None:
+        ch = self.channel(topic, encoding, schema, channel_metadata)
         seq = self.seq[ch] if sequence is None else sequence
         self.writer.add_message(channel_id=ch, log_time=int(log_time), data=data,
                                 publish_time=int(log_time if publish_time is None else publish_time),
                                 sequence=seq)
         self.seq[ch] += 1
         self.count += 1
+
+    def flush(self) -> None:
+        """Finish the current chunk: what is written so far survives a SIGKILL."""
+        self.writer.flush()
 
     def finish(self) -> None:
         if not self.finished:

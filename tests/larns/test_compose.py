@@ -17,7 +17,9 @@ before                10 station containers + recorder up (`docker compose up -d
 The scenario is seed000's world (2 km x 2 km, 0.5 m ranging noise, 10 m coarse fix) with station 11
 marked as a joiner and 50 ms slots in a 0.6 s cycle, so that at speed 5 a slot still lasts 10 ms of
 wall time. The whole module takes about 1.5 min of wall time once the image is built (an image
-rebuild after a source change takes ~30 s; from nothing, ~1 min base + ~2.5 min image).
+rebuild after a source change takes ~30 s; from nothing, ~1 min base + ~2.5 min image). The image
+is built in the background from the moment a session has collected this module (tests/conftest.py),
+so most of the build overlaps the tests that run before it.
 
 Skipped, with the reason shown, when no Docker engine or compose answers, when the local base image
 cannot be built (scripts/docker-base.sh needs root and a Debian mirror), or when ``larns station``
@@ -85,20 +87,51 @@ def _tail(text: str, n: int = 30) -> str:
     return "\n".join(text.strip().splitlines()[-n:])
 
 
+_build: dict = {}   # the image build, started early by start_image_build(): thread, result
+
+
+def _build_image() -> None:
+    t0 = time.time()
+    try:
+        base = _run([str(ROOT / "scripts/docker-base.sh")], timeout=900)
+        if base.returncode != 0:
+            _build["skip"] = f"cannot build the local base image (scripts/docker-base.sh): {_tail(base.stderr, 5)}"
+            return
+        env = {**os.environ, "PYTHON": sys.executable}
+        _build["build"] = _run([str(ROOT / "scripts/docker-build.sh"), "--tag", "larns:latest"], timeout=1200, env=env)
+    except (OSError, subprocess.SubprocessError) as e:
+        _build["error"] = repr(e)
+    finally:
+        _build["wall_s"] = time.time() - t0
+
+
+def start_image_build() -> None:
+    """Start building the image in a background thread, once. tests/conftest.py calls this as soon as
+    a session has collected tests of this module, so that the build (from nothing ~4 min, after a
+    code change ~30 s, up to date ~10 s) overlaps the tests that run before this module."""
+    if os.environ.get("LARNS_TEST_IMAGE") or "thread" in _build:
+        return
+    _build["thread"] = threading.Thread(target=_build_image, name="larns-image-build", daemon=True)
+    _build["thread"].start()
+
+
 @pytest.fixture(scope="session")
 def larns_image() -> str:
     """The larns image: LARNS_TEST_IMAGE, else built by scripts/docker-build.sh (local Debian base
-    from debootstrap + host wheels; cached layers make a rebuild after a code change ~30 s)."""
+    from debootstrap + host wheels; cached layers make a rebuild after a code change ~30 s), in the
+    background from the start of the session (start_image_build)."""
     if os.environ.get("LARNS_TEST_IMAGE"):
         return os.environ["LARNS_TEST_IMAGE"]
     t0 = time.time()
-    base = _run([str(ROOT / "scripts/docker-base.sh")], timeout=900)
-    if base.returncode != 0:
-        pytest.skip(f"cannot build the local base image (scripts/docker-base.sh): {_tail(base.stderr, 5)}")
-    env = {**os.environ, "PYTHON": sys.executable}
-    r = _run([str(ROOT / "scripts/docker-build.sh"), "--tag", "larns:latest"], timeout=1200, env=env)
+    start_image_build()
+    _build["thread"].join()
+    if "skip" in _build:
+        pytest.skip(_build["skip"])
+    assert "error" not in _build, f"building the image failed: {_build['error']}"
+    r = _build["build"]
     assert r.returncode == 0, "scripts/docker-build.sh failed:\n" + _tail(r.stderr + r.stdout)
-    print(f"[compose] image larns:latest ready in {time.time() - t0:.1f} s", file=sys.stderr)
+    print(f"[compose] image larns:latest ready: built in {_build['wall_s']:.1f} s, "
+          f"waited {time.time() - t0:.1f} s for it", file=sys.stderr)
     return "larns:latest"
 
 
@@ -180,10 +213,11 @@ def fleet(larns_image, tmp_path_factory) -> FleetRun:
         t0 = time.time()
         dc("up", "-d", *stations, "recorder", timeout=180)
         run.events["up"] = time.time()
-        epoch_file = dc("run", "--rm", "--no-deps", "--entrypoint", "cat", "station1", "/fleet/epoch").stdout
-        assert float(epoch_file.strip().splitlines()[-1]) == epoch, epoch_file
         net = f"{dc.project}_larns"
         cids = {svc: c for svc, (c, _st) in dc.containers().items()}
+        # the epoch file as station 1 sees it (`docker exec` in its running container: no new container)
+        epoch_file = _run(["docker", "exec", cids["station1"], "cat", "/fleet/epoch"]).stdout
+        assert float(epoch_file.strip().splitlines()[-1]) == epoch, epoch_file
         for svc in stations + ["recorder"]:
             run.ips[svc] = _run(["docker", "inspect", "-f",
                                  f'{{{{(index .NetworkSettings.Networks "{net}").IPAddress}}}}',

@@ -384,15 +384,26 @@ def test_start_paused_keyboard_on_a_terminal(run):
                           "--listen", f"tcp/127.0.0.1:{port}"],
                          stdin=slave, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     os.close(slave)
+    import threading
+
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(iter(p.stderr.readline, "")), daemon=True)
+    reader.start()
     try:
-        time.sleep(4.0)  # paused: a 6 s log at rate 1 would be well under way by now
+        t0 = time.time()  # ready: it says it is paused (after loading the log and opening the bus)
+        while not any("[replay] paused" in ln for ln in lines) and p.poll() is None and time.time() - t0 < 30:
+            time.sleep(0.1)
+        time.sleep(1.5)  # paused: at rate 1 the 6 s log would have published a quarter of its messages
         assert p.poll() is None
         os.write(master, b"s")
         time.sleep(0.3)
         os.write(master, b"s")
         time.sleep(0.3)
         os.write(master, b"q")
-        out, err = p.communicate(timeout=30)
+        out = p.stdout.read()
+        p.wait(timeout=30)
+        reader.join(10)
+        err = "".join(lines)
     finally:
         os.close(master)
         if p.poll() is None:

@@ -81,7 +81,9 @@ RING = textwrap.dedent("""
             b.publish("ring/x", str(i).encode(), block=True)
         time.sleep(0.3)
         b.declare_token("ring/done/pub")
-        time.sleep(2.0)
+        t0 = time.time()  # stay until the subscriber has drained and left (its token goes away)
+        while b.alive("ring/alive/*", 0.5) and time.time() - t0 < 20:
+            time.sleep(0.1)
         b.close()
 """)
 

@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 @pytest.fixture(scope="module")
 def ks(tmp_path_factory) -> Path:
-    from larns.commands.keys import init_keystore
+    from net.keystore import init_keystore
 
     root = tmp_path_factory.mktemp("ks") / "keys"
     init_keystore(root, list(range(1, 11)), ["ac1"], recorder=True)
@@ -42,7 +42,7 @@ def _nav(src: int, seq: int, t: float) -> dict:
 # --------------------------------------------------------------------------- keystore
 
 def test_keystore_layout_and_checks(ks, tmp_path):
-    from larns.commands.keys import add_to_keystore, init_keystore
+    from net.keystore import add_to_keystore, init_keystore
 
     k = S.Keystore(ks)
     assert {"router", "monitor", "recorder", "aircraft-ac1"} <= set(k.enclaves)
@@ -313,7 +313,7 @@ def test_flood_from_station_9_leaves_other_slots_intact(ks):
 def test_recording_keeps_signatures_and_replay_verifies(ks, tmp_path):
     """The recorder keeps signed frames as they are; `larns replay --secure DIR` checks them
     (exit 1 and counts by reason when one was tampered with or unsigned)."""
-    from larns.commands.keys import verify_recording
+    from larns.analysis.verify import verify_recording
     from larns.log.record import McapSink
 
     s3 = S.Security(ks, "station-3")

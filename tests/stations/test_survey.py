@@ -46,10 +46,12 @@ def test_each_station_initiates_one_range_per_cycle_and_rotates_peers():
     assert np.all(L + L.T + np.eye(10, dtype=int) > 0)  # 18 cycles over 9 peers: every pair measured
 
 
-def test_dmap_is_not_overconfident_nees_chi_square():
-    """Mean NEES over runs and stations 4..n must not exceed the upper 99% chi-square bound."""
+def _assert_dmap_nees_in_band(seeds) -> None:
+    """Mean NEES over ``seeds`` and stations 4..n, at 20 s and 40 s, must not exceed the upper 99 %
+    chi-square bound of that many samples (the band widens for fewer runs: the tolerance is the
+    chi-square quantile of the sample actually drawn, not a hand-set margin)."""
     vals = []
-    for seed in range(200, 212):
+    for seed in seeds:
         r = Simulator(load("seed000", seed=seed)).run(40.0, [20.0, 40.0])
         e = r.pos_m[:, 3:] - r.truth_m[3:]
         P = r.cov_m2[:, 3:]
@@ -62,6 +64,18 @@ def test_dmap_is_not_overconfident_nees_chi_square():
         m = v[:, k].mean()
         assert m <= hi, f"overconfident: mean NEES {m:.2f} > {hi:.2f}"
         assert m >= 0.5 * lo, f"grossly pessimistic: mean NEES {m:.2f}"
+
+
+def test_dmap_is_not_overconfident_nees_chi_square():
+    """Four seeded runs (28 station samples per time: band [1.94, 4.33] for the mean 3-D NEES;
+    seen 1.76 at 20 s, 1.99 at 40 s). The 12-run version below is the stronger check (slow)."""
+    _assert_dmap_nees_in_band(range(200, 204))
+
+
+@pytest.mark.slow
+def test_dmap_is_not_overconfident_nees_chi_square_12_runs():
+    """Twelve seeded runs (84 samples per time: band [2.36, 3.73]; seen 2.51 and 2.05)."""
+    _assert_dmap_nees_in_band(range(200, 212))
 
 
 def test_two_way_range_clock_drift_effect():
