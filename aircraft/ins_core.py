@@ -37,7 +37,7 @@ from nav.geometry import SPEED_OF_LIGHT_M_S
 from nav.rotations import euler_from_dcm
 
 from .models import broadcast_clock_var_m2, broadcast_time_error_s
-from .navigator.ins_ekf import InsEkf, InsTuning
+from .navigator.ins_ekf import JAC_FORCE_TC_S, InsEkf, InsTuning
 from .navigator.ins_start import SideTest, StartConfig, enough, moved_on, radio_fix, start
 from .world import clock as wclock
 from .world.field import Field
@@ -82,7 +82,8 @@ class InsAircraftCore:
         self.rng = rng
         cm = wclock.ClockModel()
         self.tn = InsTuning.from_preset(self.preset, sigma_range_m=ac.sigma_m, q_b=cm.q_b_m2_s, q_d=cm.q_d_m2_s3,
-                                        p0_clock_m=cm.b0_sigma_m, p0_drift_m_s=cm.d0_sigma_m_s)
+                                        p0_clock_m=cm.b0_sigma_m, p0_drift_m_s=cm.d0_sigma_m_s,
+                                        jac_force_tc_s=JAC_FORCE_TC_S)
         self.L = es.ErrorLayout()
         self.start_cfg = StartConfig()
         self.imu = ImuEmulator(self.preset, 1, rng)

@@ -27,7 +27,7 @@ import numpy as np
 from nav import errorstate as es
 from nav.rotations import log_so3
 
-from .navigator.ins_ekf import InsEkf, InsTuning
+from .navigator.ins_ekf import JAC_FORCE_TC_S, InsEkf, InsTuning
 from .navigator.ins_start import RadioFix, SideTest, StartConfig, moved_on, radio_fix, start
 from .world import clock as wclock
 from .world.field import Field
@@ -52,6 +52,7 @@ class InsRun:
     clock: wclock.ClockModel = field(default_factory=wclock.ClockModel)
     pcrb: bool = True
     start: StartConfig = field(default_factory=StartConfig)
+    jac_force_tc_s: float = JAC_FORCE_TC_S  # low-pass of f^_n in the Jacobian (0: the former linearization)
 
 
 @dataclass
@@ -115,7 +116,7 @@ def simulate(fld: Field, motion: Motion, preset: ImuPreset, cfg: InsRun, tuning:
     MM = M + (1 if cfg.pcrb else 0)
     tn = tuning or InsTuning.from_preset(preset, sigma_range_m=cfg.sigma_m, q_b=cfg.clock.q_b_m2_s,
                                          q_d=cfg.clock.q_d_m2_s3, p0_clock_m=cfg.clock.b0_sigma_m,
-                                         p0_drift_m_s=cfg.clock.d0_sigma_m_s)
+                                         p0_drift_m_s=cfg.clock.d0_sigma_m_s, jac_force_tc_s=cfg.jac_force_tc_s)
     L = es.ErrorLayout(turn_on=True, tilt=(cfg.tilt == "estimate"), clock=True)
     dt = tn.dt_s
     # --- world: IMU and measurement schedule ---------------------------------------------------

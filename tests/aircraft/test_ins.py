@@ -253,6 +253,59 @@ def test_ins_ekf_seeded_nees_and_pcrb():
     assert ratio < 1.3, ratio
 
 
+def test_jacobian_force_is_low_passed():
+    """``jac_force_tc_s``: the specific force in F's attitude column is the exponential average of
+    the intervals' mean forces (weight T / tc), the interval's own with 0; the nominal is untouched."""
+    L = es.ErrorLayout()
+    out = {}
+    for tc in (0.0, 20.0):
+        ekf, m, tn = _ellipse_filter(L, M=1)
+        ekf.tn = InsTuning(**{**tn.__dict__, "jac_force_tc_s": tc})
+        dth, dv = m.increments(0.0, tn.dt_s, 300)
+        fj, means = [], []
+        for k in range(300):
+            ekf.imu(dth[k][None], dv[k][None])
+            if (k + 1) % 10 == 0:
+                means.append(ekf._fsum[0] / (10 * tn.dt_s))
+                ekf.propagate()
+                fj.append(ekf.f_jac[0].copy())
+        out[tc] = (np.array(fj), np.array(means), ekf.p.copy())
+    fj0, m0, p0 = out[0.0]
+    fj2, m2, p2 = out[20.0]
+    np.testing.assert_allclose(fj0, m0, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(p0, p2)
+    ref = m2[0].copy()
+    for i in range(1, len(m2)):
+        ref = ref + (0.1 / 20.0) * (m2[i] - ref)
+        np.testing.assert_allclose(fj2[i], ref, rtol=0, atol=1e-9)
+    assert np.abs(fj2[-1] - m2[-1]).max() > 1e-3  # it is a low-pass on a turning aircraft, not a copy
+
+
+@pytest.mark.slow
+def test_heading_nees_consistent_over_a_long_flight():
+    """Seed 003 field, ADIS16480, 16 runs x 1500 s at 1000 m (~3 min loaded): over 1000-1500 s the
+    heading error's NEES (1 dof, mean over runs and time) is 2.3 with the low-passed Jacobian force
+    and was 4.3 with the former linearization (``jac_force_tc_s = 0``, same seed): asserted <= 3.
+    It is not yet inside chi2(16)/16's 99.5 % bound (2.16) for this seed (docs/ins.md: the fix is
+    partial late in the lap). The 9-dof NEES inside its 97.5 % bound (11.19; it was 11.3 before);
+    horizontal RMSE within 1.15 x its PCRB."""
+    from scipy.stats import chi2
+
+    from aircraft.ins_sim import InsRun, simulate
+    from aircraft.world.field import Field
+    from net.scenario import load
+
+    fld = Field.from_scenario(load("seed003-text"))
+    mo = Ellipse((15000.0, 0.0), (20000.0, 15000.0), 1000.0, 50.0, np.pi)
+    res = simulate(fld, mo, preset("adis16480"), InsRun(runs=16, duration_s=1500.0, seed=5))
+    k = res.t_s >= 1000.0
+    yaw = res.nsq[:, k, 8].mean()
+    assert 0.2 < yaw <= 3.0, yaw
+    assert res.nees[:, k].mean() <= chi2.ppf(0.975, 9 * 16) / 16, res.nees[:, k].mean()
+    ratio = np.sqrt(np.mean(res.rmse_h()[k] ** 2)) / np.sqrt(np.mean(res.pcrb_h()[k] ** 2))
+    assert ratio < 1.15, ratio
+
+
 # -- honest start (aircraft/navigator/ins_start.py) ------------------------------------------------------
 
 def _start_world(M: int, t_start_s: float, seed: int):
