@@ -780,7 +780,7 @@ class AircraftEstimator:
     ``on_measurement(t_s, station_id, station_pos_m, station_cov_m2, rho_m, clock_var_m2)`` takes one
     TDMA slot; ``on_epoch(t_s, station_pos_m, station_cov_m2, rho_m, station_ids, clock_var_m2)`` a
     synchronous epoch. ``clock_var_m2``: the broadcast clock variance ``c^2 P_theta`` of the station
-    (:func:`aircraft.models.broadcast_clock_var_m2`): the filters carry each station's residual clock
+    (:func:`net.clock.broadcast_clock_var_m2`): the filters carry each station's residual clock
     error as ``tuning.clock_bias`` says (a Gauss-Markov bias state per station by default); snapshot
     LSQ and the filter start add it to the range variance (one epoch sees each residual once).
     Filters start from a snapshot LSQ fix of the first complete batch. ``estimate()`` returns a dict

@@ -36,7 +36,7 @@ from nav import errorstate as es
 from nav.geometry import SPEED_OF_LIGHT_M_S
 from nav.rotations import euler_from_dcm
 
-from .models import broadcast_clock_var_m2, broadcast_time_error_s
+from net.clock import broadcast_clock_var_m2, broadcast_time_error_s
 from .navigator.ins_ekf import JAC_FORCE_TC_S, InsEkf, InsTuning
 from .navigator.ins_start import SideTest, StartConfig, enough, moved_on, radio_fix, start
 from .world import clock as wclock
@@ -171,7 +171,7 @@ class InsAircraftCore:
 
     def measure(self, phy: dict, msg: dict | None = None, noise: bool = True) -> tuple[float, float]:
         """Channel layer: true reception time and pseudorange from the station-stamped transmit time
-        corrected by the broadcast clock correction (:func:`aircraft.models.broadcast_time_error_s`),
+        corrected by the broadcast clock correction (:func:`net.clock.broadcast_time_error_s`),
         read on the receiver clock of the scenario. ``noise=False``: without the timing noise (its one
         draw is then :meth:`noise_m`, taken only for a broadcast the navigator uses, so that a
         broadcast dropped as late live, and absent from the re-flight, consumes no draw)."""

@@ -201,29 +201,3 @@ class ReceiverClock:
         return self.drift_m_s * np.asarray(t_s, dtype=float) + SPEED_OF_LIGHT_M_S * self.tau0_s
 
 
-def broadcast_time_error_s(msg: dict | None, t_tx_true_s: float, t_rx_true_s: float, net_clock=None) -> float:
-    """Receiver-side time error of a pseudorange formed from a station's broadcast, seconds.
-
-    ``rho = c (t_rx_ac - T_tx)`` with ``t_rx_ac`` read on a receiver running on network time (station
-    1's oscillator ``net_clock``; ``None``: perfect) and ``T_tx`` the station-stamped transmit time
-    ``msg.t_tx_s`` corrected by the broadcast clock correction ``msg.clock = [t_ref, offset, freq, ...]``.
-    Returned as a difference of small terms (float resolution): network time minus true time at
-    reception, minus (stamp minus true time at transmission), plus the broadcast offset. Without
-    ``msg.t_tx_s`` the true transmit time is used (a stamp-less source).
-    """
-    dt_s = net_clock.error_s(t_rx_true_s) if net_clock is not None else 0.0
-    if msg is not None and "t_tx_s" in msg:
-        dt_s -= float(msg["t_tx_s"]) - t_tx_true_s
-        corr = msg.get("clock")
-        if corr is not None:
-            dt_s += corr[1] + corr[2] * (float(msg["t_tx_s"]) - corr[0])
-    return dt_s
-
-
-def broadcast_clock_var_m2(msg: dict) -> float:
-    """Variance of the broadcast clock correction at the transmit time as a range variance, m^2."""
-    corr = msg.get("clock")
-    if corr is None or "t_tx_s" not in msg:
-        return 0.0
-    dt = float(msg["t_tx_s"]) - corr[0]
-    return SPEED_OF_LIGHT_M_S**2 * max(corr[3] + 2 * dt * corr[4] + dt * dt * corr[5], 0.0)

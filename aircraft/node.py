@@ -37,7 +37,7 @@ import numpy as np
 
 from nav.geometry import SPEED_OF_LIGHT_M_S
 
-from .models import broadcast_clock_var_m2, broadcast_time_error_s
+from net.clock import broadcast_clock_var_m2, broadcast_time_error_s
 
 
 log = logging.getLogger("larns.aircraft")

@@ -44,7 +44,7 @@ from nav.rotations import dcm_from_euler, euler_from_dcm
 from nav.strapdown import G0_M_S2
 
 from .ins_core import motion_from_config
-from .models import broadcast_clock_var_m2, broadcast_time_error_s
+from net.clock import broadcast_clock_var_m2, broadcast_time_error_s
 from .navigator import field_tie as ft
 from .navigator.ins_ekf import InsTuning
 from .navigator.triad_ekf import (TRIAD_LAYOUT, Epoch, TriadEkf, TriadFrame, initial_fix, satellite_elevation_deg,

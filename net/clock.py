@@ -33,6 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from nav.geometry import SPEED_OF_LIGHT_M_S
+
 PRESETS: dict[str, dict[str, float]] = {
     "perfect": {"offset_s": 0.0, "freq_ppm": 0.0, "q_wf_s": 0.0, "q_rw_per_s": 0.0},
     "tcxo": {"offset_s": 1e-3, "freq_ppm": 2.0, "q_wf_s": 1e-20, "q_rw_per_s": 3e-22},
@@ -187,3 +189,33 @@ def allan_deviation(phase_s: np.ndarray, step_s: float, m: int) -> float:
     d2 = x[2 * m:] - 2.0 * x[m:-m] + x[: -2 * m]
     tau = m * step_s
     return float(np.sqrt(np.mean(d2**2) / (2.0 * tau**2)))
+
+
+# --------------------------------------------------------------------------- broadcast clock correction
+
+def broadcast_time_error_s(msg: dict | None, t_tx_true_s: float, t_rx_true_s: float, net_clock=None) -> float:
+    """Receiver-side time error of a pseudorange formed from a station's broadcast, seconds.
+
+    ``rho = c (t_rx_ac - T_tx)`` with ``t_rx_ac`` read on a receiver running on network time (station
+    1's oscillator ``net_clock``; ``None``: perfect) and ``T_tx`` the station-stamped transmit time
+    ``msg.t_tx_s`` corrected by the broadcast clock correction ``msg.clock = [t_ref, offset, freq, ...]``.
+    Returned as a difference of small terms (float resolution): network time minus true time at
+    reception, minus (stamp minus true time at transmission), plus the broadcast offset. Without
+    ``msg.t_tx_s`` the true transmit time is used (a stamp-less source).
+    """
+    dt_s = net_clock.error_s(t_rx_true_s) if net_clock is not None else 0.0
+    if msg is not None and "t_tx_s" in msg:
+        dt_s -= float(msg["t_tx_s"]) - t_tx_true_s
+        corr = msg.get("clock")
+        if corr is not None:
+            dt_s += corr[1] + corr[2] * (float(msg["t_tx_s"]) - corr[0])
+    return dt_s
+
+
+def broadcast_clock_var_m2(msg: dict) -> float:
+    """Variance of the broadcast clock correction at the transmit time as a range variance, m^2."""
+    corr = msg.get("clock")
+    if corr is None or "t_tx_s" not in msg:
+        return 0.0
+    dt = float(msg["t_tx_s"]) - corr[0]
+    return SPEED_OF_LIGHT_M_S**2 * max(corr[3] + 2 * dt * corr[4] + dt * dt * corr[5], 0.0)

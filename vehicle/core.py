@@ -35,33 +35,13 @@ from typing import Any
 import numpy as np
 
 from nav.geometry import SPEED_OF_LIGHT_M_S
+from net.clock import broadcast_clock_var_m2, broadcast_time_error_s
 from vehicle.navigator.live import MapTie, VehicleNavigator, route_of
 from vehicle.world import sensors
 from vehicle.world import truth as world_truth
 
 DEFAULT_ORIGIN = (47.23, 39.72, 0.0)
 
-
-def broadcast_time_error_s(msg: dict, t_tx_true_s: float, t_rx_true_s: float, net_clock=None) -> float:
-    """Receiver-side time error of a pseudorange formed from a station broadcast, s (as the aircraft's,
-    ``aircraft.models.broadcast_time_error_s``): network time error at reception minus the stamp's
-    error at transmission plus the broadcast clock correction."""
-    dt_s = net_clock.error_s(t_rx_true_s) if net_clock is not None else 0.0
-    if "t_tx_s" in msg:
-        dt_s -= float(msg["t_tx_s"]) - t_tx_true_s
-        corr = msg.get("clock")
-        if corr is not None:
-            dt_s += corr[1] + corr[2] * (float(msg["t_tx_s"]) - corr[0])
-    return dt_s
-
-
-def broadcast_clock_var_m2(msg: dict) -> float:
-    """Variance of the broadcast clock correction at the transmit time as a range variance, m^2."""
-    corr = msg.get("clock")
-    if corr is None or "t_tx_s" not in msg:
-        return 0.0
-    dt = float(msg["t_tx_s"]) - corr[0]
-    return SPEED_OF_LIGHT_M_S**2 * max(corr[3] + 2 * dt * corr[4] + dt * dt * corr[5], 0.0)
 
 
 def vehicle_map(scn, route_file: str | Path | None = None, speed_m_s: float | None = None) -> dict[str, Any]:
