@@ -21,6 +21,7 @@ known offset removed by the caller (``Z_d - m_d``), specific force ``f`` (M, 3),
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -54,6 +55,20 @@ def inertial_dirs(Dt: np.ndarray) -> np.ndarray:
     """``J`` (M, 9, 3): columns ``vec([e_k x] D)`` (inertial-frame attitude directions)."""
     T = -np.matmul(Dt[:, None], _E[None])  # ([e_k x] D)^T = -D^T [e_k x]
     return np.swapaxes(T.reshape(Dt.shape[0], 3, 9), 1, 2)
+
+
+# -[w x] (x) I3 on vec(D^T) row-major: F[3i+j, 3k+j] = -W[i, k] (entries of W = [w x], off-diagonal)
+_KR, _KC, _KW, _KS = [], [], [], []
+for _i in range(3):
+    for _k in range(3):
+        for _j in range(3):
+            _c = int(np.flatnonzero(_E[:, _i, _k])[0]) if np.any(_E[:, _i, _k]) else -1
+            if _c >= 0:
+                _KR.append(3 * _i + _j)
+                _KC.append(3 * _k + _j)
+                _KW.append(_c)
+                _KS.append(-_E[_c, _i, _k])
+_KR, _KC, _KW, _KS = (np.array(a) for a in (_KR, _KC, _KW, _KS))
 
 
 def polar(Dt: np.ndarray) -> np.ndarray:
@@ -96,7 +111,7 @@ class _Base:
         step is split into equal RK4 substeps; otherwise it is one RK4 step of ``dt``.
         """
         if self.odometer and z is not None:
-            stiff = float(np.max(self.odo_hph(t, self.P))) / self.noise.odometer * dt
+            stiff = self._stiffness(t, dt)
             if stiff > 0.5:
                 n_sub = int(np.ceil(stiff / 0.5))
                 h = dt / n_sub
@@ -106,6 +121,10 @@ class _Base:
                 return
         self._rk4(t, dt, w, f, z)
         self.after_step()
+
+    def _stiffness(self, t: float, dt: float) -> float:
+        """Largest ``H P H^T / r * dt`` of the odometer over the runs."""
+        return float(np.max(self.odo_hph(t, self.P))) / self.noise.odometer * dt
 
     def _rk4(self, t, dt, w, f, z) -> None:
         x, P = self.x, self.P
@@ -325,6 +344,122 @@ class MapFilter(_Base):
     def odo_hph(self, t, P) -> np.ndarray:
         sf, _ = self.route.speed_factor_d(self.x[:, 9], self.seg)
         return (self.k_odo * sf) ** 2 * P[:, 10, 10]
+
+    # ------------------------------------------------------------------ single-run fast path
+    #: use the single-run fast path (one run on a great-circle route); same equations as :meth:`deriv`
+    fast: bool = True
+
+    def _one_run(self) -> bool:
+        return self.fast and self.x.shape[0] == 1 and self.route.kind == "great_circle"
+
+    def _gc_consts(self) -> tuple[float, float, float, float, float]:
+        """``(P, a0, a1, -mu/r^3, sign)`` of the current segment as Python floats."""
+        k = int(self.seg[0])
+        cache = self.__dict__.setdefault("_gc_cache", {})
+        if k not in cache:
+            from nav.orbits import MU_EARTH_M3_S2
+
+            tab = self.route._tab
+            cache[k] = (float(tab["P"][k]), float(tab["a0"][k]), float(tab["a1"][k]),
+                        -MU_EARTH_M3_S2 / float(tab["r"][k]) ** 3, float(tab["sign"][k]))
+        return cache[k]
+
+    def _sf_one(self, q: float, c=None) -> tuple[float, float]:
+        """Scalar :meth:`Route.speed_factor_d` (the same operations)."""
+        P, a0, a1, _, _ = c or self._gc_consts()
+        den = max(a1 - q * q, 1e-6 * a1)
+        sf = math.sqrt(1.0 + P * P + a0 * a0 * q * q / den)
+        return sf, a0 * a0 * a1 * q / (den * den * sf)
+
+    def _stiffness(self, t: float, dt: float) -> float:
+        if self._one_run():
+            sf, _ = self._sf_one(float(self.x[0, 9]))
+            return (self.k_odo * sf) ** 2 * float(self.P[0, 10, 10]) / self.noise.odometer * dt
+        return super()._stiffness(t, dt)
+
+    def _rk4(self, t, dt, w, f, z) -> None:
+        if self._one_run():
+            self._rk4_one(dt, w[0], f[0], None if (z is None or not self.odometer) else float(z[0]))
+        else:
+            super()._rk4(t, dt, w, f, z)
+
+    def _rk4_one(self, dt: float, w: np.ndarray, f: np.ndarray, z: float | None) -> None:
+        """One RK4 step of :meth:`deriv` for a single run on a great circle, fused on ``Z = [P | x]``.
+
+        On a great circle ``a = e_eta`` and ``gamma = (-mu / r^3) q`` are constant/linear, so the
+        drift is ``x' = F x`` with the covariance's ``F`` (held over the step with the inputs). Each
+        RK4 stage is one product ``[F; H] [P | x]``, giving ``F P``, ``F x`` and the odometer's
+        ``H P = (P H^T)^T`` at once (``H`` evaluated at the stage's state), and one outer product
+        for ``-P H^T H P / r`` and ``+P H^T nu / r``. Equal to the batched path within round-off
+        (tests/vehicle/test_vehicle_filter_fast.py).
+        """
+        n = self.n
+        c = self._gc_consts()
+        Z = np.empty((n, n + 1))
+        Z[:, :n] = self.P[0]
+        Z[:, n] = self.x[0]
+        Xi = xi_matrix(self.x[:, :9].reshape(1, 3, 3))[0]
+        Qm = self._Qconst()
+        Qm[:9, :9] = self.noise.gyro * (Xi @ Xi.T)
+        odo = z is not None
+        FH = np.zeros((n + 1 if odo else n, n))
+        FH[_KR, _KC] = _KS * w[_KW]
+        FH[9, 10] = 1.0
+        FH[10, 1:9:3] = f  # kron(f, e_eta)
+        FH[10, 9] = c[3]
+        if self.clock:
+            FH[self.ib, self.ib + 1] = 1.0
+        ks = self.k_odo * c[4]
+        sr = 1.0 / math.sqrt(self.noise.odometer)
+        ks_r = ks * sr  # H / sqrt(r): the outer product is then P H^T H P / r
+        sf_one = self._sf_one
+
+        def stage(Zs):
+            if not odo:
+                K = FH @ Zs
+                FP = K[:, :n]
+                FP += FP.T
+                FP += Qm
+                return K
+            q, V = Zs[9:11, n].tolist()
+            sf, dsf = sf_one(q, c)
+            FH[n, 9] = ks_r * V * dsf
+            FH[n, 10] = ks_r * sf
+            KK = FH @ Zs
+            KK[n, n] = -(z - ks * V * sf) * sr
+            K = KK[:n]
+            FP = K[:, :n]
+            FP += FP.T
+            FP += Qm
+            K -= np.multiply.outer(KK[n, :n], KK[n])
+            return K
+
+        h2 = 0.5 * dt
+        k1 = stage(Z)
+        k2 = stage(Z + h2 * k1)
+        k3 = stage(Z + h2 * k2)
+        k4 = stage(Z + dt * k3)
+        k2 += k3
+        k2 *= 2.0
+        k2 += k1
+        k2 += k4
+        k2 *= dt / 6.0
+        Z += k2
+        Pn = Z[:, :n]
+        self.P = (0.5 * (Pn + Pn.T))[None]
+        self.x = Z[None, :, n].copy()
+
+    def _Qconst(self) -> np.ndarray:
+        """Constant part of the process noise (accelerometer, clock), a fresh (n, n) array."""
+        Q0 = self.__dict__.get("_Q0")
+        if Q0 is None:
+            Q0 = np.zeros((self.n, self.n))
+            Q0[10, 10] = self.noise.accel
+            if self.clock:
+                Q0[self.ib, self.ib] = self.noise.q_b
+                Q0[self.ib + 1, self.ib + 1] = self.noise.q_d
+            self._Q0 = Q0
+        return Q0.copy()
 
     def after_step(self) -> None:
         if self.route.n_segments > 1:
