@@ -12,10 +12,10 @@ from vehicle.route import great_circle_route
 
 @pytest.mark.parametrize("clock", [False, True])
 def test_single_run_fast_path_equals_reference(monkeypatch, clock):
-    """Same seed, one run, 12 s with radio epochs and a 3 s outage: the fast path and the batched
+    """Same seed, one run, 6 s with radio epochs and a 2 s outage: the fast path and the batched
     reference agree to round-off (including the stiff odometer sub-steps of the first instants)."""
     route = great_circle_route([(47.23, 39.72), (47.40, 39.80)], 100.0, [20.0])
-    case = dict(route=route, duration_s=12.0, outage_s=(5.0, 8.0), runs=1, seed=4,
+    case = dict(route=route, duration_s=6.0, outage_s=(2.0, 4.0), runs=1, seed=4,
                 clock_states=clock, clock_in_measurements=clock)
     res = {}
     for fast in (True, False):
@@ -30,3 +30,21 @@ def test_single_run_fast_path_equals_reference(monkeypatch, clock):
     np.testing.assert_allclose(a.nees, b.nees, rtol=1e-7, atol=1e-9)
     np.testing.assert_allclose(a.nis[:, 1:][np.isfinite(b.nis[:, 1:])], b.nis[:, 1:][np.isfinite(b.nis[:, 1:])],
                                rtol=1e-7)
+
+
+def test_station_consider_with_zero_covariance_equals_plain_update():
+    """Schmidt consider block with a zero broadcast covariance changes nothing (same x, P to round-off);
+    with the real covariance the cross-covariance is carried and the position variance grows."""
+    from vehicle import field
+
+    _, phys, _, R, t = field.field_layout("seed000")
+    froute, _ = field.field_route(phys, R, t, speed_m_s=10.0)
+    base = dict(route=froute, duration_s=2.0, outage_s=None, runs=2, radio="stations",
+                stations_g=field.stations_greenwich(phys), sigma_rho_m=0.5, sigma_rate_m_s=0.15,
+                clock_states=True, clock_in_measurements=True, seed=3)
+    a = sim.run(sim.Case(**base, station_sigma_m=0.0, station_consider=True))
+    b = sim.run(sim.Case(**base, station_sigma_m=0.0, station_consider=False))
+    np.testing.assert_allclose(a.err_pos, b.err_pos, atol=1e-9)
+    np.testing.assert_allclose(a.sig_pos, b.sig_pos, rtol=1e-9)
+    c = sim.run(sim.Case(**base, station_sigma_m=0.2, station_consider=True))
+    assert np.all(np.linalg.norm(c.sig_pos[:, -1], axis=-1) > 1.1 * np.linalg.norm(a.sig_pos[:, -1], axis=-1))
