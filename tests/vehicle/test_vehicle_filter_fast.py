@@ -48,3 +48,26 @@ def test_station_consider_with_zero_covariance_equals_plain_update():
     np.testing.assert_allclose(a.sig_pos, b.sig_pos, rtol=1e-9)
     c = sim.run(sim.Case(**base, station_sigma_m=0.2, station_consider=True))
     assert np.all(np.linalg.norm(c.sig_pos[:, -1], axis=-1) > 1.1 * np.linalg.norm(a.sig_pos[:, -1], axis=-1))
+
+
+def test_free_filter_forward_odometer_function_and_jacobian():
+    """The free model's odometer ``k (D e_1)^T (v_I - w_e x p_I)`` equals the truth's forward speed and
+    its Jacobian (``P H^T`` with ``P = I``) equals central differences."""
+    from vehicle.navigator.cdekf import FreeFilter, Intensities
+    from vehicle.world import truth as wt
+
+    route = great_circle_route([(47.23, 39.72), (47.40, 39.80)], 100.0, [20.0])
+    tr = wt.sample(route, wt.speed_plan(route), np.array([0.0, 7.3]))
+    case = sim.Case(route=route, runs=1, filter="free")
+    x = sim.true_state(case, tr, 1)
+    f = FreeFilter(x[None], np.eye(15)[None], Intensities(0.0, 0.0, 1.0), k_odo=1.0)
+    I = np.eye(15)[None]
+    H, _, innov = f._odo_forward(x[None], I, np.zeros(1))
+    assert -innov[0] == pytest.approx(tr.speed[1], rel=1e-9)
+
+    def h(y):
+        return -f._odo_forward(y[None], I, np.zeros(1))[2][0]
+
+    eps = np.r_[np.full(9, 1e-6), np.full(6, 1e-3)]
+    Hn = np.array([(h(x + e) - h(x - e)) / (2 * e[i]) for i, e in enumerate(np.diag(eps))])
+    np.testing.assert_allclose(H[0], Hn, rtol=1e-6, atol=1e-8)

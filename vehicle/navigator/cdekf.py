@@ -581,7 +581,9 @@ class FreeFilter(_Base):
             + gravity_gradient(p) @ P[:, 9:12, :]
         self._clock_rows(x, P, xd, FP)
         PH = innov = None
-        if self.odometer and z is not None:
+        if self.odometer and z is not None and self.odo_model == "forward":
+            PH, HZc, innov = self._odo_forward(x, P, z)
+        elif self.odometer and z is not None:
             G = earth_rotation(t)
             vg = v @ G.T - (p @ G.T) @ _WE.T
             sp = np.linalg.norm(vg, axis=-1)
@@ -594,6 +596,23 @@ class FreeFilter(_Base):
         xd, Pd = self._finish(xd, FP, Qd, PH, innov, None if PH is None else HZc)
         Pd[:, 12:15, 12:15] += self.noise.accel * np.eye(3)
         return xd, Pd
+
+    #: odometer function of the free model: "forward" = k (D e_1)^T (v_I - w_e x p_I), the Earth-relative
+    #: velocity along the body's forward axis (what a wheel measures); "speed" = k |v_G| (the old form,
+    #: whose curvature |dv_perp|^2 / (2 |v|) across the track biases the 0.001 m/s-per-second odometer)
+    odo_model = "forward"
+
+    def _odo_forward(self, x, P, z):
+        n = x.shape[1]
+        k = self.k_odo
+        d1 = x[:, 0:3]  # D e_1 (vec(D) column-major)
+        vr = x[:, 12:15] - x[:, 9:12] @ _WE.T
+        Hd, Hv, Hp = k * vr, k * d1, -k * (d1 @ _WE)
+        PH = (np.einsum("mij,mj->mi", P[:, :, 0:3], Hd) + np.einsum("mij,mj->mi", P[:, :, 9:12], Hp)
+              + np.einsum("mij,mj->mi", P[:, :, 12:15], Hv))
+        HZc = (np.einsum("mj,mjk->mk", Hd, P[:, 0:3, n:]) + np.einsum("mj,mjk->mk", Hp, P[:, 9:12, n:])
+               + np.einsum("mj,mjk->mk", Hv, P[:, 12:15, n:]))
+        return PH, HZc, z - k * np.einsum("mi,mi->m", d1, vr)
 
     def geometry(self, t, x):
         M = x.shape[0]
