@@ -478,8 +478,7 @@ class MapFilter(_Base):
             if not odo:
                 K = FH @ Zs
                 FP = K[:, :n]
-                FP += FP.T
-                FP += Qm
+                FP += FP.T + Qm
                 return K
             q, V = Zs[9:11, n].tolist()
             sf, dsf = sf_one(q, c)
@@ -489,9 +488,8 @@ class MapFilter(_Base):
             KK[n, n] = -(z - ks * V * sf) * sr
             K = KK[:n]
             FP = K[:, :n]
-            FP += FP.T
-            FP += Qm
-            K -= np.multiply.outer(KK[n, :n], KK[n])
+            FP += FP.T + Qm  # (F P)^T + Q first: no in-place transpose (Q symmetric)
+            K -= KK[n, :n, None] * KK[n]
             return K
 
         h2 = 0.5 * dt
