@@ -40,6 +40,7 @@ class Case:
     sigma_rate_m_s: float = 0.5
     stations_g: np.ndarray | None = None
     station_sigma_m: float = 0.2
+    station_consider: bool = True  # stations' survey error as Schmidt consider parameters (False: white noise)
     filter: str = "map"  # or "free"
     clock_states: bool = False
     clock_in_measurements: bool = False
@@ -113,7 +114,7 @@ def run(case: Case, progress=None) -> Result:
                                          case.mask_deg, clk)
     elif case.radio == "stations":
         radio, _ = sensors.station_epochs(case.stations_g, case.station_sigma_m**2, tr, ep_idx, M, rng_r,
-                                          case.sigma_rho_m, case.sigma_rate_m_s, clk)
+                                          case.sigma_rho_m, case.sigma_rate_m_s, clk, consider=case.station_consider)
     else:
         raise ValueError(f"radio must be satellites or stations, got {case.radio!r}")
     epoch_of = {int(i): j for j, i in enumerate(ep_idx)}
@@ -149,7 +150,8 @@ def run(case: Case, progress=None) -> Result:
         if k in epoch_of:
             e = epoch_of[k]
             filt.update(t_grid[k], radio.src_pos[e], radio.src_vel[e], radio.rho[e], radio.rate[e],
-                        radio.var_rho[e], radio.var_rate[e], use_rate=case.doppler)
+                        radio.var_rho[e], radio.var_rate[e], use_rate=case.doppler,
+                        src_cov=radio.src_cov if case.radio == "stations" and case.station_consider else None)
             nis[:, k] = filt.last_nis
             nis_dof[k] = filt.last_nis_dof
         else:

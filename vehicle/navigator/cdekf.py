@@ -21,6 +21,7 @@ known offset removed by the caller (``Z_d - m_d``), specific force ``f`` (M, 3),
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -56,6 +57,20 @@ def inertial_dirs(Dt: np.ndarray) -> np.ndarray:
     return np.swapaxes(T.reshape(Dt.shape[0], 3, 9), 1, 2)
 
 
+# -[w x] (x) I3 on vec(D^T) row-major: F[3i+j, 3k+j] = -W[i, k] (entries of W = [w x], off-diagonal)
+_KR, _KC, _KW, _KS = [], [], [], []
+for _i in range(3):
+    for _k in range(3):
+        for _j in range(3):
+            _c = int(np.flatnonzero(_E[:, _i, _k])[0]) if np.any(_E[:, _i, _k]) else -1
+            if _c >= 0:
+                _KR.append(3 * _i + _j)
+                _KC.append(3 * _k + _j)
+                _KW.append(_c)
+                _KS.append(-_E[_c, _i, _k])
+_KR, _KC, _KW, _KS = (np.array(a) for a in (_KR, _KC, _KW, _KS))
+
+
 def polar(Dt: np.ndarray) -> np.ndarray:
     """Nearest rotation (polar decomposition) of each (3, 3) matrix."""
     U, _, Vt = np.linalg.svd(Dt)
@@ -86,6 +101,7 @@ class _Base:
         self.odometer = odometer
         self.k_odo = k_odo
         self.last_nis = None
+        self.Pxc = None  # (M, n, c) cross-covariance with the consider parameters (Schmidt), if any
 
     # ------------------------------------------------------------------ continuous part (eq. 6)
     def step(self, t: float, dt: float, w: np.ndarray, f: np.ndarray, z: np.ndarray | None) -> None:
@@ -96,7 +112,7 @@ class _Base:
         step is split into equal RK4 substeps; otherwise it is one RK4 step of ``dt``.
         """
         if self.odometer and z is not None:
-            stiff = float(np.max(self.odo_hph(t, self.P))) / self.noise.odometer * dt
+            stiff = self._stiffness(t, dt)
             if stiff > 0.5:
                 n_sub = int(np.ceil(stiff / 0.5))
                 h = dt / n_sub
@@ -107,8 +123,15 @@ class _Base:
         self._rk4(t, dt, w, f, z)
         self.after_step()
 
+    def _stiffness(self, t: float, dt: float) -> float:
+        """Largest ``H P H^T / r * dt`` of the odometer over the runs."""
+        return float(np.max(self.odo_hph(t, self.P))) / self.noise.odometer * dt
+
     def _rk4(self, t, dt, w, f, z) -> None:
         x, P = self.x, self.P
+        n = x.shape[1]
+        if self.Pxc is not None:  # [P | Pxc]: the consider columns follow F (and the odometer gain), eq. 6
+            P = np.concatenate([P, self.Pxc], axis=2)
         # gyro noise block F1 Q F1^T = q_g Xi Xi^T, evaluated once per step at the step's start
         Xi = xi_matrix(x[:, :9].reshape(-1, 3, 3))
         self._Qd = self.noise.gyro * (Xi @ np.swapaxes(Xi, 1, 2))
@@ -120,6 +143,9 @@ class _Base:
         s = dt / 6.0
         self.x = x + s * (k1x + 2.0 * (k2x + k3x) + k4x)
         Pn = P + s * (k1P + 2.0 * (k2P + k3P) + k4P)
+        if self.Pxc is not None:
+            self.Pxc = Pn[:, :, n:]
+            Pn = Pn[:, :, :n]
         self.P = 0.5 * (Pn + np.swapaxes(Pn, 1, 2))
 
     def after_step(self) -> None:
@@ -127,14 +153,14 @@ class _Base:
 
     def _att(self, x, P, w):
         """Attitude part shared by both models: xdot[:9], FP[:9] and the gyro noise block."""
-        M, n = x.shape
+        M, nc = P.shape[0], P.shape[2]
         Dt = x[:, :9].reshape(M, 3, 3)
         W = skew(w)
         xd = np.empty_like(x)
         xd[:, :9] = np.matmul(W, Dt).reshape(M, 9)
         np.negative(xd[:, :9], out=xd[:, :9])
         FP = np.empty_like(P)
-        FP[:, :9, :] = np.matmul(W, P[:, :9, :].reshape(M, 3, 3 * n)).reshape(M, 9, n)
+        FP[:, :9, :] = np.matmul(W, P[:, :9, :].reshape(M, 3, 3 * nc)).reshape(M, 9, nc)
         np.negative(FP[:, :9, :], out=FP[:, :9, :])
         return Dt, xd, FP, self._Qd
 
@@ -147,8 +173,17 @@ class _Base:
             FP[:, b, :] = P[:, b + 1, :]
             FP[:, b + 1, :] = 0.0
 
-    def _finish(self, xd, FP, Qd, PH, innov):
-        Pd = FP + np.swapaxes(FP, 1, 2)
+    def _finish(self, xd, FP, Qd, PH, innov, HZc=None):
+        """``P' = F P + P F^T + Q - P H^T H P / r`` (on ``[P | Pxc]``: ``F Pxc - P H^T H Pxc / r``)."""
+        n = xd.shape[1]
+        if FP.shape[2] > n:
+            Pd = FP.copy()
+            Pd[:, :, :n] += np.swapaxes(FP[:, :, :n], 1, 2)
+            if PH is not None:
+                HZ = np.concatenate([PH, HZc], axis=1)
+        else:
+            Pd = FP + np.swapaxes(FP, 1, 2)
+            HZ = PH
         Pd[:, :9, :9] += Qd
         if self.clock:
             Pd[:, self.ib, self.ib] += self.noise.q_b
@@ -156,12 +191,21 @@ class _Base:
         if PH is not None:
             r = self.noise.odometer
             xd += PH * (innov / r)[:, None]
-            Pd -= PH[:, :, None] * PH[:, None, :] / r
+            Pd -= PH[:, :, None] * HZ[:, None, :] / r
         return xd, Pd
 
     # ------------------------------------------------------------------ discrete part (eq. 9)
-    def update(self, t: float, src_pos, src_vel, rho, rate, var_rho, var_rate, use_rate: bool = True) -> None:
-        """Pseudorange (+ Doppler) update at an epoch, Joseph form; emitters (N, 3) or (M, N, 3)."""
+    def update(self, t: float, src_pos, src_vel, rho, rate, var_rho, var_rate, use_rate: bool = True,
+               src_cov=None) -> None:
+        """Pseudorange (+ Doppler) update at an epoch, Joseph form; emitters (N, 3) or (M, N, 3).
+
+        ``src_cov`` (N, 3, 3) or (M, N, 3, 3): the emitters' own broadcast position covariance (LARNS
+        stations). Their position errors are then *consider* parameters (Schmidt-Kalman): constant,
+        not estimated, their cross-covariance ``Pxc`` with the state carried through the continuous
+        part and the updates, so an error that is the same at every epoch is not averaged away as
+        white noise. ``var_rho`` is then the range noise alone. The emitters must be the same, in
+        the same order, at every epoch.
+        """
         x, P = self.x, self.P
         M, n = x.shape
         pos, vel, Jp, Jv = self.geometry(t, x)
@@ -188,21 +232,50 @@ class _Base:
         H = np.concatenate(Hs, axis=1)
         nu = np.concatenate(zs, axis=1) - np.concatenate(hz, axis=1)
         Rd = np.concatenate(Rs, axis=1)
+        c = 0
+        if src_cov is not None:
+            P, H, c = self._consider(P, H, u, wv, r, rr, src_cov, use_rate)
         Ht = np.swapaxes(H, 1, 2)
         PHt = P @ Ht
         S = H @ PHt
         S[:, np.arange(S.shape[1]), np.arange(S.shape[1])] += Rd
         S = symmetrize(S)
-        K = gain(PHt, S)
+        K = gain(PHt[:, :n], S)
         self.x = x + np.einsum("mij,mj->mi", K, nu)
-        IKH = np.eye(n) - K @ H
+        if c:  # Schmidt: zero gain rows for the consider parameters, Joseph form on the augmented P
+            K = np.concatenate([K, np.zeros((M, c, K.shape[2]))], axis=1)
+        IKH = np.eye(n + c) - K @ H
         KR = K * Rd[:, None, :]
-        self.P = symmetrize(IKH @ P @ np.swapaxes(IKH, 1, 2) + KR @ np.swapaxes(K, 1, 2))
+        Pn = symmetrize(IKH @ P @ np.swapaxes(IKH, 1, 2) + KR @ np.swapaxes(K, 1, 2))
+        self.P = Pn[:, :n, :n] if c else Pn
+        if c:
+            self.Pxc = Pn[:, :n, n:]
         Ls = np.linalg.cholesky(S)
         y = np.linalg.solve(Ls, nu[..., None])[..., 0]
         self.last_nis = np.einsum("mi,mi->m", y, y)
         self.last_nis_dof = nu.shape[1]
         self.orthonormalize()
+
+    def _consider(self, P, H, u, wv, r, rr, src_cov, use_rate):
+        """Augmented ``[[P, Pxc], [Pxc^T, Pcc]]`` (M, n+c, n+c) and ``[H, Hc]`` for the emitters' positions."""
+        M, N = u.shape[:2]
+        n = P.shape[1]
+        c = 3 * N
+        cov = np.broadcast_to(np.asarray(src_cov, float), (M, N, 3, 3))
+        Pcc = np.zeros((M, c, c))
+        Hc = np.zeros((M, H.shape[1], c))
+        for s in range(N):
+            Pcc[:, 3 * s:3 * s + 3, 3 * s:3 * s + 3] = cov[:, s]
+            Hc[:, s, 3 * s:3 * s + 3] = u[:, s]  # d rho / d p_s
+            if use_rate:  # d (u . w) / d p_s = (w - u (u . w)) / r
+                Hc[:, N + s, 3 * s:3 * s + 3] = (wv[:, s] - u[:, s] * rr[:, s, None]) / r[:, s, None]
+        if self.Pxc is None:
+            self.Pxc = np.zeros((M, n, c))
+        elif self.Pxc.shape[2] != c:
+            raise ValueError(f"src_cov: {N} emitters, but the consider block holds {self.Pxc.shape[2] // 3}")
+        Pa = np.concatenate([np.concatenate([P, self.Pxc], axis=2),
+                             np.concatenate([np.swapaxes(self.Pxc, 1, 2), Pcc], axis=2)], axis=1)
+        return Pa, np.concatenate([H, Hc], axis=2), c
 
     def orthonormalize(self) -> None:
         """Polar re-orthonormalization of D and projection of its covariance on the tangent space."""
@@ -213,6 +286,8 @@ class _Base:
         T = np.broadcast_to(np.eye(n), (M, n, n)).copy()
         T[:, :9, :9] = 0.5 * (Xi @ np.swapaxes(Xi, 1, 2))
         self.P = symmetrize(T @ self.P @ np.swapaxes(T, 1, 2))
+        if self.Pxc is not None:
+            self.Pxc = T @ self.Pxc
 
     # ------------------------------------------------------------------ outputs
     def D(self) -> np.ndarray:
@@ -263,9 +338,11 @@ class MapFilter(_Base):
             sf, dsf = r.speed_factor_d(q, k)
             ks = self.k_odo * r.fwd_sign(k)
             h = ks * V * sf
+            n = x.shape[1]
             PH = P[:, :, 9] * (ks * V * dsf)[:, None] + P[:, :, 10] * (ks * sf)[:, None]
+            HZc = P[:, 9, n:] * (ks * V * dsf)[:, None] + P[:, 10, n:] * (ks * sf)[:, None]
             innov = z - h
-        xd, Pd = self._finish(xd, FP, Qd, PH, innov)
+        xd, Pd = self._finish(xd, FP, Qd, PH, innov, None if PH is None else HZc)
         Pd[:, 10, 10] += Qd_v
         return xd, Pd
 
@@ -319,12 +396,128 @@ class MapFilter(_Base):
         T[:, 10] = scale
         self.x[m] = x
         self.P[m] = symmetrize(P * T[:, :, None] * T[:, None, :])
+        if self.Pxc is not None:
+            self.Pxc[m] = (IKH @ self.Pxc[m]) * T[:, :, None]
         self.seg = self.seg.copy()
         self.seg[m] = kn
 
     def odo_hph(self, t, P) -> np.ndarray:
         sf, _ = self.route.speed_factor_d(self.x[:, 9], self.seg)
         return (self.k_odo * sf) ** 2 * P[:, 10, 10]
+
+    # ------------------------------------------------------------------ single-run fast path
+    #: use the single-run fast path (one run on a great-circle route); same equations as :meth:`deriv`
+    fast: bool = True
+
+    def _one_run(self) -> bool:
+        return self.fast and self.x.shape[0] == 1 and self.route.kind == "great_circle" and self.Pxc is None
+
+    def _gc_consts(self) -> tuple[float, float, float, float, float]:
+        """``(P, a0, a1, -mu/r^3, sign)`` of the current segment as Python floats."""
+        k = int(self.seg[0])
+        cache = self.__dict__.setdefault("_gc_cache", {})
+        if k not in cache:
+            from nav.orbits import MU_EARTH_M3_S2
+
+            tab = self.route._tab
+            cache[k] = (float(tab["P"][k]), float(tab["a0"][k]), float(tab["a1"][k]),
+                        -MU_EARTH_M3_S2 / float(tab["r"][k]) ** 3, float(tab["sign"][k]))
+        return cache[k]
+
+    def _sf_one(self, q: float, c=None) -> tuple[float, float]:
+        """Scalar :meth:`Route.speed_factor_d` (the same operations)."""
+        P, a0, a1, _, _ = c or self._gc_consts()
+        den = max(a1 - q * q, 1e-6 * a1)
+        sf = math.sqrt(1.0 + P * P + a0 * a0 * q * q / den)
+        return sf, a0 * a0 * a1 * q / (den * den * sf)
+
+    def _stiffness(self, t: float, dt: float) -> float:
+        if self._one_run():
+            sf, _ = self._sf_one(float(self.x[0, 9]))
+            return (self.k_odo * sf) ** 2 * float(self.P[0, 10, 10]) / self.noise.odometer * dt
+        return super()._stiffness(t, dt)
+
+    def _rk4(self, t, dt, w, f, z) -> None:
+        if self._one_run():
+            self._rk4_one(dt, w[0], f[0], None if (z is None or not self.odometer) else float(z[0]))
+        else:
+            super()._rk4(t, dt, w, f, z)
+
+    def _rk4_one(self, dt: float, w: np.ndarray, f: np.ndarray, z: float | None) -> None:
+        """One RK4 step of :meth:`deriv` for a single run on a great circle, fused on ``Z = [P | x]``.
+
+        On a great circle ``a = e_eta`` and ``gamma = (-mu / r^3) q`` are constant/linear, so the
+        drift is ``x' = F x`` with the covariance's ``F`` (held over the step with the inputs). Each
+        RK4 stage is one product ``[F; H] [P | x]``, giving ``F P``, ``F x`` and the odometer's
+        ``H P = (P H^T)^T`` at once (``H`` evaluated at the stage's state), and one outer product
+        for ``-P H^T H P / r`` and ``+P H^T nu / r``. Equal to the batched path within round-off
+        (tests/vehicle/test_vehicle_filter_fast.py).
+        """
+        n = self.n
+        c = self._gc_consts()
+        Z = np.empty((n, n + 1))
+        Z[:, :n] = self.P[0]
+        Z[:, n] = self.x[0]
+        Xi = xi_matrix(self.x[:, :9].reshape(1, 3, 3))[0]
+        Qm = self._Qconst()
+        Qm[:9, :9] = self.noise.gyro * (Xi @ Xi.T)
+        odo = z is not None
+        FH = np.zeros((n + 1 if odo else n, n))
+        FH[_KR, _KC] = _KS * w[_KW]
+        FH[9, 10] = 1.0
+        FH[10, 1:9:3] = f  # kron(f, e_eta)
+        FH[10, 9] = c[3]
+        if self.clock:
+            FH[self.ib, self.ib + 1] = 1.0
+        ks = self.k_odo * c[4]
+        sr = 1.0 / math.sqrt(self.noise.odometer)
+        ks_r = ks * sr  # H / sqrt(r): the outer product is then P H^T H P / r
+        sf_one = self._sf_one
+
+        def stage(Zs):
+            if not odo:
+                K = FH @ Zs
+                FP = K[:, :n]
+                FP += FP.T + Qm
+                return K
+            q, V = Zs[9:11, n].tolist()
+            sf, dsf = sf_one(q, c)
+            FH[n, 9] = ks_r * V * dsf
+            FH[n, 10] = ks_r * sf
+            KK = FH @ Zs
+            KK[n, n] = -(z - ks * V * sf) * sr
+            K = KK[:n]
+            FP = K[:, :n]
+            FP += FP.T + Qm  # (F P)^T + Q first: no in-place transpose (Q symmetric)
+            K -= KK[n, :n, None] * KK[n]
+            return K
+
+        h2 = 0.5 * dt
+        k1 = stage(Z)
+        k2 = stage(Z + h2 * k1)
+        k3 = stage(Z + h2 * k2)
+        k4 = stage(Z + dt * k3)
+        k2 += k3
+        k2 *= 2.0
+        k2 += k1
+        k2 += k4
+        k2 *= dt / 6.0
+        Z += k2
+        Pn = Z[:, :n]
+        self.P = (0.5 * (Pn + Pn.T))[None]
+        self.x = Z[None, :, n].copy()
+
+    def _Qconst(self) -> np.ndarray:
+        """Constant part of the process noise (accelerometer, clock), a fresh (n, n) array."""
+        Q0 = self.__dict__.get("_Q0")
+        if Q0 is None:
+            Q0 = np.zeros((self.n, self.n))
+            Q0[10, 10] = self.noise.accel
+            if self.clock:
+                Q0[self.ib, self.ib] = self.noise.q_b
+                Q0[self.ib + 1, self.ib + 1] = self.noise.q_d
+            self._Q0 = Q0
+        return Q0.copy()
 
     def after_step(self) -> None:
         if self.route.n_segments > 1:
@@ -337,6 +530,8 @@ class MapFilter(_Base):
                 T[:, 9] = scale
                 T[:, 10] = scale
                 self.P = self.P * T[:, :, None] * T[:, None, :]
+                if self.Pxc is not None:
+                    self.Pxc = self.Pxc * T[:, :, None]
 
     def geometry(self, t, x):
         """Greenwich position and velocity (M, 3) and their Jacobians (M, 3, n)."""
@@ -374,16 +569,19 @@ class FreeFilter(_Base):
 
     def deriv(self, t, x, P, w, f, z):
         M, n = x.shape
+        nc = P.shape[2]
         Dt, xd, FP, Qd = self._att(x, P, w)
         p, v = x[:, 9:12], x[:, 12:15]
         xd[:, 9:12] = v
         xd[:, 12:15] = (f[:, None, :] @ Dt)[:, 0] + gravity(p)
         FP[:, 9:12, :] = P[:, 12:15, :]
-        FP[:, 12:15, :] = (f[:, None, :] @ P[:, :9, :].reshape(M, 3, 3 * n)).reshape(M, 3, n) \
+        FP[:, 12:15, :] = (f[:, None, :] @ P[:, :9, :].reshape(M, 3, 3 * nc)).reshape(M, 3, nc) \
             + gravity_gradient(p) @ P[:, 9:12, :]
         self._clock_rows(x, P, xd, FP)
         PH = innov = None
-        if self.odometer and z is not None:
+        if self.odometer and z is not None and self.odo_model == "forward":
+            PH, HZc, innov = self._odo_forward(x, P, z)
+        elif self.odometer and z is not None:
             G = earth_rotation(t)
             vg = v @ G.T - (p @ G.T) @ _WE.T
             sp = np.linalg.norm(vg, axis=-1)
@@ -391,10 +589,28 @@ class FreeFilter(_Base):
             Hv = self.k_odo * e @ G
             Hp = -self.k_odo * e @ (_WE @ G)
             PH = np.einsum("mij,mj->mi", P[:, :, 9:12], Hp) + np.einsum("mij,mj->mi", P[:, :, 12:15], Hv)
+            HZc = np.einsum("mj,mjk->mk", Hp, P[:, 9:12, n:]) + np.einsum("mj,mjk->mk", Hv, P[:, 12:15, n:])
             innov = z - self.k_odo * sp
-        xd, Pd = self._finish(xd, FP, Qd, PH, innov)
+        xd, Pd = self._finish(xd, FP, Qd, PH, innov, None if PH is None else HZc)
         Pd[:, 12:15, 12:15] += self.noise.accel * np.eye(3)
         return xd, Pd
+
+    #: odometer function of the free model: "forward" = k (D e_1)^T (v_I - w_e x p_I), the Earth-relative
+    #: velocity along the body's forward axis (what a wheel measures); "speed" = k |v_G| (the old form,
+    #: whose curvature |dv_perp|^2 / (2 |v|) across the track biases the 0.001 m/s-per-second odometer)
+    odo_model = "forward"
+
+    def _odo_forward(self, x, P, z):
+        n = x.shape[1]
+        k = self.k_odo
+        d1 = x[:, 0:3]  # D e_1 (vec(D) column-major)
+        vr = x[:, 12:15] - x[:, 9:12] @ _WE.T
+        Hd, Hv, Hp = k * vr, k * d1, -k * (d1 @ _WE)
+        PH = (np.einsum("mij,mj->mi", P[:, :, 0:3], Hd) + np.einsum("mij,mj->mi", P[:, :, 9:12], Hp)
+              + np.einsum("mij,mj->mi", P[:, :, 12:15], Hv))
+        HZc = (np.einsum("mj,mjk->mk", Hd, P[:, 0:3, n:]) + np.einsum("mj,mjk->mk", Hp, P[:, 9:12, n:])
+               + np.einsum("mj,mjk->mk", Hv, P[:, 12:15, n:]))
+        return PH, HZc, z - k * np.einsum("mi,mi->m", d1, vr)
 
     def geometry(self, t, x):
         M = x.shape[0]

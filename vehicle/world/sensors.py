@@ -108,6 +108,7 @@ class RadioEpochs:
     var_rho: list
     var_rate: list
     ids: list
+    src_cov: np.ndarray | None = None  # (N, 3, 3) emitters' broadcast position covariance (stations)
 
 
 def satellite_epochs(alm: Almanac, truth, epoch_idx: np.ndarray, runs: int, rng: np.random.Generator,
@@ -158,17 +159,21 @@ def satellite_epochs(alm: Almanac, truth, epoch_idx: np.ndarray, runs: int, rng:
 
 def station_epochs(stations_g: np.ndarray, station_cov_m2: float, truth, epoch_idx: np.ndarray, runs: int,
                    rng: np.random.Generator, sigma_rho_m: float, sigma_rate_m_s: float,
-                   clock: tuple[np.ndarray, np.ndarray] | None) -> tuple[RadioEpochs, np.ndarray]:
+                   clock: tuple[np.ndarray, np.ndarray] | None, consider: bool = False) -> tuple[RadioEpochs, np.ndarray]:
     """LARNS stations' nav broadcasts: pseudoranges and carrier pseudorange rates at the vehicle.
 
     Stations (N, 3) Greenwich are static; each run's broadcast positions carry a survey error
     ``N(0, station_cov_m2 I)`` drawn once per run. Returns the epochs (``src_pos`` per run: (M, N, 3))
-    and the broadcast positions (M, N, 3). The station position variance enters the range variance as
-    ``u^T P u`` on the navigator side.
+    and the broadcast positions (M, N, 3). Each station broadcasts its position covariance
+    (``src_cov`` (N, 3, 3)). ``consider=False``: the navigator is to treat it as white range noise
+    (``var_rho = sigma^2 + station_cov_m2``, which is wrong: the error is constant per run);
+    ``consider=True``: ``var_rho`` is the range noise alone and the navigator takes the stations'
+    positions as Schmidt consider parameters with the broadcast covariance.
     """
     N = stations_g.shape[0]
     bcast = stations_g[None] + np.sqrt(station_cov_m2) * rng.standard_normal((runs, N, 3))
     out = RadioEpochs(truth.t_s[epoch_idx], [], [], [], [], [], [], [])
+    out.src_cov = np.broadcast_to(station_cov_m2 * np.eye(3), (N, 3, 3))
     for i in epoch_idx:
         d = stations_g - truth.p_g[i]
         r = np.linalg.norm(d, axis=-1)
@@ -185,7 +190,7 @@ def station_epochs(stations_g: np.ndarray, station_cov_m2: float, truth, epoch_i
         out.src_vel.append(np.zeros((N, 3)))
         out.rho.append(rho)
         out.rate.append(rr)
-        out.var_rho.append(np.full(N, sigma_rho_m**2 + station_cov_m2))
+        out.var_rho.append(np.full(N, sigma_rho_m**2 + (0.0 if consider else station_cov_m2)))
         out.var_rate.append(np.full(N, sigma_rate_m_s**2))
         out.ids.append(np.arange(1, N + 1))
     return out, bcast
