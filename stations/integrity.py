@@ -4,8 +4,10 @@ Each station tests every peer once per own cycle: is the link's recent ranging c
 own estimate and the peer's broadcast estimate, given both covariances?
 
 For peer ``j``, with the ranges ``d_k`` of the link measured (by either end) in the last
-``window_s`` seconds (at least ``min_ranges`` of them), after a within-link consensus gate (ranges
-more than ``gate * sigma_d`` from the window's median are NLOS-like one-offs and left out),
+``window_s`` seconds (at least ``min_ranges`` of them), after a within-link consensus gate (the
+window's line-of-sight centre is its lowest densest cluster of ranges, ``estimators.los_cluster``:
+NLOS only lengthens a range; ranges more than ``gate * sigma_d`` from it are left out, and a window
+where no two ranges agree is inconclusive),
 
     T_j = (dbar - |c - c_j|)^2 / (sigma_d^2 / n + u^T (P + C_j) u),     u = (c - c_j) / |c - c_j|,
 
@@ -32,6 +34,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2
 
+from .estimators import los_cluster
+
 
 @dataclass
 class PeerTest:
@@ -48,7 +52,7 @@ class StationIntegrity:
     """Chi-square consistency test of each peer, exclusion and re-admission (see module docstring)."""
 
     def __init__(self, station_id: int, sigma_d_m: float, *, p_fa: float = 1e-4, window_s: float = 20.0,
-                 fail_to_exclude: int = 2, pass_to_readmit: int = 10, readmit_p: float = 0.1, gate: float = 5.0,
+                 fail_to_exclude: int = 2, pass_to_readmit: int = 10, readmit_p: float = 0.1, gate: float = 4.0,
                  min_ranges: int = 3):
         self.id = station_id
         self.sigma_d_m = float(sigma_d_m)
@@ -81,9 +85,10 @@ class StationIntegrity:
         if len(st.ranges) < self.min_ranges:  # one or two ranges cannot tell an NLOS one-off from a fault
             return None
         d = np.array([r for _, r in st.ranges])
-        d = d[np.abs(d - np.median(d)) <= self.gate * self.sigma_d_m]
-        if not len(d):  # no consensus in the window (an even count split by NLOS): inconclusive
+        centre, support = los_cluster(d, self.gate * self.sigma_d_m)
+        if support < 2:  # no two ranges of the window agree (NLOS one-offs): inconclusive
             return None
+        d = d[np.abs(d - centre) <= self.gate * self.sigma_d_m]
         diff = np.asarray(pos_m, float) - np.asarray(peer_pos_m, float)
         pred = float(np.linalg.norm(diff))
         if pred <= 0.0:
