@@ -209,7 +209,7 @@ class DistributedMap:
                  robust: str | None = "tukey", tukey_c: float = 4.685, huber_k: float = 2.0,
                  min_inlier_frac: float = 0.5, keep_per_link: int = 256, link_consensus: str | None = "cluster",
                  consensus_gate: float = 4.0, cluster_width: float = 4.0, unconfirmed_weight: float = 0.01,
-                 confirm_n: int = 3, confirmed_loss: str | None = "huber",
+                 confirm_n: int = 3, weak_below: int = 3, confirmed_loss: str | None = "huber",
                  restart_from_prior: bool = True, restart_iter: int = 6):
         self.id = station_id
         self.free = free_mask(station_id)
@@ -236,6 +236,7 @@ class DistributedMap:
         self.cluster_width = cluster_width
         self.unconfirmed_weight = unconfirmed_weight
         self.confirm_n = confirm_n
+        self.weak_below = weak_below
         self.confirmed_loss = confirmed_loss
         self._centre_factor = np.zeros(0)
         self._confirmed = np.zeros(0, bool)
@@ -422,7 +423,7 @@ class DistributedMap:
                     continue
                 if self.link_consensus == "cluster":
                     centre[k], support = los_cluster(v, self.cluster_width * sd)
-                    if support < 2:
+                    if support < self.weak_below:
                         factor[k] = self.unconfirmed_weight
                     conf[k] = support >= self.confirm_n
                 else:
