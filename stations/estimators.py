@@ -157,17 +157,46 @@ def huber_weight(z: np.ndarray, k: float) -> np.ndarray:
     return np.where(a <= k, 1.0, k / np.maximum(a, 1e-300))
 
 
+def los_cluster(ranges_m: np.ndarray, width_m: float) -> tuple[float, int]:
+    """Line-of-sight centre of one link's repeated ranges: the lowest densest cluster.
+
+    NLOS only lengthens a range (positive excess), so the direct path is the shortest value that
+    recurs. Over the sorted ranges, the window ``[d_i, d_i + width_m]`` holding the most ranges
+    (the lowest such window on a tie) is the LOS cluster; returns its median and its count.
+
+    Parameters
+    ----------
+    ranges_m : (k,) ranges of one link, k >= 1. width_m : window width (about 4 sigma_d).
+
+    Returns
+    -------
+    (centre_m, support): support 1 means no two ranges agree (unconfirmed link).
+    """
+    s = np.sort(np.asarray(ranges_m, dtype=float))
+    hi = np.searchsorted(s, s + width_m, side="right")
+    cnt = hi - np.arange(len(s))
+    i = int(np.argmax(cnt))  # first maximum: the lowest window
+    return float(np.median(s[i:hi[i]])), int(cnt[i])
+
+
 class DistributedMap:
     """Distributed MAP by block Gauss-Newton on stored link statistics (see module docstring).
 
     ``robust`` (default ``"tukey"``): every range is kept (stations are static, so this is the
-    lossless record) and re-weighted at every solve by a redescending M-estimator on its normalized
-    innovation ``z = (d - |c - c_j|) / s``, ``s^2 = sigma_d^2 + u^T (P + C_j) u`` (range noise plus
-    the predicted range's uncertainty from both estimates). An NLOS range (tens of metres long) gets
-    weight 0 once the geometry is known to better than its excess, and is re-admitted if the
-    geometry moves; a weight is never frozen. When fewer than half of the weight survives (our own
-    fix is far off, e.g. a bad coarse fix), the solve falls back to Huber weights, whose convex loss
-    converges from any start, and the next solve redescends from there (an MM scheme).
+    lossless record) and re-weighted at every solve. First, geometry-free, within each link
+    (``link_consensus="cluster"``): NLOS only lengthens a range, so the link's line-of-sight value is
+    its lowest densest cluster of ranges (``los_cluster``); ranges more than ``consensus_gate``
+    sigma_d from it get weight 0. A link whose cluster holds ``confirm_n`` (3) ranges is *confirmed*;
+    a link where no two ranges agree keeps only its shortest range, down-weighted by
+    ``unconfirmed_weight`` (0.01: a range not yet confirmed counts like one with sigma 5 m). Then
+    against the geometry, on the normalized innovation ``z = (d - |c - c_j|) / s``,
+    ``s^2 = sigma_d^2 + u^T (P + C_j) u`` (range noise plus the predicted range's uncertainty from
+    both estimates): the convex Huber loss on confirmed links (bounded pull of a lying peer, but never
+    a dropped link: a redescending loss there let whole networks settle in wrong configurations that
+    rejected their links to station 1), the redescending Tukey biweight on unconfirmed ones. A weight
+    is never frozen. When fewer than half of the weight survives (our own fix is far off, e.g. a bad
+    coarse fix), the solve falls back to Huber weights, whose convex loss converges from any start,
+    and the next solve redescends from there (an MM scheme).
     ``robust=None`` gives the plain least-squares MAP (count + mean per link).
     """
 
@@ -178,8 +207,9 @@ class DistributedMap:
                  no_fix_sigma_m: float = 1000.0, min_peers_to_init: int = 4, extrinsic: bool = True,
                  peer_corr: float = 2.0, peer_corr_est: float = 0.5, extrinsic_est: bool = False,
                  robust: str | None = "tukey", tukey_c: float = 4.685, huber_k: float = 2.0,
-                 min_inlier_frac: float = 0.5, keep_per_link: int = 256, link_consensus: bool = True,
-                 consensus_gate: float = 5.0,
+                 min_inlier_frac: float = 0.5, keep_per_link: int = 256, link_consensus: str | None = "cluster",
+                 consensus_gate: float = 4.0, cluster_width: float = 4.0, unconfirmed_weight: float = 0.01,
+                 confirm_n: int = 3, weak_below: int = 3, confirmed_loss: str | None = "huber",
                  restart_from_prior: bool = True, restart_iter: int = 6):
         self.id = station_id
         self.free = free_mask(station_id)
@@ -203,6 +233,13 @@ class DistributedMap:
         self.min_inlier_frac = min_inlier_frac
         self.link_consensus = link_consensus
         self.consensus_gate = consensus_gate
+        self.cluster_width = cluster_width
+        self.unconfirmed_weight = unconfirmed_weight
+        self.confirm_n = confirm_n
+        self.weak_below = weak_below
+        self.confirmed_loss = confirmed_loss
+        self._centre_factor = np.zeros(0)
+        self._confirmed = np.zeros(0, bool)
         self.restart_from_prior = restart_from_prior
         self.restart_iter = restart_iter
         self.keep_per_link = keep_per_link
@@ -350,22 +387,51 @@ class DistributedMap:
             return np.ones(nr)
         m = len(self._index)
         z = self._z(x)
-        w = tukey_weight(z, self.tukey_c)
         if self.link_consensus:
-            # within-link consensus, independent of any geometry: distance to the link's centre
-            # (median; of two ranges that disagree, the shorter, since NLOS only lengthens a range);
-            # it depends on the kept ranges only, so it is computed once per change of them
-            if self._centre_key != (self._rver, m):
-                centre = np.empty(m)
-                gap = 3.0 * np.sqrt(2.0) * self.sigma_d_m
-                for k in range(m):
-                    v = rv[rk == k]
-                    centre[k] = (v.min() if len(v) == 2 and np.ptp(v) > gap else np.median(v)) if len(v) else 0.0
-                self._centre, self._centre_key = centre, (self._rver, m)
-            w = w * (np.abs(rv - self._centre[rk]) <= self.consensus_gate * self.sigma_d_m)
-        if w.sum() < self.min_inlier_frac * nr:
-            w = huber_weight(z, self.huber_k)  # far from everything: convex start (MM scheme)
+            gate, confirmed = self._consensus(rk, rv, m)
+        else:
+            gate, confirmed = np.ones(nr), np.zeros(nr, bool)
+        # a confirmed link (its LOS cluster holds >= confirm_n ranges) is judged against the geometry
+        # by the convex Huber loss only: its pull is bounded (a lying peer until it is excluded) but
+        # never zero, so the network cannot settle in a wrong configuration that drops its links to
+        # the frame stations; the redescending Tukey loss judges the ranges of unconfirmed links
+        zc = huber_weight(z, self.huber_k) if self.confirmed_loss == "huber" else np.ones(nr)
+        w = np.where(confirmed & (self.confirmed_loss is not None), zc, tukey_weight(z, self.tukey_c)) * gate
+        if w.sum() < self.min_inlier_frac * gate.sum():
+            # far from everything: convex start (MM scheme), still within the links' consensus
+            w = huber_weight(z, self.huber_k) * gate
         return w
+
+    def _consensus(self, rk: np.ndarray, rv: np.ndarray, m: int) -> np.ndarray:
+        """(nr,) within-link consensus factor of every kept range, independent of any geometry.
+
+        ``"cluster"``: the link's line-of-sight centre is its lowest densest cluster of ranges
+        (``los_cluster``; NLOS only lengthens a range, so the direct path is the shortest repeated
+        value); a range more than ``consensus_gate * sigma_d`` from it gets 0, and while no two ranges
+        of the link agree (one range, or all disagree) every range of the link but the shortest gets 0
+        and the shortest gets ``unconfirmed_weight``. ``"median"``: distance to the link's median (of
+        two ranges that disagree: the shorter). Depends on the kept ranges only: cached per change.
+        """
+        if self._centre_key != (self._rver, m):
+            centre = np.zeros(m)
+            factor = np.ones(m)
+            conf = np.zeros(m, bool)
+            sd = self.sigma_d_m
+            for k in range(m):
+                v = rv[rk == k]
+                if not len(v):
+                    continue
+                if self.link_consensus == "cluster":
+                    centre[k], support = los_cluster(v, self.cluster_width * sd)
+                    if support < self.weak_below:
+                        factor[k] = self.unconfirmed_weight
+                    conf[k] = support >= self.confirm_n
+                else:
+                    centre[k] = v.min() if len(v) == 2 and np.ptp(v) > 3.0 * np.sqrt(2.0) * sd else np.median(v)
+            self._centre, self._centre_factor, self._confirmed = centre, factor, conf
+            self._centre_key = (self._rver, m)
+        ok = np.abs(rv - self._centre[rk]) <= self.consensus_gate * self.sigma_d_m
+        return ok * self._centre_factor[rk], self._confirmed[rk]
 
     def robust_cost(self, x: np.ndarray) -> float:
         """Robust MAP objective at ``x``: prior Mahalanobis term + sum of Tukey losses

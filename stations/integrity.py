@@ -4,13 +4,20 @@ Each station tests every peer once per own cycle: is the link's recent ranging c
 own estimate and the peer's broadcast estimate, given both covariances?
 
 For peer ``j``, with the ranges ``d_k`` of the link measured (by either end) in the last
-``window_s`` seconds (at least ``min_ranges`` of them), after a within-link consensus gate (ranges
-more than ``gate * sigma_d`` from the window's median are NLOS-like one-offs and left out),
+``window_s`` seconds (at least ``min_ranges`` of them), after a within-link consensus gate, two
+statistics and the larger counts:
 
     T_j = (dbar - |c - c_j|)^2 / (sigma_d^2 / n + u^T (P + C_j) u),     u = (c - c_j) / |c - c_j|,
 
-which is chi-square with 1 degree of freedom when both estimates and the ranges are what they
-claim (the range noise, our error and the peer's error are independent and Gaussian). A peer whose
+with ``dbar, n`` over (1) the window's line-of-sight cluster (its lowest densest cluster of ranges,
+``estimators.los_cluster``: NLOS only lengthens a range; ranges within ``gate * sigma_d`` of it) when
+at least two ranges agree there, and (2) the cluster of the newest range (ranges within
+``gate * sigma_d / 2`` of it) when it holds at least two: a fault's onset (a range bias) is a step
+that the LOS cluster ignores until it outnumbers the older ranges, while NLOS excesses are spread
+(exponential) and rarely agree. A window where no two ranges agree is inconclusive. Each statistic
+is chi-square with 1 degree of freedom when both estimates and the ranges are what they claim
+(the range noise, our error and the peer's error are independent and Gaussian); the larger of two
+alarms at most twice as often as one. A peer whose
 ``T_j`` exceeds the ``1 - p_fa`` quantile in ``fail_to_exclude`` consecutive tests is *excluded*
 (the survey estimator stops using it); an excluded peer whose ``T_j`` stays below the ``1 - readmit_p``
 quantile (hysteresis: a faulty station's estimate partly absorbs its fault, so merely passing is not
@@ -32,6 +39,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2
 
+from .estimators import los_cluster
+
 
 @dataclass
 class PeerTest:
@@ -48,7 +57,7 @@ class StationIntegrity:
     """Chi-square consistency test of each peer, exclusion and re-admission (see module docstring)."""
 
     def __init__(self, station_id: int, sigma_d_m: float, *, p_fa: float = 1e-4, window_s: float = 20.0,
-                 fail_to_exclude: int = 2, pass_to_readmit: int = 10, readmit_p: float = 0.1, gate: float = 5.0,
+                 fail_to_exclude: int = 2, pass_to_readmit: int = 10, readmit_p: float = 0.1, gate: float = 4.0,
                  min_ranges: int = 3):
         self.id = station_id
         self.sigma_d_m = float(sigma_d_m)
@@ -81,16 +90,21 @@ class StationIntegrity:
         if len(st.ranges) < self.min_ranges:  # one or two ranges cannot tell an NLOS one-off from a fault
             return None
         d = np.array([r for _, r in st.ranges])
-        d = d[np.abs(d - np.median(d)) <= self.gate * self.sigma_d_m]
-        if not len(d):  # no consensus in the window (an even count split by NLOS): inconclusive
+        g = self.gate * self.sigma_d_m
+        centre, support = los_cluster(d, g)
+        sets = [d[np.abs(d - centre) <= g]] if support >= 2 else []
+        newest = d[np.abs(d - d[-1]) <= 0.5 * g]  # the newest range's cluster (a step: fault onset)
+        if len(newest) >= 2:
+            sets.append(newest)
+        if not sets:  # no two ranges of the window agree (NLOS one-offs): inconclusive
             return None
         diff = np.asarray(pos_m, float) - np.asarray(peer_pos_m, float)
         pred = float(np.linalg.norm(diff))
         if pred <= 0.0:
             return None
         u = diff / pred
-        var = self.sigma_d_m**2 / len(d) + float(u @ (np.asarray(cov_m2, float) + np.asarray(peer_cov_m2, float)) @ u)
-        return float((d.mean() - pred) ** 2 / var)
+        pv = float(u @ (np.asarray(cov_m2, float) + np.asarray(peer_cov_m2, float)) @ u)
+        return max(float((x.mean() - pred) ** 2 / (self.sigma_d_m**2 / len(x) + pv)) for x in sets)
 
     def evaluate(self, t_s: float, pos_m, cov_m2, peers: dict[int, tuple]) -> list[dict]:
         """Test every peer with a range in the window. ``peers``: {id: (pos_m (3,), cov_m2 (3, 3))}
