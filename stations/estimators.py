@@ -567,18 +567,24 @@ class DistributedMap:
         return True
 
 
-ESTIMATORS = {"dmap": DistributedMap, "dmap-ls": DistributedMap, "seed-ukf": SeedUkf}
+ESTIMATORS = {"dmap": DistributedMap, "dmap-nlos": DistributedMap, "dmap-ls": DistributedMap, "seed-ukf": SeedUkf}
 
 
 def make_estimator(name: str, station_id: int, pos0_m, cov0_m2, sigma_d_m: float,
                    ranges_per_update: int = 3) -> SurveyEstimator:
-    """``dmap`` (robust, default), ``dmap-ls`` (the same without the robust weights) or ``seed-ukf``."""
+    """``dmap`` (robust, default), ``dmap-nlos`` (the same, a link weak until 3 of its ranges agree:
+    holds 20 % NLOS legs at the price of slower clean convergence, docs/survey.md), ``dmap-ls`` (the
+    same without the robust weights) or ``seed-ukf``."""
     if name == "seed-ukf":
         if pos0_m is None:
             raise ValueError("seed-ukf needs an initial fix (scenario init.sigma0_m > 0)")
         return SeedUkf(station_id, pos0_m, cov0_m2, sigma_d_m, ranges_per_update)
     if name == "dmap":
-        return DistributedMap(station_id, pos0_m, cov0_m2, sigma_d_m)
+        return DistributedMap(station_id, pos0_m, cov0_m2, sigma_d_m, weak_below=2)
+    if name == "dmap-nlos":
+        dm = DistributedMap(station_id, pos0_m, cov0_m2, sigma_d_m, weak_below=3)
+        dm.name = "dmap-nlos"
+        return dm
     if name == "dmap-ls":
         return DistributedMap(station_id, pos0_m, cov0_m2, sigma_d_m, robust=None)
     raise ValueError(f"unknown estimator {name!r}; choose from {sorted(ESTIMATORS)}")

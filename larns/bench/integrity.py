@@ -48,7 +48,7 @@ def register(sub) -> None:
     )
     p.add_argument("--trials", type=int, default=20, help="trials per case (default 20)")
     p.add_argument("--cases", nargs="*", default=list(CASES), choices=list(CASES), help="cases (default: all)")
-    p.add_argument("--estimator", default="dmap", choices=["dmap", "dmap-ls", "seed-ukf"])
+    p.add_argument("--estimator", default="dmap", choices=["dmap", "dmap-nlos", "dmap-ls", "seed-ukf"])
     p.add_argument("--duration", type=float, default=60.0, help="simulated seconds per trial (default 60)")
     p.add_argument("--seed", type=int, default=1, help="base seed; trial k uses seed + k (default 1)")
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: all cores)")

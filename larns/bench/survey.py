@@ -36,8 +36,8 @@ def register(sub) -> None:
     p.add_argument("--sigma-d", type=float, nargs="+", default=[0.5, 1.5], metavar="M",
                    help="range noise sigma_d in metres (default: 0.5 1.5)")
     p.add_argument("--stations", type=int, default=10, help="number of stations (default 10)")
-    p.add_argument("--estimator", nargs="+", default=["dmap", "seed-ukf"], choices=["dmap", "dmap-ls", "seed-ukf"],
-                   help="estimators to run (default: dmap seed-ukf; dmap-ls = dmap without robust weights)")
+    p.add_argument("--estimator", nargs="+", default=["dmap", "seed-ukf"], choices=["dmap", "dmap-nlos", "dmap-ls", "seed-ukf"],
+                   help="estimators to run (default: dmap seed-ukf; dmap-nlos = dmap hardened for many NLOS legs; dmap-ls = dmap without robust weights)")
     p.add_argument("--duration", type=float, default=60.0, help="simulated seconds per trial (default 60)")
     p.add_argument("--scenario", default="seed000", help="scenario name or TOML path (default seed000)")
     p.add_argument("--seed", type=int, default=1, help="base seed; trial k uses seed + k (default 1)")
