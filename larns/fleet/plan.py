@@ -211,7 +211,7 @@ def _fleet_keystore(args: argparse.Namespace, scn) -> str:
     """``--secure DIR`` (checked: every process's credentials must be there) or, with a bare
     ``--secure``, a fresh temporary keystore for this scenario's stations, its aircraft, the
     recorder, the router and the monitor."""
-    from net.security import Keystore, KeystoreError, aircraft_cn, station_cn
+    from net.security import Keystore, KeystoreError, station_cn
 
     if args.secure != "auto":
         ks = Keystore(args.secure)
