@@ -1,20 +1,7 @@
-"""The attacks behind `larns attack` (docs/security.md), run against loopback endpoints.
-
-Every attack is bounded in count and time and returns (the command prints) one JSON line of what it
-sent. What the victims did with it shows in their drop counters (``larns station --report-json``: ``drops``).
-
-* ``nocred``: a Zenoh session with no certificate (tcp and tls) trying to link and publish forged
-  navs; it reports how many peers/routers it reached (0 expected).
-* ``forge`` (credentials of station ``--as``): navs of the victim with the position shifted by 30 m
-  and ranges lengthened by 25 m (the issue's attack) on the victim's key (refused by access control,
-  in Rust), on its own key claiming to be the victim (``key`` / ``signer_mismatch``), unsigned
-  (``unsigned``) and with a broken signature (``bad_signature``).
-* ``replay`` (credentials of ``--as``, i.e. a stolen key): captures that station's real navs and
-  publishes them again ``--delay`` seconds later (``replayed`` / ``stale``).
-* ``fuzz``: random bytes, truncated and bit-flipped real envelopes, wrong types; signed with the
-  attacker's valid key so that they reach the decoder (schema reasons) or unsigned (``unsigned``).
-* ``flood``: as many navs and range requests per second as ``--rate`` on the attacker's own keys.
-"""
+"""The attacks behind `larns attack` (docs/security.md; what each one sends: the command's help,
+`larns/commands/attack.py`), run against loopback endpoints. Every attack is bounded in count and
+time and returns a dict of what it sent (the command prints it as one JSON line); what the victims
+did with it shows in their drop counters."""
 
 
 from __future__ import annotations
