@@ -221,15 +221,10 @@ class AircraftNode:
 
     def _ingest(self, key: str, data: bytes) -> None:
         M = self.M
-        try:
-            msg, phy = self._decode(key, data)
-        except M.MessageError as e:
-            self.drops.drop_error(e)
+        got = M.station_nav(self._decode, key, data, self.drops)
+        if got is None:
             return
-        pk = M.parse_key(key)
-        if msg["kind"] != "nav" or phy is None or pk is None or pk[0] != "station" or pk[1] != msg["src"]:
-            self.drops.drop("key", f"{msg['kind']} on {key}")
-            return
+        msg, phy = got
         try:
             outs = self.core.on_nav(msg, phy) if self.ins is None else []
         except Exception as e:  # an estimator failure must not kill the node

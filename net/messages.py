@@ -601,3 +601,21 @@ def decode_valid(items: Iterable[_T], payload: Callable[[_T], Any] = lambda x: x
                 invalid[e.reason] += 1
             continue
         yield item, msg, phy
+
+
+def station_nav(decode: Callable[[str, bytes], tuple[dict[str, Any], dict[str, Any] | None]], key: str,
+                data: bytes, drops: DropCounter) -> tuple[dict[str, Any], dict[str, Any]] | None:
+    """A receiver's intake of a station broadcast: ``decode(key, data)`` (plain :func:`decode` or a
+    ``--secure`` guard's), then the message must be a ``nav`` with its ``phy`` block on its own
+    station's key (``larns/station/<src>/nav``). Returns ``(msg, phy)``, or None with the reason
+    counted in ``drops`` (the decoder's, or ``key``)."""
+    try:
+        msg, phy = decode(key, data)
+    except MessageError as e:
+        drops.drop_error(e)
+        return None
+    pk = parse_key(key)
+    if msg["kind"] != "nav" or phy is None or pk is None or pk[0] != "station" or pk[1] != msg["src"]:
+        drops.drop("key", f"{msg['kind']} on {key}")
+        return None
+    return msg, phy

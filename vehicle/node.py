@@ -111,16 +111,10 @@ class VehicleNode:
                 log.error("vehicle %s: refusing to send invalid %s: %s", self.opts.name, m["kind"], e)
 
     def _ingest(self, key: str, data: bytes) -> None:
-        M = self.M
-        try:
-            msg, phy = self._decode(key, data)
-        except M.MessageError as e:
-            self.drops.drop_error(e)
+        got = self.M.station_nav(self._decode, key, data, self.drops)
+        if got is None:
             return
-        pk = M.parse_key(key)
-        if msg["kind"] != "nav" or phy is None or pk is None or pk[0] != "station" or pk[1] != msg["src"]:
-            self.drops.drop("key", f"{msg['kind']} on {key}")
-            return
+        msg, phy = got
         if phy["t_true_s"] > self.fleet_now() + 10.0 * self.opts.speed:  # never drained: refuse it now
             self.drops.drop("future", f"nav from {msg['src']} at t = {phy['t_true_s']:.1f} s")
             return

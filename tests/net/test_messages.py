@@ -150,3 +150,23 @@ def test_drop_counter_rate_limited(caplog):
     assert dc.total == 100 and dc.by_reason["msgpack"] == 100
     assert dc.lines_logged == 2 and len(caplog.records) == 2
     assert dc.as_dict()["total"] == 100
+
+
+def test_station_nav_intake():
+    """What an aircraft or vehicle takes from the wire: a nav with its phy block on its own station's
+    key; anything else is None, counted by reason."""
+    nav = next(m for m in samples() if m["kind"] == "nav")
+    key = M.key_for(nav)
+    data = M.encode(nav, {"pos_m": [1.0, 2.0, 3.0], "t_true_s": 1.0})
+    dc = M.DropCounter("ac")
+
+    def dec(k, d):
+        return M.decode(d)
+
+    msg, phy = M.station_nav(dec, key, data, dc)
+    assert msg["src"] == nav["src"] and phy["pos_m"] == [1.0, 2.0, 3.0]
+    other = key.replace(f"/{nav['src']}/", f"/{nav['src'] + 1}/")
+    assert M.station_nav(dec, other, data, dc) is None                      # on another station's key
+    assert M.station_nav(dec, key, M.encode(nav), dc) is None               # no phy: not a broadcast
+    assert M.station_nav(dec, key, b"junk", dc) is None
+    assert dc.by_reason["key"] == 2 and dc.by_reason["msgpack"] == 1 and dc.total == 3
