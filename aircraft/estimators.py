@@ -802,6 +802,7 @@ class AircraftEstimator:
         self.n_updates = 0
         self.n_dropped = 0
         self.n_resets = 0
+        self.n_deferred = 0  # batches set aside in a row at the start (InitConfig.defer_batches)
         self.init = None  # the InitResult of the latest start (broadcast initializer)
         self.fde = None if self.cfg.fde is None else FilterFde(self.cfg.fde)
 
@@ -925,10 +926,14 @@ class AircraftEstimator:
 
     def _start_from_broadcasts(self, t_s, pos, cov, rho) -> None:
         """Start from the broadcasts alone: multi-start snapshot fix (or a wide prior)."""
-        from .initializer import initial_state
+        from .initializer import InitConfig, initial_state
 
         tu = self.cfg.tuning
         init = initial_state(self.model, tu, pos, cov, rho, self.cfg.init)
+        if not init.snapshot and len(rho) <= 4 and self.n_deferred < (self.cfg.init or InitConfig()).defer_batches:
+            self.n_deferred += 1  # no redundancy, no snapshot: wait for a batch with more stations
+            return
+        self.n_deferred = 0
         self.fix = init.fix.copy()
         self.init = init
         self.t_s = t_s

@@ -39,12 +39,18 @@ class InitConfig:
     """How the start is formed. ``max_fix_sigma_m``: a snapshot fix is used with its own covariance
     (standard deviations scaled by ``fix_inflation``: one epoch, linearized at the fix) only if its
     position standard deviation ``sqrt(tr C_pos)`` is at most this; ``wide_sigma_m``: the position /
-    clock standard deviation of the wide prior; ``vel_sigma_m_s``: the velocity prior."""
+    clock standard deviation of the wide prior; ``vel_sigma_m_s``: the velocity prior;
+    ``defer_batches``: a batch without redundancy (at most 4 stations: 4 pseudoranges for ``x y z b``,
+    3 differences for ``x y z``) whose fix is not a snapshot is set aside up to this many times in a
+    row, waiting for a batch with more stations, before the wide prior is taken (an aircraft that
+    starts while the stations are still coming up hears 4 of 5; its one exact root there can be
+    kilometres off, and a filter started from a wide prior about it did not come back)."""
 
     max_fix_sigma_m: float = 300.0
     fix_inflation: float = 2.0
     wide_sigma_m: float = 2000.0
     vel_sigma_m_s: float = 30.0
+    defer_batches: int = 4
 
 
 @dataclass

@@ -19,8 +19,9 @@ generator of (station, broadcast seq). A station outage (``outage_s``, vehicle s
 broadcasts received inside it (counted).
 
 Navigator: :class:`vehicle.navigator.live.VehicleNavigator` fed the IMU blocks and the measurements.
-Journal: everything the navigator consumed, in order: one ``veh_init`` (its init record) and
-``veh_input`` messages (``entries``: ``["imu", k0, gyro, accel, odo]``, ``["m", tau, src, pos_n,
+Journal: everything the navigator consumed, in order: the ``veh_init`` (its init record; the same
+record again after every :data:`INIT_EVERY_INPUTS` ``veh_input`` messages, so that a recorder whose
+link came up after the vehicle's first publish still gets it) and ``veh_input`` messages (``entries``: ``["imu", k0, gyro, accel, odo]``, ``["m", tau, src, pos_n,
 cov_n, clock_var, rho, rate]``); :func:`vehicle.navigator.live.replay` re-runs it bit for bit.
 Outputs: ``veh_estimate`` (after each measurement and each whole second) and, for each, the world's
 ``veh_truth`` at the same time (network frame).
@@ -38,6 +39,9 @@ from nav.geometry import SPEED_OF_LIGHT_M_S
 from net.clock import broadcast_clock_var_m2, broadcast_time_error_s
 from vehicle.navigator.live import MapTie, VehicleNavigator, route_of
 from vehicle.world import sensors
+
+#: the init record is re-sent after this many journal inputs (as a station re-sends ``core_init``)
+INIT_EVERY_INPUTS = 10
 from vehicle.world import truth as world_truth
 
 DEFAULT_ORIGIN = (47.23, 39.72, 0.0)
@@ -162,6 +166,8 @@ class VehicleCore:
         if self.journal:
             self._pending.append(self._msg("veh_input", self.t0_s + self.nav.t, entries=self.journal))
             self.journal = []
+            if self.seq["veh_input"] % INIT_EVERY_INPUTS == 0:
+                self._pending.append(self._msg("veh_init", self.t0_s, record=self.record))
 
     def _ensure_blocks(self, tau: float) -> None:
         while self.blocks * 1.0 <= tau + self.dt:
