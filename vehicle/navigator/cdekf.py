@@ -458,17 +458,16 @@ class MapFilter(_Base):
         Z = np.empty((n, n + 1))
         Z[:, :n] = self.P[0]
         Z[:, n] = self.x[0]
-        Xi = xi_matrix(self.x[:, :9].reshape(1, 3, 3))[0]
-        Qm = self._Qconst()
-        Qm[:9, :9] = self.noise.gyro * (Xi @ Xi.T)
+        XiT = (_E @ self.x[0, :9].reshape(3, 3)).reshape(3, 9)  # -Xi^T (xi_matrix for one run)
+        Qm, FH = self._one_buffers()
+        np.matmul(XiT.T, XiT, out=Qm[:9, :9])
+        Qm[:9, :9] *= self.noise.gyro
         odo = z is not None
-        FH = np.zeros((n + 1 if odo else n, n))
         FH[_KR, _KC] = _KS * w[_KW]
-        FH[9, 10] = 1.0
         FH[10, 1:9:3] = f  # kron(f, e_eta)
         FH[10, 9] = c[3]
-        if self.clock:
-            FH[self.ib, self.ib + 1] = 1.0
+        if not odo:
+            FH = FH[:n]
         ks = self.k_odo * c[4]
         sr = 1.0 / math.sqrt(self.noise.odometer)
         ks_r = ks * sr  # H / sqrt(r): the outer product is then P H^T H P / r
@@ -506,6 +505,20 @@ class MapFilter(_Base):
         Pn = Z[:, :n]
         self.P = (0.5 * (Pn + Pn.T))[None]
         self.x = Z[None, :, n].copy()
+
+    def _one_buffers(self) -> tuple[np.ndarray, np.ndarray]:
+        """The single-run step's work arrays, kept between steps: ``Q`` (n, n) with its constant part
+        (accelerometer, clock) set once, and ``[F; H]`` (n + 1, n) with its constant entries set once
+        (the rest is overwritten every step)."""
+        buf = self.__dict__.get("_one_buf")
+        if buf is None:
+            n = self.n
+            FH = np.zeros((n + 1, n))
+            FH[9, 10] = 1.0
+            if self.clock:
+                FH[self.ib, self.ib + 1] = 1.0
+            buf = self._one_buf = (self._Qconst(), FH)
+        return buf
 
     def _Qconst(self) -> np.ndarray:
         """Constant part of the process noise (accelerometer, clock), a fresh (n, n) array."""
