@@ -15,8 +15,10 @@ Three layers, each stopping what the one below cannot:
    names, and drop, counting by reason: ``unsigned``, ``unknown_signer``, ``signer_mismatch``,
    ``bad_signature``, ``replayed`` (sequence number and stamp not newer than the last accepted
    from that sender and kind) and ``stale`` (stamp too far from the receiver's clock).
-4. **Floods** (here): a per-source token bucket, checked on the key expression before any decoding
-   or signature check, holds every source to its TDMA-implied budget (:class:`RateLimiter`).
+4. **Floods** (here): a token bucket per key (a sender's nav, its requests to us, its replies to
+   us) holds every sender to its TDMA-implied budget (:class:`RateLimiter`); copies of an accepted
+   message are refused as replays before they spend it, and the budget is spent before the
+   signature check (:class:`ReceiveGuard`).
 
 Signed frame (the wire bytes; an unsigned envelope is plain msgpack)::
 
@@ -262,7 +264,7 @@ def secure_endpoint(ep: str) -> str:
 # --------------------------------------------------------------------------- flood guard (Zenoh)
 
 def rate_limits_on() -> bool:
-    """``LARNS_RATE_LIMITS=off`` switches the flood guard and the per-source budgets off (tests
+    """``LARNS_RATE_LIMITS=off`` switches the flood guard and the per-key budgets off (tests
     that must see every hostile payload reach the decoder; debugging). On by default."""
     import os
 
@@ -414,10 +416,9 @@ class Verifier:
         self._pub[cn] = pk
         return pk
 
-    def open(self, key: str, data: bytes) -> tuple[str, bytes]:
-        """``(signer, envelope)`` of a valid frame on ``key``; raises :class:`SecurityError`."""
-        from cryptography.exceptions import InvalidSignature
-
+    def parse(self, key: str, data: bytes) -> tuple[str, bytes, bytes]:
+        """``(signer, signature, envelope)`` of a frame on ``key`` whose signer may sign on ``key``;
+        the signature is not checked yet (:meth:`verify`). Raises :class:`SecurityError`."""
         parts = split_signed(data)
         if parts is None:
             raise SecurityError("unsigned", key)
@@ -427,6 +428,12 @@ class Verifier:
             raise SecurityError("signer_mismatch", f"{signer} on {key}")
         if not signer.replace("-", "").replace("_", "").isalnum() or len(signer) > 64:
             raise SecurityError("unknown_signer", signer[:64])
+        return signer, sig, env
+
+    def verify(self, key: str, signer: str, sig: bytes, env: bytes) -> None:
+        """Check ``sig`` over ``key`` and ``env`` against ``signer``'s certificate (~50 us)."""
+        from cryptography.exceptions import InvalidSignature
+
         pk = self.public_key(signer)
         if pk is None:
             raise SecurityError("unknown_signer", signer)
@@ -434,6 +441,11 @@ class Verifier:
             pk.verify(sig, _signed_bytes(key, env))
         except InvalidSignature:
             raise SecurityError("bad_signature", f"{signer} on {key}") from None
+
+    def open(self, key: str, data: bytes) -> tuple[str, bytes]:
+        """``(signer, envelope)`` of a valid frame on ``key``; raises :class:`SecurityError`."""
+        signer, sig, env = self.parse(key, data)
+        self.verify(key, signer, sig, env)
         return signer, env
 
 
@@ -446,19 +458,28 @@ class ReplayGuard:
         self.window_s = float(window_s)
         self._last: dict[tuple[str, str], tuple[float, int]] = {}
 
-    def check(self, signer: str, msg: dict, now_s: float) -> None:
+    def peek(self, signer: str, msg: dict, now_s: float) -> None:
+        """Raise ``stale`` or ``replayed`` as :meth:`check` would, without recording anything (a
+        copy is refused before it costs a signature check or its sender's budget)."""
         stamp, seq = float(msg["stamp_s"]), int(msg["seq"])
         if abs(stamp - now_s) > self.window_s:
             raise SecurityError("stale", f"{signer} {msg['kind']} stamp {stamp:.3f} s at {now_s:.3f} s")
-        k = (signer, msg["kind"])
-        last = self._last.get(k)
+        last = self._last.get((signer, msg["kind"]))
         if last is not None and (stamp, seq) <= last:
             raise SecurityError("replayed", f"{signer} {msg['kind']} seq {seq}")
-        self._last[k] = (stamp, seq)
+
+    def record(self, signer: str, msg: dict) -> None:
+        """Remember an accepted (verified) message as its sender's newest."""
+        self._last[(signer, msg["kind"])] = (float(msg["stamp_s"]), int(msg["seq"]))
+
+    def check(self, signer: str, msg: dict, now_s: float) -> None:
+        self.peek(signer, msg, now_s)
+        self.record(signer, msg)
 
 
 class RateLimiter:
-    """Per-source token buckets: ``rate`` messages per second (fleet), ``burst`` at most at once.
+    """Token buckets per source (a key, or a sender): ``rate`` messages per second (fleet),
+    ``burst`` at most at once.
     ``allow(source, now_s)`` is O(1) and runs before any decoding, so a flood costs a dict lookup."""
 
     def __init__(self, rate_per_s: float, burst: float, max_sources: int = 4096):
@@ -495,11 +516,17 @@ def source_of(key: str) -> str:
 
 
 class ReceiveGuard:
-    """What a ``--secure`` receiver runs on every sample, cheapest test first: rate limit per
-    source key -> signature -> decode -> signer is the message's source -> replay/staleness.
-    :meth:`decode` returns ``(msg, phy)`` like :func:`net.messages.decode` and raises its
-    :class:`~net.messages.MessageError` with the reason (``rate``, ``unsigned``, ``bad_signature``,
-    ``unknown_signer``, ``signer_mismatch``, ``replayed``, ``stale``, or a schema reason)."""
+    """What a ``--secure`` receiver runs on every sample, cheapest test first: frame and signer
+    allowed on the key -> strict decode -> signer is the message's source -> replay/staleness
+    (checked, not yet recorded) -> budget of the key -> signature -> replay recorded.
+
+    A copy of an accepted message (what a flooder re-sends cheapest) is refused as ``replayed``
+    or ``stale`` before it spends anyone's budget, and the budgets are per key (a station's nav,
+    its requests to us, its replies to us), so a flood on one key leaves the sender's other keys
+    alone. :meth:`decode` returns ``(msg, phy)`` like :func:`net.messages.decode` and raises its
+    :class:`~net.messages.MessageError` with the reason (``rate``, ``unsigned``, ``bad_frame``,
+    ``bad_signature``, ``unknown_signer``, ``signer_mismatch``, ``replayed``, ``stale``, or a
+    schema reason)."""
 
     def __init__(self, verifier: Verifier | None, limiter: RateLimiter | None, replay: ReplayGuard | None,
                  now_s: Callable[[], float], own_source: str | None = None):
@@ -516,24 +543,28 @@ class ReceiveGuard:
         if self.own_source is not None and source_of(key) == self.own_source:
             return self._decode(data)
         now = self.now_s()
-        if self.limiter is not None and not self.limiter.allow(source_of(key), now):
-            raise refused("rate", key)
-        signer = None
-        if self.verifier is not None:
-            try:
-                signer, data = self.verifier.open(key, bytes(data))
-            except SecurityError as e:
-                raise refused(e.reason, str(e)) from None
-        msg, phy = self._decode(data)
-        if signer is not None:
-            src = msg["src"]
-            if signer != (f"aircraft-{src}" if isinstance(src, str) else f"station-{src}"):
-                raise refused("signer_mismatch", f"{signer} sent src {src}")
+        if self.verifier is None:
+            if self.limiter is not None and not self.limiter.allow(key, now):
+                raise refused("rate", key)
+            return self._decode(data)
+        try:
+            signer, sig, env = self.verifier.parse(key, bytes(data))
+        except SecurityError as e:
+            raise refused(e.reason, str(e)) from None
+        msg, phy = self._decode(env)
+        src = msg["src"]
+        if signer != (f"aircraft-{src}" if isinstance(src, str) else f"station-{src}"):
+            raise refused("signer_mismatch", f"{signer} sent src {src}")
+        try:
             if self.replay is not None:
-                try:
-                    self.replay.check(signer, msg, now)
-                except SecurityError as e:
-                    raise refused(e.reason, str(e)) from None
+                self.replay.peek(signer, msg, now)
+            if self.limiter is not None and not self.limiter.allow(key, now):
+                raise SecurityError("rate", key)
+            self.verifier.verify(key, signer, sig, env)
+        except SecurityError as e:
+            raise refused(e.reason, str(e)) from None
+        if self.replay is not None:
+            self.replay.record(signer, msg)
         return msg, phy
 
 

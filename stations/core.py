@@ -28,6 +28,7 @@ the higher id listens again and claims another one.
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -38,6 +39,8 @@ from .clocksync import ClockEstimator, ClockModel
 from .estimators import SurveyEstimator, make_estimator
 from .integrity import StationIntegrity
 from .tdma import TdmaPlan
+
+EXCHANGE_LOG = 4096  # own exchanges kept for the report (about an hour at a 1 s cycle)
 
 
 @dataclass
@@ -88,6 +91,9 @@ class StationCore:
         self.known: dict[int, float] = {p: start_s for p in cfg.known_ids if p != cfg.id}
         self.seq = {"range_req": 0, "range_rsp": 0, "nav": 0, "estimate": 0}
         self.pending: dict[int, tuple[int, float, float]] = {}  # req seq -> (dst, t_tx, slot end)
+        # our own exchanges, newest last: [t_tx_s, addressee, replied in time] (reports, tests)
+        self.exchanges: deque[list] = deque(maxlen=EXCHANGE_LOG)
+        self._exchange_of: dict[int, list] = {}
         self.ranges_out: list[list] = []
         self.counters = {"requests": 0, "responses": 0, "lost": 0, "ranges_in": 0, "ignored": 0,
                          "rejected_ranges": 0, "late": 0, "sync_in": 0}
@@ -215,6 +221,8 @@ class StationCore:
                 m = self._base("range_req", t0)
                 m.update(dst=dst, cycle=cycle, slot=self.slot, t_tx_s=float(t0))
                 self.pending[m["seq"]] = (dst, t0, t0 + self.plan.slot_s)
+                self._exchange_of[m["seq"]] = entry = [float(t0), int(dst), False]
+                self.exchanges.append(entry)
                 self.counters["requests"] += 1
                 out.append(m)
             self._nav_s = t0 + self.cfg.nav_offset_s
@@ -224,6 +232,7 @@ class StationCore:
             # forget requests whose slot is over
             for s in [s for s, (_, _, end) in self.pending.items() if end < t0]:
                 del self.pending[s]
+                self._exchange_of.pop(s, None)
                 self.counters["lost"] += 1
         return out
 
@@ -274,10 +283,13 @@ class StationCore:
         if msg.get("dst") != self.id:
             return []
         pend = self.pending.pop(msg.get("req_seq"), None)
+        done = self._exchange_of.pop(msg.get("req_seq"), None) if pend is not None else None
         if pend is None or pend[0] != src or t_rx_s > pend[2]:
             self.counters["ignored"] += 1
             return []
         _, t_tx, _ = pend
+        if done is not None:
+            done[2] = True
         corr = msg.get("clock")
         f_me, f_peer = self.clk.freq(), (corr[2] if corr is not None else 0.0)
         # two-way ranging on each end's own clock, durations scaled to network seconds

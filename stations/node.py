@@ -482,7 +482,7 @@ class StationNode:
             return {"id": self.id, "state": "off", "slot": None, "n_updates": 0, "pos_m": [math.nan] * 3,
                     "err_m": math.nan, "slots": 0, "missed_slots": 0, "late": 0, "duplicates": 0,
                     "air_lost": 0, "max_lateness_ms": 0.0, "drops": self.drops.as_dict(), "counters": {},
-                    "tx": {}, "rx": {}}
+                    "exchanges": [], "tx": {}, "rx": {}}
         est = self.core.est
         pos = np.asarray(est.pos_m, float) if est.pos_m is not None else np.full(3, np.nan)
         return {
@@ -498,6 +498,7 @@ class StationNode:
             "sync_err_ns": self._sync_ns(),
             "journal_dropped": int(self.stats["journal_dropped"]),
             "drops": self.drops.as_dict(), "counters": dict(self.core.counters),
+            "exchanges": [list(e) for e in self.core.exchanges],  # [t_tx_s local, addressee, replied]
             "tx": {k[3:]: v for k, v in self.stats.items() if k.startswith("tx_")},
             "rx": {k[3:]: v for k, v in self.stats.items() if k.startswith("rx_")},
         }

@@ -143,15 +143,23 @@ def test_receive_guard_replay_stale_rate(ks):
     assert why(frame(9, 30.0)) == "stale"
     now[0] = 200.0
     assert why(f1) == "stale"                                   # an old recording played again
-    # budget: 4 per cycle, burst 8; the 9th message at once is throttled before any decoding
+    # budget per key: 4 per cycle, burst 8. Junk and copies of an accepted message are refused
+    # before they spend it (a flooder re-sending one signed frame cannot starve its sender)
+    now[0] = 300.0
+    first = frame(30, 300.0)
+    assert rx.decode(key, first)[0]["seq"] == 30
+    assert {why(first) for _ in range(50)} == {"replayed"}
+    assert {why(b"junk") for _ in range(20)} == {"unsigned"}
     out = []
-    for i in range(12):
+    for i in range(10):
         try:
-            rx.decode("larns/station/7/nav", b"junk")
-            out.append("ok")
+            out.append(rx.decode(key, frame(31 + i, 300.0))[0]["seq"])
         except M.MessageError as e:
             out.append(e.reason)
-    assert out[:8] == ["unsigned"] * 8 and out[8:] == ["rate"] * 4
+    assert out == list(range(31, 38)) + ["rate"] * 3, out
+    # the budget is the key's: the same sender's requests to us still pass
+    req = "larns/station/3/range/req/5"
+    assert rx.decode(req, s3.seal(req, M.encode(_nav(3, 99, 300.0))))[0]["seq"] == 99
     # its own samples (local delivery, however late) are decoded, never counted
     s5 = S.Security(ks, "station-5")
     own = s5.seal("larns/station/5/nav", M.encode(_nav(5, 1, 1.0), {"pos_m": [0.0, 0.0, 0.0], "t_true_s": 1.0}))
@@ -290,9 +298,10 @@ def test_fuzz_from_credentialed_process_all_counted(ks):
 @pytest.mark.slow
 @pytest.mark.timeout(300)
 def test_flood_from_station_9_leaves_other_slots_intact(ks):
-    """Stations 1-5 and 9 for 40 s; from 10 s to 30 s a second process with station 9's credentials
-    floods navs and range requests at 20,000 msg/s. Every other station completes >= 95 % of its
-    own exchanges (replies received / own slots after start-up) and counts the excess as ``rate``."""
+    """Stations 1-5 and 9 for 40 s; from ~11 s to ~31 s a second process with station 9's
+    credentials floods navs and range requests at 20,000 msg/s. Every other station completes
+    >= 95 % of its own exchanges (a reply in time to its request, with any peer) from the flood's
+    start to the run's last cycles, and counts what reached Python of the flood by reason."""
     ids = [1, 2, 3, 4, 5, 9]
     ports = dict(zip(ids, free_tcp_ports(len(ids))))
     epoch = time.time() + 6.0
@@ -305,9 +314,12 @@ def test_flood_from_station_9_leaves_other_slots_intact(ks):
     assert res["rate_per_s"] >= 15000, res
     for s in (1, 2, 3, 4, 5):
         r = reps[s]
-        done = r["rx"].get("range_rsp", 0) / max(1, r["slots"] - 2)
-        assert done >= 0.95, (s, r)
-        assert r["drops"]["by_reason"].get("rate", 0) > 0, (s, r["drops"])
+        ex = [e for e in r["exchanges"] if 10.0 <= e[0] <= 36.0]
+        done = sum(1 for e in ex if e[2]) / max(1, len(ex))
+        assert len(ex) >= 20 and done >= 0.95, (s, done, len(ex), r["drops"])
+        by = r["drops"]["by_reason"]
+        print(f"station {s}: {done:.3f} of {len(ex)} exchanges, drops {by}")
+        assert by.get("rate", 0) + by.get("replayed", 0) + by.get("stale", 0) > 0, (s, r["drops"])
 
 
 def test_recording_keeps_signatures_and_replay_verifies(ks, tmp_path):
