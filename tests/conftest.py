@@ -17,3 +17,21 @@ def pytest_collection_finish(session):
         if start is not None:
             start()
             return
+
+
+# ----------------------------------------------------------------------------- one recorded fleet
+# tests/aircraft/test_aircraft_e2e.py, tests/larns/test_replay.py and tests/vehicle/test_vehicle_e2e.py
+# read the same run: 5 station processes + the aircraft (three filters) + the vehicle + the fleet's
+# recorder over real Zenoh on loopback, and a second recorder (our own process) SIGKILLed about 3/4
+# into the run (its file has no summary/footer and ends wherever the kill hit). One run instead of
+# three saves ~30 s of the default suite.
+
+import pytest  # noqa: E402
+
+
+@pytest.fixture(scope="session")
+def fleet_run(tmp_path_factory):
+    """The shared recorded fleet (see above): a :class:`fleet_recording.FleetRecording`."""
+    from fleet_recording import record_fleet
+
+    return record_fleet(tmp_path_factory.mktemp("fleet_run"))

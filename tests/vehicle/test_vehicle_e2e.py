@@ -1,5 +1,6 @@
 """The vehicle process in a real fleet: 5 station processes + ``larns vehicle`` + the recorder over
-real Zenoh on loopback (``larns fleet --vehicle``), the MCAP read back through :mod:`larns.log.series`,
+real Zenoh on loopback (``larns fleet --vehicle``; the session's shared fleet run, ``fleet_run`` in
+tests/conftest.py), the MCAP read back through :mod:`larns.log.series`,
 the vehicle's navigator re-run offline from its recorded journal (``larns reestimate``)."""
 
 from __future__ import annotations
@@ -10,27 +11,18 @@ import sys
 import numpy as np
 import pytest
 
-from scenario_text import five_stations
-
 pytestmark = pytest.mark.e2e
 
 PY = sys.executable
-DURATION = 32.0
-SPEED = 4.0
 
 
 @pytest.fixture(scope="module")
-def recording(tmp_path_factory):
-    d = tmp_path_factory.mktemp("vehicle_e2e")
-    scn = d / "vehicle_e2e.toml"
-    scn.write_text(five_stations("vehicle_e2e", 3))
-    rec = d / "run.mcap"
-    r = subprocess.run([PY, "-m", "larns", "fleet", "--scenario", str(scn), "--duration", str(DURATION),
-                        "--speed", str(SPEED), "--vehicle", "--record", str(rec), "--no-table"],
-                       capture_output=True, text=True, timeout=180)
-    assert r.returncode == 0, (r.stdout[-2000:], r.stderr[-3000:])
-    assert "vehicle    veh1  cdekf-map" in r.stdout, r.stdout[-2000:]
-    return rec
+def recording(fleet_run):
+    """The shared recorded fleet (tests/conftest.py ``fleet_run``: 5 stations, the aircraft, the
+    vehicle on its default route through the field; 30 fleet s at speed 4)."""
+    assert fleet_run.rc == 0, fleet_run.log[-3000:]
+    assert "vehicle    veh1  cdekf-map" in fleet_run.log, fleet_run.log[-2000:]
+    return fleet_run.rec
 
 
 def test_vehicle_recorded_error_bounded_and_offline_bit_exact(recording):
