@@ -1,8 +1,14 @@
 """Shared test support: ``tests/`` on ``sys.path`` so the test folders (which mirror the packages:
 nav/, net/, stations/, aircraft/, vehicle/, larns/) can import the helpers here (``scenario_text``)."""
 
+import os
 import sys
 from pathlib import Path
+
+# the vehicle's single-run kernel runs as NumPy code in the suite (and in the processes it starts):
+# numba's first compilation on a fresh machine takes ~13 s; tests/vehicle/test_vehicle_filter_fast.py
+# checks the compiled kernel against it in a process of its own (slow)
+os.environ.setdefault("LARNS_JIT", "off")
 
 _HERE = str(Path(__file__).resolve().parent)
 if _HERE not in sys.path:

@@ -154,9 +154,11 @@ def run(args) -> int:
         _progress("single-run timing of the paper case")
         r1 = sim.run(one)
         from vehicle.navigator.cdekf import MapFilter
+        from vehicle.navigator.fused import COMPILED
 
         speed = {"single_run_cpu_s": r1.cpu_s, "single_run_wall_s": r1.wall_s, "steps": r1.steps,
                  "single_run_fast_path": bool(MapFilter.fast),
+                 "single_run_kernel": "numba" if COMPILED else "numpy",
                  "batched_cpu_s_per_run": summ["paper"]["cpu_s"] / summ["paper"]["runs"],
                  "batched_wall_s_per_run": summ["paper"]["wall_s"] / summ["paper"]["runs"]}
     out = _assemble(summ, speed, args, outage, time.perf_counter() - t0)
@@ -245,7 +247,7 @@ def _print_table(out: dict) -> None:
     if sp:
         print(f"speed (process CPU time of the filter loop; wall on this shared machine in brackets): one 1000 s run "
               f"alone {sp['single_run_cpu_s']:.1f} s ({sp['single_run_wall_s']:.1f} s), {sp['steps']} RK4 steps"
-              f"{' (single-run fast path)' if sp.get('single_run_fast_path') else ''}; "
+              f"{' (single-run fast path, ' + sp.get('single_run_kernel', '?') + ' kernel)' if sp.get('single_run_fast_path') else ''}; "
               f"vectorized over {d['paper']['runs']} runs {sp['batched_cpu_s_per_run']:.2f} s per run "
               f"({sp['batched_wall_s_per_run']:.2f} s)")
     print("bars: " + ", ".join(f"{k} {'PASS' if v else 'FAIL'}" for k, v in out["bars"].items()))

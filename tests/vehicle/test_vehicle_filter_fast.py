@@ -32,6 +32,42 @@ def test_single_run_fast_path_equals_reference(monkeypatch, clock):
                                rtol=1e-7)
 
 
+_KERNEL_RUN = """
+import sys, numpy as np
+from vehicle import sim
+from vehicle.navigator import fused
+from vehicle.route import great_circle_route
+assert fused.COMPILED == (sys.argv[1] == "on"), fused.COMPILED
+route = great_circle_route([(47.23, 39.72), (47.40, 39.80)], 100.0, [20.0])
+for clock in (False, True):
+    r = sim.run(sim.Case(route=route, duration_s=6.0, outage_s=(2.0, 4.0), runs=1, seed=4,
+                         clock_states=clock, clock_in_measurements=clock))
+    np.save(sys.argv[2] + f"_{clock}.npy", np.stack([r.err_pos, r.sig_pos, r.err_att, r.sig_att]))
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_compiled_kernel_equals_numpy_kernel(tmp_path):
+    """The fused RK4 kernel compiled by numba (the bench's path) gives the NumPy kernel's numbers to
+    round-off (bit for bit on this machine), with and without clock states."""
+    import os
+    import subprocess
+    import sys
+
+    pytest.importorskip("numba")
+    out = {}
+    for jit in ("on", "off"):
+        env = {**os.environ, "LARNS_JIT": jit}
+        p = subprocess.run([sys.executable, "-c", _KERNEL_RUN, jit, str(tmp_path / jit)], env=env,
+                           capture_output=True, text=True, timeout=240)
+        assert p.returncode == 0, p.stderr[-2000:]
+    for clock in (False, True):
+        a, b = (np.load(tmp_path / f"{j}_{clock}.npy") for j in ("on", "off"))
+        assert np.isfinite(a).all()
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-10)
+
+
 def test_station_consider_with_zero_covariance_equals_plain_update():
     """Schmidt consider block with a zero broadcast covariance changes nothing (same x, P to round-off);
     with the real covariance the cross-covariance is carried and the position variance grows."""

@@ -28,6 +28,7 @@ import numpy as np
 
 from nav.kalman import gain, symmetrize
 from nav.orbits import OMEGA_VEC_G, earth_rotation, gravity, gravity_gradient
+from vehicle.navigator.fused import rk4_fused
 from vehicle.route import Route
 
 _E = np.zeros((3, 3, 3))  # _E[k] = [e_k x]
@@ -450,8 +451,9 @@ class MapFilter(_Base):
         drift is ``x' = F x`` with the covariance's ``F`` (held over the step with the inputs). Each
         RK4 stage is one product ``[F; H] [P | x]``, giving ``F P``, ``F x`` and the odometer's
         ``H P = (P H^T)^T`` at once (``H`` evaluated at the stage's state), and one outer product
-        for ``-P H^T H P / r`` and ``+P H^T nu / r``. Equal to the batched path within round-off
-        (tests/vehicle/test_vehicle_filter_fast.py).
+        for ``-P H^T H P / r`` and ``+P H^T nu / r``; the four stages run in one kernel
+        (:func:`vehicle.navigator.fused.rk4_fused`, compiled when numba is installed). Equal to the
+        batched path within round-off (tests/vehicle/test_vehicle_filter_fast.py).
         """
         n = self.n
         c = self._gc_consts()
@@ -466,44 +468,9 @@ class MapFilter(_Base):
         FH[_KR, _KC] = _KS * w[_KW]
         FH[10, 1:9:3] = f  # kron(f, e_eta)
         FH[10, 9] = c[3]
-        if not odo:
-            FH = FH[:n]
-        ks = self.k_odo * c[4]
-        sr = 1.0 / math.sqrt(self.noise.odometer)
-        ks_r = ks * sr  # H / sqrt(r): the outer product is then P H^T H P / r
-        sf_one = self._sf_one
-
-        def stage(Zs):
-            if not odo:
-                K = FH @ Zs
-                FP = K[:, :n]
-                FP += FP.T + Qm
-                return K
-            q, V = Zs[9:11, n].tolist()
-            sf, dsf = sf_one(q, c)
-            FH[n, 9] = ks_r * V * dsf
-            FH[n, 10] = ks_r * sf
-            KK = FH @ Zs
-            KK[n, n] = -(z - ks * V * sf) * sr
-            K = KK[:n]
-            FP = K[:, :n]
-            FP += FP.T + Qm  # (F P)^T + Q first: no in-place transpose (Q symmetric)
-            K -= KK[n, :n, None] * KK[n]
-            return K
-
-        h2 = 0.5 * dt
-        k1 = stage(Z)
-        k2 = stage(Z + h2 * k1)
-        k3 = stage(Z + h2 * k2)
-        k4 = stage(Z + dt * k3)
-        k2 += k3
-        k2 *= 2.0
-        k2 += k1
-        k2 += k4
-        k2 *= dt / 6.0
-        Z += k2
-        Pn = Z[:, :n]
-        self.P = (0.5 * (Pn + Pn.T))[None]
+        rk4_fused(Z, FH, Qm, n + 1 if odo else n, dt, z if odo else 0.0, self.k_odo * c[4],
+                  1.0 / math.sqrt(self.noise.odometer), c[0], c[1], c[2])
+        self.P = Z[None, :, :n].copy()
         self.x = Z[None, :, n].copy()
 
     def _one_buffers(self) -> tuple[np.ndarray, np.ndarray]:
