@@ -15,6 +15,12 @@ if _HERE not in sys.path:
     sys.path.insert(0, _HERE)
 
 
+def pytest_collection_modifyitems(session, config, items):
+    """The compose tests run last, so their image build (started at collection, below) overlaps the
+    whole suite instead of being waited for half-way."""
+    items.sort(key=lambda it: getattr(getattr(it, "module", None), "start_image_build", None) is not None)
+
+
 def pytest_collection_finish(session):
     """A session with compose tests starts building their Docker image at once, in the background
     (tests/larns/test_compose.py: start_image_build), so the build overlaps the tests before them."""
