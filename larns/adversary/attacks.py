@@ -92,7 +92,7 @@ def attack_forge(args) -> dict:
         except M.MessageError:
             return
         if msg["src"] == args.victim and msg["kind"] == "nav":
-            victim_pos["msg"], victim_pos["phy"] = msg, phy
+            victim_pos["msg"], victim_pos["phy"], victim_pos["wall"] = msg, phy, time.time()
 
     b.subscribe("larns/station/*/nav", grab)
     t_end = time.time() + args.duration
@@ -102,9 +102,12 @@ def attack_forge(args) -> dict:
         v = victim_pos.get("msg")
         pos = v["pos_m"] if v else [500.0, 500.0, 0.0]
         phy = victim_pos.get("phy") or {"pos_m": pos, "t_true_s": _fleet_t(args)}
-        phy = {"pos_m": phy["pos_m"], "t_true_s": _fleet_t(args)}
+        # the field's clock read off the victim's last nav (an attacker need not know the epoch), so
+        # the forgeries are fresh and meet the signature check rather than the staleness test
+        t_now = v["stamp_s"] + (time.time() - victim_pos["wall"]) * args.speed if v else _fleet_t(args)
+        phy = {"pos_m": phy["pos_m"], "t_true_s": t_now}
         seq += 1
-        m = forged_nav(args.victim, seq, _fleet_t(args), pos, ranges=v["ranges"] if v else None)
+        m = forged_nav(args.victim, seq, t_now, pos, ranges=v["ranges"] if v else None)
         env = M.encode(m, phy)
         b.publish(M.key_for(m), env)                          # victim's key: access control
         sent["victim_key"] += 1
