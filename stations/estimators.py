@@ -258,6 +258,8 @@ class DistributedMap:
         self._nr = 0
         self._rver = 0  # bumped whenever the kept ranges change (cache key of the link centres)
         self._centre_key: tuple[int, int] | None = None
+        self._lver = np.zeros(0, np.int64)  # per peer slot: bumped when that link's kept ranges change
+        self._centre_ver = np.zeros(0, np.int64)  # per peer slot: the version its cached centre is of
         self._centre = np.zeros(0)
         self.range_weight = np.zeros(0)
         self._dirty = False
@@ -286,6 +288,7 @@ class DistributedMap:
                 self._pos = np.concatenate([self._pos, np.zeros((grow, 3))])
                 self._cov = np.concatenate([self._cov, np.zeros((grow, 3, 3))])
                 self._known = np.concatenate([self._known, np.zeros(grow, bool)])
+                self._lver = np.concatenate([self._lver, np.zeros(grow, np.int64)])
         return k
 
     def on_peer(self, peer_id, pos_m, cov_m2) -> None:
@@ -328,6 +331,7 @@ class DistributedMap:
         self._rv[self._nr] = float(range_m)
         self._nr += 1
         self._rver += 1
+        self._lver[k] += 1
         if self.keep_per_link and np.count_nonzero(self._rk[:self._nr] == k) > self.keep_per_link:
             self._archive(k)
         self._dirty = self.nf > 0
@@ -349,6 +353,7 @@ class DistributedMap:
             self.range_weight = self.range_weight[keep]
         self._nr = len(self._rv)
         self._rver += 1
+        self._lver[k] += 1
 
     def refresh(self) -> bool:
         """Re-solve if new ranges arrived since the last solve (the core calls this before its nav)."""
@@ -410,15 +415,23 @@ class DistributedMap:
         value); a range more than ``consensus_gate * sigma_d`` from it gets 0, and while no two ranges
         of the link agree (one range, or all disagree) every range of the link but the shortest gets 0
         and the shortest gets ``unconfirmed_weight``. ``"median"``: distance to the link's median (of
-        two ranges that disagree: the shorter). Depends on the kept ranges only: cached per change.
+        two ranges that disagree: the shorter). Depends on the kept ranges only: cached per link, recomputed
+        for the links whose ranges changed.
         """
         if self._centre_key != (self._rver, m):
-            centre = np.zeros(m)
-            factor = np.ones(m)
-            conf = np.zeros(m, bool)
+            # only the links whose kept ranges changed since their centre was computed
+            n_old = len(self._centre)
+            if n_old < m:
+                self._centre = np.concatenate([self._centre, np.zeros(m - n_old)])
+                self._centre_factor = np.concatenate([self._centre_factor, np.ones(m - n_old)])
+                self._confirmed = np.concatenate([self._confirmed, np.zeros(m - n_old, bool)])
+                self._centre_ver = np.concatenate([self._centre_ver, np.full(m - n_old, -1, np.int64)])
+            centre, factor, conf = self._centre, self._centre_factor, self._confirmed
             sd = self.sigma_d_m
-            for k in range(m):
+            for k in np.flatnonzero(self._centre_ver[:m] != self._lver[:m]):
                 v = rv[rk == k]
+                centre[k], factor[k], conf[k] = 0.0, 1.0, False
+                self._centre_ver[k] = self._lver[k]
                 if not len(v):
                     continue
                 if self.link_consensus == "cluster":
@@ -428,7 +441,6 @@ class DistributedMap:
                     conf[k] = support >= self.confirm_n
                 else:
                     centre[k] = v.min() if len(v) == 2 and np.ptp(v) > 3.0 * np.sqrt(2.0) * sd else np.median(v)
-            self._centre, self._centre_factor, self._confirmed = centre, factor, conf
             self._centre_key = (self._rver, m)
         ok = np.abs(rv - self._centre[rk]) <= self.consensus_gate * self.sigma_d_m
         return ok * self._centre_factor[rk], self._confirmed[rk]
