@@ -28,7 +28,7 @@ import numpy as np
 
 from nav.kalman import gain, symmetrize
 from nav.orbits import OMEGA_VEC_G, earth_rotation, gravity, gravity_gradient
-from vehicle.navigator.fused import rk4_fused
+from vehicle.navigator.fused import rk4_fused, speed_factor_one
 from vehicle.route import Route
 
 _E = np.zeros((3, 3, 3))  # _E[k] = [e_k x]
@@ -425,16 +425,10 @@ class MapFilter(_Base):
                         -MU_EARTH_M3_S2 / float(tab["r"][k]) ** 3, float(tab["sign"][k]))
         return cache[k]
 
-    def _sf_one(self, q: float, c=None) -> tuple[float, float]:
-        """Scalar :meth:`Route.speed_factor_d` (the same operations)."""
-        P, a0, a1, _, _ = c or self._gc_consts()
-        den = max(a1 - q * q, 1e-6 * a1)
-        sf = math.sqrt(1.0 + P * P + a0 * a0 * q * q / den)
-        return sf, a0 * a0 * a1 * q / (den * den * sf)
-
     def _stiffness(self, t: float, dt: float) -> float:
         if self._one_run():
-            sf, _ = self._sf_one(float(self.x[0, 9]))
+            P, a0, a1, _, _ = self._gc_consts()
+            sf, _ = speed_factor_one(float(self.x[0, 9]), P, a0, a1)
             return (self.k_odo * sf) ** 2 * float(self.P[0, 10, 10]) / self.noise.odometer * dt
         return super()._stiffness(t, dt)
 
@@ -457,26 +451,26 @@ class MapFilter(_Base):
         """
         n = self.n
         c = self._gc_consts()
-        Z = np.empty((n, n + 1))
+        Qm, FH, Z, KK = self._one_buffers()
         Z[:, :n] = self.P[0]
         Z[:, n] = self.x[0]
         XiT = (_E @ self.x[0, :9].reshape(3, 3)).reshape(3, 9)  # -Xi^T (xi_matrix for one run)
-        Qm, FH = self._one_buffers()
         np.matmul(XiT.T, XiT, out=Qm[:9, :9])
         Qm[:9, :9] *= self.noise.gyro
         odo = z is not None
         FH[_KR, _KC] = _KS * w[_KW]
         FH[10, 1:9:3] = f  # kron(f, e_eta)
         FH[10, 9] = c[3]
-        rk4_fused(Z, FH, Qm, n + 1 if odo else n, dt, z if odo else 0.0, self.k_odo * c[4],
+        rk4_fused(Z, KK, FH, Qm, n + 1 if odo else n, dt, z if odo else 0.0, self.k_odo * c[4],
                   1.0 / math.sqrt(self.noise.odometer), c[0], c[1], c[2])
         self.P = Z[None, :, :n].copy()
         self.x = Z[None, :, n].copy()
 
-    def _one_buffers(self) -> tuple[np.ndarray, np.ndarray]:
+    def _one_buffers(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The single-run step's work arrays, kept between steps: ``Q`` (n, n) with its constant part
-        (accelerometer, clock) set once, and ``[F; H]`` (n + 1, n) with its constant entries set once
-        (the rest is overwritten every step)."""
+        (accelerometer, clock) set once, ``[F; H]`` (n + 1, n) with its constant entries set once
+        (the rest is overwritten every step), ``Z = [P | x]`` (n, n + 1) and the kernel's stage
+        work space (4, n + 1, n + 1)."""
         buf = self.__dict__.get("_one_buf")
         if buf is None:
             n = self.n
@@ -484,7 +478,7 @@ class MapFilter(_Base):
             FH[9, 10] = 1.0
             if self.clock:
                 FH[self.ib, self.ib + 1] = 1.0
-            buf = self._one_buf = (self._Qconst(), FH)
+            buf = self._one_buf = (self._Qconst(), FH, np.empty((n, n + 1)), np.empty((4, n + 1, n + 1)))
         return buf
 
     def _Qconst(self) -> np.ndarray:

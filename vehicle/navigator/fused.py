@@ -17,7 +17,6 @@ import os
 import numpy as np
 
 
-
 def _jit_wanted() -> bool:
     """numba installed and ``LARNS_JIT`` not ``off`` (the default test suite sets it off: the first
     compilation on a machine takes ~13 s; ``tests/vehicle/test_vehicle_filter_fast.py`` compiles it)."""
@@ -39,6 +38,15 @@ else:
 
 
 @_njit(cache=True)
+def speed_factor_one(q, gP, a0, a1):
+    """Scalar :meth:`vehicle.route.Route.speed_factor_d` of a great-circle segment (constants
+    ``gP, a0, a1``) at ``q``: ``(sf, d sf / d q)`` (the same operations)."""
+    den = max(a1 - q * q, 1e-6 * a1)
+    sf = math.sqrt(1.0 + gP * gP + a0 * a0 * q * q / den)
+    return sf, a0 * a0 * a1 * q / (den * den * sf)
+
+
+@_njit(cache=True)
 def _stage(Zs, KK, FH, Qm, m, z, ks, sr, gP, a0, a1):
     """``KK = [F; H] Zs`` and the derivative of ``Z = [P | x]`` in ``KK[:n]`` (returned).
 
@@ -50,11 +58,8 @@ def _stage(Zs, KK, FH, Qm, m, z, ks, sr, gP, a0, a1):
     V = 0.0
     sf = 0.0
     if odo:
-        q = Zs[9, n]
         V = Zs[10, n]
-        den = max(a1 - q * q, 1e-6 * a1)
-        sf = math.sqrt(1.0 + gP * gP + a0 * a0 * q * q / den)
-        dsf = a0 * a0 * a1 * q / (den * den * sf)
+        sf, dsf = speed_factor_one(Zs[9, n], gP, a0, a1)
         FH[n, 9] = ks * sr * V * dsf
         FH[n, 10] = ks * sr * sf
     KK[:m] = FH[:m] @ Zs
@@ -68,15 +73,14 @@ def _stage(Zs, KK, FH, Qm, m, z, ks, sr, gP, a0, a1):
 
 
 @_njit(cache=True)
-def rk4_fused(Z, FH, Qm, m, dt, z, ks, sr, gP, a0, a1):
+def rk4_fused(Z, KK, FH, Qm, m, dt, z, ks, sr, gP, a0, a1):
     """One RK4 step of ``Z = [P | x]`` (n, n + 1), in place; ``P`` symmetrized.
 
-    ``FH`` (n + 1, n): ``F`` with the step's inputs in its first n rows (held over the step), the
+    ``KK`` (4, n + 1, n + 1): work space of the four stages. ``FH`` (n + 1, n): ``F`` with the step's inputs in its first n rows (held over the step), the
     odometer row filled per stage; ``Qm`` (n, n) the process noise; ``m`` = n + 1 with the odometer
     sample ``z`` (m/s), n without; ``ks = k_odo * sign``, ``sr = 1 / sqrt(r)``; ``gP, a0, a1`` the
     segment's great-circle constants. Spec Sec. 3.5 (eq. 6 of seed 004)."""
     n = Z.shape[0]
-    KK = np.empty((4, n + 1, n + 1))
     h2 = 0.5 * dt
     k1 = _stage(Z, KK[0], FH, Qm, m, z, ks, sr, gP, a0, a1)
     k2 = _stage(Z + h2 * k1, KK[1], FH, Qm, m, z, ks, sr, gP, a0, a1)
@@ -91,4 +95,6 @@ def warm_up() -> None:
     """Compile (or load from the cache) the kernel outside any timed loop."""
     n = 11
     Z = np.zeros((n, n + 1))
-    rk4_fused(Z, np.zeros((n + 1, n)), np.zeros((n, n)), n + 1, 0.01, 0.0, 1.0, 1.0, 0.0, 1.0, 1.0)
+    rk4_fused(Z, np.zeros((4, n + 1, n + 1)), np.zeros((n + 1, n)), np.zeros((n, n)), n + 1, 0.01, 0.0, 1.0,
+              1.0, 0.0, 1.0, 1.0)
+    speed_factor_one(0.0, 0.0, 1.0, 1.0)
