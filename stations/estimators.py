@@ -210,7 +210,8 @@ class DistributedMap:
                  min_inlier_frac: float = 0.5, keep_per_link: int = 256, link_consensus: str | None = "cluster",
                  consensus_gate: float = 4.0, cluster_width: float = 4.0, unconfirmed_weight: float = 0.01,
                  confirm_n: int = 3, weak_below: int = 3, confirmed_loss: str | None = "huber",
-                 restart_from_prior: bool = True, restart_iter: int = 6):
+                 restart_from_prior: bool = True, restart_iter: int = 6,
+                 weak_below_nlos: int | None = None, nlos_min_outliers: int = 2, nlos_min_frac: float = 0.02):
         self.id = station_id
         self.free = free_mask(station_id)
         self.nf = int(self.free.sum())
@@ -237,6 +238,13 @@ class DistributedMap:
         self.unconfirmed_weight = unconfirmed_weight
         self.confirm_n = confirm_n
         self.weak_below = weak_below
+        # adaptive link weakness: ``weak_below_nlos`` applies while this station's own kept ranges show
+        # NLOS (module docstring of :meth:`_consensus`); None: ``weak_below`` always
+        self.weak_below_nlos = weak_below_nlos
+        self.nlos_min_outliers = nlos_min_outliers
+        self.nlos_min_frac = nlos_min_frac
+        self.nlos_seen = False
+        self._support = np.zeros(0, np.int64)
         self.confirmed_loss = confirmed_loss
         self._centre_factor = np.zeros(0)
         self._confirmed = np.zeros(0, bool)
@@ -426,24 +434,48 @@ class DistributedMap:
                 self._centre_factor = np.concatenate([self._centre_factor, np.ones(m - n_old)])
                 self._confirmed = np.concatenate([self._confirmed, np.zeros(m - n_old, bool)])
                 self._centre_ver = np.concatenate([self._centre_ver, np.full(m - n_old, -1, np.int64)])
-            centre, factor, conf = self._centre, self._centre_factor, self._confirmed
+                self._support = np.concatenate([self._support, np.zeros(m - n_old, np.int64)])
+            centre, factor, conf, supp = self._centre, self._centre_factor, self._confirmed, self._support
             sd = self.sigma_d_m
             for k in np.flatnonzero(self._centre_ver[:m] != self._lver[:m]):
                 v = rv[rk == k]
-                centre[k], factor[k], conf[k] = 0.0, 1.0, False
+                centre[k], factor[k], conf[k], supp[k] = 0.0, 1.0, False, 0
                 self._centre_ver[k] = self._lver[k]
                 if not len(v):
                     continue
                 if self.link_consensus == "cluster":
-                    centre[k], support = los_cluster(v, self.cluster_width * sd)
-                    if support < self.weak_below:
+                    centre[k], supp[k] = los_cluster(v, self.cluster_width * sd)
+                    if supp[k] < self.weak_below:
                         factor[k] = self.unconfirmed_weight
-                    conf[k] = support >= self.confirm_n
+                    conf[k] = supp[k] >= self.confirm_n
                 else:
                     centre[k] = v.min() if len(v) == 2 and np.ptp(v) > 3.0 * np.sqrt(2.0) * sd else np.median(v)
+            if self.weak_below_nlos is not None and self.link_consensus == "cluster":
+                self._adapt_weakness(rk, rv, m)
             self._centre_key = (self._rver, m)
         ok = np.abs(rv - self._centre[rk]) <= self.consensus_gate * self.sigma_d_m
         return ok * self._centre_factor[rk], self._confirmed[rk]
+
+    def _adapt_weakness(self, rk: np.ndarray, rv: np.ndarray, m: int) -> None:
+        """Adaptive link weakness (``weak_below_nlos``): NLOS evidence from this station's own ranges.
+
+        A range of a link with two or more ranges that lies more than ``consensus_gate`` sigma_d from
+        its link's line-of-sight centre is an *outlier*. On clean ranges outliers are rare (two ranges
+        of a link disagree by more than the 4 sigma_d cluster width with probability 0.5 %, a range
+        lies 4 sigma_d from a well-supported centre with 6e-5); NLOS legs make them common (each
+        reflected range with an excess above 2 m). While this station holds at least
+        ``nlos_min_outliers`` outliers forming at least ``nlos_min_frac`` of those ranges, a link stays
+        weak until ``weak_below_nlos`` of its ranges agree (two agreeing NLOS ranges are then possible),
+        otherwise until ``weak_below`` agree. Recomputed whenever the kept ranges change; the weights
+        are never frozen, so the decision applies to every past range at the next solve."""
+        supp = self._support[:m]
+        multi = np.bincount(rk, minlength=m)[:m] >= 2
+        inl = multi[rk]
+        out = inl & (np.abs(rv - self._centre[rk]) > self.consensus_gate * self.sigma_d_m)
+        n_out, n_in = int(out.sum()), int(inl.sum())
+        self.nlos_seen = n_out >= self.nlos_min_outliers and n_out >= self.nlos_min_frac * max(n_in, 1)
+        wb = self.weak_below_nlos if self.nlos_seen else self.weak_below
+        self._centre_factor[:m] = np.where((supp > 0) & (supp < wb), self.unconfirmed_weight, 1.0)
 
     def robust_cost(self, x: np.ndarray) -> float:
         """Robust MAP objective at ``x``: prior Mahalanobis term + sum of Tukey losses
@@ -584,15 +616,16 @@ ESTIMATORS = {"dmap": DistributedMap, "dmap-nlos": DistributedMap, "dmap-ls": Di
 
 def make_estimator(name: str, station_id: int, pos0_m, cov0_m2, sigma_d_m: float,
                    ranges_per_update: int = 3) -> SurveyEstimator:
-    """``dmap`` (robust, default), ``dmap-nlos`` (the same, a link weak until 3 of its ranges agree:
-    holds 20 % NLOS legs at the price of slower clean convergence, docs/survey.md), ``dmap-ls`` (the
-    same without the robust weights) or ``seed-ukf``."""
+    """``dmap`` (robust, default: a link weak while no two of its ranges agree, or until 3 agree while
+    the station's own ranges show NLOS, :meth:`DistributedMap._adapt_weakness`), ``dmap-nlos`` (the
+    same, always weak until 3 agree: slower clean convergence, docs/survey.md), ``dmap-ls`` (the same
+    without the robust weights) or ``seed-ukf``."""
     if name == "seed-ukf":
         if pos0_m is None:
             raise ValueError("seed-ukf needs an initial fix (scenario init.sigma0_m > 0)")
         return SeedUkf(station_id, pos0_m, cov0_m2, sigma_d_m, ranges_per_update)
     if name == "dmap":
-        return DistributedMap(station_id, pos0_m, cov0_m2, sigma_d_m, weak_below=2)
+        return DistributedMap(station_id, pos0_m, cov0_m2, sigma_d_m, weak_below=2, weak_below_nlos=3)
     if name == "dmap-nlos":
         dm = DistributedMap(station_id, pos0_m, cov0_m2, sigma_d_m, weak_below=3)
         dm.name = "dmap-nlos"

@@ -102,6 +102,42 @@ def test_nlos_20_percent_of_legs_stays_near_the_truth():
     assert np.mean(nees) < 2 * 3.42  # the bar: mean NEES <= 2 x the upper edge of the band
 
 
+def _feed_rounds(est, seed: int, p_leg: float, rounds: int):
+    """Ranges of one station to 6 known peers, link by link in rounds; legs NLOS with ``p_leg``."""
+    rng = np.random.default_rng(seed)
+    truth = np.array([300.0, 400.0, 20.0])
+    peers = {2: [1000.0, 0, 0], 3: [200.0, 900.0, 0], 4: [700.0, 800.0, 60.0], 5: [-300.0, 600.0, 30.0],
+             6: [900.0, 500.0, -20.0], 7: [-100.0, -200.0, 10.0]}
+    for _ in range(rounds):
+        for pid, p in peers.items():
+            p = np.asarray(p, float)
+            excess = float(((rng.random(2) < p_leg) * rng.exponential(20.0, 2)).sum())
+            est.on_range(pid, np.linalg.norm(truth - p) + rng.normal(0, 0.5) + excess, 0.0, True, p, np.eye(3) * 0.01)
+        est.refresh()
+    return est
+
+
+def test_default_dmap_keeps_two_agreeing_ranges_weak_only_where_its_ranges_show_nlos():
+    """The default ``dmap`` adapts how long a link stays weak to its own ranges: on clean ranges two
+    agreeing ranges give a link full weight (as ``weak_below=2``); once its ranges show NLOS (20 % of
+    legs) a link needs three (as ``dmap-nlos``); the decision is re-made from the kept ranges."""
+    from stations.estimators import make_estimator
+
+    pos0, cov0 = np.array([305.0, 395.0, 20.0]), np.eye(3) * 100.0
+    for seed in range(4):
+        clean = _feed_rounds(make_estimator("dmap", 8, pos0, cov0, 0.5), seed, 0.0, 2)
+        assert not clean.nlos_seen
+        assert np.all(clean._centre_factor[:6][clean._support[:6] == 2] == 1.0)
+        fixed2 = _feed_rounds(DistributedMap(8, pos0, cov0, 0.5, weak_below=2), seed, 0.0, 2)
+        assert np.array_equal(clean.pos_m, fixed2.pos_m)  # bit-identical to the fixed rule on clean ranges
+        nlos = _feed_rounds(make_estimator("dmap", 8, pos0, cov0, 0.5), 10 + seed, 0.2, 4)
+        assert nlos.nlos_seen
+        two = nlos._support[:6] == 2
+        assert two.any() and np.all(nlos._centre_factor[:6][two] == nlos.unconfirmed_weight)
+        ref = _feed_rounds(make_estimator("dmap-nlos", 8, pos0, cov0, 0.5), 10 + seed, 0.2, 4)
+        assert np.array_equal(nlos._centre_factor, ref._centre_factor)  # the weights of dmap-nlos
+
+
 # ---------------------------------------------------------------- scenario [[faults]] and [[links]]
 from net import messages as M  # noqa: E402
 from net.scenario import ScenarioError  # noqa: E402
