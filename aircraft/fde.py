@@ -20,9 +20,21 @@ the gate opens for one update, so that a filter that is itself lost cannot lock 
 ``Q = sum q`` against ``chi2.ppf(1 - p_fa, sum d)`` (``p_fa`` = false-alarm probability per epoch's
 test). On an alarm the station ``i`` with the largest window sum of ``w_i`` is excluded if the rest
 passes without it: ``sum (q - w_i) <= chi2.ppf(1 - p_fa, sum d - n_i)`` (RTKLIB's leave-one-out, in
-the filter's innovations); the window restarts after every alarm. An excluded station stays excluded
-for the flight; at least ``min_stations`` stay in use. The prediction supplies the redundancy a
-snapshot lacks: with 4 stations (seed001) a pseudorange snapshot cannot detect, the filter can.
+the filter's innovations); the window restarts after every alarm; at least ``min_stations`` stay in
+use. The prediction supplies the redundancy a snapshot lacks: with 4 stations (seed001) a
+pseudorange snapshot cannot detect, the filter can.
+
+**Re-admission.** The window test has false alarms at its rate ``p_fa`` per epoch, and a false
+exclusion leaves a 4-station field at ``min_stations``, unable to exclude a real fault that comes
+later (seen: 3 of 400 seed-001 TDOA runs diverged to 10^5-10^6 m that way). So an excluded
+station's measurements keep being tested, unused: its normalized innovation as if it were included,
+``w'_i = (f_i^T S_i^-1 nu)^2 / (f_i^T S_i^-1 f_i)`` with ``S_i = S - (sigma_out^2 - sigma^2) f_i f_i^T``
+(the innovation covariance with its nominal noise restored), chi-square with 1 dof for a healthy
+station. Once the last ``window`` of its measurements are all tested and their sum passes
+``chi2.ppf(1 - p_fa, window)``, the station is re-admitted (and the window test restarts). A
+healthy station excluded just before a real fault elsewhere does not pass that test (the filter is
+pulled by the fault), so an alarm that exclusion cannot resolve (``min_stations`` left) re-admits
+every excluded station of that run instead, and the next window decides with full redundancy.
 
 **Protection levels** (fault-free hypothesis, K-sigma on the filter covariance, integrity risk
 ``I`` per epoch for each of H and V): ``HPL = K_H sigma_major`` with ``sigma_major^2`` the largest
@@ -118,6 +130,8 @@ class FilterFde:
         self.alarms = np.zeros(self.shape, dtype=int)  # window-test alarms per run
         self.gated = np.zeros(self.shape, dtype=int)  # measurements gated per run
         self.events: list[tuple] = []  # (t_s, run index, station id, statistic, threshold)
+        self.readmitted: list[tuple] = []  # the same for re-admissions
+        self.rwin: dict = {}  # station id -> deque of (w', tested) of its last ``window`` measurements
         self.g_thr = float(chi2_quantile(cfg.p_gate, 1))
         self.streak = np.zeros(self.shape, dtype=int)  # consecutive gated updates per run
 
@@ -157,6 +171,8 @@ class FilterFde:
         F = fault_vectors(trk.layout.kind, len(ids), trk.base)
         q, w = snooping(nu, S, F)
         w = np.where(masked, 0.0, w)
+        if masked.any():
+            self._readmission(trk, ids, nu, S, F, masked)
         d = (~masked).sum(-1) - (trk.layout.kind != "pr")
         jmax = np.argmax(w, axis=-1)
         gate = (np.take_along_axis(w, jmax[..., None], -1)[..., 0] > self.g_thr) & (self.streak < self.cfg.max_gated_streak)
@@ -169,6 +185,39 @@ class FilterFde:
         self._push(ids, q, d, w)
         self._test(trk.t_s)
         return nu, S
+
+    def _readmission(self, trk, ids, nu, S, F, masked) -> None:
+        """Test the excluded stations of this batch unused and re-admit those found healthy (module
+        docstring: Re-admission)."""
+        sig = np.broadcast_to(np.asarray(trk.tuning.sigma_m, dtype=float), (len(ids),))
+        n = self.cfg.window
+        T = float(chi2_quantile(self.cfg.p_fa, n))
+        for j in np.flatnonzero(masked.reshape(-1, len(ids)).any(axis=0)):
+            i, f, mj = ids[j], F[:, j], masked[..., j]
+            c = self.cfg.sigma_out_m**2 - sig[j] ** 2
+            Sj = S - np.where(mj[..., None, None], c * np.outer(f, f), 0.0)
+            A = chol_solve(Sj, np.broadcast_to(f, S.shape[:-1])[..., None].copy())[..., 0]  # S_i^-1 f
+            wj = np.einsum("...d,...d->...", A, nu) ** 2 / np.maximum(np.einsum("d,...d->...", f, A), 1e-300)
+            win = self.rwin.setdefault(i, deque(maxlen=n))
+            win.append((np.where(mj, wj, 0.0), mj.copy()))
+            if len(win) < n:
+                continue
+            tested = np.all([e[1] for e in win], axis=0)
+            tot = np.sum([e[0] for e in win], axis=0)
+            back = tested & (tot <= T)
+            if np.any(back):
+                self._readmit(i, back, trk.t_s, tot, T)
+                self._restart(back)
+
+    def _readmit(self, i, back: np.ndarray, t_s: float, stat, thr) -> None:
+        """Station ``i`` back in use in the runs ``back`` (bool, shape); its re-admission window cleared."""
+        self.out[i] = self.out[i] & ~back
+        for e in self.rwin.get(i, ()):
+            e[1][...] = e[1] & ~back
+        stat, thr = np.broadcast_to(stat, self.shape), np.broadcast_to(thr, self.shape)
+        for r in zip(*np.nonzero(np.atleast_1d(back))):
+            self.readmitted.append((t_s, int(r[0]) if self.shape else None, i,
+                                    float(np.atleast_1d(stat)[r]), float(np.atleast_1d(thr)[r])))
 
     def _push(self, ids, q, d, w) -> None:
         """Add one epoch to the window sums (dropping the oldest beyond ``window`` epochs)."""
@@ -210,6 +259,12 @@ class FilterFde:
         ok = np.where(Dr > 0, R <= chi2_quantile(self.cfg.p_fa, np.maximum(Dr, 1)), True)
         n_in = len(cand) - np.stack([self.out.get(i, np.zeros(self.shape, dtype=bool)) for i in cand], -1).sum(-1)
         excl = alarm & ok & (n_in > self.cfg.min_stations)
+        # an alarm that exclusion cannot resolve (at min_stations) questions the earlier exclusions:
+        # every excluded station comes back and the next window decides with the full redundancy
+        stuck = alarm & ~excl & (n_in <= self.cfg.min_stations)
+        if np.any(stuck):
+            for i in [i for i, v in self.out.items() if np.any(v & stuck)]:
+                self._readmit(i, self.out[i] & stuck, t_s, Q, T)
         for j, i in enumerate(cand):
             hit = excl & (k == j)
             if np.any(hit):

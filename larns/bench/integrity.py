@@ -139,6 +139,19 @@ AC_DETECT_WITHIN_S = 5.0
 AC_SETTLE_S = 5.0  # RMSE after exclusion: from onset + this to the end
 
 
+def run_bootstrap_rate_ci(counts, epochs_per_run: int, rng: np.random.Generator, n_boot: int = 4000,
+                          level: float = 0.95) -> list[float]:
+    """Percentile interval of a per-epoch event rate from per-run event counts (M,), resampling runs.
+
+    Events within a run are correlated in time (a run that drifts out of its HPL stays out for many
+    epochs), so the runs, not the epochs, are the independent samples."""
+    counts = np.asarray(counts, dtype=float)
+    idx = rng.integers(0, counts.size, size=(n_boot, counts.size))
+    rates = counts[idx].sum(axis=1) / (counts.size * epochs_per_run)
+    lo, hi = np.quantile(rates, [(1.0 - level) / 2.0, (1.0 + level) / 2.0])
+    return [float(lo), float(hi)]
+
+
 def _filter_case(algo, track, ac, rho, bias, fde, onset_s, bad_id, seed):
     """One filter over the runs with the fault ``bias`` (T, m) or clean (None): detection, errors, PLs."""
     from aircraft import sim
@@ -158,7 +171,9 @@ def _filter_case(algo, track, ac, rho, bias, fde, onset_s, bad_id, seed):
     out["epochs_tested"] = int(M * armed.sum())
     out["gated"] = int(mon.gated.sum())
     out["hpl_exceed"] = int((h[:, armed] > r.hpl_m[:, armed]).sum())
-    out["hpl_exceed_runs"] = int((h[:, armed] > r.hpl_m[:, armed]).any(axis=1).sum())  # exceedances are correlated in time
+    per_run = (h[:, armed] > r.hpl_m[:, armed]).sum(axis=1)  # (M,) exceedances per run
+    out["hpl_exceed_runs"] = int((per_run > 0).sum())  # exceedances are correlated in time
+    out["hpl_exceed_rate_ci95"] = run_bootstrap_rate_ci(per_run, int(armed.sum()), np.random.default_rng([seed, 17]))
     out["vpl_exceed"] = int((np.abs(r.err_m[:, armed, 2]) > r.vpl_m[:, armed]).sum())
     out["hpl_median_m"] = float(np.median(r.hpl_m[:, armed]))
     if bias is not None:
@@ -227,6 +242,7 @@ def aircraft_filters(scenario: str, runs: int, seed: int, algos=AC_FILTERS,
             "false_alarm_rate": c["alarms"] / c["epochs_tested"], "gated_clean": c["gated"],
             "hpl_exceed_rate": c["hpl_exceed"] / c["epochs_tested"], "vpl_exceed_rate": c["vpl_exceed"] / c["epochs_tested"],
             "hpl_median_m": c["hpl_median_m"], "hpl_exceed_runs": c["hpl_exceed_runs"],
+            "hpl_exceed_rate_ci95": c["hpl_exceed_rate_ci95"],
         }
     return out
 
@@ -359,7 +375,7 @@ def print_filter_table(ac_rows: list[dict]) -> None:
           f"{f0['integrity_risk']:g} per epoch; station biased {AC_BIAS_M:g} m from t = {AC_ONSET_S:g} s; "
           f"RMSE from onset + {AC_SETTLE_S:g} s vs the PCRB without that station)")
     hdr = ("world", "filter", "P_exc5s", "t_exc_s", "rmse_m", "pcrb_m", "ratio", "NEES", "FA_rate", "FA_n",
-           "HPL_exc", "VPL_exc", "HPL_med_m", "exc_runs")
+           "HPL_exc", "VPL_exc", "HPL_med_m", "exc_runs", "HPL_exc_95%_runs")
     print("  ".join(f"{h:>9}" for h in hdr))
     for r in ac_rows:
         fi = r["filter_integrity"]
@@ -369,7 +385,8 @@ def print_filter_table(ac_rows: list[dict]) -> None:
             print(f"{fi['scenario']:>9}  {algo:>9}  " + "  ".join(f"{'-':>9}" if x is None else f"{x:9.4g}" for x in vals)
                   + f"  {v['false_alarms']:>4}/{v['epochs_tested']:<6}" + "  ".join(
                       f"{x:9.2e}" for x in (v["hpl_exceed_rate"], v["vpl_exceed_rate"])) + f"  {v['hpl_median_m']:9.3g}"
-                  + f"  {v.get('hpl_exceed_runs', '-'):>4}/{fi['runs']}")
+                  + f"  {v.get('hpl_exceed_runs', '-'):>4}/{fi['runs']}"
+                  + ("  [{:.1e}, {:.1e}]".format(*v["hpl_exceed_rate_ci95"]) if "hpl_exceed_rate_ci95" in v else ""))
 
 
 def plot_filters(ac_rows: list[dict], png_dir: Path) -> Path:
