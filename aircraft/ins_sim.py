@@ -28,7 +28,7 @@ from nav import errorstate as es
 from nav.rotations import log_so3
 
 from .navigator.ins_ekf import JAC_FORCE_TC_S, InsEkf, InsTuning
-from .navigator.ins_start import RadioFix, SideTest, StartConfig, moved_on, radio_fix, start
+from .navigator.ins_start import SideTest, StartConfig, moved_on, radio_fix, start
 from .world import clock as wclock
 from .world.field import Field
 from .world.imu import ImuEmulator, ImuPreset
@@ -160,12 +160,12 @@ def simulate(fld: Field, motion: Motion, preset: ImuPreset, cfg: InsRun, tuning:
     g_w, a_w = imu.measure(*motion.increments(0.0, dt, n_w0))
     dth_w, dv_w = motion.increments(t_e - W, dt, n_w)
     side = sides.side()
-    st = start(L, tn, RadioFix(fix.x[:M], fix.P[:M], fix.cost[:M]), side[:M], g_w[-n_w:], a_w[-n_w:], t_e,
+    st = start(L, tn, fix.rows(slice(None, M)), side[:M], g_w[-n_w:], a_w[-n_w:], t_e,
                cfg.start, tau_nom)
     p_hat, v_hat, C_hat, clk0, tau0, P0 = st.p, st.v, st.C, st.clock, st.tau, st.P0
     sign = np.broadcast_to(st.sign, (M,))
     if cfg.pcrb:  # the bound run: the same start on the noise-free window gives its prior; nominal = truth
-        sb = start(L, tn, RadioFix(fix.x[M:], fix.P[M:], fix.cost[M:]), side[M:], dth_w[:, None], dv_w[:, None],
+        sb = start(L, tn, fix.rows(slice(M, None)), side[M:], dth_w[:, None], dv_w[:, None],
                    t_e, cfg.start, tau_nom)
         pe, ve, Ce = (x[0] for x in fld.truth(motion, np.array([t_e])))
         p_hat = np.vstack([p_hat, pe])

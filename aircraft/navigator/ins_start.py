@@ -77,15 +77,27 @@ class StartConfig:
 class RadioFix:
     """Both sides of the stations' plane: ``x`` (M, 2, 11) ``[p_e, v_e, a, b_e, d]`` at ``t_e``, ``P``
     (M, 2, 11, 11) their covariances, ``cost`` (M, 2) their weighted residual sums of squares; side 0
-    lies along the plane's normal ``n`` (``n_z > 0``), side 1 against it."""
+    lies along the plane's normal ``n`` (``n_z > 0``), side 1 against it. ``separated`` (M,): the two
+    fits ended on opposite sides (None: all did). A fit started from the mirror guess can cross the
+    plane and stop in a poor local fit on the other side: then that window holds no fit of one side
+    and no evidence about the side (``llr`` 0), and ``valid`` (M,) is the slot holding a real fit."""
 
     x: np.ndarray
     P: np.ndarray
     cost: np.ndarray
+    separated: np.ndarray | None = None
+    valid: np.ndarray | None = None
 
     def llr(self) -> np.ndarray:
-        """Log-likelihood ratio (M,) of side 0 against side 1, ``(cost_1 - cost_0) / 2``."""
-        return 0.5 * (self.cost[:, 1] - self.cost[:, 0])
+        """Log-likelihood ratio (M,) of side 0 against side 1, ``(cost_1 - cost_0) / 2`` (0 where the two
+        fits are not on opposite sides)."""
+        d = 0.5 * (self.cost[:, 1] - self.cost[:, 0])
+        return d if self.separated is None else np.where(self.separated, d, 0.0)
+
+    def rows(self, sl) -> "RadioFix":
+        """The runs ``sl`` (a slice) of this fix."""
+        pick = lambda a: None if a is None else a[sl]  # noqa: E731
+        return RadioFix(self.x[sl], self.P[sl], self.cost[sl], pick(self.separated), pick(self.valid))
 
 
 @dataclass
@@ -206,10 +218,11 @@ def radio_fix(t_rx_s: np.ndarray, stations_m: np.ndarray, station_cov_m2: np.nda
     xa, Pa, ca = _gauss_newton(x0, tau, s, station_cov_m2, rho, var, Rclk, cfg)
     xb, Pb, cb = _gauss_newton(mir, tau, s, station_cov_m2, rho, var, Rclk, cfg)
     a_up = ((xa[:, 0:3] - c) @ nrm >= 0)  # whether the first solution lies on side 0
+    b_up = ((xb[:, 0:3] - c) @ nrm >= 0)
     x = np.where(a_up[:, None, None], np.stack([xa, xb], 1), np.stack([xb, xa], 1))
     P = np.where(a_up[:, None, None, None], np.stack([Pa, Pb], 1), np.stack([Pb, Pa], 1))
     cost = np.where(a_up[:, None], np.stack([ca, cb], 1), np.stack([cb, ca], 1))
-    return RadioFix(x, P, cost)
+    return RadioFix(x, P, cost, a_up != b_up, np.where(a_up, 0, 1))
 
 
 def _first_cycle(t_s: np.ndarray, span_s: float = 1.0) -> np.ndarray:
@@ -343,21 +356,28 @@ class SideTest:
         self.cfg = cfg
         self.llr = np.zeros(M)
         self.windows = 0
+        self.separated = np.ones(M, dtype=bool)  # whether the latest window fitted both sides
 
     def add(self, fix: RadioFix) -> None:
         self.llr = self.llr + fix.llr()
         self.windows += 1
+        if fix.separated is not None:
+            self.separated = np.asarray(fix.separated, dtype=bool)[: self.llr.shape[0]]
 
     def decided(self) -> np.ndarray:
-        """(M,) bool: decided, or out of windows (then the likelier side is taken)."""
-        return (np.abs(self.llr) >= self.cfg.decide_llr) | (self.windows >= self.cfg.max_windows)
+        """(M,) bool: decided on a window that fitted both sides (the start uses its fit of the side
+        decided), or out of windows (then the likelier side is taken)."""
+        return ((np.abs(self.llr) >= self.cfg.decide_llr) & self.separated) | (self.windows >= self.cfg.max_windows)
 
     def side(self) -> np.ndarray:
         return np.where(self.llr >= 0.0, 0, 1)
 
 
 def moved_on(fix: RadioFix, side: np.ndarray, dt_s: float) -> np.ndarray:
-    """First guess (M, 11) for the next window: the decided-so-far side's fit moved on by ``dt_s``."""
+    """First guess (M, 11) for the next window: the decided-so-far side's fit moved on by ``dt_s``
+    (where the window did not fit both sides: the one real fit)."""
+    if fix.separated is not None:
+        side = np.where(fix.separated[: side.shape[0]], side, fix.valid[: side.shape[0]])
     x = fix.x[np.arange(side.shape[0]), side].copy()
     x[:, 0:3] += x[:, 3:6] * dt_s + 0.5 * x[:, 6:9] * dt_s**2
     x[:, 3:6] += x[:, 6:9] * dt_s
