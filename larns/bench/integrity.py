@@ -57,7 +57,9 @@ def register(sub) -> None:
     p.add_argument("--aircraft", nargs="*", metavar="SCENARIO", default=None,
                    help="also run aircraft RAIM/FDE on these scenarios' [aircraft] worlds (default when given "
                         "without names: seed001 seed003): one station biased by 30 m from t = 20 s, and clean")
-    p.add_argument("--ac-runs", type=int, default=40, help="aircraft Monte Carlo runs per world (default 40)")
+    p.add_argument("--ac-runs", type=int, default=400,
+                   help="aircraft Monte Carlo runs per world (default 400: a run that drifts out of its HPL stays out for "
+                        "many epochs, so the 1e-3 per-epoch rates need hundreds of runs)")
     p.add_argument("--ac-filters", nargs="*", default=list(AC_FILTERS), metavar="ALGO",
                    help=f"aircraft filters with integrity monitoring (aircraft/fde.py) on the same worlds at the "
                         f"scenario's epoch rate, {AC_FILTER_DURATION_S:g} s (default: {' '.join(AC_FILTERS)}; "
