@@ -15,20 +15,47 @@ if _HERE not in sys.path:
     sys.path.insert(0, _HERE)
 
 
+def _compose_module(item):
+    mod = getattr(item, "module", None)
+    return mod if getattr(mod, "start_image_build", None) is not None else None
+
+
+def _phase(item) -> int:
+    """0: tests that start processes (marker e2e), 1: in-process tests, 2: the compose tests."""
+    if _compose_module(item) is not None:
+        return 2
+    return 0 if item.get_closest_marker("e2e") is not None else 1
+
+
 def pytest_collection_modifyitems(session, config, items):
-    """The compose tests run last, so their image build (started at collection, below) overlaps the
-    whole suite instead of being waited for half-way."""
-    items.sort(key=lambda it: getattr(getattr(it, "module", None), "start_image_build", None) is not None)
+    """Order (stable within each phase): the tests that start processes, then the in-process tests,
+    then the compose tests. The compose image build (started at collection, below) overlaps the
+    first phase; the compose timeline (~70 s of Docker containers, mostly sleeping on this side)
+    runs in the background during the second (pytest_runtest_setup), where no test of ours needs
+    the machine's timing, and the compose tests at the end read its result."""
+    items.sort(key=_phase)
+
+
+_COMPOSE: dict = {}
 
 
 def pytest_collection_finish(session):
     """A session with compose tests starts building their Docker image at once, in the background
     (tests/larns/test_compose.py: start_image_build), so the build overlaps the tests before them."""
     for item in session.items:
-        start = getattr(getattr(item, "module", None), "start_image_build", None)
-        if start is not None:
-            start()
+        mod = _compose_module(item)
+        if mod is not None:
+            _COMPOSE["module"] = mod
+            mod.start_image_build()
             return
+
+
+def pytest_runtest_setup(item):
+    """At the first in-process test, start the compose timeline in the background (see above)."""
+    mod = _COMPOSE.get("module")
+    if mod is not None and "started" not in _COMPOSE and _phase(item) >= 1:
+        _COMPOSE["started"] = True
+        mod.start_compose_timeline()
 
 
 # ----------------------------------------------------------------------------- one recorded fleet

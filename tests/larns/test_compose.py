@@ -19,7 +19,10 @@ marked as a joiner and 50 ms slots in a 0.6 s cycle, so that at speed 5 a slot s
 wall time. The whole module takes about 1.5 min of wall time once the image is built (an image
 rebuild after a source change takes ~30 s; from nothing, ~1 min base + ~2.5 min image). The image
 is built in the background from the moment a session has collected this module (tests/conftest.py),
-so most of the build overlaps the tests that run before it.
+so most of the build overlaps the tests that run before it; the timeline itself then runs in the
+background too, from the session's first in-process test on (the suite runs the tests that start
+processes first, then the in-process ones, then this module: start_compose_timeline), so its ~70 s
+of mostly sleeping wall time overlaps tests that start no processes of their own.
 
 Skipped, with the reason shown, when no Docker engine or compose answers, when the local base image
 cannot be built (scripts/docker-base.sh needs root and a Debian mirror), or when ``larns station``
@@ -28,11 +31,13 @@ does not exist yet. ``LARNS_TEST_IMAGE=name:tag`` uses a ready image instead of 
 
 from __future__ import annotations
 
+import atexit
 import math
 import os
 import shutil
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
@@ -115,26 +120,6 @@ def start_image_build() -> None:
     _build["thread"].start()
 
 
-@pytest.fixture(scope="session")
-def larns_image() -> str:
-    """The larns image: LARNS_TEST_IMAGE, else built by scripts/docker-build.sh (local Debian base
-    from debootstrap + host wheels; cached layers make a rebuild after a code change ~30 s), in the
-    background from the start of the session (start_image_build)."""
-    if os.environ.get("LARNS_TEST_IMAGE"):
-        return os.environ["LARNS_TEST_IMAGE"]
-    t0 = time.time()
-    start_image_build()
-    _build["thread"].join()
-    if "skip" in _build:
-        pytest.skip(_build["skip"])
-    assert "error" not in _build, f"building the image failed: {_build['error']}"
-    r = _build["build"]
-    assert r.returncode == 0, "scripts/docker-build.sh failed:\n" + _tail(r.stderr + r.stdout)
-    print(f"[compose] image larns:latest ready: built in {_build['wall_s']:.1f} s, "
-          f"waited {time.time() - t0:.1f} s for it", file=sys.stderr)
-    return "larns:latest"
-
-
 SCENARIO = random_world("compose", 11, [11], cycle_s=0.6, slot_s=0.05,
                         description="seed000's world; station 11 hot-joins; 50 ms slots in a 0.6 s cycle (tests)")
 
@@ -186,12 +171,87 @@ def _sleep_until(wall_s: float) -> None:
     time.sleep(max(0.0, wall_s - time.time()))
 
 
+_timeline_bg: dict = {}   # the compose timeline run in the background: thread, run | skip | error
+
+
+def start_compose_timeline() -> None:
+    """Run the compose timeline (below) in a background thread, once, as soon as the image is built.
+
+    tests/conftest.py calls this when the session reaches its first test that starts no processes
+    (the suite runs the process tests first, then the in-process ones, then this module), so the
+    timeline's ~70 s of mostly sleeping wall time overlaps in-process tests instead of adding to the
+    suite; the tests below join it. Without that call the ``fleet`` fixture starts it and waits."""
+    if "thread" in _timeline_bg:
+        return
+
+    def work() -> None:
+        try:
+            image = _image_or_skip()
+            if image is None:
+                return
+            tmp = Path(tempfile.mkdtemp(prefix="larns-compose-"))
+            _timeline_bg["run"] = _timeline(image, tmp)
+        except BaseException as e:  # noqa: BLE001 - reported by the fixture, in the tests' thread
+            _timeline_bg["error"] = e
+
+    _timeline_bg["thread"] = threading.Thread(target=work, name="larns-compose-timeline", daemon=True)
+    _timeline_bg["thread"].start()
+    atexit.register(_down_if_running)
+
+
+def _down_if_running() -> None:
+    """At interpreter exit (an interrupted session), take down a timeline still running."""
+    th = _timeline_bg.get("thread")
+    if th is not None and th.is_alive():
+        try:
+            _run([*COMPOSE, "-p", _project(), "-f", str(ROOT / "docker-compose.yml"), "down", "-v",
+                  "--remove-orphans"], timeout=120, cwd=ROOT)
+        except (OSError, subprocess.SubprocessError):
+            pass
+
+
+def _project() -> str:
+    return f"larnstest{os.getpid()}"
+
+
+def _image_or_skip() -> str | None:
+    """The image name once built; None (and the reason in ``_timeline_bg["skip"]``) if it cannot be."""
+    if os.environ.get("LARNS_TEST_IMAGE"):
+        return os.environ["LARNS_TEST_IMAGE"]
+    t0 = time.time()
+    start_image_build()
+    _build["thread"].join()
+    if "skip" in _build:
+        _timeline_bg["skip"] = _build["skip"]
+        return None
+    if "error" in _build:
+        raise RuntimeError(f"building the image failed: {_build['error']}")
+    r = _build["build"]
+    if r.returncode != 0:
+        raise RuntimeError("scripts/docker-build.sh failed:\n" + _tail(r.stderr + r.stdout))
+    print(f"[compose] image larns:latest ready: built in {_build['wall_s']:.1f} s, "
+          f"waited {time.time() - t0:.1f} s for it", file=sys.stderr)
+    return "larns:latest"
+
+
 @pytest.fixture(scope="module")
-def fleet(larns_image, tmp_path_factory) -> FleetRun:
-    """Run the compose timeline once; yield what the tests need. Always `down -v` at the end."""
+def fleet() -> FleetRun:
+    """The compose timeline's result (started in the background by the session, or here)."""
+    t0 = time.time()
+    start_compose_timeline()
+    _timeline_bg["thread"].join()
+    print(f"[compose] waited {time.time() - t0:.1f} s for the timeline", file=sys.stderr)
+    if "skip" in _timeline_bg:
+        pytest.skip(_timeline_bg["skip"])
+    if "error" in _timeline_bg:
+        raise _timeline_bg["error"]
+    return _timeline_bg["run"]
+
+
+def _timeline(larns_image: str, tmp: Path) -> FleetRun:
+    """Run the compose timeline once (module docstring); `down -v` at the end, always."""
     from larns.analysis.summary import mcap_station_summary
 
-    tmp = tmp_path_factory.mktemp("compose")
     scn = tmp / "compose.toml"
     scn.write_text(SCENARIO)
     tmp.chmod(0o755)                  # the containers run as an unprivileged user
@@ -206,7 +266,7 @@ def fleet(larns_image, tmp_path_factory) -> FleetRun:
     env = {**os.environ, "LARNS_IMAGE": larns_image, "LARNS_SCENARIO": "compose", "LARNS_JOIN_SCENARIO": "compose",
            "LARNS_SCENARIO_DIR": str(tmp), "LARNS_SPEED": repr(SPEED), "LARNS_EPOCH": repr(epoch),
            "LARNS_RUN": name, "LARNS_UID": str(os.getuid()), "LARNS_GID": str(os.getgid())}
-    dc = Compose(f"larnstest{os.getpid()}", env)
+    dc = Compose(_project(), env)
     run = FleetRun(mcap=mcap, scenario=scn, epoch=epoch, logs=logs)
     stations = [f"station{i}" for i in IDS]
     try:
@@ -282,7 +342,7 @@ def fleet(larns_image, tmp_path_factory) -> FleetRun:
               f"(down {run.events['down_done'] - run.events['down']:.1f} s)", file=sys.stderr)
         assert mcap.exists(), f"no MCAP in ./runs; logs: {logs}"
         run.summary = mcap_station_summary(mcap)
-        yield run
+        return run
     finally:
         if not logs.exists():       # failed before `down`: keep the containers' logs
             logs.write_text(dc("logs", "--no-color", check=False).stdout)
