@@ -211,7 +211,8 @@ class DistributedMap:
                  consensus_gate: float = 4.0, cluster_width: float = 4.0, unconfirmed_weight: float = 0.01,
                  confirm_n: int = 3, weak_below: int = 3, confirmed_loss: str | None = "huber",
                  restart_from_prior: bool = True, restart_iter: int = 6,
-                 weak_below_nlos: int | None = None, nlos_min_outliers: int = 2, nlos_min_frac: float = 0.02):
+                 weak_below_nlos: int | None = None, nlos_min_outliers: int = 2, nlos_min_frac: float = 0.02,
+                 clean_after_n: int = 0):
         self.id = station_id
         self.free = free_mask(station_id)
         self.nf = int(self.free.sum())
@@ -243,6 +244,7 @@ class DistributedMap:
         self.weak_below_nlos = weak_below_nlos
         self.nlos_min_outliers = nlos_min_outliers
         self.nlos_min_frac = nlos_min_frac
+        self.clean_after_n = clean_after_n
         self.nlos_seen = False
         self._support = np.zeros(0, np.int64)
         self.confirmed_loss = confirmed_loss
@@ -464,16 +466,20 @@ class DistributedMap:
         of a link disagree by more than the 4 sigma_d cluster width with probability 0.5 %, a range
         lies 4 sigma_d from a well-supported centre with 6e-5); NLOS legs make them common (each
         reflected range with an excess above 2 m). While this station holds at least
-        ``nlos_min_outliers`` outliers forming at least ``nlos_min_frac`` of those ranges, a link stays
-        weak until ``weak_below_nlos`` of its ranges agree (two agreeing NLOS ranges are then possible),
-        otherwise until ``weak_below`` agree. Recomputed whenever the kept ranges change; the weights
-        are never frozen, so the decision applies to every past range at the next solve."""
+        ``nlos_min_outliers`` outliers forming at least ``nlos_min_frac`` of those ranges, or fewer than
+        ``clean_after_n`` ranges in links with two or more (too little evidence either way: at 5 % NLOS
+        legs the first outliers come after the first agreeing pairs, and one frame station that gave
+        full weight to them early settled 1.5 m off with the whole network), a link stays weak until
+        ``weak_below_nlos`` of its ranges agree (two agreeing NLOS ranges are then possible), otherwise
+        until ``weak_below`` agree. Recomputed whenever the kept ranges change; the weights are never
+        frozen, so the decision applies to every past range at the next solve."""
         supp = self._support[:m]
         multi = np.bincount(rk, minlength=m)[:m] >= 2
         inl = multi[rk]
         out = inl & (np.abs(rv - self._centre[rk]) > self.consensus_gate * self.sigma_d_m)
         n_out, n_in = int(out.sum()), int(inl.sum())
-        self.nlos_seen = n_out >= self.nlos_min_outliers and n_out >= self.nlos_min_frac * max(n_in, 1)
+        self.nlos_seen = ((n_out >= self.nlos_min_outliers and n_out >= self.nlos_min_frac * max(n_in, 1))
+                          or n_in < self.clean_after_n)
         wb = self.weak_below_nlos if self.nlos_seen else self.weak_below
         self._centre_factor[:m] = np.where((supp > 0) & (supp < wb), self.unconfirmed_weight, 1.0)
 
@@ -625,7 +631,7 @@ def make_estimator(name: str, station_id: int, pos0_m, cov0_m2, sigma_d_m: float
             raise ValueError("seed-ukf needs an initial fix (scenario init.sigma0_m > 0)")
         return SeedUkf(station_id, pos0_m, cov0_m2, sigma_d_m, ranges_per_update)
     if name == "dmap":
-        return DistributedMap(station_id, pos0_m, cov0_m2, sigma_d_m, weak_below=2, weak_below_nlos=3)
+        return DistributedMap(station_id, pos0_m, cov0_m2, sigma_d_m, weak_below=2, weak_below_nlos=3, clean_after_n=20)
     if name == "dmap-nlos":
         dm = DistributedMap(station_id, pos0_m, cov0_m2, sigma_d_m, weak_below=3)
         dm.name = "dmap-nlos"

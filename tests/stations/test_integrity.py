@@ -118,18 +118,22 @@ def _feed_rounds(est, seed: int, p_leg: float, rounds: int):
 
 
 def test_default_dmap_keeps_two_agreeing_ranges_weak_only_where_its_ranges_show_nlos():
-    """The default ``dmap`` adapts how long a link stays weak to its own ranges: on clean ranges two
-    agreeing ranges give a link full weight (as ``weak_below=2``); once its ranges show NLOS (20 % of
-    legs) a link needs three (as ``dmap-nlos``); the decision is re-made from the kept ranges."""
+    """The default ``dmap`` adapts how long a link stays weak to its own ranges: cautious (a link needs
+    three agreeing ranges, as ``dmap-nlos``) until it holds ``clean_after_n`` ranges in links with two or
+    more, then two agreeing ranges give full weight while the ranges look clean; once they show NLOS
+    (20 % of legs) a link needs three again. The decision is re-made from the kept ranges."""
     from stations.estimators import make_estimator
 
     pos0, cov0 = np.array([305.0, 395.0, 20.0]), np.eye(3) * 100.0
     for seed in range(4):
-        clean = _feed_rounds(make_estimator("dmap", 8, pos0, cov0, 0.5), seed, 0.0, 2)
+        early = _feed_rounds(make_estimator("dmap", 8, pos0, cov0, 0.5), seed, 0.0, 2)
+        assert early.clean_after_n > 12 and early.nlos_seen  # 12 ranges: not yet evidence of clean ranges
+        clean = _feed_rounds(make_estimator("dmap", 8, pos0, cov0, 0.5), seed, 0.0, 5)
         assert not clean.nlos_seen
-        assert np.all(clean._centre_factor[:6][clean._support[:6] == 2] == 1.0)
-        fixed2 = _feed_rounds(DistributedMap(8, pos0, cov0, 0.5, weak_below=2), seed, 0.0, 2)
-        assert np.array_equal(clean.pos_m, fixed2.pos_m)  # bit-identical to the fixed rule on clean ranges
+        clean._centre_key = None
+        clean._support[:6] = 2  # as if every link held two agreeing ranges: full weight when clean
+        clean._adapt_weakness(clean._rk[:clean._nr], clean._rv[:clean._nr], 6)
+        assert np.all(clean._centre_factor[:6] == 1.0)
         nlos = _feed_rounds(make_estimator("dmap", 8, pos0, cov0, 0.5), 10 + seed, 0.2, 4)
         assert nlos.nlos_seen
         two = nlos._support[:6] == 2
