@@ -240,7 +240,7 @@ class DistributedMap:
         self.confirm_n = confirm_n
         self.weak_below = weak_below
         # adaptive link weakness: ``weak_below_nlos`` applies while this station's own kept ranges show
-        # NLOS (module docstring of :meth:`_consensus`); None: ``weak_below`` always
+        # NLOS or too few ranges to tell (:meth:`_adapt_weakness`); None: ``weak_below`` always
         self.weak_below_nlos = weak_below_nlos
         self.nlos_min_outliers = nlos_min_outliers
         self.nlos_min_frac = nlos_min_frac
