@@ -189,7 +189,7 @@ def start_compose_timeline() -> None:
             image = _image_or_skip()
             if image is None:
                 return
-            tmp = Path(tempfile.mkdtemp(prefix="larns-compose-"))
+            _timeline_bg["tmp"] = tmp = Path(tempfile.mkdtemp(prefix="larns-compose-"))
             _timeline_bg["run"] = _timeline(image, tmp)
         except BaseException as e:  # noqa: BLE001 - reported by the fixture, in the tests' thread
             _timeline_bg["error"] = e
@@ -235,17 +235,22 @@ def _image_or_skip() -> str | None:
 
 
 @pytest.fixture(scope="module")
-def fleet() -> FleetRun:
-    """The compose timeline's result (started in the background by the session, or here)."""
+def fleet():
+    """The compose timeline's result (started in the background by the session, or here); its
+    scenario folder is removed after the module."""
     t0 = time.time()
     start_compose_timeline()
     _timeline_bg["thread"].join()
     print(f"[compose] waited {time.time() - t0:.1f} s for the timeline", file=sys.stderr)
     if "skip" in _timeline_bg:
         pytest.skip(_timeline_bg["skip"])
-    if "error" in _timeline_bg:
-        raise _timeline_bg["error"]
-    return _timeline_bg["run"]
+    try:
+        if "error" in _timeline_bg:
+            raise _timeline_bg["error"]
+        yield _timeline_bg["run"]
+    finally:  # the scenario folder the containers read (the MCAP and logs stay in ./runs)
+        if "tmp" in _timeline_bg:
+            shutil.rmtree(_timeline_bg["tmp"], ignore_errors=True)
 
 
 def _timeline(larns_image: str, tmp: Path) -> FleetRun:
