@@ -7,6 +7,11 @@ ends acting on the turnaround and the flight time.
 
 Range noise: each one-way arrival timestamp carries Gaussian noise ``sigma_t = sqrt(2) sigma_d / c``,
 so that a two-way range (two legs) has standard deviation ``sigma_d``.
+
+Keyed draws: a channel built with ``key = (world seed, receiver id)`` draws each reception's loss,
+noise and NLOS from its own generator keyed by (seed, receiver, sender, transmit time to 100 ns), so
+one transmission meets the same air in the simulator and in the fleet at any host speed, whatever
+order the host delivers it in ("one world per seed").
 """
 
 from __future__ import annotations
@@ -77,13 +82,23 @@ def coarse_fix(
 class AirChannel:
     """The air as seen by one receiver. Pure apart from its own seeded generator."""
 
-    def __init__(self, params: ChannelParams, rng: np.random.Generator):
+    def __init__(self, params: ChannelParams, rng: np.random.Generator, key: tuple[int, int] | None = None):
         self.params = params
         self.rng = rng
+        self.key = None if key is None else (int(key[0]), int(key[1]))
         self.sigma_t_s = np.sqrt(2.0) * params.sigma_d_m / SPEED_OF_LIGHT_M_S
 
+    def draws(self, tx_id: int | None, t_tx_true_s: float) -> np.random.Generator:
+        """The generator for one reception: keyed by (seed, receiver, sender, transmit time) when the
+        channel has a key and the sender is named, else the receiver's stream."""
+        if self.key is None or tx_id is None:
+            return self.rng
+        t_key = max(0, int(round(t_tx_true_s * 1e7)))  # 100 ns: one station never sends twice in it
+        return np.random.default_rng([*self.key, int(tx_id), t_key])
+
     def arrival_local_s(
-        self, tx_pos_m: np.ndarray, t_tx_true_s: float, rx_pos_m: np.ndarray, rx_clock: Clock | OscillatorClock
+        self, tx_pos_m: np.ndarray, t_tx_true_s: float, rx_pos_m: np.ndarray, rx_clock: Clock | OscillatorClock,
+        tx_id: int | None = None,
     ) -> float | None:
         """Local reception time of a transmission, or ``None`` if it is lost on air.
 
@@ -91,15 +106,17 @@ class AirChannel:
         ----------
         tx_pos_m : (3,) true sender position. t_tx_true_s : true transmit time.
         rx_pos_m : (3,) true receiver position. rx_clock : receiver's clock.
+        tx_id : sender's id; with a keyed channel it selects the reception's own draws.
         """
         p = self.params
-        if p.loss_prob > 0 and self.rng.random() < p.loss_prob:
+        rng = self.draws(tx_id, t_tx_true_s)
+        if p.loss_prob > 0 and rng.random() < p.loss_prob:
             return None
         d = float(np.linalg.norm(np.asarray(rx_pos_m, float) - np.asarray(tx_pos_m, float)))
         t = t_tx_true_s + d / SPEED_OF_LIGHT_M_S
         if self.sigma_t_s > 0:
-            t += float(self.rng.normal(0.0, self.sigma_t_s))
-        if p.nlos_prob > 0 and self.rng.random() < p.nlos_prob:
+            t += float(rng.normal(0.0, self.sigma_t_s))
+        if p.nlos_prob > 0 and rng.random() < p.nlos_prob:
             # an NLOS leg lengthens the two-way range by nlos_bias_m on average
-            t += 2.0 * float(self.rng.exponential(p.nlos_bias_m)) / SPEED_OF_LIGHT_M_S
+            t += 2.0 * float(rng.exponential(p.nlos_bias_m)) / SPEED_OF_LIGHT_M_S
         return rx_clock.to_local(t)

@@ -106,7 +106,7 @@ class StationNode:
         self._make_core = make_core
         self.core = None
         self.clock = None
-        self.air = AirChannel(scn.channel, station_rng(self.seed, self.id, 2))
+        self.air = AirChannel(scn.channel, station_rng(self.seed, self.id, 2), (self.seed, self.id))
         from .sim import station_clock
 
         self.ref_clock = station_clock(scn, scn.ids[0], self.seed)  # network time (truth side only)

@@ -96,19 +96,19 @@ class ShellFaults:
                                         if getattr(o, k) is not None})
             bias += o.bias_m
         if ch is None or ch.rng is not air.rng:
-            ch = self._air[tx_id] = AirChannel(params, air.rng)  # same stream as the receiver's channel
+            ch = self._air[tx_id] = AirChannel(params, air.rng, air.key)  # same draws as the receiver's channel
         return ch, bias
 
     def arrival_local_s(self, air: AirChannel, tx_id: int, tx_pos_m, t_tx_true_s: float, rx_pos_m, rx_clock):
         """Like ``AirChannel.arrival_local_s`` with the link's overrides, constant bias and antenna
         faults (``range_bias``: each leg to or from the station is delayed by ``bias_m / c``)."""
         if not self.active:
-            return air.arrival_local_s(tx_pos_m, t_tx_true_s, rx_pos_m, rx_clock)
+            return air.arrival_local_s(tx_pos_m, t_tx_true_s, rx_pos_m, rx_clock, tx_id)
         ch, bias_m = self._channel(air, tx_id)
         for f in self._bias:
             if f.station in (tx_id, self.id) and t_tx_true_s >= f.from_s:
                 bias_m += f.bias_m
-        t_local = ch.arrival_local_s(tx_pos_m, t_tx_true_s, rx_pos_m, rx_clock)
+        t_local = ch.arrival_local_s(tx_pos_m, t_tx_true_s, rx_pos_m, rx_clock, tx_id)
         if t_local is None or bias_m == 0.0:
             return t_local
         # a two-way range is c (t_rx - t_tx - turnaround) / 2: each leg carries bias_m / c

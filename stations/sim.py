@@ -123,7 +123,7 @@ class Simulator:
         self.cores: list[StationCore | None] = [None] * n
         self.clocks: list[Clock] = [Clock()] * n
         self.ref_clock = station_clock(scn, scn.ids[0], self.seed)  # network time = station 1's clock
-        self.air = [AirChannel(scn.channel, station_rng(self.seed, i, 2)) for i in scn.ids]
+        self.air = [AirChannel(scn.channel, station_rng(self.seed, i, 2), (self.seed, i)) for i in scn.ids]
         self.shell = [ShellFaults(scn, i) for i in scn.ids]  # per-link channel, [[faults]]
         self.net_rng = np.random.default_rng([self.seed, 0, 3])
         self.links = np.zeros((n, n), dtype=np.int64)

@@ -9,8 +9,8 @@ fleet s after start   event (at ``--speed 5``; wall time = fleet time / 5)
 before                10 station containers + recorder up (`docker compose up -d ...`); the
                       timeline starts when every station process has printed its start line
 30                    `docker compose --profile hotjoin up -d station11` (hot-join)
-90                    `docker kill` station 7's container
-100 .. 100 + 5 x 20   `docker network disconnect` station 5 for 20 s wall, then reconnect
+90                    `docker kill` station 7's container (at least 40 s after the joiner runs)
++10 .. +10 + 5 x 20   `docker network disconnect` station 5 for 20 s wall, then reconnect
 +75                   `docker compose down -v` (the recorder finishes the MCAP on SIGTERM)
 ====================  =========================================================================
 
@@ -56,6 +56,7 @@ IDS = list(range(1, 11))
 JOINER, KILLED, CUT = 11, 7, 5
 T_JOIN, T_KILL, T_CUT = 30.0, 90.0, 100.0   # fleet seconds
 CUT_WALL_S, RECOVER_WALL_S = 20.0, 15.0
+JOIN_SETTLE_S = 40.0   # fleet s from the joiner's start line to the kill, at least (it takes a slot)
 
 
 def _run(cmd, timeout=120, **kw) -> subprocess.CompletedProcess:
@@ -308,8 +309,19 @@ def _timeline(larns_image: str, tmp: Path) -> FleetRun:
         _sleep_until(at(T_JOIN))
         run.events["join"] = time.time()
         dc("--profile", "hotjoin", "up", "-d", "--no-deps", f"station{JOINER}")  # epoch, keys: done
+        # the kill waits for the joiner to run and settle: on a loaded 2-core box a new container
+        # took 12-15 s of wall time to start its station (seen: it came up just after the kill)
+        jc = dc.containers().get(f"station{JOINER}", ("", ""))[0]
+        t_wait = time.time()
+        while jc and time.time() - t_wait < 60:
+            r = _run(["docker", "logs", jc])
+            if f"[station {JOINER}] scenario" in r.stdout + r.stderr:
+                break
+            time.sleep(0.5)
+        run.events["join_running"] = time.time()
+        t_kill = max(at(T_KILL), run.events["join_running"] + JOIN_SETTLE_S / SPEED)
 
-        _sleep_until(at(T_KILL))
+        _sleep_until(t_kill)
         st = dc.containers()
         down = [svc for svc in stations + [f"station{JOINER}", "recorder"] if st.get(svc, ("", ""))[1] != "running"]
         assert not down, f"containers not running: {down}"
@@ -317,7 +329,7 @@ def _timeline(larns_image: str, tmp: Path) -> FleetRun:
         r = _run(["docker", "kill", cids[f"station{KILLED}"]])
         assert r.returncode == 0, r.stderr
 
-        _sleep_until(at(T_CUT))
+        _sleep_until(t_kill + (T_CUT - T_KILL) / SPEED)
         cut = cids[f"station{CUT}"]
         run.events["cut"] = time.time()
         r = _run(["docker", "network", "disconnect", net, cut])

@@ -275,18 +275,23 @@ def test_liar_is_excluded_by_its_neighbours():
 
 def test_station_chi_square_false_alarm_rate_on_clean_data():
     """Seeded: on clean data the per-test statistic is (at most) chi-square(1): its alarm rate at
-    p_fa = 1e-2 stays at or below 1e-2 (the estimates are conservative), and no peer is excluded at
-    the default p_fa = 1e-4."""
-    from scipy.stats import chi2
+    p_fa = 1e-2 stays at or below 1e-2 (the estimates are conservative), and exclusions at the
+    default p_fa = 1e-4 are as rare as that rate allows: at most the Poisson 99.9 % quantile of
+    (tests x p_fa), each followed by a re-admission (seen: seed 7, station 6 - itself 2.7 sigma off
+    across track - excluded station 10 at 39 s with T = 16.1 against 15.1 and re-admitted it at 59 s)."""
+    from scipy.stats import chi2, poisson
 
     stats = []
+    n_tests = n_excluded = n_readmitted = 0
     for seed in (7, 8):
         sim = Simulator(load("seed000", seed=seed))
         sim.run(60.0, [60.0])
         for c in sim.cores:
-            assert not c.integrity.events
+            n_excluded += sum(e[2] == "exclude" for e in c.integrity.events)
+            n_readmitted += sum(e[2] == "readmit" for e in c.integrity.events)
             for p in c.integrity.peers.values():
                 assert p.n_tests > 30
+                n_tests += p.n_tests
         # re-evaluate the statistic at the end for every link: a sample of T under H0
         for c in sim.cores:
             for pid, (ppos, pcov) in c.peers.items():
@@ -295,6 +300,8 @@ def test_station_chi_square_false_alarm_rate_on_clean_data():
                 if T is not None:
                     stats.append(T)
     stats = np.array(stats)
+    assert n_excluded <= poisson.ppf(0.999, 1e-4 * n_tests), (n_excluded, n_tests)
+    assert n_readmitted == n_excluded
     assert len(stats) > 150
     assert np.mean(stats > chi2.ppf(0.99, 1)) <= 0.02
     assert 0.2 < stats.mean() < 1.3  # chi-square(1) has mean 1; conservative covariances give less
