@@ -14,6 +14,7 @@ BENCHES: list[str] = [
     "larns.bench.net",
     "larns.bench.replay",
     "larns.bench.sync",
+    "larns.bench.speed",
     "larns.bench.ins",
     "larns.bench.integrity",
     "larns.bench.vehicle",
