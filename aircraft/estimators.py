@@ -194,6 +194,13 @@ class Tuning:
     # 0.5 tr(M_j P) and innovation covariance 0.5 tr(M_i P M_j P). Close to a transmitter the range's
     # curvature biases a first-order EKF (the UKF captures it through its sigma points).
     ekf_second_order: bool = True
+    # ... and that term's covariance is not white: it is a function of the state error, which changes
+    # slowly (the stations' clock biases, the hover), so the same linearization error repeats at every
+    # update. It enters R scaled by the number of updates in this time (at least 1; 0 = white, the
+    # textbook second-order EKF); the UKF gets the same term (aircraft/estimators.py _update_ukf).
+    # Far from the transmitters it is negligible; 2.6 m above one (seed001 hover 50 m) it keeps the
+    # filters from reading curvature as information (docs/aircraft.md, "Linearization error").
+    linearization_corr_s: float = 10.0
     # filter coordinates: "inverse" = position inverted through the unit sphere about the broadcast
     # station centroid and the clock carried as b + range to it (aircraft/coords.py: straightens the
     # height/clock and range/clock ridges of a small-base system); "cartesian" = [p, v, b, bdot]
@@ -278,6 +285,7 @@ class CvTracker:
         self._fq: dict[float, tuple[np.ndarray, np.ndarray]] = {}
         self._last_dt: float | None = None
         self._last_fq: tuple[np.ndarray, np.ndarray] | None = None
+        self._step_s = 0.0  # the latest prediction step: updates per linearization_corr_s
         self._r_key: tuple | None = None
         self._r: np.ndarray | None = None
 
@@ -451,6 +459,7 @@ class CvTracker:
         if dt <= 0.0:
             return
         F, Q = self._FQ(dt)
+        self._step_s = dt
         if not self._inv.any():
             self._x, self._P = kf_predict(self._x, self._P, F, Q)
         else:
@@ -530,7 +539,7 @@ class CvTracker:
         if self.kind == "ekf":
             x1, P1, nu, S = self._update_ekf(stations_m, dt_s, z, h, jac, R)
         else:
-            x1, P1, nu, S = self._update_ukf(z, h, R)
+            x1, P1, nu, S = self._update_ukf(z, h, R, stations_m, dt_s)
         self._x, self._P = x1, P1
         self._truncate_floor()
         if self._ref is not None:
@@ -588,7 +597,7 @@ class CvTracker:
             if self.layout.kind == "tdoa":
                 G = mdl.g_matrix(stations_m.shape[0], self.base)
                 c2, S2 = np.einsum("ij,...j->...i", G, c2), G @ S2 @ G.T
-            h1, R = h, R + S2
+            h1, R = h, R + S2 * self._repeats()
 
             def h(X):
                 return h1(X) + c2
@@ -605,9 +614,19 @@ class CvTracker:
                 x1, P1 = self._select(mask, xi, Pi, x1, P1)
         return x1, P1, nu, S
 
-    def _update_ukf(self, z, h, R):
+    def _repeats(self) -> float:
+        """Updates over which one linearization error repeats (``Tuning.linearization_corr_s``)."""
+        corr = self.tuning.linearization_corr_s
+        return max(1.0, corr / self._step_s) if corr > 0 and self._step_s > 0 else 1.0
+
+    def _update_ukf(self, z, h, R, stations_m=None, dt_s=None):
         """UKF update (iterated posterior linearization for runs with large linearization error);
-        returns ``(x, P, nu, S)``."""
+        returns ``(x, P, nu, S)``. The sigma points carry the linearization error once (white); the
+        repeats of ``Tuning.linearization_corr_s`` beyond it are added to ``R`` from the analytic
+        second-order term (cheap; the same as the EKF's)."""
+        k = self._repeats() - 1.0
+        if k > 0 and stations_m is not None:
+            R = R + k * self._om_ekf(stations_m, dt_s)
         if self._inv.any():
             hc = h
 
