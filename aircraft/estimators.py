@@ -280,6 +280,7 @@ class CvTracker:
             self._radius = float(ref_radius_m) if ref_radius_m is not None else 0.0
             self._switch()
         self.t_s = float(t0_s)
+        self._t_start_s = float(t0_s)  # a linearization error repeats at most since the start
         self.base = base
         self.params = SigmaParams.scaled(alpha=tuning.alpha, beta=2.0, kappa=0.0)
         self._fq: dict[float, tuple[np.ndarray, np.ndarray]] = {}
@@ -615,8 +616,10 @@ class CvTracker:
         return x1, P1, nu, S
 
     def _repeats(self) -> float:
-        """Updates over which one linearization error repeats (``Tuning.linearization_corr_s``)."""
-        corr = self.tuning.linearization_corr_s
+        """Updates over which one linearization error repeats: ``Tuning.linearization_corr_s``, but at
+        most the time since the filter started (while it converges the error changes at every update:
+        counted as repeating from the start, a wide first prior would hold the measurements off)."""
+        corr = min(self.tuning.linearization_corr_s, self.t_s - self._t_start_s)
         return max(1.0, corr / self._step_s) if corr > 0 and self._step_s > 0 else 1.0
 
     def _update_ukf(self, z, h, R, stations_m=None, dt_s=None):

@@ -29,10 +29,11 @@ def _phase(item) -> int:
 
 def pytest_collection_modifyitems(session, config, items):
     """Order (stable within each phase): the tests that start processes, then the in-process tests,
-    then the compose tests. The compose image build (started at collection, below) overlaps the
-    first phase; the compose timeline (~70 s of Docker containers, mostly sleeping on this side)
-    runs in the background during the second (pytest_runtest_setup), where no test of ours needs
-    the machine's timing, and the compose tests at the end read its result."""
+    then the compose tests. The compose image build and then the compose timeline (~70 s of Docker
+    containers, mostly sleeping on this side) run in the background during the second phase
+    (pytest_runtest_setup), where no test of ours needs the machine's timing, and the compose tests
+    at the end read its result. (The build used to overlap the first phase: on a slower 2-core
+    machine its pip install made the timed process tests fail.)"""
     items.sort(key=_phase)
 
 
@@ -40,18 +41,17 @@ _COMPOSE: dict = {}
 
 
 def pytest_collection_finish(session):
-    """A session with compose tests starts building their Docker image at once, in the background
-    (tests/larns/test_compose.py: start_image_build), so the build overlaps the tests before them."""
+    """Remember the compose module of a session that has compose tests (nothing starts yet)."""
     for item in session.items:
         mod = _compose_module(item)
         if mod is not None:
             _COMPOSE["module"] = mod
-            mod.start_image_build()
             return
 
 
 def pytest_runtest_setup(item):
-    """At the first in-process test, start the compose timeline in the background (see above)."""
+    """At the first in-process test, start the image build and then the compose timeline in the
+    background (tests/larns/test_compose.py: start_compose_timeline; see above)."""
     mod = _COMPOSE.get("module")
     if mod is not None and "started" not in _COMPOSE and _phase(item) >= 1:
         _COMPOSE["started"] = True

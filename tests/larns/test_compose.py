@@ -112,9 +112,9 @@ def _build_image() -> None:
 
 
 def start_image_build() -> None:
-    """Start building the image in a background thread, once. tests/conftest.py calls this as soon as
-    a session has collected tests of this module, so that the build (from nothing ~4 min, after a
-    code change ~30 s, up to date ~10 s) overlaps the tests that run before this module."""
+    """Start building the image in a background thread, once (from nothing ~4 min, after a code change
+    ~30 s, up to date ~10 s). start_compose_timeline calls it, which tests/conftest.py calls at the
+    session's first in-process test, so the build overlaps those tests and not the timed process ones."""
     if os.environ.get("LARNS_TEST_IMAGE") or "thread" in _build:
         return
     _build["thread"] = threading.Thread(target=_build_image, name="larns-image-build", daemon=True)
