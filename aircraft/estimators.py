@@ -280,7 +280,8 @@ class CvTracker:
             self._radius = float(ref_radius_m) if ref_radius_m is not None else 0.0
             self._switch()
         self.t_s = float(t0_s)
-        self._t_start_s = float(t0_s)  # a linearization error repeats at most since the start
+        self._memory = 1.0  # updates the filter averages over (per run), from the latest update
+        self._t_start_s = float(t0_s)
         self.base = base
         self.params = SigmaParams.scaled(alpha=tuning.alpha, beta=2.0, kappa=0.0)
         self._fq: dict[float, tuple[np.ndarray, np.ndarray]] = {}
@@ -541,6 +542,10 @@ class CvTracker:
             x1, P1, nu, S = self._update_ekf(stations_m, dt_s, z, h, jac, R)
         else:
             x1, P1, nu, S = self._update_ukf(z, h, R, stations_m, dt_s)
+        # the filter's memory in updates: prior variance over what one update removes (per run)
+        tr0 = np.einsum("...ii->...", self._P)
+        gain = tr0 - np.einsum("...ii->...", P1)
+        self._memory = tr0 / np.maximum(gain, 1e-9 * tr0)
         self._x, self._P = x1, P1
         self._truncate_floor()
         if self._ref is not None:
@@ -598,7 +603,7 @@ class CvTracker:
             if self.layout.kind == "tdoa":
                 G = mdl.g_matrix(stations_m.shape[0], self.base)
                 c2, S2 = np.einsum("ij,...j->...i", G, c2), G @ S2 @ G.T
-            h1, R = h, R + S2 * self._repeats()
+            h1, R = h, R + S2 * np.asarray(self._repeats())[..., None, None]
 
             def h(X):
                 return h1(X) + c2
@@ -615,21 +620,26 @@ class CvTracker:
                 x1, P1 = self._select(mask, xi, Pi, x1, P1)
         return x1, P1, nu, S
 
-    def _repeats(self) -> float:
-        """Updates over which one linearization error repeats: ``Tuning.linearization_corr_s``, but at
-        most the time since the filter started (while it converges the error changes at every update:
-        counted as repeating from the start, a wide first prior would hold the measurements off)."""
-        corr = min(self.tuning.linearization_corr_s, self.t_s - self._t_start_s)
-        return max(1.0, corr / self._step_s) if corr > 0 and self._step_s > 0 else 1.0
+    def _repeats(self):
+        """Updates over which one linearization error repeats (per run), at most
+        ``Tuning.linearization_corr_s`` of them: the larger of the filter's memory (prior variance over
+        what an update removes) and the updates since the start. While a filter converges from a
+        wide first prior its error changes at every update (counted as repeating then, the prior
+        would hold the measurements off); once either has grown, the same error comes back."""
+        corr = self.tuning.linearization_corr_s
+        if corr <= 0 or self._step_s <= 0:
+            return 1.0
+        since = (self.t_s - self._t_start_s) / self._step_s
+        return np.clip(np.maximum(self._memory, since), 1.0, max(1.0, corr / self._step_s))
 
     def _update_ukf(self, z, h, R, stations_m=None, dt_s=None):
         """UKF update (iterated posterior linearization for runs with large linearization error);
         returns ``(x, P, nu, S)``. The sigma points carry the linearization error once (white); the
         repeats of ``Tuning.linearization_corr_s`` beyond it are added to ``R`` from the analytic
         second-order term (cheap; the same as the EKF's)."""
-        k = self._repeats() - 1.0
-        if k > 0 and stations_m is not None:
-            R = R + k * self._om_ekf(stations_m, dt_s)
+        k = np.asarray(self._repeats()) - 1.0
+        if stations_m is not None and np.any(k > 0):
+            R = R + k[..., None, None] * self._om_ekf(stations_m, dt_s)
         if self._inv.any():
             hc = h
 
