@@ -201,7 +201,7 @@ def test_offline_aircraft_other_algorithm(run, tmp_path):
     if hole == 60:
         assert g["equal_prefix"] >= min(40, 0.9 * (hole - 1) - 5), info
     else:  # the recorder's link lost data in the first seconds (seen on a slower 2-core machine: truth
-        # 27 and the navs around it, equal prefix 6): past that loss no re-flight can be exact
+        # sample 27 lost, equal prefix 6 of 26): past a loss the re-flight need not be exact
         assert g["equal_prefix"] >= 1, info
 
 
