@@ -29,33 +29,10 @@ def _phase(item) -> int:
 
 def pytest_collection_modifyitems(session, config, items):
     """Order (stable within each phase): the tests that start processes, then the in-process tests,
-    then the compose tests. The compose image build and then the compose timeline (~70 s of Docker
-    containers, mostly sleeping on this side) run in the background during the second phase
-    (pytest_runtest_setup), where no test of ours needs the machine's timing, and the compose tests
-    at the end read its result. (The build used to overlap the first phase: on a slower 2-core
-    machine its pip install made the timed process tests fail.)"""
+    then the compose tests, which build their image and run their timeline (~100 s) on their own. (The
+    build used to overlap the first phase and the timeline the second: on a slower 2-core machine the
+    build made the timed process tests fail and the in-process tests starved the containers.)"""
     items.sort(key=_phase)
-
-
-_COMPOSE: dict = {}
-
-
-def pytest_collection_finish(session):
-    """Remember the compose module of a session that has compose tests (nothing starts yet)."""
-    for item in session.items:
-        mod = _compose_module(item)
-        if mod is not None:
-            _COMPOSE["module"] = mod
-            return
-
-
-def pytest_runtest_setup(item):
-    """At the first in-process test, start the image build and then the compose timeline in the
-    background (tests/larns/test_compose.py: start_compose_timeline; see above)."""
-    mod = _COMPOSE.get("module")
-    if mod is not None and "started" not in _COMPOSE and _phase(item) >= 1:
-        _COMPOSE["started"] = True
-        mod.start_compose_timeline()
 
 
 # ----------------------------------------------------------------------------- one recorded fleet

@@ -17,12 +17,10 @@ before                10 station containers + recorder up (`docker compose up -d
 The scenario is seed000's world (2 km x 2 km, 0.5 m ranging noise, 10 m coarse fix) with station 11
 marked as a joiner and 50 ms slots in a 0.6 s cycle, so that at speed 5 a slot still lasts 10 ms of
 wall time. The whole module takes about 1.5 min of wall time once the image is built (an image
-rebuild after a source change takes ~30 s; from nothing, ~1 min base + ~2.5 min image). The image
-is built in the background from the moment a session has collected this module (tests/conftest.py),
-so most of the build overlaps the tests that run before it; the timeline itself then runs in the
-background too, from the session's first in-process test on (the suite runs the tests that start
-processes first, then the in-process ones, then this module: start_compose_timeline), so its ~70 s
-of mostly sleeping wall time overlaps tests that start no processes of their own.
+rebuild after a source change takes ~30 s; from nothing, ~1 min base + ~2.5 min image). The suite
+runs this module last (tests/conftest.py); its ``fleet`` fixture builds the image and runs the
+timeline then, alone (overlapping other tests, the build failed the timed process tests and the
+in-process tests starved the containers on a slower 2-core machine).
 
 Skipped, with the reason shown, when no Docker engine or compose answers, when the local base image
 cannot be built (scripts/docker-base.sh needs root and a Debian mirror), or when ``larns station``
@@ -113,8 +111,7 @@ def _build_image() -> None:
 
 def start_image_build() -> None:
     """Start building the image in a background thread, once (from nothing ~4 min, after a code change
-    ~30 s, up to date ~10 s). start_compose_timeline calls it, which tests/conftest.py calls at the
-    session's first in-process test, so the build overlaps those tests and not the timed process ones."""
+    ~30 s, up to date ~10 s). start_compose_timeline calls it."""
     if os.environ.get("LARNS_TEST_IMAGE") or "thread" in _build:
         return
     _build["thread"] = threading.Thread(target=_build_image, name="larns-image-build", daemon=True)
@@ -178,10 +175,8 @@ _timeline_bg: dict = {}   # the compose timeline run in the background: thread, 
 def start_compose_timeline() -> None:
     """Run the compose timeline (below) in a background thread, once, as soon as the image is built.
 
-    tests/conftest.py calls this when the session reaches its first test that starts no processes
-    (the suite runs the process tests first, then the in-process ones, then this module), so the
-    timeline's ~70 s of mostly sleeping wall time overlaps in-process tests instead of adding to the
-    suite; the tests below join it. Without that call the ``fleet`` fixture starts it and waits."""
+    The ``fleet`` fixture starts it and waits; the tests below read its result. (It used to be
+    started from tests/conftest.py to overlap the in-process tests; see the module docstring.)"""
     if "thread" in _timeline_bg:
         return
 
