@@ -176,12 +176,18 @@ def _make_config(listen, connect, config_file, multicast, mode):
     return conf
 
 
-# Zenoh's async runtimes (RON, read once per process when Zenoh starts): everything on ONE worker
-# thread. A LARNS process moves a few hundred small messages per second; with Zenoh's default pools
-# (rx: 2 workers, tx, app, acc, net: 1 each) every received sample wakes two or three threads, and on
-# a 2-core machine running 50 station processes those wake-ups were most of the receive cost
-# (docs/fleet.md, "Where the time goes"). A ZENOH_RUNTIME set in the environment wins.
-LEAN_RUNTIME = "(app: (worker_threads: 1), rx: (handover: app), tx: (handover: app), " \
+# Zenoh's async runtimes (RON, read once per process when Zenoh starts): everything on one pool of
+# TWO worker threads. A LARNS process moves a few hundred small messages per second; with Zenoh's
+# default pools (rx: 2 workers, tx, app, acc, net: 1 each) every received sample wakes two or three
+# threads, and on a 2-core machine running 50 station processes those wake-ups were most of the
+# receive cost (docs/fleet.md, "Where the time goes"). One worker was tried first and is unsafe: when
+# a peer dies without closing its TCP connections (a killed container, a cut cable), every process
+# stopped receiving for ~9 s at once a few seconds later (seen in the compose test; consistent with
+# Zenoh's non-droppable control messages waiting up to `block/wait_before_close`, 5 s, for room in the
+# dead link's full queue on the only worker; zenoh issues #1876, #2581; docs/deploy.md "Dead
+# links"). With two workers the same timeline ran without that stall, and a 10-station fleet used the
+# same CPU (measured 2026-11-26). A ZENOH_RUNTIME set in the environment wins.
+LEAN_RUNTIME = "(app: (worker_threads: 2), rx: (handover: app), tx: (handover: app), " \
                "acc: (handover: app), net: (handover: app))"
 
 
