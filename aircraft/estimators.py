@@ -282,6 +282,7 @@ class CvTracker:
             self._switch()
         self.t_s = float(t0_s)
         self._memory = 1.0  # updates the filter averages over (per run), from the latest update
+        self._last_seen: dict = {}  # station (id, or position to 0.1 m) -> time of its latest measurement
         self._t_start_s = float(t0_s)
         self.base = base
         self.params = SigmaParams.scaled(alpha=tuning.alpha, beta=2.0, kappa=0.0)
@@ -447,11 +448,12 @@ class CvTracker:
     def save(self) -> tuple:
         """The filter's state (mean, covariance, coordinates, clock-bias states) for :meth:`restore`."""
         return (self._x, self._P, self._inv, list(self.bias_ids), self._bias_var.copy(), self._bias_t.copy(),
-                self._ref, self._radius, self.t_s)
+                self._ref, self._radius, self.t_s, self._memory, dict(self._last_seen))
 
     def restore(self, saved: tuple) -> None:
         """Back to a :meth:`save`d state (an update re-run with other measurements: aircraft/fde.py)."""
-        (self._x, self._P, self._inv, ids, bv, bt, self._ref, self._radius, self.t_s) = saved
+        (self._x, self._P, self._inv, ids, bv, bt, self._ref, self._radius, self.t_s, self._memory, seen) = saved
+        self._last_seen = dict(seen)
         self.bias_ids, self._bias_var, self._bias_t = list(ids), bv.copy(), bt.copy()
         self._bias_changed()
         self._r_key = None
@@ -539,10 +541,15 @@ class CvTracker:
         D, sig = self._bias_map(stations_m, sig, bias_ids, bias_var_m2)
         R, z = self._noise_and_z(stations_m, rho_m, station_cov_m2, sig, dt_s)
         h, jac = self.measurement_model(stations_m, dt_s, D)
+        keys = ([("id", sid) for sid in bias_ids] if bias_ids is not None
+                else [("pos",) + tuple(np.round(sj, 1)) for sj in stations_m])
+        k = self._repeats(keys)
         if self.kind == "ekf":
-            x1, P1, nu, S = self._update_ekf(stations_m, dt_s, z, h, jac, R)
+            x1, P1, nu, S = self._update_ekf(stations_m, dt_s, z, h, jac, R, k)
         else:
-            x1, P1, nu, S = self._update_ukf(z, h, R, stations_m, dt_s)
+            x1, P1, nu, S = self._update_ukf(z, h, R, stations_m, dt_s, k)
+        for key in keys:
+            self._last_seen[key] = self.t_s
         # the filter's memory in updates: prior variance over what one update removes (per run)
         tr0 = np.einsum("...ii->...", self._P)
         gain = tr0 - np.einsum("...ii->...", P1)
@@ -586,7 +593,7 @@ class CvTracker:
             z = np.delete(rho_m, b, axis=-1) - rho_m[..., b : b + 1]
         return R, z
 
-    def _update_ekf(self, stations_m, dt_s, z, h, jac, R):
+    def _update_ekf(self, stations_m, dt_s, z, h, jac, R, k=1.0):
         """EKF update (second-order terms, iterated for runs with large linearization error);
         returns ``(x, P, nu, S)``."""
         if self._inv.any():  # measurement model and Jacobian in the runs' own coordinates
@@ -604,7 +611,7 @@ class CvTracker:
             if self.layout.kind == "tdoa":
                 G = mdl.g_matrix(stations_m.shape[0], self.base)
                 c2, S2 = np.einsum("ij,...j->...i", G, c2), G @ S2 @ G.T
-            h1, R = h, R + S2 * np.asarray(self._repeats())[..., None, None]
+            h1, R = h, R + _scaled(S2, k)
 
             def h(X):
                 return h1(X) + c2
@@ -621,26 +628,42 @@ class CvTracker:
                 x1, P1 = self._select(mask, xi, Pi, x1, P1)
         return x1, P1, nu, S
 
-    def _repeats(self):
-        """Updates over which one linearization error repeats (per run), at most
-        ``Tuning.linearization_corr_s`` of them: the larger of the filter's memory (prior variance over
-        what an update removes) and the updates since the start. While a filter converges from a
-        wide first prior its error changes at every update (counted as repeating then, the prior
-        would hold the measurements off); once either has grown, the same error comes back."""
+    def _repeats(self, keys: list) -> np.ndarray:
+        """How many times one linearization error enters the estimate, per measurement row (..., rows)
+        (or a scalar), at most ``Tuning.linearization_corr_s`` worth of that station's measurements.
+
+        The error repeats while the estimation error it comes from persists: over the filter's memory
+        time (its memory in updates, prior variance over what an update removes, times the update
+        step) or the time since the start, whichever is longer. While a filter converges from a wide
+        first prior its error changes at every update (counted as repeating then, the prior would hold
+        the measurements off); once either has grown, the same error comes back. Within that time a
+        station's range comes once per its own measurement interval (``keys``: the stations of this
+        update; one update step in synchronous epochs, one TDMA cycle when the stations take turns).
+        Counting updates instead over-counted TDMA ranges by the number of stations in the rotation,
+        and the inflated noise then kept the memory long: a live aircraft 1.5 km out started from a
+        100-140 m wide prior was still 50 m wide after 30 s (docs/aircraft.md)."""
         corr = self.tuning.linearization_corr_s
         if corr <= 0 or self._step_s <= 0:
-            return 1.0
-        since = (self.t_s - self._t_start_s) / self._step_s
-        return np.clip(np.maximum(self._memory, since), 1.0, max(1.0, corr / self._step_s))
+            return np.ones(())
+        t, step = self.t_s, self._step_s
+        dtj = np.array([max(step, t - self._last_seen.get(key, t - step)) for key in keys])
+        if self.layout.kind == "tdoa":  # rows are differences against the base station
+            dtj = np.delete(dtj, self.base)
+        tau = np.maximum(np.asarray(self._memory) * step, t - self._t_start_s)
+        return np.clip(tau[..., None] / dtj, 1.0, np.maximum(1.0, corr / dtj))
 
-    def _update_ukf(self, z, h, R, stations_m=None, dt_s=None):
+    def _update_ukf(self, z, h, R, stations_m=None, dt_s=None, k=None):
         """UKF update (iterated posterior linearization for runs with large linearization error);
-        returns ``(x, P, nu, S)``. The sigma points carry the linearization error once (white); the
-        repeats of ``Tuning.linearization_corr_s`` beyond it are added to ``R`` from the analytic
-        second-order term (cheap; the same as the EKF's)."""
-        k = np.asarray(self._repeats()) - 1.0
-        if stations_m is not None and np.any(k > 0):
-            R = R + k[..., None, None] * self._om_ekf(stations_m, dt_s)
+        returns ``(x, P, nu, S)``. With ``Tuning.linearization_corr_s > 0`` the analytic second-order
+        term over the prior (the EKF's, :meth:`_second_order`) enters ``R`` times its repeats, as in
+        the EKF. The sigma points alone do not carry it: with the small spread (``alpha`` = 0.1, points
+        at +-0.28 sigma) they probe the ranges locally, and the iterated linearization re-evaluates
+        them over the narrower posterior. Counting only the repeats beyond one (the sigma points
+        taken for the first) left single runs near the transmitters over-confident from the first
+        update of a 20 m prior (envelope hover/turn 50 m overhead: NEES 10^2-10^4, docs/aircraft.md).
+        With ``linearization_corr_s = 0`` this is the textbook UKF (filterpy comparison)."""
+        if stations_m is not None and k is not None and self.tuning.linearization_corr_s > 0:
+            R = R + _scaled(self._om_ekf(stations_m, dt_s), k)
         if self._inv.any():
             hc = h
 
@@ -787,6 +810,15 @@ class CvTracker:
         x[act] = x[act] + pc * (dmu / s2)[:, None]
         P[act] = P[act] + pc[:, :, None] * pc[:, None, :] * ((var_t - s2) / s2**2)[:, None, None]
         P[act] = 0.5 * (P[act] + np.swapaxes(P[act], -1, -2))
+
+
+def _scaled(S2: np.ndarray, k) -> np.ndarray:
+    """``K^1/2 S2 K^1/2`` with ``K = diag(k)``, ``k`` (..., m) or a scalar: a covariance whose row ``j``
+    counts ``k_j`` times (stays positive semi-definite)."""
+    q = np.sqrt(np.asarray(k, dtype=float))
+    if q.ndim == 0:
+        return S2 * q**2
+    return S2 * q[..., :, None] * q[..., None, :]
 
 
 # --------------------------------------------------------------------------- message-level API
