@@ -196,9 +196,9 @@ class Tuning:
     ekf_second_order: bool = True
     # ... and that term's covariance is not white: it is a function of the state error, which changes
     # slowly (the stations' clock biases, the hover), so the same linearization error repeats at every
-    # update. It enters R scaled by the number of updates it repeats over: the larger of the filter's
-    # memory and the updates since its start, at most this time's worth (CvTracker._repeats; 0 = white,
-    # the textbook second-order EKF); the UKF gets the same term (_update_ukf).
+    # update. It enters R scaled by the number of times it repeats: the longer of the filter's memory
+    # time and the time since its start, at most this long, over the station's own measurement interval
+    # (CvTracker._repeats; 0 = white, the textbook second-order EKF); the UKF gets the same term.
     # Far from the transmitters it is negligible; 2.6 m above one (seed001 hover 50 m) it keeps the
     # filters from reading curvature as information (docs/aircraft.md, "Linearization error").
     linearization_corr_s: float = 10.0
