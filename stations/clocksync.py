@@ -164,26 +164,33 @@ class ClockEstimator:
         _propagate(P, dt, self._Q(dt))
         self._P0 = 0.5 * (P + P.T)
 
-    def _block(self, ks: list[int]) -> np.ndarray:
-        """``P(T_s)`` restricted to the clocks at state-block indices ``ks`` (1 or 2 of them): O(1)."""
+    def _cov(self, k1: int, k2: int) -> tuple[float, float, float, float]:
+        """``P(T_s)`` between the clocks at state-block indices ``k1``, ``k2`` as scalars
+        ``(P_tt, P_tf, P_ft, P_ff)``: the 2x2 block of ``P0`` through ``F`` and ``Q``, O(1).
+
+        The same operations, in the same order, as the dense ``F P0 F^T + Q (x) (I + 1 1^T)``
+        (``_propagate``), so the values are bit for bit those of the full prediction's block."""
         P0 = self._P0
-        if len(ks) == 1:
-            k = 2 * ks[0]
-            M = P0[k: k + 2, k: k + 2].copy()
-        else:
-            J = [j for k in ks for j in (2 * k, 2 * k + 1)]
-            M = P0[J][:, J]
+        i, j = 2 * k1, 2 * k2
+        tt, tf, ft, ff = float(P0[i, j]), float(P0[i, j + 1]), float(P0[i + 1, j]), float(P0[i + 1, j + 1])
         dt = self.T_s - self._T0
         if dt > 0:
-            M[0::2] += dt * M[1::2]  # F M F^T, F = [[1, dt], [0, 1]] per clock
-            M[:, 0::2] += dt * M[:, 1::2]
+            tt, tf = tt + dt * ft, tf + dt * ff  # F M: row theta += dt row f
+            tt, ft = tt + dt * tf, ft + dt * ff  # (F M) F^T: column theta += dt column f
             a, b, c = self._Q(dt)  # own wander on the diagonal blocks, network time's everywhere
-            if len(ks) == 1:
-                M += np.array([[2 * a, 2 * b], [2 * b, 2 * c]])
-            else:
-                M += np.array([[2 * a, 2 * b, a, b], [2 * b, 2 * c, b, c], [a, b, 2 * a, 2 * b],
-                               [b, c, 2 * b, 2 * c]])
-        return M
+            g = 2.0 if k1 == k2 else 1.0
+            tt, tf, ft, ff = tt + g * a, tf + g * b, ft + g * b, ff + g * c
+        return tt, tf, ft, ff
+
+    def _var(self, ks: list[int], signs: list[float], dt_h: float) -> float:
+        """``h P(T_s) h^T`` for the sparse row ``h = sum_i s_i e_{k_i} (x) [1, dt_h]``, O(1) (scalar sums:
+        equal to the dense product to rounding; the gates that read it are not near a tie)."""
+        var = 0.0
+        for ki, si in zip(ks, signs):
+            for kj, sj in zip(ks, signs):
+                tt, tf, ft, ff = self._cov(ki, kj)
+                var += si * sj * (tt + dt_h * (tf + ft) + dt_h * dt_h * ff)
+        return var
 
     def _PH(self, ks: list[int], signs: list[float], dt_h: float) -> np.ndarray:
         """``P(T_s) h`` (n,) for the sparse row ``h = sum_i s_i e_{k_i} (x) [1, dt_h]`` (block indices
@@ -226,8 +233,8 @@ class ClockEstimator:
         if self.ref:
             return 0.0, 0.0, 0.0, 0.0, 0.0
         k = self.index[self.id]
-        B = self._block([k])
-        return self.x[2 * k], self.x[2 * k + 1], B[0, 0], B[0, 1], B[1, 1]
+        ptt, ptf, _, pff = self._cov(k, k)
+        return self.x[2 * k], self.x[2 * k + 1], ptt, ptf, pff
 
     def _own_x(self) -> tuple[float, float]:
         if self.ref:
@@ -368,9 +375,8 @@ class ClockEstimator:
                     ks.append(k)
                     sg.append(g)
             if ks:
-                B = self._block(ks)
                 ef = sum(g * self.x[2 * k + 1] for k, g in zip(ks, sg))  # E[f_a - f_b]
-                vf += sum(gi * gj * B[2 * i + 1, 2 * j + 1] for i, gi in enumerate(sg) for j, gj in enumerate(sg))
+                vf += sum(gi * gj * self._cov(ki, kj)[3] for ki, gi in zip(ks, sg) for kj, gj in zip(ks, sg))
             r_t = (float(ef) ** 2 + float(vf)) * t_var_s2
             if r_t > self.time_gate * self.var_z:
                 return None
@@ -408,9 +414,7 @@ class ClockEstimator:
             return False  # (the filter stays where it is: the next input predicts it)
         self.predict(T)
         ks, signs, dt_h = self._terms(T, [(self.id, 1.0), (src, -1.0)])
-        B = self._block(ks)
-        hv = np.array([v for sg in signs for v in (sg, sg * dt_h)])
-        if float(hv @ B @ hv) <= self.coarse_gate_s**2:
+        if self._var(ks, signs, dt_h) <= self.coarse_gate_s**2:
             return False
         # t_rx - t_tx = d / c + theta_me - theta_src: the distance unknown (coarse variance)
         self._update(ks, signs, dt_h, t_rx_s - t_tx_src_s, self.coarse_var)
@@ -424,7 +428,7 @@ class ClockEstimator:
         every offset cancels in the difference (not against the reference, station 1); each
         non-reference clock adds its own ``Q_tt``."""
         dt = max(T_s - self.T_s, 0.0)
-        ks, h = [], []
+        ks, signs = [], []
         for sid, sign in ((self.id, 1.0), (src, -1.0)):
             k = self.index.get(sid)
             if sid == 1:
@@ -432,13 +436,12 @@ class ClockEstimator:
             if k is None:
                 return float("inf")  # not in the filter yet: unknown
             ks.append(k)
-            h += [sign, sign * dt]
+            signs.append(sign)
         if not ks:
             return 0.0
-        hv = np.asarray(h)
-        var = float(hv @ self._block(ks) @ hv)
+        var = self._var(ks, signs, dt)
         if dt > 0:  # each clock's own wander, plus the common one where it does not cancel
-            var += (len(ks) + float(hv[0::2].sum()) ** 2) * self._Q(dt)[0]
+            var += (len(ks) + sum(signs) ** 2) * self._Q(dt)[0]
         return var
 
     def peer_time(self, sid: int, t_peer_s: float, corr=None) -> tuple[float, float]:
@@ -455,6 +458,6 @@ class ClockEstimator:
         a, f = self.x[2 * k], self.x[2 * k + 1]
         T = (t_peer_s - a + f * self.T_s) / (1.0 + f)
         dt = T - self.T_s
-        B = self._block([k])
-        var = B[0, 0] + 2 * dt * B[0, 1] + dt * dt * B[1, 1]
+        ptt, ptf, _, pff = self._cov(k, k)
+        var = ptt + 2 * dt * ptf + dt * dt * pff
         return float(T), float(max(var, 0.0))
