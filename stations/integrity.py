@@ -51,6 +51,9 @@ class PeerTest:
     statistic: float = 0.0
     n_tests: int = 0
     n_alarms: int = 0
+    n_in: int = 0  # ranges ever appended: with len(ranges), the key of the window's content
+    window_key: tuple[int, int] | None = None  # cache of the window's clusters (StationIntegrity._clusters)
+    window_sets: list = field(default_factory=list)
 
 
 class StationIntegrity:
@@ -78,7 +81,25 @@ class StationIntegrity:
         return {p for p, s in self.peers.items() if s.excluded}
 
     def on_range(self, peer_id: int, range_m: float, t_s: float) -> None:
-        self.peers.setdefault(peer_id, PeerTest()).ranges.append((float(t_s), float(range_m)))
+        st = self.peers.setdefault(peer_id, PeerTest())
+        st.ranges.append((float(t_s), float(range_m)))
+        st.n_in += 1
+
+    def _clusters(self, st: PeerTest) -> list[tuple[float, int]]:
+        """(mean range, count) of the window's clusters that the test uses (module docstring): the
+        line-of-sight cluster and the newest range's. Depends on the window's ranges only, which
+        change once in a few tests (ranges only join at the end and leave at the start): cached."""
+        key = (st.n_in, len(st.ranges))
+        if st.window_key != key:
+            d = np.array([r for _, r in st.ranges])
+            g = self.gate * self.sigma_d_m
+            centre, support = los_cluster(d, g)
+            sets = [d[np.abs(d - centre) <= g]] if support >= 2 else []
+            newest = d[np.abs(d - d[-1]) <= 0.5 * g]  # the newest range's cluster (a step: fault onset)
+            if len(newest) >= 2:
+                sets.append(newest)
+            st.window_key, st.window_sets = key, [(x.mean(), len(x)) for x in sets]
+        return st.window_sets
 
     def statistic(self, peer_id: int, t_s: float, pos_m, cov_m2, peer_pos_m, peer_cov_m2) -> float | None:
         """``T_j`` of peer ``peer_id`` at local time ``t_s``; None without a range in the window."""
@@ -89,13 +110,7 @@ class StationIntegrity:
             st.ranges.popleft()
         if len(st.ranges) < self.min_ranges:  # one or two ranges cannot tell an NLOS one-off from a fault
             return None
-        d = np.array([r for _, r in st.ranges])
-        g = self.gate * self.sigma_d_m
-        centre, support = los_cluster(d, g)
-        sets = [d[np.abs(d - centre) <= g]] if support >= 2 else []
-        newest = d[np.abs(d - d[-1]) <= 0.5 * g]  # the newest range's cluster (a step: fault onset)
-        if len(newest) >= 2:
-            sets.append(newest)
+        sets = self._clusters(st)
         if not sets:  # no two ranges of the window agree (NLOS one-offs): inconclusive
             return None
         diff = np.asarray(pos_m, float) - np.asarray(peer_pos_m, float)
@@ -104,7 +119,7 @@ class StationIntegrity:
             return None
         u = diff / pred
         pv = float(u @ (np.asarray(cov_m2, float) + np.asarray(peer_cov_m2, float)) @ u)
-        return max(float((x.mean() - pred) ** 2 / (self.sigma_d_m**2 / len(x) + pv)) for x in sets)
+        return max(float((mean - pred) ** 2 / (self.sigma_d_m**2 / n + pv)) for mean, n in sets)
 
     def evaluate(self, t_s: float, pos_m, cov_m2, peers: dict[int, tuple]) -> list[dict]:
         """Test every peer with a range in the window. ``peers``: {id: (pos_m (3,), cov_m2 (3, 3))}
