@@ -147,7 +147,7 @@ class SeedUkf:
 
 def tukey_weight(z: np.ndarray, c: float) -> np.ndarray:
     """Tukey biweight IRLS weights ``(1 - (z/c)^2)^2`` for ``|z| < c``, else 0 (redescending)."""
-    q = np.clip(1.0 - (np.asarray(z) / c) ** 2, 0.0, None)
+    q = np.maximum(1.0 - (np.asarray(z) / c) ** 2, 0.0)  # = np.clip(., 0, None), without its wrapper
     return q * q
 
 
@@ -275,6 +275,7 @@ class DistributedMap:
         self._nr = 0
         self._rver = 0  # bumped whenever the kept ranges change (cache key of the link centres)
         self._centre_key: tuple[int, int] | None = None
+        self._consensus_out: tuple[np.ndarray, np.ndarray] = (np.zeros(0), np.zeros(0, bool))
         self._lver = np.zeros(0, np.int64)  # per peer slot: bumped when that link's kept ranges change
         self._centre_ver = np.zeros(0, np.int64)  # per peer slot: the version its cached centre is of
         self._centre = np.zeros(0)
@@ -417,11 +418,12 @@ class DistributedMap:
         # by the convex Huber loss only: its pull is bounded (a lying peer until it is excluded) but
         # never zero, so the network cannot settle in a wrong configuration that drops its links to
         # the frame stations; the redescending Tukey loss judges the ranges of unconfirmed links
-        zc = huber_weight(z, self.huber_k) if self.confirmed_loss == "huber" else np.ones(nr)
+        zh = huber_weight(z, self.huber_k)
+        zc = zh if self.confirmed_loss == "huber" else np.ones(nr)
         w = np.where(confirmed & (self.confirmed_loss is not None), zc, tukey_weight(z, self.tukey_c)) * gate
         if w.sum() < self.min_inlier_frac * gate.sum():
             # far from everything: convex start (MM scheme), still within the links' consensus
-            w = huber_weight(z, self.huber_k) * gate
+            w = zh * gate
         return w
 
     def _consensus(self, rk: np.ndarray, rv: np.ndarray, m: int) -> np.ndarray:
@@ -433,7 +435,7 @@ class DistributedMap:
         of the link agree (one range, or all disagree) every range of the link but the shortest gets 0
         and the shortest gets ``unconfirmed_weight``. ``"median"``: distance to the link's median (of
         two ranges that disagree: the shorter). Depends on the kept ranges only: cached per link, recomputed
-        for the links whose ranges changed.
+        for the links whose ranges changed; the per-range factors are cached until the kept ranges change.
         """
         if self._centre_key != (self._rver, m):
             # only the links whose kept ranges changed since their centre was computed
@@ -462,8 +464,9 @@ class DistributedMap:
             if self.weak_below_nlos is not None and self.link_consensus == "cluster":
                 self._adapt_weakness(rk, rv, m)
             self._centre_key = (self._rver, m)
-        ok = np.abs(rv - self._centre[rk]) <= self.consensus_gate * self.sigma_d_m
-        return ok * self._centre_factor[rk], self._confirmed[rk]
+            ok = np.abs(rv - self._centre[rk]) <= self.consensus_gate * self.sigma_d_m
+            self._consensus_out = ok * self._centre_factor[rk], self._confirmed[rk]
+        return self._consensus_out
 
     def _adapt_weakness(self, rk: np.ndarray, rv: np.ndarray, m: int) -> None:
         """Adaptive link weakness (``weak_below_nlos``): NLOS evidence from this station's own ranges.
@@ -532,26 +535,30 @@ class DistributedMap:
         """Normal equations of the local MAP problem at ``x``: information ``A`` (nf, nf) and ``b`` (nf,).
 
         Link variance: ``sigma_d^2 / n_j + gamma u_j^T C_j u_j`` (gamma: consider factor of the peer error).
+        Also returns the link weights ``w`` and the distances ``r`` (k,) to the peers at ``x``.
         """
+        nf = self.nf  # the free coordinates are the first nf (frame_free_mask): slices, not masks
         diff = x - Pj
         r = np.sqrt(np.einsum("ki,ki->k", diff, diff))
         u = diff / r[:, None]
         w = 1.0 / (self.sigma_d_m**2 / n + gamma * np.einsum("ki,kij,kj->k", u, Cj, u))
         J = u[:, self.free]
         A = self.prior_info + (J.T * w) @ J
-        b = self.prior_info @ (self.prior_mean - x[self.free]) + J.T @ (w * (dbar - r))
-        return A, b, w
+        b = self.prior_info @ (self.prior_mean - x[:nf]) + J.T @ (w * (dbar - r))
+        return A, b, w, r
 
-    def _objective(self, x, n, dbar, Pj, wl) -> float:
-        """Local MAP objective at ``x`` with the link weights ``wl`` held fixed."""
-        diff = x - Pj
-        r = np.sqrt(np.einsum("ki,ki->k", diff, diff))
-        d0 = x[self.free] - self.prior_mean
+    def _objective(self, x, n, dbar, Pj, wl, r=None) -> float:
+        """Local MAP objective at ``x`` with the link weights ``wl`` held fixed (``r``: the distances to
+        the peers at ``x`` when known)."""
+        if r is None:
+            diff = x - Pj
+            r = np.sqrt(np.einsum("ki,ki->k", diff, diff))
+        d0 = x[:self.nf] - self.prior_mean
         return float(d0 @ self.prior_info @ d0 + wl @ (dbar - r) ** 2)
 
     def _irls(self, x: np.ndarray, iters: int, robust: bool) -> np.ndarray | None:
         """Iteratively re-weighted, backtracked Gauss-Newton from ``x`` (3,); None if no usable link."""
-        f = self.free
+        nf = self.nf
         for _ in range(iters):
             w = self._weights(x, robust)
             arr = self._arrays(w)
@@ -559,20 +566,20 @@ class DistributedMap:
                 return None
             n, dbar, Pj, Cj = arr
             Ce = self._extrinsic(x, n, Pj, Cj) if self.extrinsic_est and self.initialized else Cj
-            A, b, wl = self._normal(x, n, dbar, Pj, Ce, self.peer_corr_est)
+            A, b, wl, r = self._normal(x, n, dbar, Pj, Ce, self.peer_corr_est)
             L = np.linalg.cholesky(A)
             dx = np.linalg.solve(L.T, np.linalg.solve(L, b))
             # backtracking on the (fixed-weight) objective: near-flat geometry makes the range nearly
             # quadratic in height, so a full Gauss-Newton step can overshoot far along z
-            f0 = self._objective(x, n, dbar, Pj, wl)
+            f0 = self._objective(x, n, dbar, Pj, wl, r)
             for _ in range(20):
                 xt = x.copy()
-                xt[f] += dx
+                xt[:nf] += dx
                 if self._objective(xt, n, dbar, Pj, wl) <= f0 + 1e-12:
                     break
                 dx = 0.5 * dx
             x = xt
-            if np.max(np.abs(dx)) < self.tol_m:
+            if np.abs(dx).max() < self.tol_m:
                 break
         return x
 
@@ -612,7 +619,7 @@ class DistributedMap:
             return False
         n, dbar, Pj, Cj = arr
         Cx = self._extrinsic(x, n, Pj, Cj) if self.extrinsic and self.initialized else Cj
-        A, _, _ = self._normal(x, n, dbar, Pj, Cx, self.peer_corr)
+        A = self._normal(x, n, dbar, Pj, Cx, self.peer_corr)[0]
         self.range_weight = w
         self.pos_m = x
         cov = np.zeros((3, 3))
