@@ -33,6 +33,7 @@ Station 1 is the time reference: ``theta = f = 0`` exactly.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -120,6 +121,7 @@ class ClockEstimator:
         self.x = np.zeros(0)
         self._P0 = np.zeros((0, 0))  # covariance at self._T0 (see the class docstring)
         self._T0 = self.T_s
+        self._q_dt, self._q = 0.0, (0.0, 0.0, 0.0)  # the last Q(dt) (_Q)
         self.rebase_s = float(rebase_s)
         self.var_z = (sigma_d_m / C) ** 2
         self.coarse_var = (coarse_range_m / C) ** 2
@@ -150,9 +152,12 @@ class ClockEstimator:
         self._T0 = self.T_s
 
     def _Q(self, dt_s: float) -> tuple[float, float, float]:
-        """``Q(dt)`` of one clock (``dt >= 0``) as ``(Q_tt, Q_tf, Q_ff)`` (``net.clock.transition``)."""
-        qw, qr = self.model.q_wf_s, self.model.q_rw_per_s
-        return qw * dt_s + qr * dt_s**3 / 3.0, qr * dt_s * dt_s / 2.0, qr * dt_s
+        """``Q(dt)`` of one clock (``dt >= 0``) as ``(Q_tt, Q_tf, Q_ff)`` (``net.clock.transition``); the
+        last one is kept (an input reads it several times at the same ``T_s - T0``)."""
+        if dt_s != self._q_dt:
+            qw, qr = self.model.q_wf_s, self.model.q_rw_per_s
+            self._q_dt, self._q = dt_s, (qw * dt_s + qr * dt_s**3 / 3.0, qr * dt_s * dt_s / 2.0, qr * dt_s)
+        return self._q
 
     def _rebase(self) -> None:
         """``P0 <- F P0 F^T + Q (x) (I + 1 1^T)`` over ``T_s - T0``; then ``T0 = T_s``."""
@@ -325,11 +330,11 @@ class ClockEstimator:
         x += PH * (nu / S)
         # Joseph form with the optimal gain K = P h / S: (I - K h) P (I - K h)^T + r K K^T = P - w w^T,
         # w = P h / sqrt(S); at the reference time T0: P0 - v v^T, v = F^{-1} w (exactly symmetric)
-        v = PH * (1.0 / np.sqrt(S))
+        v = PH * (1.0 / math.sqrt(S))
         dt = self.T_s - self._T0
         if dt > 0:
             v[0::2] -= dt * v[1::2]
-        self._P0 -= np.outer(v, v)
+        self._P0 -= v[:, None] * v  # np.outer(v, v)
         self.n_updates += 1
         return nu * nu / S
 

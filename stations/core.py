@@ -28,6 +28,7 @@ the higher id listens again and claims another one.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -121,12 +122,12 @@ class StationCore:
     def _next_req_s(self) -> float:
         """Local time of the next own slot start: slots live on (estimated) network time."""
         T = self._next_req_T
-        return self.clk.local_time(T) if np.isfinite(T) else T
+        return self.clk.local_time(T) if math.isfinite(T) else T
 
     def next_request_s(self) -> float | None:
         """Local time of the next range request (the own slot start), None without a slot."""
         t = self._next_req_s
-        return t if np.isfinite(t) else None
+        return t if math.isfinite(t) else None
 
     def network_time(self, t_s: float) -> float:
         """Estimated network time (station 1's clock) at local time ``t_s``."""
@@ -138,7 +139,7 @@ class StationCore:
         if self.state == "joining" and self.slot is None:
             times.append(self.listen_until_s)
         t = min(times)
-        return None if not np.isfinite(t) else t
+        return None if not math.isfinite(t) else t
 
     # ------------------------------------------------------------------ peers
     def members(self, t_s: float) -> list[int]:
@@ -362,7 +363,7 @@ class StationCore:
         of network time (with our clock's 3-sigma uncertainty on either end as a guard)?"""
         start = self.plan.slot_start_s(int(req["cycle"]), int(req["slot"]))
         T = self.clk.network_time(t_tx_s)
-        guard = 6.0 * float(np.sqrt(max(self.clk.offset_var_s2, 0.0))) + self.cfg.max_range_m / SPEED_OF_LIGHT_M_S
+        guard = 6.0 * math.sqrt(max(self.clk.offset_var_s2, 0.0)) + self.cfg.max_range_m / SPEED_OF_LIGHT_M_S
         return start - guard <= T <= start + self.plan.slot_s + guard
 
     def _integrity(self, t_s: float) -> list[dict]:
