@@ -187,6 +187,14 @@ class ClockEstimator:
             tt, tf, ft, ff = tt + g * a, tf + g * b, ft + g * b, ff + g * c
         return tt, tf, ft, ff
 
+    def _ff(self, k1: int, k2: int) -> float:
+        """``P_ff`` of :meth:`_cov` alone (frequencies: ``F`` leaves them, only ``Q`` adds)."""
+        ff = float(self._P0[2 * k1 + 1, 2 * k2 + 1])
+        dt = self.T_s - self._T0
+        if dt > 0:
+            ff = ff + (2.0 if k1 == k2 else 1.0) * self._Q(dt)[2]
+        return ff
+
     def _var(self, ks: list[int], signs: list[float], dt_h: float) -> float:
         """``h P(T_s) h^T`` for the sparse row ``h = sum_i s_i e_{k_i} (x) [1, dt_h]``, O(1) (scalar sums:
         equal to the dense product to rounding; the gates that read it are not near a tie)."""
@@ -381,7 +389,7 @@ class ClockEstimator:
                     sg.append(g)
             if ks:
                 ef = sum(g * self.x[2 * k + 1] for k, g in zip(ks, sg))  # E[f_a - f_b]
-                vf += sum(gi * gj * self._cov(ki, kj)[3] for ki, gi in zip(ks, sg) for kj, gj in zip(ks, sg))
+                vf += sum(gi * gj * self._ff(ki, kj) for ki, gi in zip(ks, sg) for kj, gj in zip(ks, sg))
             r_t = (float(ef) ** 2 + float(vf)) * t_var_s2
             if r_t > self.time_gate * self.var_z:
                 return None

@@ -299,9 +299,7 @@ class StationCore:
             self.counters["rejected_ranges"] += 1
             return []
         self.counters["responses"] += 1
-        pos = np.asarray(msg["pos_m"], float)
-        cov = np.asarray(msg["cov_m2"], float)
-        self._update_peer(src, msg)
+        pos, cov = self._update_peer(src, msg)
         entry = [src, float(range_m), float(t_rx_s)]
         t3 = msg.get("t_tx_s")
         if t3 is not None:
@@ -324,7 +322,7 @@ class StationCore:
         """A peer's nav broadcast: its estimate, slot, clock correction and the ranges it measured."""
         src = msg.get("src")
         self._heard(src, t_rx_s)
-        self._update_peer(src, msg)
+        pos, cov = self._update_peer(src, msg)
         slot = msg.get("slot")
         if slot is not None:
             self.heard_slots[src] = slot
@@ -334,8 +332,6 @@ class StationCore:
                 self.state = "joining"
                 self.listen_until_s = t_rx_s + self.plan.cycle_s
                 self._next_req_T = self._nav_s = float("inf")
-        pos = np.asarray(msg["pos_m"], float)
-        cov = np.asarray(msg["cov_m2"], float)
         self.est.on_peer(src, pos, cov)
         corr = msg.get("clock")
         if corr is not None:
@@ -386,6 +382,8 @@ class StationCore:
         if self.state == "joining" and self.slot is not None and self.est.initialized:
             self.state = "surveying"
 
-    def _update_peer(self, src: int, msg: dict) -> None:
-        """The peer's latest broadcast position and covariance (for the integrity tests)."""
-        self.peers[src] = (np.asarray(msg["pos_m"], float), np.asarray(msg["cov_m2"], float))
+    def _update_peer(self, src: int, msg: dict) -> tuple[np.ndarray, np.ndarray]:
+        """The peer's latest broadcast position and covariance (for the integrity tests), returned as
+        arrays (read-only by convention: the estimators copy what they keep)."""
+        pc = self.peers[src] = (np.asarray(msg["pos_m"], float), np.asarray(msg["cov_m2"], float))
+        return pc
