@@ -550,6 +550,9 @@ class CvTracker:
             x1, P1, nu, S = self._update_ukf(z, h, R, stations_m, dt_s, k)
         for key in keys:
             self._last_seen[key] = self.t_s
+        if len(self._last_seen) > 64:  # positions as keys move as the survey does: forget old ones
+            old = self.t_s - max(self.tuning.linearization_corr_s, 0.0)
+            self._last_seen = {key: t for key, t in self._last_seen.items() if t >= old}
         # the filter's memory in updates: prior variance over what one update removes (per run)
         tr0 = np.einsum("...ii->...", self._P)
         gain = tr0 - np.einsum("...ii->...", P1)
@@ -646,7 +649,8 @@ class CvTracker:
         if corr <= 0 or self._step_s <= 0:
             return np.ones(())
         t, step = self.t_s, self._step_s
-        dtj = np.array([max(step, t - self._last_seen.get(key, t - step)) for key in keys])
+        # a station not heard within the window (or never) counts once: its error has not repeated
+        dtj = np.array([max(step, t - self._last_seen.get(key, -np.inf)) for key in keys])
         if self.layout.kind == "tdoa":  # rows are differences against the base station
             dtj = np.delete(dtj, self.base)
         tau = np.maximum(np.asarray(self._memory) * step, t - self._t_start_s)

@@ -182,11 +182,12 @@ def _make_config(listen, connect, config_file, multicast, mode):
 # threads, and on a 2-core machine running 50 station processes those wake-ups were most of the
 # receive cost (docs/fleet.md, "Where the time goes"). One worker was tried first and is unsafe: when
 # a peer dies without closing its TCP connections (a killed container, a cut cable), every process
-# stopped receiving for ~9 s at once a few seconds later (seen in the compose test; consistent with
-# Zenoh's non-droppable control messages waiting up to `block/wait_before_close`, 5 s, for room in the
-# dead link's full queue on the only worker; zenoh issues #1876, #2581; docs/deploy.md "Dead
-# links"). With two workers the same timeline ran without that stall, and a 10-station fleet used the
-# same CPU (measured 2026-11-26). A ZENOH_RUNTIME set in the environment wins.
+# stopped receiving for ~9 s at once some 8-10 s later (seen in the compose test, when Zenoh's lease on
+# the dead peer expired while its link was still stuck in a write; zenoh issues #1876, #2581). Two
+# workers alone still left ~4 s pauses; two workers with the kernel giving up on the dead connection
+# before the lease expires (`tcp_retries2 = 4`, docker-compose.yml, docs/deploy.md "Dead links") ran
+# the timeline twice without any. Two workers cost the same CPU on a 10-station fleet (measured
+# 2026-11-26). A ZENOH_RUNTIME set in the environment wins.
 LEAN_RUNTIME = "(app: (worker_threads: 2), rx: (handover: app), tx: (handover: app), " \
                "acc: (handover: app), net: (handover: app))"
 
