@@ -181,11 +181,10 @@ class Tuning:
     floor_z_m: float | None = 0.0  # station plane: LSQ mirrors below it, filters truncate (None: off)
     trunc_sigma: float = 6.0
     # ... at most once per this many seconds per run while the mean is above the floor (always when
-    # it is below). The floor is one fixed piece of information; truncating at every 100 Hz update
-    # counted it again each time and shrank the height variance ~28 % per update near the plane
-    # (hover 50 m overhead: sigma_z 12.5 -> 1.4 m around a -46 m error, NEES 4e4; docs/aircraft.md).
-    # 0 = at every update.
-    floor_every_s: float = 1.0
+    # it is below); 0 = at every update (default). Truncating at every 100 Hz update can compound
+    # (hover 50 m overhead: sigma_z 12.5 -> 1.4 m around a -46 m error, NEES 4e4), but 1 s cost the
+    # glide path's hover 100 m, 5.2 m above the plane, 0.62 -> 1.41 x its bound (docs/aircraft.md)
+    floor_every_s: float = 0.0
     sequential: bool = False  # pseudorange epochs as sequential scalar updates (else one vector update)
     # iterated measurement update: 1 = plain EKF/UKF; k > 1 re-linearizes k - 1 more times about the
     # latest posterior (EKF: Gauss-Newton IEKF; UKF: iterated posterior linearization, the statistical
