@@ -180,11 +180,6 @@ class Tuning:
     p0_drift_m_s: float = 1.0
     floor_z_m: float | None = 0.0  # station plane: LSQ mirrors below it, filters truncate (None: off)
     trunc_sigma: float = 6.0
-    # ... at most once per this many seconds per run while the mean is above the floor (always when
-    # it is below); 0 = at every update (default). Truncating at every 100 Hz update can compound
-    # (hover 50 m overhead: sigma_z 12.5 -> 1.4 m around a -46 m error, NEES 4e4), but 1 s cost the
-    # glide path's hover 100 m, 5.2 m above the plane, 0.62 -> 1.41 x its bound (docs/aircraft.md)
-    floor_every_s: float = 0.0
     sequential: bool = False  # pseudorange epochs as sequential scalar updates (else one vector update)
     # iterated measurement update: 1 = plain EKF/UKF; k > 1 re-linearizes k - 1 more times about the
     # latest posterior (EKF: Gauss-Newton IEKF; UKF: iterated posterior linearization, the statistical
@@ -288,7 +283,6 @@ class CvTracker:
         self.t_s = float(t0_s)
         self._memory = 1.0  # updates the filter averages over (per run), from the latest update
         self._last_seen: dict = {}  # station (id, or position to 0.1 m) -> time of its latest measurement
-        self._floor_t = np.full(self._x.shape[:-1], -np.inf)  # per run: the latest floor truncation
         self._t_start_s = float(t0_s)
         self.base = base
         self.params = SigmaParams.scaled(alpha=tuning.alpha, beta=2.0, kappa=0.0)
@@ -454,13 +448,11 @@ class CvTracker:
     def save(self) -> tuple:
         """The filter's state (mean, covariance, coordinates, clock-bias states) for :meth:`restore`."""
         return (self._x, self._P, self._inv, list(self.bias_ids), self._bias_var.copy(), self._bias_t.copy(),
-                self._ref, self._radius, self.t_s, self._memory, dict(self._last_seen), self._floor_t.copy())
+                self._ref, self._radius, self.t_s, self._memory, dict(self._last_seen))
 
     def restore(self, saved: tuple) -> None:
         """Back to a :meth:`save`d state (an update re-run with other measurements: aircraft/fde.py)."""
-        (self._x, self._P, self._inv, ids, bv, bt, self._ref, self._radius, self.t_s, self._memory, seen,
-         ft) = saved
-        self._floor_t = ft.copy()
+        (self._x, self._P, self._inv, ids, bv, bt, self._ref, self._radius, self.t_s, self._memory, seen) = saved
         self._last_seen = dict(seen)
         self.bias_ids, self._bias_var, self._bias_t = list(ids), bv.copy(), bt.copy()
         self._bias_changed()
@@ -812,13 +804,6 @@ class CvTracker:
             ai = ((fz - self._ref[2]) * np.einsum("ki,ki->k", x[:, :3], x[:, :3]) / crd.SCALE_M**2 - x[:, 2]) / s
             a = np.where(self._inv.reshape(-1), ai, a)
         act = a > -self.tuning.trunc_sigma  # 6 sigma: mass below the floor > 1e-9
-        every = self.tuning.floor_every_s
-        if every > 0:
-            if self._floor_t.size != a.size:
-                self._floor_t = np.full(self._x.shape[:-1], -np.inf)
-            last = self._floor_t.reshape(-1)  # view
-            act &= (self.t_s - last >= every) | (a > 0.0)
-            last[act] = self.t_s
         if not np.any(act):
             return
         a, s, s2 = a[act], s[act], s2[act]
