@@ -292,6 +292,7 @@ class CvTracker:
         self._step_s = 0.0  # the latest prediction step: updates per linearization_corr_s
         self._r_key: tuple | None = None
         self._r: np.ndarray | None = None
+        self._tcache: tuple | None = None  # (x, P, truncated x, truncated P): see _constrained
 
     # -- coordinates
     def _mask(self, X: np.ndarray, extra: int) -> np.ndarray:
@@ -314,8 +315,8 @@ class CvTracker:
 
     @property
     def x(self) -> np.ndarray:
-        """Cartesian state (..., n)."""
-        return self._cart(self._x)
+        """Cartesian state (..., n): the mean of the filter's density above the floor (truncated)."""
+        return self._cart(self._constrained()[0])
 
     @x.setter
     def x(self, value: np.ndarray) -> None:
@@ -327,18 +328,20 @@ class CvTracker:
 
     @property
     def P(self) -> np.ndarray:
-        """Cartesian covariance (..., n, n) (first-order conversion ``T P T^T`` for inverse-coordinate runs)."""
-        T = self._T(self._x)
+        """Cartesian covariance (..., n, n) of the density above the floor (first-order conversion
+        ``T P T^T`` for inverse-coordinate runs)."""
+        xc, Pc = self._constrained()
+        T = self._T(xc)
         if T is None:
-            return self._P
-        return symmetrize(T @ self._P @ np.swapaxes(T, -1, -2))
+            return Pc
+        return symmetrize(T @ Pc @ np.swapaxes(T, -1, -2))
 
     @P.setter
     def P(self, value: np.ndarray) -> None:
         value = np.asarray(value, dtype=float)
         if self._inv.any():
             with np.errstate(all="ignore"):
-                G = np.where(self._mask(self._x, 2), crd.jac_to_inverse(self.x, self._ref, self._clock),
+                G = np.where(self._mask(self._x, 2), crd.jac_to_inverse(self._cart(self._x), self._ref, self._clock),
                              np.eye(value.shape[-1]))
             value = symmetrize(G @ value @ np.swapaxes(G, -1, -2))
         self._P = value
@@ -558,7 +561,6 @@ class CvTracker:
         gain = tr0 - np.einsum("...ii->...", P1)
         self._memory = tr0 / np.maximum(gain, 1e-9 * tr0)
         self._x, self._P = x1, P1
-        self._truncate_floor()
         if self._ref is not None:
             self._switch()
         return nu, S  # innovation and its covariance of the first (plain) linearization
@@ -608,9 +610,10 @@ class CvTracker:
             def jac(X):
                 return jc(self._cart(X)) @ self._T(X)
 
+        xl, Pl = self._constrained()  # linearize where the density is: above the floor
         if self.tuning.ekf_second_order:
-            # Gaussian second-order terms of the ranges, from the Cartesian moments
-            c2, S2 = self._second_order(stations_m, dt_s)
+            # Gaussian second-order terms of the ranges, from those moments
+            c2, S2 = self._second_order(stations_m, dt_s, xl, Pl)
             if self.layout.kind == "tdoa":
                 G = mdl.g_matrix(stations_m.shape[0], self.base)
                 c2, S2 = np.einsum("ij,...j->...i", G, c2), G @ S2 @ G.T
@@ -619,15 +622,20 @@ class CvTracker:
             def h(X):
                 return h1(X) + c2
 
-        x1, P1, nu, S = ekf_update(self._x, self._P, z, h, jac(self._x), R)
+        if xl is self._x:  # nothing truncated: the plain EKF
+            x1, P1, nu, S = ekf_update(self._x, self._P, z, h, jac(self._x), R)
+        else:
+            x1, P1 = self._iekf_step(xl, z, h, jac, R)
+            H, nu = jac(xl), z - h(xl)
+            S = symmetrize(H @ Pl @ np.swapaxes(H, -1, -2) + R)
         if self.tuning.iterations > 1:
             om = ((lambda: S2) if self.tuning.ekf_second_order  # already computed above
-                  else (lambda: self._om_ekf(stations_m, dt_s)))
+                  else (lambda: self._om_ekf(stations_m, dt_s, xl, Pl)))
             mask = self._needs_iteration(R, om)
             if np.any(mask):
                 xi, Pi = x1, P1
                 for _ in range(self.tuning.iterations - 1):
-                    xi, Pi = self._iekf_step(xi, z, h, jac, R)
+                    xi, Pi = self._iekf_step(self._constrained(xi, Pi)[0], z, h, jac, R)
                 x1, P1 = self._select(mask, xi, Pi, x1, P1)
         return x1, P1, nu, S
 
@@ -666,24 +674,29 @@ class CvTracker:
         taken for the first) left single runs near the transmitters over-confident from the first
         update of a 20 m prior (envelope hover/turn 50 m overhead: NEES 10^2-10^4, docs/aircraft.md).
         With ``linearization_corr_s = 0`` this is the textbook UKF (filterpy comparison)."""
+        xl, Pl = self._constrained()  # sigma points where the density is: above the floor
         if stations_m is not None and k is not None and self.tuning.linearization_corr_s > 0:
-            R = R + _scaled(self._om_ekf(stations_m, dt_s), k)
+            R = R + _scaled(self._om_ekf(stations_m, dt_s, xl, Pl), k)
         if self._inv.any():
             hc = h
 
             def h(X):
                 return hc(self._cart(X))
 
-        x1, P1, nu, S = ukf_update(self._x, self._P, z, h, R, self.params)
+        if xl is self._x:  # nothing truncated: the plain UKF
+            x1, P1, nu, S = ukf_update(self._x, self._P, z, h, R, self.params)
+        else:  # statistical linearization over the truncated moments, applied to the filter's Gaussian
+            x1, P1, ut = self._iplf_step(xl, Pl, z, h, R)
+            nu, S = z - ut.mean, symmetrize(ut.cov + R)
         if self.tuning.iterations > 1:
             def om():
-                ut = unscented_transform(h, self._x, self._P, self.params)
-                return ut.cov - np.swapaxes(ut.cross, -1, -2) @ chol_solve(self._P, ut.cross)
+                ut = unscented_transform(h, xl, Pl, self.params)
+                return ut.cov - np.swapaxes(ut.cross, -1, -2) @ chol_solve(Pl, ut.cross)
             mask = self._needs_iteration(R, om)
             if np.any(mask):
                 xi, Pi = x1, P1
                 for _ in range(self.tuning.iterations - 1):
-                    xi, Pi = self._iplf_step(xi, Pi, z, h, R)
+                    xi, Pi, _ = self._iplf_step(*self._constrained(xi, Pi), z, h, R)
                 x1, P1 = self._select(mask, xi, Pi, x1, P1)
         return x1, P1, nu, S
 
@@ -695,8 +708,8 @@ class CvTracker:
         Om = omega()
         return np.einsum("...ii->...", chol_solve(R, Om)) > th
 
-    def _om_ekf(self, stations_m, dt_s):
-        S2 = self._second_order(stations_m, dt_s)[1]
+    def _om_ekf(self, stations_m, dt_s, X, P):
+        S2 = self._second_order(stations_m, dt_s, X, P)[1]
         if self.layout.kind == "tdoa":
             G = mdl.g_matrix(stations_m.shape[0], self.base)
             S2 = G @ S2 @ G.T
@@ -708,12 +721,15 @@ class CvTracker:
             return (xi, Pi) if mask else (x1, P1)
         return np.where(mask[..., None], xi, x1), np.where(mask[..., None, None], Pi, P1)
 
-    def _second_order(self, stations_m, dt_s):
+    def _second_order(self, stations_m, dt_s, X, P):
         """Second-order terms of the pseudoranges at the current estimate: mean correction
         ``c_j = 0.5 tr(M_j C_jj)`` (..., m) and covariance ``0.5 tr(M_i C_ij M_j C_ji)`` (..., m, m), with
         ``M_j = (I - u_j u_j^T) / r_j`` the Hessian of range j in the position at its measurement time
-        and ``C_ij`` the covariance of those positions (``p + v dt``)."""
-        X, P = self.x, self.P  # Cartesian moments (converted once with inverse coordinates)
+        and ``C_ij`` the covariance of those positions (``p + v dt``). ``X`` (..., n), ``P`` (..., n, n):
+        the moments in the runs' own coordinates (the filter's, truncated to above the floor)."""
+        T = self._T(X)
+        if T is not None:  # Cartesian moments (the inverse-coordinate runs converted)
+            X, P = self._cart(X), symmetrize(T @ P @ np.swapaxes(T, -1, -2))
         r, u = mdl.los(X, stations_m, dt_s)  # (..., m), (..., m, 3)
         Mh = (np.eye(3) - u[..., :, None] * u[..., None, :]) / r[..., None, None]  # (..., m, 3, 3)
         Ppp = P[..., None, None, 0:3, 0:3]
@@ -756,7 +772,7 @@ class CvTracker:
         w, V = np.linalg.eigh(Om)  # >= 0 in exact arithmetic; the scaled set's negative W0c can break it
         Om = (V * np.maximum(w, 0.0)[..., None, :]) @ np.swapaxes(V, -1, -2)
         x1, P1, _, _ = kf_update(self._x, self._P, z - b, A, R + Om)
-        return x1, P1
+        return x1, P1, ut
 
     def update_sequential(
         self, stations_m: np.ndarray, rho_m: np.ndarray, station_cov_m2: np.ndarray | None = None,
@@ -779,41 +795,70 @@ class CvTracker:
             Ss.append(S[..., 0, 0])
         return np.stack(nus, axis=-1), np.stack(Ss, axis=-1)
 
-    def _truncate_floor(self) -> None:
-        """Enforce "above the station plane" (``floor_z_m``) by moment-matching truncation.
+    def _constrained(self, x: np.ndarray | None = None, P: np.ndarray | None = None):
+        """The moments ``(x, P)`` (internal coordinates) of the Gaussian ``N(x, P)`` truncated to above
+        the station plane (``floor_z_m``); default the filter's own ``(self._x, self._P)``, cached.
+        Where no run has mass below the floor within ``trunc_sigma`` the inputs come back unchanged
+        (the same objects).
 
-        The Gaussian posterior is truncated to ``z >= floor`` and re-approximated by the truncated
-        mean and variance of ``z``, propagated to the other states through their covariance with ``z``
-        (Simon & Simon's truncated filter). Near a plane of (nearly) coplanar transmitters the range
-        likelihood is symmetric in ``z``: a filter whose mean sits on the plane sees no gradient
-        (EKF) or symmetric sigma points (UKF) and would stay there; the truncation moves it onto the
-        physical side. For a posterior well above the floor the correction vanishes.
+        The filter carries the *untruncated* Gaussian and the floor as a constraint on it: its density
+        is ``N(x; m, P) 1[z >= floor]``, a family closed under linear(ized) measurement updates (the
+        likelihood multiplies the Gaussian part, the truncation stays), so the floor counts once. The
+        measurements are linearized (EKF Jacobian, UKF sigma points) over the truncated moments, where
+        the density is; ``x``/``P`` report them. Near a plane of (nearly) coplanar transmitters the
+        range is symmetric in ``z``: linearized at a mean on the plane a filter sees no gradient (EKF) or
+        symmetric sigma points (UKF); the truncated moments put it on the physical side. The earlier
+        filter replaced its Gaussian by the truncated moments after every update (Simon & Simon's
+        truncated filter): at 100 Hz near the plane that counted the floor once per update and shrank
+        the height variance around a wrong height (docs/aircraft.md).
         """
+        own = x is None
+        if own:
+            c = self._tcache
+            if c is not None and c[0] is self._x and c[1] is self._P:
+                return c[2], c[3]
+            x, P = self._x, self._P
+        out = x, P
         fz = self.tuning.floor_z_m
-        if fz is None:
-            return
-        n = self._x.shape[-1]
-        x = self._x.reshape(-1, n)  # views: in-place edits reach self._x / self._P
-        P = self._P.reshape(-1, n, n)
-        s2 = P[:, 2, 2]
-        s = np.sqrt(s2)
-        a = (fz - x[:, 2]) / s
-        if self._inv.any():
-            # inverse coordinates: z >= floor  <=>  q_z >= (floor - c_z) |q|^2 / L^2 (linear if the
-            # reference point lies on the floor; the right side is taken at the mean)
-            ai = ((fz - self._ref[2]) * np.einsum("ki,ki->k", x[:, :3], x[:, :3]) / crd.SCALE_M**2 - x[:, 2]) / s
-            a = np.where(self._inv.reshape(-1), ai, a)
-        act = a > -self.tuning.trunc_sigma  # 6 sigma: mass below the floor > 1e-9
-        if not np.any(act):
-            return
-        a, s, s2 = a[act], s[act], s2[act]
-        lam = np.sqrt(2.0 / np.pi) / erfcx(a / np.sqrt(2.0))  # inverse Mills ratio phi(a) / (1 - Phi(a))
-        dmu = s * lam
-        var_t = s2 * np.maximum(1.0 + a * lam - lam**2, 1e-12)
-        pc = P[act, :, 2]  # (k, n)
-        x[act] = x[act] + pc * (dmu / s2)[:, None]
-        P[act] = P[act] + pc[:, :, None] * pc[:, None, :] * ((var_t - s2) / s2**2)[:, None, None]
-        P[act] = 0.5 * (P[act] + np.swapaxes(P[act], -1, -2))
+        if fz is not None:
+            n = x.shape[-1]
+            xf, Pf = x.reshape(-1, n), P.reshape(-1, n, n)
+            s2 = Pf[:, 2, 2]
+            with np.errstate(invalid="ignore"):  # a broken filter (P not PD) is reset by its owner
+                s = np.sqrt(s2)
+            a = (fz - xf[:, 2]) / s
+            if self._inv.any():
+                # inverse coordinates: z >= floor  <=>  q_z >= (floor - c_z) |q|^2 / L^2 (linear if the
+                # reference point lies on the floor; the right side is taken at the mean)
+                ai = ((fz - self._ref[2]) * np.einsum("ki,ki->k", xf[:, :3], xf[:, :3]) / crd.SCALE_M**2
+                      - xf[:, 2]) / s
+                a = np.where(self._inv.reshape(-1), ai, a)
+            act = a > -self.tuning.trunc_sigma  # 6 sigma: mass below the floor > 1e-9
+            if np.any(act):
+                a, s2 = a[act], s2[act]
+                dmu, var_t = _truncated_normal(a)  # in units of sigma, sigma^2
+                pc = Pf[act, :, 2]  # (k, n)
+                xf, Pf = xf.copy(), Pf.copy()
+                xf[act] = xf[act] + pc * (dmu / np.sqrt(s2))[:, None]
+                Pa = Pf[act] + pc[:, :, None] * pc[:, None, :] * ((var_t - 1.0) / s2)[:, None, None]
+                Pf[act] = 0.5 * (Pa + np.swapaxes(Pa, -1, -2))
+                out = xf.reshape(x.shape), Pf.reshape(P.shape)
+        if own:
+            self._tcache = (self._x, self._P) + out
+        return out
+
+
+def _truncated_normal(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and variance (k,) of a standard normal truncated to ``[a, inf)``: ``lambda`` and
+    ``1 + a lambda - lambda^2`` with ``lambda = phi(a) / (1 - Phi(a))`` (the inverse Mills ratio, by
+    ``erfcx``: no underflow far in the tail); beyond ``a = 50`` the variance by its asymptotic series
+    ``1/a^2 - 6/a^4 + 50/a^6 - 518/a^8`` (the closed form loses ~a^4 eps there). The variance is kept >= 1e-8."""
+    lam = np.sqrt(2.0 / np.pi) / erfcx(a / np.sqrt(2.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ia2 = 1.0 / a**2
+        tail = ia2 * (1.0 - ia2 * (6.0 - ia2 * (50.0 - 518.0 * ia2)))
+    var = np.where(a > 50.0, tail, 1.0 + a * lam - lam**2)
+    return lam, np.maximum(var, 1e-8)
 
 
 def _scaled(S2: np.ndarray, k) -> np.ndarray:

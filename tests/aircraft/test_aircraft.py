@@ -380,22 +380,30 @@ def test_aircraft_node_shell_drops_garbage_and_publishes_valid_messages():
     assert rep["estimates"]["ukf-pr"]["err_m"] < 50.0, rep
 
 
-def test_floor_truncation_moment_matching():
-    """A mean on the station plane is moved to the truncated-normal mean; far above: untouched."""
+def test_floor_truncation_moment_matching_counted_once():
+    """x / P report the Gaussian truncated to above the station plane (a mean on the plane moves to
+    the truncated-normal mean; far above: untouched); the filter's own Gaussian stays untruncated, so
+    updates that carry no height information do not shrink the height variance again and again (the
+    truncation fed back at every update did: 100 such updates took sigma_z from 6.0 m to ~1 m)."""
     tun = Tuning(floor_z_m=0.0)
     x0 = np.array([[100.0, 0.0, 0.0, 0, 0, 0, 0, 0], [100.0, 0.0, 500.0, 0, 0, 0, 0, 0]])
     trk = CvTracker("ukf", "pr", x0, tun)
-    trk.P[:] = np.diag([4.0, 4.0, 100.0, 1, 1, 1, 4.0, 1])
-    trk.P[:, 2, 6] = trk.P[:, 6, 2] = 10.0  # z correlated with the clock
-    P_before = trk.P.copy()
-    trk._truncate_floor()
+    P = np.broadcast_to(np.diag([4.0, 4.0, 100.0, 1, 1, 1, 4.0, 1]), (2, 8, 8)).copy()
+    P[:, 2, 6] = P[:, 6, 2] = 10.0  # z correlated with the clock
+    trk.P = P
     s = 10.0
     assert trk.x[0, 2] == pytest.approx(s * np.sqrt(2 / np.pi), rel=1e-9)
     assert trk.P[0, 2, 2] == pytest.approx(s**2 * (1 - 2 / np.pi), rel=1e-9)
     assert trk.x[0, 6] == pytest.approx(10.0 / 100.0 * s * np.sqrt(2 / np.pi), rel=1e-9)  # via cov(z, b)
     assert np.all(np.linalg.eigvalsh(trk.P[0]) > 0)
     np.testing.assert_array_equal(trk.x[1], x0[1])
-    np.testing.assert_array_equal(trk.P[1], P_before[1])
+    np.testing.assert_array_equal(trk.P[1], P[1])
+    np.testing.assert_array_equal(trk._x, x0)  # the filter's own Gaussian is not truncated
+    np.testing.assert_array_equal(trk._P, P)
+    st = np.array([[1e7, 0.0, 0.0]])  # a far station, huge noise: no information
+    for k in range(100):
+        trk.update(st, np.full((2, 1), 1e7), sigma_m=1e5)
+    assert np.sqrt(trk.P[0, 2, 2]) == pytest.approx(s * np.sqrt(1 - 2 / np.pi), rel=1e-3)
 
 
 def test_estimator_resets_a_broken_filter_instead_of_raising():
@@ -475,7 +483,7 @@ def test_ekf_second_order_terms_match_finite_difference_hessians():
     for dt in (None, np.array([-0.3, -0.2, -0.1, 0.0])):
         trk = CvTracker("ekf", "pr", x, Tuning())
         trk.P = P.copy()
-        c2, S2 = trk._second_order(st, dt)
+        c2, S2 = trk._second_order(st, dt, trk._x, trk._P)
         e, m = 1e-4, 4
         Hs = np.zeros((m, 8, 8))
         for i in range(8):

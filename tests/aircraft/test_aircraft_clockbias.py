@@ -295,7 +295,8 @@ def test_linearization_error_counted_as_repeated_near_a_transmitter():
     """seed001 hover 50 m is 2.6 m above transmitter 1; with station clocks on (0.21 m biases, 6 s) the
     bound (1.19 m) is half that distance. Counting the second-order (linearization) covariance once
     per 100 Hz update (``linearization_corr_s = 0``) lets the filter read the range's curvature as
-    information: overconfident (NEES ~ 90 for 8 dof) and ~1.8 x the PCRB; counted as repeating over
+    information: overconfident (NEES ~ 90 for 8 dof with the floor truncation fed back at every update,
+    ~22 with the floor counted once, 8 runs) and ~1.7 x the PCRB; counted as repeating over
     ``linearization_corr_s`` (default 10 s) it is consistent and at the bound (bench: 0.98 x, NEES 6.8)."""
     from dataclasses import replace
 
@@ -312,4 +313,4 @@ def test_linearization_error_counted_as_repeated_near_a_transmitter():
     ratio, nees, band = out[10.0]
     assert ratio < 1.3 and nees < 1.5 * band[1], out
     ratio0, nees0, _ = out[0.0]
-    assert nees0 > 3 * band[1] and ratio0 > ratio, out
+    assert nees0 > 1.5 * band[1] and ratio0 > 1.3 * ratio, out
