@@ -93,3 +93,42 @@ def jac_to_inverse(x: np.ndarray, ref_m: np.ndarray, clock: bool) -> np.ndarray:
     if clock:
         G[..., 6, :3] = d / np.sqrt(r2)[..., None]
     return G
+
+
+# --------------------------------------------------------------------------- the hyperbolic clock
+# Near the array (runs kept in Cartesian position) the clock is carried as
+#     beta = b + sqrt(R0^2 + |p - c|^2)
+# with R0 the RMS station distance from c. Right above the centre of an array whose stations lie at
+# about R0 from c, every range is sqrt(R0^2 + h^2) and beta is constant along the height/clock ridge
+# (``sqrt(rho_j^2 + h^2) + b = const``): the ridge, curved in ``(h, b)``, is straight in ``(h, beta)``.
+# Far out ``sqrt(R0^2 + r^2) = r + R0^2 / (2 r) + ...`` is the inverse coordinates' ``b + |p - c|``.
+
+
+def _hyp(x: np.ndarray, ref_m: np.ndarray, radius_m: float) -> tuple[np.ndarray, np.ndarray]:
+    d = x[..., :3] - ref_m
+    return d, np.sqrt(radius_m**2 + np.einsum("...i,...i->...", d, d))
+
+
+def hyper_from_cartesian(x: np.ndarray, ref_m: np.ndarray, radius_m: float) -> np.ndarray:
+    """Cartesian state (..., n >= 7, clock at 6) -> the same with ``beta = b + sqrt(R0^2 + |p - c|^2)``."""
+    s = np.array(x, dtype=float, copy=True)
+    s[..., 6] = x[..., 6] + _hyp(x, ref_m, radius_m)[1]
+    return s
+
+
+def hyper_to_cartesian(s: np.ndarray, ref_m: np.ndarray, radius_m: float) -> np.ndarray:
+    """Inverse of :func:`hyper_from_cartesian` (the position is Cartesian in both)."""
+    x = np.array(s, dtype=float, copy=True)
+    x[..., 6] = s[..., 6] - _hyp(s, ref_m, radius_m)[1]
+    return x
+
+
+def jac_hyper(x: np.ndarray, ref_m: np.ndarray, radius_m: float, sign: float) -> np.ndarray:
+    """``ds/dx`` (``sign`` +1) or ``dx/ds`` (-1) of the hyperbolic clock (..., n, n): the identity but for
+    the clock row, ``+-(p - c) / sqrt(R0^2 + |p - c|^2)`` (the position is the same in both)."""
+    n = x.shape[-1]
+    d, g = _hyp(x, ref_m, radius_m)
+    J = np.broadcast_to(np.eye(n), x.shape[:-1] + (n, n)).copy()
+    J[..., 6, :3] = sign * d / g[..., None]
+    return J
+
