@@ -213,18 +213,6 @@ class Tuning:
     # ... and only beyond this many array radii (RMS station distance from the centroid) from the
     # reference: close to the array the ranges to single stations dominate the nonlinearity
     inverse_min_radii: float = 3.0
-    # the clock of the runs kept in Cartesian position (near the array, or while the prior is wide)
-    # with coords "inverse" and a clock state: "hyper" = beta = b + sqrt(R0^2 + |p - c|^2) (R0 the
-    # array radius: right above the array the height/clock ridge is straight in it, aircraft/coords.py),
-    # "plain" = b
-    near_clock: str = "hyper"
-    # the Jacobian (EKF) and the sigma points' regression slope (UKF) are taken at a lagged position:
-    # the estimate low-passed over this many seconds (back to the estimate when they are more than 2
-    # sigma apart: a moving aircraft). The predicted measurement stays at the estimate. A Jacobian at the latest estimate correlates with the innovation through that
-    # estimate's own error, which turns the bilinear terms of the range (height x horizontal offset)
-    # into a one-signed push along the weakly observed direction: right above the array the height
-    # drifted up ~2 m/s (docs/aircraft.md). 0 = at the estimate (the textbook filters).
-    jacobian_lag_s: float = 2.0
     # residual station clock errors after the broadcast clock correction (docs/sync.md): "states" = one
     # first-order Gauss-Markov range bias per station heard, stationary variance = the broadcast clock
     # variance c^2 P_theta, correlation time ``clock_bias_tau_s`` (added as a station is first heard,
@@ -275,8 +263,6 @@ class CvTracker:
             raise ValueError(f"x0 must have {self.layout.n} states for {model}, got {x0.shape}")
         if tuning.coords not in ("inverse", "cartesian"):
             raise ValueError(f"unknown coords {tuning.coords!r} (inverse or cartesian)")
-        if tuning.near_clock not in ("hyper", "plain"):
-            raise ValueError(f"unknown near_clock {tuning.near_clock!r} (hyper or plain)")
         if tuning.clock_bias not in ("states", "white"):
             raise ValueError(f"unknown clock_bias {tuning.clock_bias!r} (states or white)")
         self.n_base = self.layout.n  # states after these: the stations' clock biases (bias_ids order)
@@ -291,7 +277,9 @@ class CvTracker:
         self._inv = np.zeros(x0.shape[:-1], dtype=bool)  # runs whose internal state is inverse-range
         self._radius = 0.0  # RMS distance of the stations from the reference point
         if tuning.coords == "inverse" and ref_m is not None:
-            self._set_ref(np.asarray(ref_m, dtype=float), float(ref_radius_m) if ref_radius_m is not None else 0.0)
+            self._ref = np.asarray(ref_m, dtype=float)
+            self._radius = float(ref_radius_m) if ref_radius_m is not None else 0.0
+            self._switch()
         self.t_s = float(t0_s)
         self._memory = 1.0  # updates the filter averages over (per run), from the latest update
         self._last_seen: dict = {}  # station (id, or position to 0.1 m) -> time of its latest measurement
@@ -305,59 +293,25 @@ class CvTracker:
         self._r_key: tuple | None = None
         self._r: np.ndarray | None = None
         self._tcache: tuple | None = None  # (x, P, truncated x, truncated P): see _constrained
-        self._plin: np.ndarray | None = None  # lagged Cartesian positions (..., 3): Tuning.jacobian_lag_s
 
     # -- coordinates
     def _mask(self, X: np.ndarray, extra: int) -> np.ndarray:
         """The inverse-coordinate run mask shaped to broadcast against X (runs[, sigma], n[, n])."""
         return self._inv.reshape(self._inv.shape + (1,) * (X.ndim - self._x.ndim + extra))
 
-    @property
-    def _hyp(self) -> bool:
-        """Runs in Cartesian position carry the hyperbolic clock (``Tuning.near_clock``)."""
-        return self._clock and self._ref is not None and self.tuning.near_clock == "hyper"
-
-    def _identity(self) -> bool:
-        return not self._hyp and not self._inv.any()
-
     def _cart(self, X: np.ndarray) -> np.ndarray:
         """Internal-coordinate states X (runs[, sigma points], n) -> Cartesian."""
-        if self._identity():
+        if not self._inv.any():
             return X
         with np.errstate(all="ignore"):
-            near = crd.hyper_to_cartesian(X, self._ref, self._radius) if self._hyp else X
-            if not self._inv.any():
-                return near
-            return np.where(self._mask(X, 1), crd.to_cartesian(X, self._ref, self._clock), near)
+            return np.where(self._mask(X, 1), crd.to_cartesian(X, self._ref, self._clock), X)
 
     def _T(self, X: np.ndarray) -> np.ndarray | None:
         """dx/ds at internal-coordinate states X (..., n, n); None = identity for every run."""
-        if self._identity():
+        if not self._inv.any():
             return None
         with np.errstate(all="ignore"):
-            near = (crd.jac_hyper(X, self._ref, self._radius, -1.0) if self._hyp
-                    else np.eye(X.shape[-1]))
-            if not self._inv.any():
-                return near
-            return np.where(self._mask(X, 2), crd.jac_to_cartesian(X, self._clock), near)
-
-    def _to_internal(self, X: np.ndarray, inv: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
-        """Cartesian states X (runs[, sigma], n) -> ``(s, G)``, the internal states and ``ds/dx`` (None =
-        identity), for the run mask ``inv`` (default the filter's own)."""
-        inv = self._inv if inv is None else inv
-        if not self._hyp and not inv.any():
-            return X, None
-        with np.errstate(all="ignore"):
-            if self._hyp:
-                s, G = (crd.hyper_from_cartesian(X, self._ref, self._radius),
-                        crd.jac_hyper(X, self._ref, self._radius, 1.0))
-            else:
-                s, G = X, np.broadcast_to(np.eye(X.shape[-1]), X.shape + X.shape[-1:])
-            if not inv.any():
-                return s, G
-            m = inv.reshape(inv.shape + (1,) * (X.ndim - inv.ndim))
-            return (np.where(m, crd.to_inverse(X, self._ref, self._clock), s),
-                    np.where(m[..., None], crd.jac_to_inverse(X, self._ref, self._clock), G))
+            return np.where(self._mask(X, 2), crd.jac_to_cartesian(X, self._clock), np.eye(X.shape[-1]))
 
     @property
     def x(self) -> np.ndarray:
@@ -366,7 +320,11 @@ class CvTracker:
 
     @x.setter
     def x(self, value: np.ndarray) -> None:
-        self._x = self._to_internal(np.asarray(value, dtype=float))[0]
+        value = np.asarray(value, dtype=float)
+        if self._inv.any():
+            with np.errstate(all="ignore"):
+                value = np.where(self._mask(value, 1), crd.to_inverse(value, self._ref, self._clock), value)
+        self._x = value
 
     @property
     def P(self) -> np.ndarray:
@@ -381,20 +339,12 @@ class CvTracker:
     @P.setter
     def P(self, value: np.ndarray) -> None:
         value = np.asarray(value, dtype=float)
-        G = self._to_internal(self._cart(self._x))[1]
-        if G is not None:
+        if self._inv.any():
+            with np.errstate(all="ignore"):
+                G = np.where(self._mask(self._x, 2), crd.jac_to_inverse(self._cart(self._x), self._ref, self._clock),
+                             np.eye(value.shape[-1]))
             value = symmetrize(G @ value @ np.swapaxes(G, -1, -2))
         self._P = value
-
-    def _set_ref(self, ref_m: np.ndarray, radius_m: float) -> None:
-        """The reference point (and array radius) of the internal coordinates, once: the state moves
-        to them (hyperbolic clock, then inverse coordinates for the runs that qualify)."""
-        X, P = self._x, self._P  # Cartesian until now
-        self._ref, self._radius = ref_m, radius_m
-        self._x, G = self._to_internal(X)
-        if G is not None:
-            self._P = symmetrize(G @ P @ np.swapaxes(G, -1, -2))
-        self._switch()
 
     def _switch(self) -> None:
         """Move runs between Cartesian and inverse-range coordinates: inverse while the relative
@@ -420,8 +370,11 @@ class CvTracker:
         X = self._cart(self._x).reshape(-1, n)[ch]
         T = self._T(self._x)
         Pc = P[ch] if T is None else symmetrize(T @ self._P @ np.swapaxes(T, -1, -2)).reshape(-1, n, n)[ch]
-        xs, G = self._to_internal(X, new[ch])
-        Ps = Pc if G is None else symmetrize(G @ Pc @ np.swapaxes(G, -1, -2))
+        to_inv = new[ch]
+        with np.errstate(all="ignore"):
+            G = crd.jac_to_inverse(X, self._ref, self._clock)
+            xs = np.where(to_inv[:, None], crd.to_inverse(X, self._ref, self._clock), X)
+            Ps = np.where(to_inv[:, None, None], symmetrize(G @ Pc @ np.swapaxes(G, -1, -2)), Pc)
         x2, P2 = x.copy(), P.copy()
         x2[ch], P2[ch] = xs, Ps
         self._x = x2.reshape(self._x.shape)
@@ -498,12 +451,11 @@ class CvTracker:
     def save(self) -> tuple:
         """The filter's state (mean, covariance, coordinates, clock-bias states) for :meth:`restore`."""
         return (self._x, self._P, self._inv, list(self.bias_ids), self._bias_var.copy(), self._bias_t.copy(),
-                self._ref, self._radius, self.t_s, self._memory, dict(self._last_seen), self._plin)
+                self._ref, self._radius, self.t_s, self._memory, dict(self._last_seen))
 
     def restore(self, saved: tuple) -> None:
         """Back to a :meth:`save`d state (an update re-run with other measurements: aircraft/fde.py)."""
-        (self._x, self._P, self._inv, ids, bv, bt, self._ref, self._radius, self.t_s, self._memory, seen,
-         self._plin) = saved
+        (self._x, self._P, self._inv, ids, bv, bt, self._ref, self._radius, self.t_s, self._memory, seen) = saved
         self._last_seen = dict(seen)
         self.bias_ids, self._bias_var, self._bias_t = list(ids), bv.copy(), bt.copy()
         self._bias_changed()
@@ -516,14 +468,17 @@ class CvTracker:
             return
         F, Q = self._FQ(dt)
         self._step_s = dt
-        if self._identity():
+        if not self._inv.any():
             self._x, self._P = kf_predict(self._x, self._P, F, Q)
         else:
-            # the CV step in Cartesian coordinates, carried to the internal coordinates by its Jacobian
+            # the CV step in Cartesian coordinates, carried to the inverse-range runs by its Jacobian
             # G1 F T (T = dx/ds before, G1 = ds/dx after); the process noise enters through G1
+            ref, clk = self._ref, self._clock
             T = self._T(self._x)
             x1 = self._cart(self._x) @ F.T
-            self._x, G1 = self._to_internal(x1)
+            with np.errstate(all="ignore"):
+                G1 = np.where(self._mask(self._x, 2), crd.jac_to_inverse(x1, ref, clk), np.eye(F.shape[-1]))
+                self._x = np.where(self._mask(self._x, 1), crd.to_inverse(x1, ref, clk), x1)
             Fs = G1 @ F @ T
             self._P = symmetrize(Fs @ self._P @ np.swapaxes(Fs, -1, -2) + G1 @ Q @ np.swapaxes(G1, -1, -2))
         self.t_s = float(t_s)
@@ -582,7 +537,9 @@ class CvTracker:
         """
         stations_m = np.asarray(stations_m, dtype=float)
         if self._ref is None and self.tuning.coords == "inverse":
-            self._set_ref(crd.reference_point(stations_m), crd.array_radius(stations_m))
+            self._ref = crd.reference_point(stations_m)
+            self._radius = crd.array_radius(stations_m)
+            self._switch()
         sig = self.tuning.sigma_m if sigma_m is None else sigma_m
         D, sig = self._bias_map(stations_m, sig, bias_ids, bias_var_m2)
         R, z = self._noise_and_z(stations_m, rho_m, station_cov_m2, sig, dt_s)
@@ -606,7 +563,6 @@ class CvTracker:
         self._x, self._P = x1, P1
         if self._ref is not None:
             self._switch()
-        self._advance_lag()
         return nu, S  # innovation and its covariance of the first (plain) linearization
 
     def _bias_map(self, stations_m, sig, bias_ids, bias_var_m2):
@@ -645,7 +601,7 @@ class CvTracker:
     def _update_ekf(self, stations_m, dt_s, z, h, jac, R, k=1.0):
         """EKF update (second-order terms, iterated for runs with large linearization error);
         returns ``(x, P, nu, S)``."""
-        if not self._identity():  # measurement model and Jacobian in the runs' own coordinates
+        if self._inv.any():  # measurement model and Jacobian in the runs' own coordinates
             hc, jc = h, jac
 
             def h(X):
@@ -655,10 +611,9 @@ class CvTracker:
                 return jc(self._cart(X)) @ self._T(X)
 
         xl, Pl = self._constrained()  # linearize where the density is: above the floor
-        xj = self._lag_point(xl)
         if self.tuning.ekf_second_order:
-            # Gaussian second-order terms of the ranges, from those moments (at the Jacobian's point)
-            c2, S2 = self._second_order(stations_m, dt_s, xj, Pl)
+            # Gaussian second-order terms of the ranges, from those moments
+            c2, S2 = self._second_order(stations_m, dt_s, xl, Pl)
             if self.layout.kind == "tdoa":
                 G = mdl.g_matrix(stations_m.shape[0], self.base)
                 c2, S2 = np.einsum("ij,...j->...i", G, c2), G @ S2 @ G.T
@@ -667,12 +622,11 @@ class CvTracker:
             def h(X):
                 return h1(X) + c2
 
-        if xl is self._x and xj is xl:  # nothing truncated, no lag: the plain EKF
+        if xl is self._x:  # nothing truncated: the plain EKF
             x1, P1, nu, S = ekf_update(self._x, self._P, z, h, jac(self._x), R)
         else:
-            H = jac(xj)
-            x1, P1 = self._iekf_step(xl, z, h, jac, R, H)
-            nu = z - h(xl)
+            x1, P1 = self._iekf_step(xl, z, h, jac, R)
+            H, nu = jac(xl), z - h(xl)
             S = symmetrize(H @ Pl @ np.swapaxes(H, -1, -2) + R)
         if self.tuning.iterations > 1:
             om = ((lambda: S2) if self.tuning.ekf_second_order  # already computed above
@@ -721,20 +675,19 @@ class CvTracker:
         update of a 20 m prior (envelope hover/turn 50 m overhead: NEES 10^2-10^4, docs/aircraft.md).
         With ``linearization_corr_s = 0`` this is the textbook UKF (filterpy comparison)."""
         xl, Pl = self._constrained()  # sigma points where the density is: above the floor
-        xj = self._lag_point(xl)
         if stations_m is not None and k is not None and self.tuning.linearization_corr_s > 0:
-            R = R + _scaled(self._om_ekf(stations_m, dt_s, xj, Pl), k)
-        if not self._identity():
+            R = R + _scaled(self._om_ekf(stations_m, dt_s, xl, Pl), k)
+        if self._inv.any():
             hc = h
 
             def h(X):
                 return hc(self._cart(X))
 
-        if xl is self._x and xj is xl:  # nothing truncated, no lag: the plain UKF
+        if xl is self._x:  # nothing truncated: the plain UKF
             x1, P1, nu, S = ukf_update(self._x, self._P, z, h, R, self.params)
         else:  # statistical linearization over the truncated moments, applied to the filter's Gaussian
-            x1, P1, ut, ym = self._iplf_step(xj, Pl, z, h, R, xl)
-            nu, S = z - ym, symmetrize(ut.cov + R)
+            x1, P1, ut = self._iplf_step(xl, Pl, z, h, R)
+            nu, S = z - ut.mean, symmetrize(ut.cov + R)
         if self.tuning.iterations > 1:
             def om():
                 ut = unscented_transform(h, xl, Pl, self.params)
@@ -743,7 +696,7 @@ class CvTracker:
             if np.any(mask):
                 xi, Pi = x1, P1
                 for _ in range(self.tuning.iterations - 1):
-                    xi, Pi = self._iplf_step(*self._constrained(xi, Pi), z, h, R)[:2]
+                    xi, Pi, _ = self._iplf_step(*self._constrained(xi, Pi), z, h, R)
                 x1, P1 = self._select(mask, xi, Pi, x1, P1)
         return x1, P1, nu, S
 
@@ -793,11 +746,10 @@ class CvTracker:
         S2 = 0.5 * np.einsum("...ijkl,...jilk->...ij", MC, MC)  # tr(M_i C_ij M_j C_ji)
         return c2, S2
 
-    def _iekf_step(self, xi, z, h, jac, R, H=None):
+    def _iekf_step(self, xi, z, h, jac, R):
         """One Gauss-Newton step of the iterated EKF (Bell & Cathey 1993): linearize ``h`` at the
-        current iterate ``xi`` and update the prior ``(x, P)`` with ``z - h(xi) - H (x - xi)``.
-        ``H``: a Jacobian taken elsewhere (the lagged point, :meth:`_lag_point`); None = at ``xi``."""
-        H = jac(xi) if H is None else H
+        current iterate ``xi`` and update the prior ``(x, P)`` with ``z - h(xi) - H (x - xi)``."""
+        H = jac(xi)
         hxi = h(xi)
         x, P = self._x, self._P
 
@@ -807,26 +759,20 @@ class CvTracker:
         x1, P1, _, _ = ekf_update(x, P, z, h_lin, H, R)
         return x1, P1
 
-    def _iplf_step(self, xi, Pi, z, h, R, xm=None):
+    def _iplf_step(self, xi, Pi, z, h, R):
         """One iterated posterior linearization step (Garcia-Fernandez et al. 2015): the statistical
         linear regression ``h(X) ~ A X + b + e``, ``e ~ N(0, Omega)`` over the sigma points of the
         latest posterior ``N(xi, Pi)``, then a linear update of the prior ``(x, P)`` with it. The first
-        pass (``xi, Pi`` = prior) is exactly the plain UKF update. ``xm``: the regression's slope from
-        ``xi`` (the lagged point) but its value moved to the estimate ``xm``: ``b`` shifted by
-        ``h(xm) - h(xi) - A (xm - xi)``. Returns ``(x, P, ut, y)``, ``y`` the predicted measurement."""
+        pass (``xi, Pi`` = prior) is exactly the plain UKF update."""
         ut = unscented_transform(h, xi, Pi, self.params)
         At = chol_solve(Pi, ut.cross)  # (n, m): Pi A^T = Pxz
         A = np.swapaxes(At, -1, -2)
         b = ut.mean - np.einsum("...ij,...j->...i", A, xi)
-        y = ut.mean
-        if xm is not None and xm is not xi:
-            y = ut.mean + h(xm) - h(xi)
-            b = y - np.einsum("...ij,...j->...i", A, xm)
         Om = symmetrize(ut.cov - A @ ut.cross)  # Py - A Pi A^T
         w, V = np.linalg.eigh(Om)  # >= 0 in exact arithmetic; the scaled set's negative W0c can break it
         Om = (V * np.maximum(w, 0.0)[..., None, :]) @ np.swapaxes(V, -1, -2)
         x1, P1, _, _ = kf_update(self._x, self._P, z - b, A, R + Om)
-        return x1, P1, ut, y
+        return x1, P1, ut
 
     def update_sequential(
         self, stations_m: np.ndarray, rho_m: np.ndarray, station_cov_m2: np.ndarray | None = None,
@@ -848,34 +794,6 @@ class CvTracker:
             nus.append(nu[..., 0])
             Ss.append(S[..., 0, 0])
         return np.stack(nus, axis=-1), np.stack(Ss, axis=-1)
-
-    def _lag_point(self, xl: np.ndarray) -> np.ndarray:
-        """Where to take the Jacobian: ``xl`` (internal coordinates) with its position replaced by the
-        lagged one (``Tuning.jacobian_lag_s``); ``xl`` itself (the same object) while there is none."""
-        if self._plin is None or self.tuning.jacobian_lag_s <= 0:
-            return xl
-        X = self._cart(xl).copy()
-        X[..., :3] = self._plin
-        return self._to_internal(X)[0]
-
-    def _advance_lag(self) -> None:
-        """Low-pass the posterior position into the lagged one (``a = step / jacobian_lag_s``). A run
-        whose estimate is more than 2 sigma (Mahalanobis, position) from it restarts at the estimate:
-        the lagged point does not move with the aircraft (moved with the estimated velocity, or a
-        low-passed one, it took on that estimate's error again and the height drift above the array
-        came back at 60-100 %), so it holds while the aircraft hovers or moves slowly compared with its
-        position uncertainty - where the drift builds up - and follows the estimate otherwise."""
-        lag = self.tuning.jacobian_lag_s
-        if lag <= 0:
-            return
-        p = self.x[..., :3]
-        if self._plin is None:
-            self._plin = p.copy()
-            return
-        d = p - self._plin
-        m2 = _mahalanobis2(d, self.P[..., :3, :3])
-        a = min(1.0, self._step_s / lag) if self._step_s > 0 else 1.0
-        self._plin = np.where(~(m2 <= 4.0)[..., None], p, self._plin + a * d)
 
     def _constrained(self, x: np.ndarray | None = None, P: np.ndarray | None = None):
         """The moments ``(x, P)`` (internal coordinates) of the Gaussian ``N(x, P)`` truncated to above
@@ -928,14 +846,6 @@ class CvTracker:
         if own:
             self._tcache = (self._x, self._P) + out
         return out
-
-
-def _mahalanobis2(d: np.ndarray, P: np.ndarray) -> np.ndarray:
-    """``d^T P^-1 d`` (...,) for d (..., k), P (..., k, k); inf where P is not positive definite."""
-    try:
-        return np.einsum("...i,...i->...", d, chol_solve(P, d[..., None])[..., 0])
-    except np.linalg.LinAlgError:
-        return np.full(d.shape[:-1], np.inf)
 
 
 def _truncated_normal(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
