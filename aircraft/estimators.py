@@ -726,7 +726,10 @@ class CvTracker:
         ``c_j = 0.5 tr(M_j C_jj)`` (..., m) and covariance ``0.5 tr(M_i C_ij M_j C_ji)`` (..., m, m), with
         ``M_j = (I - u_j u_j^T) / r_j`` the Hessian of range j in the position at its measurement time
         and ``C_ij`` the covariance of those positions (``p + v dt``). ``X`` (..., n), ``P`` (..., n, n):
-        the moments in the runs' own coordinates (the filter's, truncated to above the floor)."""
+        the moments in the runs' own coordinates (the filter's, truncated to above the floor). For
+        inverse-coordinate runs the terms are those of the converted Cartesian moments: the Hessian in
+        the runs' own coordinates (much smaller far out) was tried and left more runs over-confident
+        (docs/aircraft.md, "the floor counted once")."""
         T = self._T(X)
         if T is not None:  # Cartesian moments (the inverse-coordinate runs converted)
             X, P = self._cart(X), symmetrize(T @ P @ np.swapaxes(T, -1, -2))
