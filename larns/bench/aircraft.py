@@ -183,7 +183,8 @@ def speed_vs_filterpy(ac, steps: int = 400, runs: int = 64) -> dict:
 
     # filterpy's UKF is the plain one: compare the same algorithm (no iterated update, no repeated
     # linearization term in R)
-    tun = replace(ac.tuning, floor_z_m=None, iterations=1, coords="cartesian", linearization_corr_s=0.0)
+    tun = replace(ac.tuning, floor_z_m=None, iterations=1, coords="cartesian", linearization_corr_s=0.0,
+                  height_jacobian_lag_s=0.0)
     dt = 1.0 / ac.rate_hz
     t = np.arange(steps) * dt
     track = trajectory.from_config({"kind": "hover", "distance_m": 1000.0}, t, ac.centre_m)

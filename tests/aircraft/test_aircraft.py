@@ -586,6 +586,36 @@ def test_tdma_far_field_start_from_a_wide_prior_converges():
         assert sig < 10.0 and err < 10.0, (kind, err, sig)
 
 
+def test_hover_overhead_height_does_not_drift_with_the_lagged_height_column():
+    """Right above the centre of the seed001 square the height is not observable; an EKF whose
+    Jacobian's height column is taken at its own (noisy) horizontal estimate pushed the height up
+    (+17 m mean after 10 s at 100 m, 24 runs; +4 m with the lag; docs/aircraft.md). With the column at the low-passed horizontal
+    position (``height_jacobian_lag_s``, default) the mean stays within the spread of the prior."""
+    from dataclasses import replace
+
+    from aircraft import models as mdl
+    from aircraft import sim
+    from larns.bench import envelope as env
+
+    ac = from_scenario(load("seed001"))
+    t = np.arange(0.0, 10.0, 1.0 / ac.rate_hz)
+    track = env._tracks(ac, env.points((100.0,), (0.0,), (225.0,), ("hover",)), t)[0]
+    lay = mdl.StateLayout("pr", drift=True)
+    xt = sim.true_state(track, ac.clock, lay)
+    out = {}
+    for lag in (2.0, 0.0):
+        rng = np.random.default_rng(2)
+        rho = sim.pseudoranges(track, ac.stations_m, ac.clock, ac.sigma_m, 24, rng)
+        tun = replace(ac.tuning, height_jacobian_lag_s=lag)
+        x0 = xt[0] + rng.standard_normal((24, 8)) @ np.linalg.cholesky(tun.p0(lay)).T
+        trk = CvTracker("ekf", "pr", x0, tun)
+        for k in range(t.size):
+            trk.predict_to(float(t[k]))
+            trk.update(ac.stations_m, rho[k])
+        out[lag] = float(np.mean(trk.x[:, 2] - xt[-1, 2]))
+    assert abs(out[2.0]) < 8.0 and out[0.0] > 15.0, out
+
+
 def test_initializer_never_reads_the_world():
     """Import boundary: the initializer (and the estimators it uses) load without the world side
     (trajectory, simulator, scenarios, nodes); its inputs are broadcasts only."""

@@ -17,7 +17,8 @@ from aircraft.estimators import CvTracker, Tuning
 from nav.pcrb import augment_biases, gauss_markov_block, pcrb_linear_gaussian, prior_before_first_step
 
 # first-order, one pass, Cartesian: the EKF is then exactly the textbook EKF
-PLAIN = Tuning(coords="cartesian", ekf_second_order=False, iterations=1, floor_z_m=None, clock_bias_tau_s=4.0)
+PLAIN = Tuning(coords="cartesian", ekf_second_order=False, iterations=1, floor_z_m=None, clock_bias_tau_s=4.0,
+               height_jacobian_lag_s=0.0)
 
 
 def _stations(m, rng, spread_m=20_000.0):
