@@ -589,8 +589,8 @@ def test_tdma_far_field_start_from_a_wide_prior_converges():
 def test_hover_overhead_height_does_not_drift_with_the_lagged_height_column():
     """Right above the centre of the seed001 square the height is not observable; an EKF whose
     Jacobian's height column is taken at its own (noisy) horizontal estimate pushed the height up
-    (+17 m mean after 10 s at 100 m, 24 runs; +4 m with the lag; docs/aircraft.md). With the column at the low-passed horizontal
-    position (``height_jacobian_lag_s``, default) the mean stays within the spread of the prior."""
+    (+17 m mean after 10 s at 100 m, 24 runs; docs/aircraft.md). With the column at the low-passed
+    horizontal position (``height_jacobian_lag_s``, default) the mean stays small (+4 m)."""
     from dataclasses import replace
 
     from aircraft import models as mdl
