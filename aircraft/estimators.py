@@ -829,7 +829,7 @@ class CvTracker:
         def jac_l(X):
             J = jac(X)
             Xl = X.copy()
-            Xl[..., :2] = lag.reshape(lag.shape[:-1] + (1,) * (X.ndim - lag.ndim) + (2,)) if X.ndim > lag.ndim else lag
+            Xl[..., :2] = lag  # X (runs, n) or (n,) as the filter's own state
             col = jac(Xl)[..., 2]
             m = near.reshape(near.shape + (1,) * (col.ndim - near.ndim))
             J[..., 2] = np.where(m, col, J[..., 2])
