@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.special import erfcx
 
-from nav.kalman import chol_solve, ekf_update, kf_predict, kf_update, symmetrize, ukf_update
+from nav.kalman import chol_solve, ekf_update, kf_predict, kf_update, nees, symmetrize, ukf_update
 from nav.pcrb import gauss_markov_block
 from nav.ut import SigmaParams, unscented_transform
 
@@ -636,9 +636,9 @@ class CvTracker:
         if xl is self._x:  # nothing truncated: the plain EKF
             x1, P1, nu, S = ekf_update(self._x, self._P, z, h, jac(self._x), R)
         else:
-            x1, P1 = self._iekf_step(xl, z, h, jac, R)
-            H, nu = jac(xl), z - h(xl)
-            S = symmetrize(H @ Pl @ np.swapaxes(H, -1, -2) + R)
+            H, hxl = jac(xl), h(xl)
+            x1, P1 = self._linearized_update(xl, H, hxl, z, R)
+            nu, S = z - hxl, symmetrize(H @ Pl @ np.swapaxes(H, -1, -2) + R)
         if self.tuning.iterations > 1:
             om = ((lambda: S2) if self.tuning.ekf_second_order  # already computed above
                   else (lambda: self._om_ekf(stations_m, dt_s, xl, Pl)))
@@ -695,10 +695,11 @@ class CvTracker:
                 return hc(self._cart(X))
 
         dA = None  # the regression slope's height column moved as the EKF's (height_jacobian_lag_s)
-        if jac is not None and self._hlag is not None and self.tuning.height_jacobian_lag_s > 0:
-            jac_l = self._height_lagged(jac)
-            if jac_l is not jac:
-                dA = jac_l(xl) - jac(xl)
+        if jac is not None and self._lags_height():
+            col, m = self._lagged_height_column(jac, xl)
+            J = jac(xl)
+            dA = np.zeros_like(J)
+            dA[..., 2] = np.where(m, col - J[..., 2], 0.0)
         if xl is self._x and dA is None:  # nothing truncated, no lag: the plain UKF
             x1, P1, nu, S = ukf_update(self._x, self._P, z, h, R, self.params)
         else:  # statistical linearization over the truncated moments, applied to the filter's Gaussian
@@ -768,14 +769,14 @@ class CvTracker:
     def _iekf_step(self, xi, z, h, jac, R):
         """One Gauss-Newton step of the iterated EKF (Bell & Cathey 1993): linearize ``h`` at the
         current iterate ``xi`` and update the prior ``(x, P)`` with ``z - h(xi) - H (x - xi)``."""
-        H = jac(xi)
-        hxi = h(xi)
-        x, P = self._x, self._P
+        return self._linearized_update(xi, jac(xi), h(xi), z, R)
 
+    def _linearized_update(self, xi, H, hxi, z, R):
+        """Update the prior ``(x, P)`` with ``h`` linearized at ``xi``: ``z - h(xi) - H (x - xi)``."""
         def h_lin(X):
             return hxi + np.einsum("...ij,...j->...i", H, X - xi)
 
-        x1, P1, _, _ = ekf_update(x, P, z, h_lin, H, R)
+        x1, P1, _, _ = ekf_update(self._x, self._P, z, h_lin, H, R)
         return x1, P1
 
     def _iplf_step(self, xi, Pi, z, h, R, dA=None):
@@ -819,19 +820,27 @@ class CvTracker:
             Ss.append(S[..., 0, 0])
         return np.stack(nus, axis=-1), np.stack(Ss, axis=-1)
 
+    def _lags_height(self) -> bool:
+        return self._hlag is not None and self.tuning.height_jacobian_lag_s > 0 and not self._inv.all()
+
+    def _lagged_height_column(self, jac, X):
+        """``(col, m)``: the height column of ``jac`` at ``X`` (runs, n) with the horizontal position
+        replaced by the low-passed one, and the mask (runs, 1) of the runs it applies to (Cartesian)."""
+        Xl = X.copy()
+        Xl[..., :2] = self._hlag
+        col = jac(Xl)[..., 2]
+        near = ~self._inv
+        return col, near.reshape(near.shape + (1,) * (col.ndim - near.ndim))
+
     def _height_lagged(self, jac):
         """``jac`` with the height column of the Cartesian runs taken at the low-passed horizontal
         position (``Tuning.height_jacobian_lag_s``); ``jac`` itself while there is none."""
-        if self._hlag is None or self.tuning.height_jacobian_lag_s <= 0 or self._inv.all():
+        if not self._lags_height():
             return jac
-        lag, near = self._hlag, ~self._inv
 
         def jac_l(X):
             J = jac(X)
-            Xl = X.copy()
-            Xl[..., :2] = lag  # X (runs, n) or (n,) as the filter's own state
-            col = jac(Xl)[..., 2]
-            m = near.reshape(near.shape + (1,) * (col.ndim - near.ndim))
+            col, m = self._lagged_height_column(jac, X)
             J[..., 2] = np.where(m, col, J[..., 2])
             return J
 
@@ -844,13 +853,15 @@ class CvTracker:
         lag = self.tuning.height_jacobian_lag_s
         if lag <= 0:
             return
-        xc = self.x
-        p = xc[..., :2]
+        xc, Pc = self._constrained()
+        p = self._cart(xc)[..., :2]
         if self._hlag is None:
             self._hlag = p.copy()
             return
         d = p - self._hlag
-        m2 = _mahalanobis2(d, self.P[..., :2, :2])
+        T = self._T(xc)  # the horizontal block only: the position depends on the position states only
+        Ph = Pc[..., :2, :2] if T is None else T[..., :2, :3] @ Pc[..., :3, :3] @ np.swapaxes(T[..., :2, :3], -1, -2)
+        m2 = _mahalanobis2(d, Ph)
         a = min(1.0, self._step_s / lag) if self._step_s > 0 else 1.0
         self._hlag = np.where(~(m2 <= 16.0)[..., None], p, self._hlag + a * d)
 
@@ -910,7 +921,7 @@ class CvTracker:
 def _mahalanobis2(d: np.ndarray, P: np.ndarray) -> np.ndarray:
     """``d^T P^-1 d`` (...,) for d (..., k), P (..., k, k); inf where P is not positive definite."""
     try:
-        return np.einsum("...i,...i->...", d, chol_solve(P, d[..., None])[..., 0])
+        return nees(d, P)
     except np.linalg.LinAlgError:
         return np.full(d.shape[:-1], np.inf)
 
