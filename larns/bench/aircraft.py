@@ -66,6 +66,9 @@ def register(sub) -> None:
     p.add_argument("--envelope", action="store_true",
                    help="flight envelope instead: heights x distances x bearings, hover and turn, the four "
                         "filters vs their PCRB (table, JSON `envelope`, heat maps; --quick: 8 points)")
+    p.add_argument("--iid-prior", action="store_true",
+                   help="envelope: independent initial errors per run (default: each point's draws whitened "
+                        "so that their second moment is exactly the prior the PCRB starts from)")
     p.set_defaults(func=run)
 
 
