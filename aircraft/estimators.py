@@ -220,6 +220,10 @@ class Tuning:
     # estimate's own horizontal error, which the innovation also carries, and the noise-driven product
     # pushed the height up ~2 m/s (hover 100 m overhead, docs/aircraft.md). 0 = at the estimate.
     height_jacobian_lag_s: float = 2.0
+    # ... which column: "height" (the height column at the low-passed horizontal position) or "weakest"
+    # (the Jacobian along the filter's least observable position direction, from its low-passed
+    # information, at the position low-passed across that direction)
+    lag_direction: str = "weakest"
     # residual station clock errors after the broadcast clock correction (docs/sync.md): "states" = one
     # first-order Gauss-Markov range bias per station heard, stationary variance = the broadcast clock
     # variance c^2 P_theta, correlation time ``clock_bias_tau_s`` (added as a station is first heard,
@@ -301,6 +305,10 @@ class CvTracker:
         self._r: np.ndarray | None = None
         self._tcache: tuple | None = None  # (x, P, truncated x, truncated P): see _constrained
         self._hlag: np.ndarray | None = None  # low-passed horizontal positions (..., 2): height_jacobian_lag_s
+        self._lagF: np.ndarray | None = None  # low-passed information of (position, clock) ("weakest")
+        self._ndir: np.ndarray | None = None  # the least observable position direction (..., 3) ("weakest")
+        self._ncomp: np.ndarray | None = None  # an orthonormal basis of its complement (..., 3, 2)
+        self._ndir_t_s = -np.inf  # when it was last computed
 
     # -- coordinates
     def _mask(self, X: np.ndarray, extra: int) -> np.ndarray:
@@ -459,12 +467,13 @@ class CvTracker:
     def save(self) -> tuple:
         """The filter's state (mean, covariance, coordinates, clock-bias states) for :meth:`restore`."""
         return (self._x, self._P, self._inv, list(self.bias_ids), self._bias_var.copy(), self._bias_t.copy(),
-                self._ref, self._radius, self.t_s, self._memory, dict(self._last_seen), self._hlag)
+                self._ref, self._radius, self.t_s, self._memory, dict(self._last_seen), self._hlag,
+                self._lagF, self._ndir, self._ncomp, self._ndir_t_s)
 
     def restore(self, saved: tuple) -> None:
         """Back to a :meth:`save`d state (an update re-run with other measurements: aircraft/fde.py)."""
         (self._x, self._P, self._inv, ids, bv, bt, self._ref, self._radius, self.t_s, self._memory, seen,
-         self._hlag) = saved
+         self._hlag, self._lagF, self._ndir, self._ncomp, self._ndir_t_s) = saved
         self._last_seen = dict(seen)
         self.bias_ids, self._bias_var, self._bias_t = list(ids), bv.copy(), bt.copy()
         self._bias_changed()
@@ -553,6 +562,7 @@ class CvTracker:
         D, sig = self._bias_map(stations_m, sig, bias_ids, bias_var_m2)
         R, z = self._noise_and_z(stations_m, rho_m, station_cov_m2, sig, dt_s)
         h, jac = self.measurement_model(stations_m, dt_s, D)
+        self._update_lag_direction(jac)
         keys = ([("id", sid) for sid in bias_ids] if bias_ids is not None
                 else [("pos",) + tuple(np.round(sj, 1)) for sj in stations_m])
         k = self._repeats(keys)
@@ -696,10 +706,10 @@ class CvTracker:
 
         dA = None  # the regression slope's height column moved as the EKF's (height_jacobian_lag_s)
         if jac is not None and self._lags_height():
-            col, m = self._lagged_height_column(jac, xl)
             J = jac(xl)
+            Dp, m = self._lag_correction(jac, xl, J)
             dA = np.zeros_like(J)
-            dA[..., 2] = np.where(m, col - J[..., 2], 0.0)
+            dA[..., :3] = np.where(m, Dp, 0.0)
         if xl is self._x and dA is None:  # nothing truncated, no lag: the plain UKF
             x1, P1, nu, S = ukf_update(self._x, self._P, z, h, R, self.params)
         else:  # statistical linearization over the truncated moments, applied to the filter's Gaussian
@@ -823,45 +833,84 @@ class CvTracker:
     def _lags_height(self) -> bool:
         return self._hlag is not None and self.tuning.height_jacobian_lag_s > 0 and not self._inv.all()
 
-    def _lagged_height_column(self, jac, X):
-        """``(col, m)``: the height column of ``jac`` at ``X`` (runs, n) with the horizontal position
-        replaced by the low-passed one, and the mask (runs, 1) of the runs it applies to (Cartesian)."""
+    def _lag_correction(self, jac, X, J):
+        """``(Dp, m)``: the change (runs, rows, 3) of the position columns of ``J = jac(X)`` that takes
+        the Jacobian along the lagged direction at the low-passed position, and the mask (runs, 1, 1) of
+        the runs it applies to (Cartesian). "height": the height column at the low-passed horizontal
+        position. "weakest": along the least observable direction ``n`` (unit, position), at the
+        position low-passed across ``n`` and current along it: ``(J(X_l) - J(X)) n n^T``."""
         Xl = X.copy()
-        Xl[..., :2] = self._hlag
-        col = jac(Xl)[..., 2]
+        if self._ndir is None:
+            Xl[..., :2] = self._hlag[..., :2]
+            Dp = np.zeros(J.shape[:-1] + (3,))
+            Dp[..., 2] = jac(Xl)[..., 2] - J[..., 2]
+        else:
+            n = self._ndir
+            p = X[..., :3]
+            Xl[..., :3] = self._hlag + n * np.einsum("...i,...i->...", n, p - self._hlag)[..., None]
+            dJn = np.einsum("...ri,...i->...r", jac(Xl)[..., :3] - J[..., :3], n)
+            Dp = dJn[..., None] * n[..., None, :]
         near = ~self._inv
-        return col, near.reshape(near.shape + (1,) * (col.ndim - near.ndim))
+        return Dp, near.reshape(near.shape + (1,) * (Dp.ndim - near.ndim))
 
     def _height_lagged(self, jac):
-        """``jac`` with the height column of the Cartesian runs taken at the low-passed horizontal
-        position (``Tuning.height_jacobian_lag_s``); ``jac`` itself while there is none."""
+        """``jac`` with the lagged direction of the Cartesian runs taken at the low-passed position
+        (``Tuning.height_jacobian_lag_s``, ``Tuning.lag_direction``); ``jac`` itself while there is none."""
         if not self._lags_height():
             return jac
 
         def jac_l(X):
             J = jac(X)
-            col, m = self._lagged_height_column(jac, X)
-            J[..., 2] = np.where(m, col, J[..., 2])
+            Dp, m = self._lag_correction(jac, X, J)
+            J[..., :3] = np.where(m, J[..., :3] + Dp, J[..., :3])
             return J
 
         return jac_l
 
+    def _update_lag_direction(self, jac) -> None:
+        """"weakest": low-pass (over ``height_jacobian_lag_s``) the information ``A^T A`` of the
+        position and clock columns of the Jacobian at the low-passed position, and take ``n`` as the
+        position part of its least eigenvector (TDMA: one range per update, the rank builds up)."""
+        if self.tuning.lag_direction != "weakest" or self._hlag is None or self.tuning.height_jacobian_lag_s <= 0:
+            return
+        X = self._constrained()[0].copy()
+        X[..., :3] = np.where(self._inv[..., None], X[..., :3], self._hlag)
+        cols = [0, 1, 2] + ([6] if self._clock else [])  # [p, v, b, ...]
+        A = jac(X)[..., cols]
+        F = np.swapaxes(A, -1, -2) @ A
+        a = min(1.0, self._step_s / self.tuning.height_jacobian_lag_s) if self._step_s > 0 else 1.0
+        self._lagF = F if self._lagF is None else self._lagF + a * (F - self._lagF)
+        if self._ndir is not None and self.t_s - self._ndir_t_s < self.tuning.height_jacobian_lag_s / 20:
+            return  # the direction of an information low-passed over the lag: every 1/20 of it is enough
+        w, V = np.linalg.eigh(self._lagF)
+        n = V[..., :3, 0]
+        self._ndir = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
+        self._ncomp = _complement(self._ndir)
+        self._ndir_t_s = self.t_s
+
     def _advance_hlag(self) -> None:
-        """Low-pass the horizontal position (``a = step / height_jacobian_lag_s``); a run more than 4
-        sigma (Mahalanobis, horizontal) from it restarts at its estimate (2 sigma: hover 100 m overhead
-        23.0 m RMS height error at 16 s, 4 sigma 20.6 m, never 21.1 m; seed 2, 24 runs)."""
+        """Low-pass the position (``a = step / height_jacobian_lag_s``): horizontal ("height"), or all
+        three coordinates ("weakest"); a run more than 4 sigma (Mahalanobis, across the lagged
+        direction) from it restarts at its estimate (2 sigma: hover 100 m overhead 23.0 m RMS height
+        error at 16 s, 4 sigma 20.6 m, never 21.1 m; seed 2, 24 runs)."""
         lag = self.tuning.height_jacobian_lag_s
         if lag <= 0:
             return
+        weakest = self.tuning.lag_direction == "weakest"
+        k = 3 if weakest else 2
         xc, Pc = self._constrained()
-        p = self._cart(xc)[..., :2]
+        p = self._cart(xc)[..., :k]
         if self._hlag is None:
             self._hlag = p.copy()
             return
         d = p - self._hlag
-        T = self._T(xc)  # the horizontal block only: the position depends on the position states only
-        Ph = Pc[..., :2, :2] if T is None else T[..., :2, :3] @ Pc[..., :3, :3] @ np.swapaxes(T[..., :2, :3], -1, -2)
-        m2 = _mahalanobis2(d, Ph)
+        T = self._T(xc)  # the position block only: the position depends on the position states only
+        Ph = Pc[..., :k, :k] if T is None else T[..., :k, :3] @ Pc[..., :3, :3] @ np.swapaxes(T[..., :k, :3], -1, -2)
+        if weakest and self._ndir is not None:  # across n: the basis E (..., 3, 2) of its complement
+            E = self._ncomp
+            m2 = _mahalanobis2(np.einsum("...ij,...i->...j", E, d), np.swapaxes(E, -1, -2) @ Ph @ E)
+        else:
+            m2 = _mahalanobis2(d, Ph) if not weakest else np.zeros(d.shape[:-1])
         a = min(1.0, self._step_s / lag) if self._step_s > 0 else 1.0
         self._hlag = np.where(~(m2 <= 16.0)[..., None], p, self._hlag + a * d)
 
@@ -916,6 +965,14 @@ class CvTracker:
         if own:
             self._tcache = (self._x, self._P) + out
         return out
+
+
+def _complement(n: np.ndarray) -> np.ndarray:
+    """An orthonormal basis (..., 3, 2) of the plane orthogonal to the unit vectors ``n`` (..., 3)."""
+    a = np.where((np.abs(n[..., 0]) < 0.9)[..., None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+    e1 = np.cross(n, a)
+    e1 /= np.linalg.norm(e1, axis=-1, keepdims=True)
+    return np.stack([e1, np.cross(n, e1)], axis=-1)
 
 
 def _mahalanobis2(d: np.ndarray, P: np.ndarray) -> np.ndarray:
