@@ -274,6 +274,8 @@ class CvTracker:
             raise ValueError(f"x0 must have {self.layout.n} states for {model}, got {x0.shape}")
         if tuning.coords not in ("inverse", "cartesian"):
             raise ValueError(f"unknown coords {tuning.coords!r} (inverse or cartesian)")
+        if tuning.lag_direction not in ("weakest", "height"):
+            raise ValueError(f"unknown lag_direction {tuning.lag_direction!r} (weakest or height)")
         if tuning.clock_bias not in ("states", "white"):
             raise ValueError(f"unknown clock_bias {tuning.clock_bias!r} (states or white)")
         self.n_base = self.layout.n  # states after these: the stations' clock biases (bias_ids order)
@@ -873,7 +875,7 @@ class CvTracker:
         position part of its least eigenvector (TDMA: one range per update, the rank builds up)."""
         if self.tuning.lag_direction != "weakest" or self._hlag is None or self.tuning.height_jacobian_lag_s <= 0:
             return
-        X = self._constrained()[0].copy()
+        X = self._cart(self._constrained()[0]).copy()  # Cartesian: the model's own Jacobian
         X[..., :3] = np.where(self._inv[..., None], X[..., :3], self._hlag)
         cols = [0, 1, 2] + ([6] if self._clock else [])  # [p, v, b, ...]
         A = jac(X)[..., cols]

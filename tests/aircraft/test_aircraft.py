@@ -615,6 +615,21 @@ def test_tdma_far_field_start_from_a_wide_prior_converges():
         assert sig < 10.0 and err < 10.0, (kind, err, sig)
 
 
+def _ekf_pr_over(ac, track, xt, t, tun, runs: int, seed: int):
+    """An EKF-PR (8 states) over ``track`` from the prior around the truth, seeded; returns it."""
+    from aircraft import models as mdl
+    from aircraft import sim
+
+    rng = np.random.default_rng(seed)
+    rho = sim.pseudoranges(track, ac.stations_m, ac.clock, ac.sigma_m, runs, rng)
+    x0 = xt[0] + rng.standard_normal((runs, 8)) @ np.linalg.cholesky(tun.p0(mdl.StateLayout("pr", drift=True))).T
+    trk = CvTracker("ekf", "pr", x0, tun)
+    for k in range(t.size):
+        trk.predict_to(float(t[k]))
+        trk.update(ac.stations_m, rho[k])
+    return trk
+
+
 def test_hover_overhead_height_does_not_drift_with_the_lagged_height_column():
     """Right above the centre of the seed001 square the height is not observable; an EKF whose
     Jacobian's height column is taken at its own (noisy) horizontal estimate pushed the height up
@@ -633,14 +648,7 @@ def test_hover_overhead_height_does_not_drift_with_the_lagged_height_column():
     xt = sim.true_state(track, ac.clock, lay)
     out = {}
     for lag in (2.0, 0.0):
-        rng = np.random.default_rng(2)
-        rho = sim.pseudoranges(track, ac.stations_m, ac.clock, ac.sigma_m, 24, rng)
-        tun = replace(ac.tuning, height_jacobian_lag_s=lag)
-        x0 = xt[0] + rng.standard_normal((24, 8)) @ np.linalg.cholesky(tun.p0(lay)).T
-        trk = CvTracker("ekf", "pr", x0, tun)
-        for k in range(t.size):
-            trk.predict_to(float(t[k]))
-            trk.update(ac.stations_m, rho[k])
+        trk = _ekf_pr_over(ac, track, xt, t, replace(ac.tuning, height_jacobian_lag_s=lag), 24, 2)
         out[lag] = float(np.mean(trk.x[:, 2] - xt[-1, 2]))
     assert abs(out[2.0]) < 8.0 and out[0.0] > 15.0, out
 
@@ -667,14 +675,7 @@ def test_symmetry_plane_no_drift_along_the_unobservable_direction():
     assert np.linalg.norm(Hpb @ null) < 1e-9
     out = {}
     for mode in ("weakest", "height"):
-        rng = np.random.default_rng(5)
-        rho = sim.pseudoranges(track, ac.stations_m, ac.clock, ac.sigma_m, 48, rng)
-        tun = replace(ac.tuning, lag_direction=mode)
-        x0 = xt[0] + rng.standard_normal((48, 8)) @ np.linalg.cholesky(tun.p0(lay)).T
-        trk = CvTracker("ekf", "pr", x0, tun)
-        for k in range(t.size):
-            trk.predict_to(float(t[k]))
-            trk.update(ac.stations_m, rho[k])
+        trk = _ekf_pr_over(ac, track, xt, t, replace(ac.tuning, lag_direction=mode), 48, 5)
         e = (trk.x - xt[-1])[:, [0, 1, 2, 6]] @ null
         out[mode] = abs(float(np.mean(e)))
     assert out["weakest"] < 0.5 * out["height"] and out["height"] > 10.0, out
