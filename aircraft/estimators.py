@@ -213,16 +213,17 @@ class Tuning:
     # ... and only beyond this many array radii (RMS station distance from the centroid) from the
     # reference: close to the array the ranges to single stations dominate the nonlinearity
     inverse_min_radii: float = 3.0
-    # runs in Cartesian coordinates (near the array): the height column of the Jacobian (EKF) or of the
-    # sigma points' regression slope (UKF) is taken at the horizontal position low-passed over this
-    # many seconds (restarted at the estimate beyond 4 sigma: a moving aircraft). Right above the array
-    # the height is not observable; taken at the estimate, that column is proportional to the
-    # estimate's own horizontal error, which the innovation also carries, and the noise-driven product
-    # pushed the height up ~2 m/s (hover 100 m overhead, docs/aircraft.md). 0 = at the estimate.
+    # runs in Cartesian coordinates (near the array): the Jacobian (EKF) or the sigma points'
+    # regression slope (UKF) along one direction is taken at the position low-passed over this many
+    # seconds (restarted at the estimate beyond 4 sigma: a moving aircraft). Where a direction is not
+    # observable (right above the array: the height; on a mirror plane of the square: x, z and the
+    # clock) the Jacobian along it, taken at the estimate, is proportional to the estimate's own error
+    # across it, which the innovation also carries, and the noise-driven product drove the estimate
+    # along the ridge (~2 m/s up at hover 100 m overhead, docs/aircraft.md). 0 = at the estimate.
     height_jacobian_lag_s: float = 2.0
-    # ... which column: "height" (the height column at the low-passed horizontal position) or "weakest"
-    # (the Jacobian along the filter's least observable position direction, from its low-passed
-    # information, at the position low-passed across that direction)
+    # ... which direction: "weakest" (the least observable position direction from the filter's own
+    # information, low-passed; the position lagged across it, current along it) or "height" (the
+    # height column at the low-passed horizontal position, as until 2026-11-26)
     lag_direction: str = "weakest"
     # residual station clock errors after the broadcast clock correction (docs/sync.md): "states" = one
     # first-order Gauss-Markov range bias per station heard, stationary variance = the broadcast clock
@@ -633,7 +634,7 @@ class CvTracker:
                 return jc(self._cart(X)) @ self._T(X)
 
         xl, Pl = self._constrained()  # linearize where the density is: above the floor
-        jac = self._height_lagged(jac)
+        jac = self._lagged_jac(jac)
         if self.tuning.ekf_second_order:
             # Gaussian second-order terms of the ranges, from those moments
             c2, S2 = self._second_order(stations_m, dt_s, xl, Pl)
@@ -706,8 +707,8 @@ class CvTracker:
             def h(X):
                 return hc(self._cart(X))
 
-        dA = None  # the regression slope's height column moved as the EKF's (height_jacobian_lag_s)
-        if jac is not None and self._lags_height():
+        dA = None  # the regression slope moved along the lagged direction as the EKF's Jacobian
+        if jac is not None and self._lags():
             J = jac(xl)
             Dp, m = self._lag_correction(jac, xl, J)
             dA = np.zeros_like(J)
@@ -796,7 +797,7 @@ class CvTracker:
         linear regression ``h(X) ~ A X + b + e``, ``e ~ N(0, Omega)`` over the sigma points of the
         latest posterior ``N(xi, Pi)``, then a linear update of the prior ``(x, P)`` with it. The first
         pass (``xi, Pi`` = prior) is exactly the plain UKF update. ``dA``: a change of the slope (the
-        lagged height column, :meth:`_height_lagged`), the line kept through the mean prediction at
+        lagged direction, :meth:`_lagged_jac`), the line kept through the mean prediction at
         ``xi``; the residual covariance stays that of the regression."""
         ut = unscented_transform(h, xi, Pi, self.params)
         At = chol_solve(Pi, ut.cross)  # (n, m): Pi A^T = Pxz
@@ -832,7 +833,7 @@ class CvTracker:
             Ss.append(S[..., 0, 0])
         return np.stack(nus, axis=-1), np.stack(Ss, axis=-1)
 
-    def _lags_height(self) -> bool:
+    def _lags(self) -> bool:
         return self._hlag is not None and self.tuning.height_jacobian_lag_s > 0 and not self._inv.all()
 
     def _lag_correction(self, jac, X, J):
@@ -855,10 +856,10 @@ class CvTracker:
         near = ~self._inv
         return Dp, near.reshape(near.shape + (1,) * (Dp.ndim - near.ndim))
 
-    def _height_lagged(self, jac):
+    def _lagged_jac(self, jac):
         """``jac`` with the lagged direction of the Cartesian runs taken at the low-passed position
         (``Tuning.height_jacobian_lag_s``, ``Tuning.lag_direction``); ``jac`` itself while there is none."""
-        if not self._lags_height():
+        if not self._lags():
             return jac
 
         def jac_l(X):
@@ -908,11 +909,13 @@ class CvTracker:
         d = p - self._hlag
         T = self._T(xc)  # the position block only: the position depends on the position states only
         Ph = Pc[..., :k, :k] if T is None else T[..., :k, :3] @ Pc[..., :3, :3] @ np.swapaxes(T[..., :k, :3], -1, -2)
-        if weakest and self._ndir is not None:  # across n: the basis E (..., 3, 2) of its complement
+        if not weakest:
+            m2 = _mahalanobis2(d, Ph)
+        elif self._ndir is None:  # no direction yet (first update): nothing to test across
+            m2 = np.zeros(d.shape[:-1])
+        else:  # across n: in the basis E (..., 3, 2) of its complement
             E = self._ncomp
             m2 = _mahalanobis2(np.einsum("...ij,...i->...j", E, d), np.swapaxes(E, -1, -2) @ Ph @ E)
-        else:
-            m2 = _mahalanobis2(d, Ph) if not weakest else np.zeros(d.shape[:-1])
         a = min(1.0, self._step_s / lag) if self._step_s > 0 else 1.0
         self._hlag = np.where(~(m2 <= 16.0)[..., None], p, self._hlag + a * d)
 

@@ -230,8 +230,8 @@ def print_table(doc: dict, file=sys.stdout) -> None:
     s = doc["settings"]
     algos = s["algos"]
     print(f"\nEnvelope: RMSE / PCRB per filter ({', '.join(algos)}); {s['runs']} runs x {s['duration_s']:g} s, "
-          f"warm-up {s['warmup_s']:g} s, {s.get('prior_draws', 'iid')} prior draws; '*' = above the bar, '!' = significant at 95 %, '#' = mean NEES above "
-          "its band", file=file)
+          f"warm-up {s['warmup_s']:g} s, {s.get('prior_draws', 'iid')} prior draws; '*' = above the bar, "
+          "'!' = significant at 95 %, '#' = mean NEES above its band", file=file)
     look = {(e["traj"], e["height_m"], e["dist_m"], e["bearing_deg"], e["algo"]): e for e in env}
     for traj in s["trajs"]:
         for az in s["bearings_deg"]:
