@@ -843,7 +843,7 @@ class CvTracker:
         position. "weakest": along the least observable direction ``n`` (unit, position), at the
         position low-passed across ``n`` and current along it: ``(J(X_l) - J(X)) n n^T``."""
         Xl = X.copy()
-        if self._ndir is None:
+        if self.tuning.lag_direction == "height" or self._ndir is None:  # (weakest: not yet computed)
             Xl[..., :2] = self._hlag[..., :2]
             Dp = np.zeros(J.shape[:-1] + (3,))
             Dp[..., 2] = jac(Xl)[..., 2] - J[..., 2]
