@@ -32,7 +32,7 @@ RUN set -eu; \
         echo "dependencies from the package index"; \
         set --; \
     fi; \
-    /opt/larns/bin/pip install "$@" "setuptools>=68" wheel -r /wheels/requirements.txt; \
+    /opt/larns/bin/pip install "$@" "setuptools>=77" wheel -r /wheels/requirements.txt; \
     /opt/larns/bin/pip check; \
     # larns itself lives in /opt/larns-app (next stage), put on the venv's path by a .pth file
     echo /opt/larns-app >"$(/opt/larns/bin/python -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/larns-app.pth"

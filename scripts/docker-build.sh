@@ -50,7 +50,7 @@ if [ "$WHEELS" = 1 ]; then
     log "wheelhouse up to date ($WH)"
   else
     rm -rf "$WH"; mkdir -p "$WH"
-    "$PY" -m pip wheel -q --disable-pip-version-check -r "$reqs" "setuptools>=68" wheel -c "$constraints" -w "$WH"
+    "$PY" -m pip wheel -q --disable-pip-version-check -r "$reqs" "setuptools>=77" wheel -c "$constraints" -w "$WH"
     touch "$WH/.key-$key"
   fi
   log "wheels: $(ls "$WH" | wc -l) files, $(du -sh "$WH" | cut -f1) in $WH ($(dt "$t") s)"
