@@ -6,6 +6,7 @@ commands.
 
 from __future__ import annotations
 
+import argparse
 import importlib
 
 BENCHES: list[str] = [
@@ -22,13 +23,22 @@ BENCHES: list[str] = [
 ]
 
 
+class _BenchParser(argparse.ArgumentParser):
+    """A bench's parser. Its ``description`` is printed like its help strings: argparse %-formats help
+    strings (``95%%`` prints ``95%``) but prints descriptions as written, and the benches write ``%%``
+    in both for one spelling."""
+
+    def __init__(self, *args, description: str | None = None, **kwargs):
+        super().__init__(*args, description=description and description.replace("%%", "%"), **kwargs)
+
+
 def register(sub) -> None:
     p = sub.add_parser(
         "bench",
         help="run a benchmark (table + JSON)",
         description="Benchmarks: accuracy and speed targets are measured here, not in unit tests.",
     )
-    bsub = p.add_subparsers(dest="bench", metavar="BENCH")
+    bsub = p.add_subparsers(dest="bench", metavar="BENCH", parser_class=_BenchParser)
     for mod in BENCHES:
         importlib.import_module(mod).register(bsub)
     p.set_defaults(func=lambda a: (p.print_help(), 2)[1])
