@@ -25,8 +25,12 @@ def add_process_args(p: argparse.ArgumentParser, *, scenario: str, what: str, ne
     p.add_argument("--speed", type=float, default=1.0, help="run K times faster than real time (default 1)")
     p.add_argument("--epoch", type=float, default=None,
                    help="fleet epoch, Unix seconds (all processes must agree; default: start of the UTC day)")
-    p.add_argument("--duration", type=float, default=None,
-                   help="stop at this fleet time (seconds since the epoch); default: run until signalled")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="run for S fleet seconds from power-on (--until T: stop at fleet time T); default: "
+                        "until the attached fleet ends, else until signalled")
+    from .attach import add_attach_args
+
+    add_attach_args(p)  # --fleet FILE, --until T (net/attach.py)
     p.add_argument("--seed", type=int, default=None, help="override the scenario's world seed")
     p.add_argument("--n-stations", type=int, default=None,
                    help="override the number of stations of a random-layout scenario")
@@ -49,7 +53,7 @@ def add_output_args(p: argparse.ArgumentParser) -> None:
 
     p.add_argument("--status-every", type=float, default=5.0, help="fleet seconds between status lines")
     p.add_argument("--report-json", action="store_true", help="print a JSON report on stdout at exit")
-    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("-q", "--quiet", action="store_true", help="no start, status and stop lines")
     add_bus_args(p)
 
 
@@ -63,7 +67,18 @@ def build_parser(prog: str, doc: str | None, add_args: Callable[[argparse.Argume
 def main(argv: list[str] | None, prog: str, doc: str | None, add_args: Callable[[argparse.ArgumentParser], None],
          main_args: Callable[[argparse.Namespace], int]) -> int:
     """``python -m <package>``: parse ``argv`` with the process's flags and run it."""
-    return main_args(build_parser(prog, doc, add_args).parse_args(argv))
+    import time
+
+    from .attach import FleetFileError, resolve
+
+    parser = build_parser(prog, doc, add_args)
+    args = parser.parse_args(argv)
+    try:  # --fleet / the default fleet file; --duration as a run length -> the end's fleet time
+        resolve(args, time.time(), prog, parser)
+    except FleetFileError as e:
+        print(f"{prog}: {e}", file=sys.stderr)
+        return 2
+    return main_args(args)
 
 
 def setup_logging() -> None:

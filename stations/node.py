@@ -91,7 +91,8 @@ class StationNode:
         from .sim import make_core
 
         if opts.station_id not in scn.ids:
-            raise ValueError(f"station {opts.station_id} is not in scenario {scn.name} (ids {scn.ids})")
+            raise ValueError(f"station {opts.station_id} is not in scenario {scn.name} (ids {scn.ids}); "
+                             "a station from outside the scenario hot-joins with --join")
         if opts.speed <= 0:
             raise ValueError("--speed must be > 0")
         self.scn = scn
@@ -514,6 +515,10 @@ def add_args(p: argparse.ArgumentParser) -> None:
                    help="hot-join a running fleet: listen for a cycle, claim a free slot, initialize")
     p.add_argument("--start-at", type=float, default=None, metavar="T",
                    help="power on at fleet time T (with --join: hot-join at T); default: now")
+    p.add_argument("--pos", type=_pos_arg, default=None, metavar="X,Y,Z",
+                   help="true position (network frame, m) of a --join station that is not in the scenario; "
+                        "default for a random layout: drawn from the scenario seed and the id inside the "
+                        "layout's area (as the scenario's own joiners; only the world side sees it)")
     p.add_argument("--estimator", default=None, help="override the scenario's survey estimator")
     cli.add_process_args(p, scenario="seed000", what="station")
     add_sched_args(p)
@@ -536,7 +541,55 @@ def load_scenario(args: argparse.Namespace) -> Scenario:
 
     scn = S.load_cli(args.scenario, args.n_stations)
     net = merge_faults(scn.net, args.net_delay, args.net_jitter, args.net_loss, args.net_dup)
-    return replace(scn, net=net)
+    scn = replace(scn, net=net)
+    if getattr(args, "join", False) and args.id not in scn.ids:
+        scn = with_joiner(scn, args.id, getattr(args, "pos", None), args.n_stations)
+    elif getattr(args, "pos", None) is not None:
+        raise ValueError(f"--pos: station {args.id} is in scenario {scn.name}; its position comes from the "
+                         "scenario (--pos is for a --join station from outside it)")
+    return scn
+
+
+def _pos_arg(text: str) -> tuple[float, float, float]:
+    """``X,Y,Z`` in metres (argparse type: a bad value is one usage error line, exit 2)."""
+    try:
+        xyz = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        xyz = ()
+    if len(xyz) != 3 or not all(math.isfinite(v) for v in xyz):
+        raise argparse.ArgumentTypeError(f"expected X,Y,Z in metres (three numbers), got {text!r}")
+    return xyz  # type: ignore[return-value]
+
+
+def with_joiner(scn: Scenario, station_id: int, pos_m: tuple[float, float, float] | None = None,
+                n_stations: int | None = None) -> Scenario:
+    """``scn`` plus a hot-joining station ``station_id`` that it does not list. Its true position
+    (world side only: channel, truth topic, coarse fix - never the estimator) is ``pos_m`` (network
+    frame), else - random layouts - the scenario's own joiner draw extended to this id (the same
+    stream as ``[layout] joiners``: station 11 of seed000 sits where seed000-join puts it)."""
+    from dataclasses import replace
+
+    from net import scenario as S
+
+    if station_id < 1 or station_id > 65535:
+        raise ValueError(f"--id {station_id}: expected a station id in 1..65535")
+    if pos_m is None:
+        lay = scn.raw.get("layout")
+        if "stations" in scn.raw or not isinstance(lay, dict):
+            raise ValueError(f"station {station_id} is not in scenario {scn.name} (ids {scn.ids}) and its "
+                             "stations are listed: give the joiner's position with --pos X,Y,Z (network frame, m)")
+        n = int(n_stations or lay.get("n", 10))
+        if station_id <= n:
+            raise ValueError(f"station {station_id} is not in scenario {scn.name} (ids {scn.ids})")
+        raw = {k: (dict(v) if isinstance(v, dict) else v) for k, v in scn.raw.items()}
+        raw["layout"] = {**lay, "n": n, "joiners": station_id - n}
+        drawn = S.from_dict(raw)
+        pos_m = drawn.true_pos(station_id)
+    ids = sorted([*scn.ids, station_id])
+    pos = dict(zip(scn.ids, np.asarray(scn.pos_m, float)))
+    pos[station_id] = np.asarray(pos_m, float)
+    return replace(scn, ids=ids, pos_m=np.array([pos[i] for i in ids]),
+                   join_ids=sorted([*scn.join_ids, station_id]))
 
 
 def main_args(args: argparse.Namespace) -> int:
@@ -554,7 +607,11 @@ def main_args(args: argparse.Namespace) -> int:
     # interval) for the GIL while the main thread works through a batch of navs
     sys.setswitchinterval(SWITCH_INTERVAL_S)
     apply_sched_args(args, f"station {args.id}", log)  # before Zenoh starts its threads: they inherit it
-    scn = load_scenario(args)
+    try:
+        scn = load_scenario(args)
+    except ValueError as e:  # (ScenarioError included) one line, exit 2
+        print(f"error: station {args.id}: {e}", file=sys.stderr)
+        return 2
     opts = NodeOptions(station_id=args.id, join=args.join, speed=args.speed, epoch_unix_s=args.epoch,
                        duration_s=args.duration, start_at_s=args.start_at, estimator=args.estimator, seed=args.seed,
                        status_every_s=args.status_every, quiet=args.quiet,

@@ -59,6 +59,10 @@ def register(sub) -> None:
     p.add_argument("--no-table", action="store_true", help="no live table (final table only)")
     p.add_argument("--logs", default=None, help="folder for per-process logs (default FILE.mcap.logs/)")
     p.add_argument("--json", default=None, help="write the final table as JSON")
+    p.add_argument("--fleet-file", default=None, metavar="FILE",
+                   help="where to write the fleet file (epoch, speed, scenario, endpoints, secure or not) that "
+                        "`larns station/aircraft/vehicle/record/monitor --fleet FILE` attach with; default: "
+                        "fleet.json beside the --record file, else in the log folder")
     add_bus_args(p)
     p.set_defaults(func=lambda a: _run_checked(_fix(a)))
 

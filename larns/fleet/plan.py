@@ -30,6 +30,7 @@ class FleetPlan:
     monitor_ep: str
     secure: str | None = None
     children: list[Child] = field(default_factory=list)
+    endpoints: dict[str, str] = field(default_factory=dict)  # process name -> its listening endpoint
 
 
 def parse_joins(args: argparse.Namespace, scn) -> list[tuple[int, float]]:
@@ -107,6 +108,7 @@ def plan_fleet(args: argparse.Namespace) -> FleetPlan:
         seeds = list(args.connect) if args.connect else [station_ep[scn.ids[0]], station_ep[scn.ids[1]]]
     p = FleetPlan(scn, joins, [i for i in scn.ids if i not in join_ids], epoch, margin, log_folder(args), mode,
                   seeds, eps[len(scn.ids)], secure)
+    p.endpoints = _endpoints(args, mode, station_ep, eps[-1])
     if mode == "client" and not args.connect:
         p.children.append(_router_child(args, p, eps[-1]))
     if args.record:
@@ -130,6 +132,13 @@ def plan_fleet(args: argparse.Namespace) -> FleetPlan:
     return p
 
 
+def _endpoints(args: argparse.Namespace, mode: str, station_ep: dict[int, str], router_ep: str) -> dict[str, str]:
+    """Who listens where (for the fleet file): the stations of a peer fleet, or our own router."""
+    if mode == "peer":
+        return {f"station {sid}": ep for sid, ep in station_ep.items()}
+    return {} if args.connect else {"router": router_ep}
+
+
 def wants_vehicle(args: argparse.Namespace) -> bool:
     """``--vehicle`` (or a vehicle route / outage, which imply it)."""
     return bool(getattr(args, "vehicle", False) or getattr(args, "vehicle_route", None)
@@ -141,7 +150,7 @@ def _vehicle_child(args: argparse.Namespace, p: FleetPlan, common: list[str]) ->
 
     cmd = [sys.executable, "-m", "vehicle", *common]  # (net-fault flags accepted, not applied: as the aircraft)
     if args.duration:
-        cmd += ["--duration", repr(args.duration)]
+        cmd += ["--until", repr(args.duration)]
     if getattr(args, "vehicle_route", None):
         cmd += ["--route", str(args.vehicle_route)]
     if getattr(args, "vehicle_outage", None):
@@ -180,7 +189,7 @@ def _station_child(args: argparse.Namespace, p: FleetPlan, sid: int, ep: str, co
     if args.nice:
         cmd += ["--nice", str(args.nice)]
     if args.duration:
-        cmd += ["--duration", repr(args.duration)]
+        cmd += ["--until", repr(args.duration)]
     start_wall = 0.0
     joins = dict(p.joins)
     if sid in joins:
@@ -196,7 +205,7 @@ def _aircraft_child(args: argparse.Namespace, p: FleetPlan, common: list[str]) -
 
     cmd = [sys.executable, "-m", "aircraft", *common]
     if args.duration:
-        cmd += ["--duration", repr(args.duration)]
+        cmd += ["--until", repr(args.duration)]
     cmd += bus_argv(["tcp/127.0.0.1:0"], p.seeds, args.zenoh_config, p.mode, p.secure)
     return Child("aircraft", cmd, _log(p, "aircraft.log"))
 

@@ -26,6 +26,37 @@ def _announce(args: argparse.Namespace, p: FleetPlan) -> None:
           + (f", logs in {p.logdir}/" if p.logdir else ""), file=sys.stderr, flush=True)
 
 
+def fleet_file_path(args: argparse.Namespace, p: FleetPlan) -> Path:
+    """``--fleet-file``, else ``fleet.json`` beside the recording, else in the log folder."""
+    if getattr(args, "fleet_file", None):
+        return Path(args.fleet_file)
+    if args.record:
+        return Path(args.record).parent / "fleet.json"
+    return Path(p.logdir or ".") / "fleet.json"
+
+
+def write_fleet_file(args: argparse.Namespace, p: FleetPlan) -> Path:
+    """What a separately started process needs to attach (``larns station --join --fleet FILE``;
+    ``net/attach.py``): epoch, speed, scenario, endpoints, secure or not."""
+    import os
+    import socket
+
+    from net.attach import fleet_record
+    from net.attach import write_fleet_file as write
+
+    scenario = str(args.scenario)
+    if Path(scenario).is_file():  # a path: absolute, so a process started elsewhere finds it
+        scenario = str(Path(scenario).resolve())
+    faults = {k: getattr(args, f"net_{k}") for k in ("delay", "jitter", "loss", "dup")
+              if getattr(args, f"net_{k}", None) is not None}
+    rec = fleet_record(scenario=scenario, scenario_name=p.scn.name, n_stations=args.n_stations, epoch_unix_s=p.epoch,
+                       speed=args.speed, duration_s=args.duration, mode=p.mode, connect=p.seeds,
+                       endpoints=p.endpoints, secure=p.secure,
+                       recording=str(Path(args.record).resolve()) if args.record else None,
+                       net_faults=faults, pid=os.getpid(), host=socket.gethostname())
+    return write(fleet_file_path(args, p), rec)
+
+
 def _final(args: argparse.Namespace, p: FleetPlan, monitor: Monitor, final: list[StationView],
            interrupted: bool) -> int:
     """Final table, exit codes, ``--json``; the launcher's exit code."""
@@ -57,6 +88,10 @@ def run_fleet(args: argparse.Namespace) -> int:
     old_int = signal.signal(signal.SIGINT, on_signal)
     old_term = signal.signal(signal.SIGTERM, on_signal)
     _announce(args, p)
+    ffile = write_fleet_file(args, p)
+    print(f"[fleet] fleet file {ffile} (epoch {p.epoch:.3f}, connect {' '.join(p.seeds)}"
+          f"{', secure' if p.secure else ''}); attach with: larns station --id N --join --fleet {ffile}",
+          file=sys.stderr, flush=True)
     monitor = Monitor()
     bus = None
     final: list[StationView] = []

@@ -179,7 +179,7 @@ def test_cli_flags_and_fleet_child():
 
     c = _vehicle_child(ns, P(), ["--scenario", "seed000", "--speed", "2.0", "--epoch", "5.0"])
     assert c.cmd[1:3] == ["-m", "vehicle"] and c.cmd[c.cmd.index("--route") + 1] == "r.toml"
-    assert c.cmd[c.cmd.index("--outage") + 1] == "1,2" and "--duration" in c.cmd
+    assert c.cmd[c.cmd.index("--outage") + 1] == "1,2" and c.cmd[c.cmd.index("--until") + 1] == "30.0"
 
 
 def test_offline_reestimation_of_a_written_recording(run40, tmp_path):
