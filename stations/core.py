@@ -36,6 +36,7 @@ import numpy as np
 
 from nav.geometry import SPEED_OF_LIGHT_M_S
 
+from .admission import Admission, Bounds
 from .clocksync import ClockEstimator, ClockModel
 from .estimators import SurveyEstimator, make_estimator
 from .integrity import StationIntegrity
@@ -63,6 +64,11 @@ class StationConfig:
     clock_freq_sigma: float = 0.0
     clock_q_wf_s: float = 0.0
     clock_q_rw_per_s: float = 0.0
+    # plausibility bounds (stations/admission.py): the field's extent (largest distance of a station
+    # from station 1; 0 = unknown, then max_range_m) plus a margin; the peer bound (0 = one per slot)
+    field_radius_m: float = 0.0
+    field_margin_m: float = 1000.0
+    max_peers: int = 0
 
 
 class StationCore:
@@ -97,7 +103,11 @@ class StationCore:
         self._exchange_of: dict[int, list] = {}
         self.ranges_out: list[list] = []
         self.counters = {"requests": 0, "responses": 0, "lost": 0, "ranges_in": 0, "ignored": 0,
-                         "rejected_ranges": 0, "late": 0, "sync_in": 0}
+                         "rejected_ranges": 0, "late": 0, "sync_in": 0, "implausible": 0}
+        # plausibility before trust: senders, ids, values and slot claims (stations/admission.py)
+        self.admission = Admission(Bounds.of(cfg), self.plan.cycle_s,
+                                   cfg.max_peers or self.plan.slots_per_cycle + 1)
+        self.admission.ids.update([cfg.id, *self.known])
         if cfg.join:
             self.state = "joining"
             self.slot: int | None = None
@@ -259,7 +269,33 @@ class StationCore:
         if msg.get("src") == self.id:
             return []
         handler = self._HANDLERS.get(msg.get("kind"))
-        return [] if handler is None else handler(self, msg, t_rx_s)
+        if handler is None or not self._admit(msg, t_rx_s):
+            return []
+        return handler(self, msg, t_rx_s)
+
+    def _admit(self, msg: dict, t_rx_s: float) -> bool:
+        """Plausibility before trust: the sender within the peer bound, the message's values within
+        the field's physical bounds (``stations/admission.py``); else dropped and counted."""
+        adm = self.admission
+        if not adm.admit_sender(msg["src"]):
+            self.counters["implausible"] += 1
+            return False
+        why = adm.station_fields(msg, t_rx_s)
+        if why is not None:
+            adm.drop(why)
+            self.counters["implausible"] += 1
+            return False
+        return True
+
+    def _plausible_entry(self, src: int, r: list, t_tx_s: float, t_rx_s: float) -> bool:
+        """A nav's range entry: its values within bounds, its peer id admitted (counted if not)."""
+        why = self.admission.range_entry(r, t_tx_s)
+        if why is not None:
+            self.admission.drop(why)
+        elif self.admission.admit_named(src, r[0], t_rx_s):
+            return True
+        self.counters["implausible"] += 1
+        return False
 
     def _on_range_req(self, msg: dict, t_rx_s: float) -> list[dict]:
         """A range request: answered after the turnaround if it is for us and still in its slot."""
@@ -324,7 +360,9 @@ class StationCore:
         self._heard(src, t_rx_s)
         pos, cov = self._update_peer(src, msg)
         slot = msg.get("slot")
-        if slot is not None:
+        # a slot claim is believed only if the nav arrived inside that slot (and not too often changed)
+        in_slot = "cycle" not in msg or self._in_slot(msg, t_rx_s)  # (every nav on the wire has a cycle)
+        if slot is not None and self.admission.slot_claim(src, slot, in_slot, t_rx_s):
             self.heard_slots[src] = slot
             if self.slot is not None and slot == self.slot and src < self.id:
                 # slot collision: the lower id keeps the slot, we listen again and re-claim
@@ -337,6 +375,8 @@ class StationCore:
         if corr is not None:
             self.clk.on_nav(src, t_rx_s, msg["t_tx_s"], corr)  # coarse, only while unknown
         for r in msg.get("ranges", ()):
+            if not self._plausible_entry(src, r, msg.get("t_tx_s", t_rx_s), t_rx_s):
+                continue
             peer, range_m = r[0], r[1]
             if len(r) == 4 and corr is not None and 0.0 < range_m < self.cfg.max_range_m:
                 # every exchange the network makes refines the network clock filter: ours (the

@@ -19,6 +19,7 @@ import numpy as np
 from net.channel import AirChannel, Clock, coarse_fix, draw_clock, station_rng
 from net.scenario import Scenario
 
+from .admission import field_radius
 from .core import StationConfig, StationCore
 from .shell import PublishPolicy
 from .shellfaults import ShellFaults
@@ -82,6 +83,7 @@ def make_core(scn: Scenario, station_id: int, *, estimator: str | None = None, j
         clock_freq_sigma=scn.clock.freq_sigma,
         clock_q_wf_s=scn.clock.q_wf_s,
         clock_q_rw_per_s=scn.clock.q_rw_per_s,
+        field_radius_m=field_radius(scn.pos_m, scn.ids),
     )
     return StationCore(cfg, pos0, cov0, start_s=clock.to_local(start_s)), clock
 
