@@ -18,6 +18,7 @@ from . import __version__
 COMMANDS: list[str] = [
     "larns.commands.bench",
     "larns.commands.record",
+    "larns.commands.view",
     "larns.commands.station",
     "larns.commands.fleet",
     "larns.commands.router",

@@ -1,0 +1,69 @@
+"""`larns view`: a live Foxglove view of a running fleet (:mod:`larns.viz.live`).
+
+    larns view --connect tcp/127.0.0.1:7447          # then open ws://localhost:8765 in Foxglove
+
+Subscribes to ``larns/**`` on Zenoh and serves a Foxglove WebSocket (official Foxglove SDK): the
+stations' 3-sigma ellipsoids and truth, the aircraft and vehicle with their tracks and covariance,
+range exchanges, plottable errors / sigmas / clock sync per station, integrity decisions and process
+liveliness as logs; the server's time is the fleet time. docs/view.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import threading
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    from net.bus import bus_kwargs
+    from net.security import KeystoreError
+
+    from larns.viz.live import serve_live
+
+    if not 0 <= args.port <= 65535:
+        print(f"larns view: --port {args.port}: expected 0..65535", file=sys.stderr)
+        return 2
+    stop = threading.Event()
+    for s in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(s, lambda *_: stop.set())
+    args.secure_cn = "recorder"  # a passive observer like the recorder: its keystore identity
+
+    def ready(port: int) -> None:
+        if not args.quiet:
+            print(f"[view] Foxglove WebSocket on ws://{args.host}:{port} (Foxglove: Open connection -> "
+                  f"Foxglove WebSocket); Ctrl-C to stop", file=sys.stderr, flush=True)
+
+    try:
+        stats = serve_live(bus_kwargs(args), host=args.host, port=args.port, keyexpr=args.keyexpr,
+                           duration_s=args.duration, stop=stop, on_ready=ready)
+    except KeystoreError as e:
+        print(f"larns view: --secure: {e}", file=sys.stderr)
+        return 2
+    except RuntimeError as e:  # the SDK's server could not start (port in use, bad host)
+        print(f"larns view: cannot serve on {args.host}:{args.port}: {e}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(json.dumps(stats))
+    elif not args.quiet:
+        print(f"[view] {stats['samples']} samples, {stats['sent']} messages sent on {stats['channels']} "
+              f"channels, dropped {stats['dropped'] or 'none'}", file=sys.stderr)
+    return 0
+
+
+def register(sub) -> None:
+    from net.bus import add_bus_args
+
+    p = sub.add_parser("view", help="live Foxglove view of a running fleet (WebSocket, default :8765)",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address to serve on (default 127.0.0.1; 0.0.0.0 in a container)")
+    p.add_argument("--port", type=int, default=8765, help="WebSocket port (default 8765; 0 = any free port)")
+    p.add_argument("--keyexpr", default="larns/**", help="key expression to view (default larns/**)")
+    p.add_argument("--duration", type=float, default=None, help="stop after this many wall seconds")
+    p.add_argument("--json", action="store_true", help="print statistics as JSON at the end")
+    p.add_argument("-q", "--quiet", action="store_true")
+    add_bus_args(p)
+    p.set_defaults(func=cmd_view)
