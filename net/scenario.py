@@ -55,11 +55,18 @@ Format (see docs/scenarios.md for the full reference)::
     [survey]
     estimator = "dmap"
     ranges_per_update = 3         # seed-ukf: l
+
+Everything is checked when the file is loaded (:func:`load`): an invalid file raises one
+:class:`ScenarioError` that names the file, the section and the key, e.g.
+``typo.toml: [survey] estimator: unknown estimator 'kalman' (expected one of dmap, ...)``; the
+``larns`` CLI prints that line and exits 2 (``larns scenario validate FILE`` checks a file).
 """
 
 from __future__ import annotations
 
+import difflib
 import importlib.resources
+import re
 import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -70,6 +77,41 @@ import numpy as np
 from nav.geometry import to_network_frame
 
 from .clock import ClockParams, clock_params
+
+
+class ScenarioError(ValueError):
+    """An invalid scenario. The message starts with the key it is about (``[channel] sigma_d_m: ...``,
+    ``stations[2].pos_m[1]: ...``, ``faults[1].offset_m: ...``, ``seed: ...`` for a top-level key) and
+    ends with what was expected; ``file`` is the file it came from (set by :func:`load`), and then
+    ``str()`` is the one line ``FILE: [section] key: what is wrong (expected ...)``."""
+
+    _WHERE = re.compile(r"^(?:\[(?P<section>[^\]]+)\](?: (?P<key>[^:\s]+))?"
+                        r"|(?P<array>\w+\[\d+\])(?:\.(?P<akey>[^:\s]+))?"
+                        r"|(?P<top>[\w-]+)):")
+
+    def __init__(self, message: str, file: str | Path | None = None):
+        super().__init__(message)
+        self.message = message
+        self.file = None if file is None else str(file)
+
+    def __str__(self) -> str:
+        return f"{self.file}: {self.message}" if self.file else self.message
+
+    @property
+    def section(self) -> str:
+        """The section of the entry (``channel``, ``stations[2]``, ``aircraft.crlb``); "" at the top level."""
+        m = self._WHERE.match(self.message)
+        return "" if m is None else (m["section"] or m["array"] or "")
+
+    @property
+    def key(self) -> str:
+        """The key of the entry (``sigma_d_m``, ``pos_m[1]``, ``seed``); "" for a whole section."""
+        m = self._WHERE.match(self.message)
+        return "" if m is None else (m["key"] or m["akey"] or m["top"] or "")
+
+
+class ScenarioNotFound(ScenarioError, FileNotFoundError):
+    """No such scenario file nor packaged scenario; the message lists the packaged names."""
 
 
 @dataclass(frozen=True)
@@ -123,6 +165,7 @@ class Scenario:
     clock: ClockParams = field(default_factory=ClockParams)  # station oscillators ([clock])
     links: list["LinkOverride"] = field(default_factory=list)  # per-link / per-station channel
     faults: list["StationFault"] = field(default_factory=list)  # [[faults]]: faulty or lying stations
+    source: str = ""  # the file it was loaded from ("" when built from a dict)
 
     def index(self, station_id: int) -> int:
         return self.ids.index(station_id)
@@ -146,7 +189,8 @@ def random_layout(
             pts.append(p)
             if len(pts) == n:
                 return np.array(pts)
-    raise ValueError("could not place stations with that separation; lower min_separation_m")
+    raise ScenarioError(f"[layout] min_separation_m: no room for {n} stations {min_separation_m:g} m apart "
+                        "(expected a smaller min_separation_m, fewer stations or a larger area_m)")
 
 
 def order_for_frame(pos_m: np.ndarray) -> np.ndarray:
@@ -178,30 +222,79 @@ def order_for_frame(pos_m: np.ndarray) -> np.ndarray:
     return np.array(order)
 
 
+def packaged_names() -> list[str]:
+    """Names of the packaged scenarios (``net/scenarios/*.toml``), sorted."""
+    folder = importlib.resources.files("net") / "scenarios"
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
 def resolve(name_or_path: str | Path) -> Path:
-    """A scenario path: an existing file, or the name of a packaged scenario (``seed000``)."""
+    """A scenario path: an existing file, or the name of a packaged scenario (``seed000``); else
+    :class:`ScenarioNotFound` (a ``FileNotFoundError`` too) listing the packaged names."""
     p = Path(name_or_path)
-    if p.suffix == ".toml" and p.exists():
-        return p
-    if p.exists() and p.is_file():
+    if p.is_file():
         return p
     pkg = importlib.resources.files("net") / "scenarios" / f"{name_or_path}.toml"
     if pkg.is_file():
         return Path(str(pkg))
-    raise FileNotFoundError(f"no scenario file or packaged scenario named {name_or_path!r}")
+    raise ScenarioNotFound("no such file, nor a packaged scenario of that name (expected a TOML file or "
+                           f"one of {', '.join(packaged_names())})", file=name_or_path)
+
+
+_HEADER = re.compile(r"^\s*(\[\[?[^\[\]]+\]\]?)\s*(#.*)?$")
+_KEYLINE = re.compile(r"^\s*([A-Za-z0-9_.\"'-]+)\s*=")
+
+
+def _syntax_message(text: str, error: str) -> str:
+    """A TOML syntax error as ``[section] key: TOML syntax error at line L, column C: ...``: the section
+    is the last table header above the line, the key the one the line assigns (if any)."""
+    at = re.search(r"\(at line (\d+), column (\d+)\)\s*$", error)
+    reason = re.sub(r"\s*\(at [^)]*\)\s*$", "", error)
+    lines = text.splitlines()
+    line = int(at[1]) if at else len(lines)
+    position = f"line {line}, column {at[2]}" if at else f"the end of the file (line {line})"
+    headers = [m[1] for m in map(_HEADER.match, lines[:line - 1]) if m]
+    key = _KEYLINE.match(lines[line - 1]) if 0 < line <= len(lines) else None
+    where = " ".join(x for x in (headers[-1] if headers else "", key[1] if key else "") if x)
+    return f"{where + ': ' if where else ''}TOML syntax error at {position}: {reason} (expected valid TOML)"
+
+
+def read_toml(path: str | Path) -> dict[str, Any]:
+    """The parsed TOML document of a scenario file; :class:`ScenarioError` (naming the file) if it cannot
+    be read or is not TOML (syntax errors give line, column, section and key)."""
+    try:
+        data = Path(path).read_bytes()
+    except OSError as e:
+        raise ScenarioError(f"cannot read the file: {e.strerror or e} (expected a readable TOML file)",
+                            file=path) from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise ScenarioError(f"not UTF-8 text (byte {e.start}; expected a TOML file)", file=path) from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise ScenarioError(_syntax_message(text, str(e)), file=path) from None
 
 
 def load(name_or_path: str | Path, **overrides: Any) -> Scenario:
     """Load a scenario by name or path. ``overrides`` replace top-level keys of sections,
-    e.g. ``load("seed000", channel={"sigma_d_m": 1.5}, layout={"n": 12}, seed=7)``."""
-    with open(resolve(name_or_path), "rb") as f:
-        raw = tomllib.load(f)
+    e.g. ``load("seed000", channel={"sigma_d_m": 1.5}, layout={"n": 12}, seed=7)``. Any problem raises
+    :class:`ScenarioError` naming the file, section and key."""
+    path = resolve(name_or_path)
+    raw = read_toml(path)
     for k, v in overrides.items():
-        if isinstance(v, dict):
+        if isinstance(v, dict) and isinstance(raw.get(k, {}), dict):
             raw.setdefault(k, {}).update(v)
         else:
             raw[k] = v
-    return from_dict(raw)
+    try:
+        scn = from_dict(raw)
+    except ScenarioError as e:
+        e.file = e.file or str(path)
+        raise
+    scn.source = str(path)
+    return scn
 
 
 def load_cli(name_or_path: str | Path, n_stations: int | None = None, **overrides: Any) -> Scenario:
@@ -214,6 +307,91 @@ def load_cli(name_or_path: str | Path, n_stations: int | None = None, **override
     return load(name_or_path, **overrides)
 
 
+def _explicit_stations(raw: dict[str, Any]) -> tuple[list[int], np.ndarray, list[int], list[str]]:
+    """``[[stations]]``: ids, physical positions, joiners, and where each one is written."""
+    st = raw["stations"]
+    ids = [int(s["id"]) for s in st]
+    phys = np.array([[float(v) for v in s["pos_m"]] for s in st])
+    join_ids = [int(s["id"]) for s in st if s.get("join", False)]
+    return ids, phys, join_ids, [f"stations[{k}]" for k in range(len(st))]
+
+
+def _random_stations(raw: dict[str, Any], seed: int) -> tuple[list[int], np.ndarray, list[int], list[str]]:
+    """``[layout]``: ids, physical positions (frame stations first), joiners, and where each comes from."""
+    lay = raw.get("layout", {})
+    n = int(lay.get("n", 10))
+    area = tuple(float(v) for v in lay.get("area_m", (2000.0, 2000.0, 80.0)))
+    sep = float(lay.get("min_separation_m", 100.0))
+    rng = np.random.default_rng(seed)
+    phys = random_layout(rng, n, area, sep)
+    phys = phys[order_for_frame(phys)]
+    ids = list(range(1, n + 1))
+    join_ids = [int(i) for i in lay.get("join_ids", [])]
+    joiners = int(lay.get("joiners", 0))
+    if joiners:
+        # newcomers from their own stream: the first n stations stay exactly where they were
+        jr = np.random.default_rng([seed, 7])
+        extra: list[np.ndarray] = []
+        for _ in range(100_000):
+            if len(extra) == joiners:
+                break
+            p = jr.uniform(0.0, 1.0, 3) * np.asarray(area)
+            if all(np.hypot(*(p[:2] - q[:2])) >= sep for q in list(phys) + extra):
+                extra.append(p)
+        else:
+            raise ScenarioError(f"[layout] joiners: no room for {joiners} more stations {sep:g} m apart "
+                                "(expected fewer joiners, a smaller min_separation_m or a larger area_m)")
+        phys = np.vstack([phys, extra])
+        ids += list(range(n + 1, n + joiners + 1))
+        join_ids += list(range(n + 1, n + joiners + 1))
+    return ids, phys, join_ids, ["[layout] n"] * n + ["[layout] joiners"] * joiners
+
+
+def _check_ids(raw: dict[str, Any], ids: list[int], join_ids: list[int], where: list[str]) -> None:
+    """Unique ids, the frame stations 1-3 present, every id a slot of the TDMA cycle, joiners known."""
+    for k, i in enumerate(ids):
+        if i in ids[:k]:
+            raise ScenarioError(f"{where[k]}.id: station {i} appears twice (expected unique station ids)")
+    if not {1, 2, 3} <= set(ids):
+        raise ScenarioError(f"stations: ids {sorted(ids)} (expected stations 1, 2 and 3: they define the "
+                            "network frame)")
+    tdma = Tdma(**raw.get("tdma", {}))
+    slots, top = tdma.slots_per_cycle, max(ids)
+    if top > slots:
+        w = where[ids.index(top)]
+        w = f"{w}.id" if w.startswith("stations[") else w
+        raise ScenarioError(f"{w}: station {top} needs slot {top}, but the TDMA cycle has {slots} slots "
+                            f"([tdma] cycle_s {tdma.cycle_s:g} / slot_s {tdma.slot_s:g}) (expected station "
+                            f"ids <= {slots}, or a longer cycle_s or shorter slot_s)")
+    for k, j in enumerate(raw.get("layout", {}).get("join_ids", []) if "stations" not in raw else []):
+        if j not in ids:
+            raise ScenarioError(f"[layout] join_ids[{k}]: no station {j} (expected ids 1..{max(ids)})")
+
+
+COINCIDENT_M = 1e-3  # stations closer than this are one place
+COLLINEAR_FRACTION = 1e-3  # station 3 nearer the line 1-2 than this fraction of |1-2|: no frame
+
+
+def _check_geometry(ids: list[int], phys: np.ndarray, where: dict[int, str]) -> None:
+    """No two stations in one place; stations 1, 2, 3 (the frame) not on one line. ``phys`` in id order."""
+    d = np.linalg.norm(phys[:, None, :] - phys[None, :, :], axis=-1)
+    close = np.argwhere(np.triu(d < COINCIDENT_M, k=1))
+    if len(close):
+        a, b = (ids[int(i)] for i in close[0])
+        w = where[b] + (".pos_m" if where[b].startswith("stations[") else "")
+        raise ScenarioError(f"{w}: station {b} is at the position of station {a} (expected stations at "
+                            f"least {COINCIDENT_M * 1e3:g} mm apart)")
+    base = phys[1] - phys[0]
+    v = phys[2] - phys[0]
+    off_m = float(np.linalg.norm(v - base * (v @ base) / (base @ base)))
+    if off_m < COLLINEAR_FRACTION * float(np.linalg.norm(base)):
+        w = where[3] + (".pos_m" if where[3].startswith("stations[") else "")
+        raise ScenarioError(f"{w}: stations 1, 2 and 3 are collinear (station 3 is {off_m:.3g} m off the "
+                            f"line 1-2; expected at least {COLLINEAR_FRACTION:.1%} of the 1-2 distance, "
+                            f"{COLLINEAR_FRACTION * float(np.linalg.norm(base)):.3g} m: they define the "
+                            "network frame)")
+
+
 def from_dict(raw: dict[str, Any]) -> Scenario:
     """The scenario of a parsed TOML document; an invalid entry raises :class:`ScenarioError` naming
     its key (e.g. ``[channel] sigma_d_m``, ``stations[2].pos_m``, ``faults[1].offset_m``)."""
@@ -221,41 +399,16 @@ def from_dict(raw: dict[str, Any]) -> Scenario:
     seed = int(raw.get("seed", 0))
     frame = raw.get("frame", {})
     z_ref = int(frame.get("z_ref", 4))
-    if "stations" in raw:
-        st = raw["stations"]
-        ids = [int(s["id"]) for s in st]
-        phys = np.array([[float(v) for v in s["pos_m"]] for s in st])
-        join_ids = [int(s["id"]) for s in st if s.get("join", False)]
-    else:
-        lay = raw.get("layout", {})
-        n = int(lay.get("n", 10))
-        rng = np.random.default_rng(seed)
-        phys = random_layout(rng, n, tuple(lay.get("area_m", (2000.0, 2000.0, 80.0))),
-                             float(lay.get("min_separation_m", 100.0)))
-        phys = phys[order_for_frame(phys)]
-        ids = list(range(1, n + 1))
-        join_ids = [int(i) for i in lay.get("join_ids", [])]
-        joiners = int(lay.get("joiners", 0))
-        if joiners:
-            # newcomers from their own stream: the first n stations stay exactly where they were
-            jr = np.random.default_rng([seed, 7])
-            area = np.asarray(lay.get("area_m", (2000.0, 2000.0, 80.0)), dtype=float)
-            sep = float(lay.get("min_separation_m", 100.0))
-            extra: list[np.ndarray] = []
-            while len(extra) < joiners:
-                p = jr.uniform(0.0, 1.0, 3) * area
-                if all(np.hypot(*(p[:2] - q[:2])) >= sep for q in list(phys) + extra):
-                    extra.append(p)
-            phys = np.vstack([phys, extra])
-            ids += list(range(n + 1, n + joiners + 1))
-            join_ids += list(range(n + 1, n + joiners + 1))
-    if len(set(ids)) != len(ids) or min(ids) < 1:
-        raise ValueError("station ids must be unique positive integers")
+    ids, phys, join_ids, where = (_explicit_stations(raw) if "stations" in raw else _random_stations(raw, seed))
+    _check_ids(raw, ids, join_ids, where)
     order = np.argsort(ids)
+    where_by_id = {ids[k]: where[k] for k in range(len(ids))}
     ids = [ids[i] for i in order]
     phys = phys[order]
-    if ids[:3] != [1, 2, 3]:
-        raise ValueError("stations 1, 2 and 3 must exist: they define the network frame")
+    _check_geometry(ids, phys, where_by_id)
+    if "z_ref" in frame and z_ref not in ids and len(ids) > 3:
+        raise ScenarioError(f"[frame] z_ref: no station {z_ref} (expected one of the station ids "
+                            f"{ids[0]}..{ids[-1]}; it fixes the sign of +Z)")
     zi = ids.index(z_ref) if z_ref in ids else 3
     pos, _, _ = to_network_frame(phys, z_ref=zi)
     init = raw.get("init", {})
@@ -284,10 +437,6 @@ def from_dict(raw: dict[str, Any]) -> Scenario:
 
 
 # ---------------------------------------------------------------- per-link channel and station faults
-class ScenarioError(ValueError):
-    """A scenario entry is invalid; the message names the key (e.g. ``faults[1].offset_m``)."""
-
-
 @dataclass(frozen=True)
 class LinkOverride:
     """``[[links]]``: channel of the links of one station (``station``) or of one pair (``stations``).
@@ -339,87 +488,88 @@ class StationFault:
 
 def _num(v: Any, where: str) -> float:
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
-        raise ScenarioError(f"{where}: expected a finite number, got {v!r}")
+        raise ScenarioError(f"{where}: got {v!r} (expected a finite number)")
     return float(v)
 
 
 def _station(v: Any, where: str, ids: list[int]) -> int:
     if isinstance(v, bool) or not isinstance(v, int):
-        raise ScenarioError(f"{where}: expected a station id (integer), got {v!r}")
+        raise ScenarioError(f"{where}: got {v!r} (expected a station id, an integer)")
     if v not in ids:
-        raise ScenarioError(f"{where}: no station {v} in this scenario (ids {ids[0]}..{ids[-1]})")
+        raise ScenarioError(f"{where}: no station {v} in this scenario (expected one of ids {ids[0]}..{ids[-1]})")
     return v
 
 
 def parse_faults(entries: Any, ids: list[int]) -> list[StationFault]:
     if not isinstance(entries, list):
-        raise ScenarioError("faults: expected an array of tables ([[faults]])")
+        raise ScenarioError(f"faults: got {entries!r} (expected an array of tables, [[faults]])")
     out = []
     for i, e in enumerate(entries):
         w = f"faults[{i}]"
         if not isinstance(e, dict):
-            raise ScenarioError(f"{w}: expected a table")
+            raise ScenarioError(f"{w}: got {e!r} (expected a table)")
         kind = e.get("kind")
         if kind not in FAULT_KEYS:
-            raise ScenarioError(f"{w}.kind: expected one of {sorted(FAULT_KEYS)}, got {kind!r}")
+            raise ScenarioError(f"{w}.kind: got {kind!r} (expected one of {', '.join(sorted(FAULT_KEYS))})")
         if "station" not in e:
-            raise ScenarioError(f"{w}.station: missing (the faulty station's id)")
+            raise ScenarioError(f"{w}.station: missing (expected the faulty station's id)")
         spec = FAULT_KEYS[kind]
         unknown = set(e) - set(spec) - {"kind", "station"}
         if unknown:
             raise ScenarioError(f"{w}.{sorted(unknown)[0]}: unknown key for kind {kind!r} "
-                                f"(keys: kind, station, {', '.join(spec)})")
+                                f"(expected kind, station, {', '.join(spec)})")
         kw: dict[str, Any] = {"kind": kind, "station": _station(e["station"], f"{w}.station", ids)}
         for key, typ in spec.items():
             if key not in e:
                 if key in FAULT_OPTIONAL or (kind == "bad_fix" and key == "sigma0_m"):
                     continue
-                raise ScenarioError(f"{w}.{key}: missing (required for kind {kind!r})")
+                raise ScenarioError(f"{w}.{key}: missing (expected it: required for kind {kind!r})")
             v = e[key]
             if typ == "vec3":
                 if not isinstance(v, list) or len(v) != 3:
-                    raise ScenarioError(f"{w}.{key}: expected 3 numbers [x, y, z] in metres, got {v!r}")
+                    raise ScenarioError(f"{w}.{key}: got {v!r} (expected 3 numbers [x, y, z] in metres)")
                 kw[key] = tuple(_num(x, f"{w}.{key}") for x in v)
             else:
                 kw[key] = _num(v, f"{w}.{key}")
         if kw.get("sigma0_m", 1.0) is not None and kw.get("sigma0_m", 1.0) < 0:
-            raise ScenarioError(f"{w}.sigma0_m: must be >= 0")
+            raise ScenarioError(f"{w}.sigma0_m: got {kw['sigma0_m']!r} (expected a number >= 0)")
         out.append(StationFault(**kw))
     return out
 
 
 def parse_links(entries: Any, ids: list[int]) -> list[LinkOverride]:
     if not isinstance(entries, list):
-        raise ScenarioError("links: expected an array of tables ([[links]])")
+        raise ScenarioError(f"links: got {entries!r} (expected an array of tables, [[links]])")
     out = []
     for i, e in enumerate(entries):
         w = f"links[{i}]"
         if not isinstance(e, dict):
-            raise ScenarioError(f"{w}: expected a table")
+            raise ScenarioError(f"{w}: got {e!r} (expected a table)")
         unknown = set(e) - {"station", "stations", "nlos_prob", "nlos_bias_m", "loss_prob", "bias_m"}
         if unknown:
-            raise ScenarioError(f"{w}.{sorted(unknown)[0]}: unknown key (keys: station or stations, "
+            raise ScenarioError(f"{w}.{sorted(unknown)[0]}: unknown key (expected station or stations, "
                                 "nlos_prob, nlos_bias_m, loss_prob, bias_m)")
         if ("station" in e) == ("stations" in e):
-            raise ScenarioError(f"{w}.station: give exactly one of station = id or stations = [a, b]")
+            raise ScenarioError(f"{w}.station: both or neither of station and stations (expected exactly one of "
+                                "station = id or stations = [a, b])")
         if "station" in e:
             sel = (_station(e["station"], f"{w}.station", ids),)
         else:
             v = e["stations"]
             if not isinstance(v, list) or len(v) != 2 or v[0] == v[1]:
-                raise ScenarioError(f"{w}.stations: expected two different station ids [a, b], got {v!r}")
+                raise ScenarioError(f"{w}.stations: got {v!r} (expected two different station ids [a, b])")
             sel = tuple(_station(x, f"{w}.stations", ids) for x in v)
         kw: dict[str, Any] = {}
         for key in ("nlos_prob", "loss_prob"):
             if key in e:
                 kw[key] = _num(e[key], f"{w}.{key}")
                 if not 0.0 <= kw[key] <= 1.0:
-                    raise ScenarioError(f"{w}.{key}: must be a probability in [0, 1]")
+                    raise ScenarioError(f"{w}.{key}: got {kw[key]!r} (expected a probability in [0, 1])")
         for key in ("nlos_bias_m", "bias_m"):
             if key in e:
                 kw[key] = _num(e[key], f"{w}.{key}")
         if kw.get("nlos_bias_m", 0.0) < 0:
-            raise ScenarioError(f"{w}.nlos_bias_m: must be >= 0")
+            raise ScenarioError(f"{w}.nlos_bias_m: got {kw['nlos_bias_m']!r} (expected a number >= 0)")
         out.append(LinkOverride(sel, **kw))
     return out
 
@@ -432,7 +582,7 @@ def _clock(raw: dict, channel: ChannelParams) -> ClockParams:
         raise ScenarioError(str(e)) from None
 
 
-_NONNEG, _PROB, _POS = "must be >= 0", "must be a probability in [0, 1]", "must be > 0"
+_NONNEG, _PROB, _POS = "a number >= 0", "a probability in [0, 1]", "a number > 0"
 _SECTION_RULES: dict[str, tuple[type, dict[str, str]]] = {
     "tdma": (Tdma, {"cycle_s": _POS, "slot_s": _POS}),
     "channel": (ChannelParams, {"sigma_d_m": _NONNEG, "nlos_prob": _PROB, "nlos_bias_m": _NONNEG,
@@ -444,30 +594,63 @@ _SECTION_RULES: dict[str, tuple[type, dict[str, str]]] = {
 _LAYOUT_KEYS = ("kind", "n", "area_m", "min_separation_m", "join_ids", "joiners")
 _SURVEY_KEYS = ("estimator", "ranges_per_update")
 
+TOP_LEVEL_KEYS = ("name", "description", "seed")
+# sections: tables, and arrays of tables ([[stations]], [[links]], [[faults]])
+SECTIONS = ("frame", "layout", "stations", "tdma", "channel", "clock", "net", "init", "survey", "aircraft",
+            "vehicle", "links", "faults")
+# the names stations/estimators.py (ESTIMATORS) and aircraft/ (models.ALGOS, ins-ekf, triad) accept; net
+# may not import them, tests/net/test_scenario_errors.py keeps the lists equal
+SURVEY_ESTIMATORS = ("dmap", "dmap-nlos", "dmap-ls", "seed-ukf")
+AIRCRAFT_ALGOS = ("lsq-pr", "lsq-tdoa", "ekf-pr", "ekf-tdoa", "ukf-pr", "ukf-tdoa", "ins-ekf", "triad")
+
+
+def _did_you_mean(name: str, choices: Any) -> str:
+    close = difflib.get_close_matches(name, list(choices), n=1)
+    return f"; did you mean {close[0]}?" if close else ""
+
 
 def _table(raw: dict, key: str) -> dict:
     v = raw.get(key, {})
     if not isinstance(v, dict):
-        raise ScenarioError(f"[{key}]: expected a table, got {v!r}")
+        raise ScenarioError(f"[{key}]: got {v!r} (expected a table)")
     return v
 
 
 def _int(v: Any, where: str, low: int) -> int:
     if isinstance(v, bool) or not isinstance(v, int) or v < low:
-        raise ScenarioError(f"{where}: expected an integer >= {low}, got {v!r}")
+        raise ScenarioError(f"{where}: got {v!r} (expected an integer >= {low})")
     return v
 
 
 def _known(tab: dict, where: str, keys: Any) -> None:
     unknown = sorted(set(tab) - set(keys))
     if unknown:
-        raise ScenarioError(f"{where} {unknown[0]}: unknown key; keys are {', '.join(sorted(keys))}")
+        raise ScenarioError(f"{where} {unknown[0]}: unknown key (expected one of {', '.join(sorted(keys))}"
+                            f"{_did_you_mean(unknown[0], keys)})")
 
 
 def _check_rule(v: float, where: str, rule: str) -> None:
     ok = {_NONNEG: v >= 0.0, _PROB: 0.0 <= v <= 1.0, _POS: v > 0.0}[rule]
     if not ok:
-        raise ScenarioError(f"{where}: {rule}, got {v!r}")
+        raise ScenarioError(f"{where}: got {v!r} (expected {rule})")
+
+
+def _validate_top_level(raw: dict) -> None:
+    """Only known top-level keys and sections: a typo (``sead = 3``, ``[layot]``) is an error, not a default."""
+    for k, v in raw.items():
+        if k in TOP_LEVEL_KEYS or k in SECTIONS:
+            continue
+        if isinstance(v, dict) or (isinstance(v, list) and v and all(isinstance(e, dict) for e in v)):
+            names = [f"[{s}]" for s in SECTIONS]
+            raise ScenarioError(f"[{k}]: unknown section (expected one of {', '.join(names)}"
+                                f"{_did_you_mean(f'[{k}]', names)})")
+        raise ScenarioError(f"{k}: unknown top-level key (expected {', '.join(TOP_LEVEL_KEYS)} or a section"
+                            f"{_did_you_mean(k, TOP_LEVEL_KEYS + SECTIONS)})")
+    for k in ("name", "description"):
+        if k in raw and not isinstance(raw[k], str):
+            raise ScenarioError(f"{k}: got {raw[k]!r} (expected a string)")
+    if "seed" in raw:
+        _int(raw["seed"], "seed", 0)
 
 
 def _validate_params(raw: dict) -> None:
@@ -478,13 +661,18 @@ def _validate_params(raw: dict) -> None:
             if k in rules:
                 _check_rule(_num(v, f"[{key}] {k}"), f"[{key}] {k}", rules[k])
     tdma = _table(raw, "tdma")
-    if _num(tdma.get("slot_s", 0.01), "[tdma] slot_s") > _num(tdma.get("cycle_s", 1.0), "[tdma] cycle_s"):
-        raise ScenarioError("[tdma] slot_s: longer than cycle_s")
+    slot_s, cycle_s = _num(tdma.get("slot_s", 0.01), "[tdma] slot_s"), _num(tdma.get("cycle_s", 1.0), "[tdma] cycle_s")
+    if slot_s > cycle_s:
+        raise ScenarioError(f"[tdma] slot_s: {slot_s:g} s is longer than cycle_s {cycle_s:g} s "
+                            "(expected slot_s <= cycle_s)")
 
 
 def _validate_layout(raw: dict) -> None:
     lay = _table(raw, "layout")
     _known(lay, "[layout]", _LAYOUT_KEYS)
+    if lay.get("kind", "random") != "random":
+        raise ScenarioError(f"[layout] kind: got {lay['kind']!r} (expected \"random\"; explicit positions "
+                            "go in [[stations]])")
     if "n" in lay:
         _int(lay["n"], "[layout] n", 3)
     if "joiners" in lay:
@@ -493,12 +681,12 @@ def _validate_layout(raw: dict) -> None:
         _check_rule(_num(lay["min_separation_m"], "[layout] min_separation_m"), "[layout] min_separation_m", _NONNEG)
     area = lay.get("area_m", (1.0, 1.0, 1.0))
     if not isinstance(area, (list, tuple)) or len(area) != 3:
-        raise ScenarioError(f"[layout] area_m: expected 3 numbers [x, y, z] in metres, got {area!r}")
+        raise ScenarioError(f"[layout] area_m: got {area!r} (expected 3 numbers [x, y, z] in metres)")
     for i, v in enumerate(area):
         _check_rule(_num(v, f"[layout] area_m[{i}]"), f"[layout] area_m[{i}]", _NONNEG)
     join = lay.get("join_ids", [])
     if not isinstance(join, list):
-        raise ScenarioError(f"[layout] join_ids: expected a list of station ids, got {join!r}")
+        raise ScenarioError(f"[layout] join_ids: got {join!r} (expected a list of station ids)")
     for i, v in enumerate(join):
         _int(v, f"[layout] join_ids[{i}]", 1)
 
@@ -508,32 +696,66 @@ def _validate_stations(raw: dict) -> None:
     if st is None:
         return
     if not isinstance(st, list) or not st:
-        raise ScenarioError("stations: expected a non-empty array of tables ([[stations]])")
+        raise ScenarioError(f"stations: got {st!r} (expected a non-empty array of tables, [[stations]])")
     for i, e in enumerate(st):
         w = f"stations[{i}]"
         if not isinstance(e, dict):
-            raise ScenarioError(f"{w}: expected a table")
+            raise ScenarioError(f"{w}: got {e!r} (expected a table)")
+        unknown = sorted(set(e) - {"id", "pos_m", "join"})
+        if unknown:
+            raise ScenarioError(f"{w}.{unknown[0]}: unknown key (expected id, pos_m, join"
+                                f"{_did_you_mean(unknown[0], ('id', 'pos_m', 'join'))})")
         if "id" not in e:
-            raise ScenarioError(f"{w}.id: missing")
+            raise ScenarioError(f"{w}.id: missing (expected the station id, an integer >= 1)")
         _int(e["id"], f"{w}.id", 1)
         pos = e.get("pos_m")
         if pos is None:
-            raise ScenarioError(f"{w}.pos_m: missing (physical coordinates [x, y, z], m)")
+            raise ScenarioError(f"{w}.pos_m: missing (expected physical coordinates [x, y, z], m)")
         if not isinstance(pos, list) or len(pos) != 3:
-            raise ScenarioError(f"{w}.pos_m: expected 3 numbers [x, y, z] in metres, got {pos!r}")
+            raise ScenarioError(f"{w}.pos_m: got {pos!r} (expected 3 numbers [x, y, z] in metres)")
         for j, v in enumerate(pos):
             _num(v, f"{w}.pos_m[{j}]")
         if not isinstance(e.get("join", False), bool):
-            raise ScenarioError(f"{w}.join: expected true or false, got {e['join']!r}")
+            raise ScenarioError(f"{w}.join: got {e['join']!r} (expected true or false)")
+
+
+def _validate_survey(raw: dict) -> None:
+    survey = _table(raw, "survey")
+    _known(survey, "[survey]", _SURVEY_KEYS)
+    name = survey.get("estimator", "dmap")
+    if name not in SURVEY_ESTIMATORS:
+        raise ScenarioError(f"[survey] estimator: unknown estimator {name!r} (expected one of "
+                            f"{', '.join(SURVEY_ESTIMATORS)}{_did_you_mean(str(name), SURVEY_ESTIMATORS)})")
+    if name == "seed-ukf" and _table(raw, "init").get("sigma0_m", 10.0) == 0:
+        raise ScenarioError("[survey] estimator: seed-ukf starts from the coarse fix, but [init] sigma0_m = 0 "
+                            "(no fix) (expected sigma0_m > 0, or estimator dmap)")
+    if "ranges_per_update" in survey:
+        _int(survey["ranges_per_update"], "[survey] ranges_per_update", 1)
+
+
+def _validate_aircraft(raw: dict) -> None:
+    """The parts of ``[aircraft]`` a launch needs first (the rest: ``aircraft/config.py``)."""
+    ac = _table(raw, "aircraft")
+    _table(raw, "vehicle")
+    if "algos" not in ac:
+        return
+    algos = ac["algos"]
+    if not isinstance(algos, list) or not algos:
+        raise ScenarioError(f"[aircraft] algos: got {algos!r} (expected a list of algorithm names, e.g. "
+                            "[\"ekf-pr\"])")
+    for a in algos:
+        if a not in AIRCRAFT_ALGOS:
+            raise ScenarioError(f"[aircraft] algos: unknown algorithm {a!r} (expected one of "
+                                f"{', '.join(AIRCRAFT_ALGOS)}{_did_you_mean(str(a), AIRCRAFT_ALGOS)})")
 
 
 def validate(raw: dict[str, Any]) -> None:
     """Check the sections :func:`from_dict` reads (``[[faults]]`` and ``[[links]]`` are checked by their
-    parsers); raises :class:`ScenarioError` naming the first bad key."""
+    parsers, the stations' ids and geometry once they are placed); raises :class:`ScenarioError`
+    naming the first bad key."""
     if not isinstance(raw, dict):
-        raise ScenarioError(f"scenario: expected a table, got {type(raw).__name__}")
-    if "seed" in raw:
-        _int(raw["seed"], "seed", 0)
+        raise ScenarioError(f"scenario: got a {type(raw).__name__} (expected a table)")
+    _validate_top_level(raw)
     _validate_params(raw)
     _validate_layout(raw)
     _validate_stations(raw)
@@ -541,9 +763,5 @@ def validate(raw: dict[str, Any]) -> None:
     _known(frame, "[frame]", ("z_ref",))
     if "z_ref" in frame:
         _int(frame["z_ref"], "[frame] z_ref", 1)
-    survey = _table(raw, "survey")
-    _known(survey, "[survey]", _SURVEY_KEYS)
-    if "estimator" in survey and not isinstance(survey["estimator"], str):
-        raise ScenarioError(f"[survey] estimator: expected a name, got {survey['estimator']!r}")
-    if "ranges_per_update" in survey:
-        _int(survey["ranges_per_update"], "[survey] ranges_per_update", 1)
+    _validate_survey(raw)
+    _validate_aircraft(raw)
