@@ -41,13 +41,56 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+# [aircraft.crlb] keys: a kind of number, a vector length, or the allowed values
+CRLB_KEYS: dict[str, object] = {"height_m": "number", "sigma_t_ns": "positive", "slot_s": "positive",
+                                "step_m": "positive", "velocity_m_s": 3, "extent_m": 4,
+                                "params": ("posvel", "pos"), "clock": (True, False)}
+
+
+def _crlb_entry(key: str, v, kind) -> str | None:
+    """What is wrong with ``[aircraft.crlb] key = v`` (None: nothing)."""
+    def number(x) -> bool:
+        return isinstance(x, (int, float)) and not isinstance(x, bool) and bool(np.isfinite(x))
+
+    if isinstance(kind, tuple):
+        ok = any(v is c or (isinstance(v, str) and v == c) for c in kind)
+        return None if ok else f"got {v!r} (expected one of {', '.join(str(c).lower() for c in kind)})"
+    if isinstance(kind, int):
+        ok = isinstance(v, list) and len(v) == kind and all(number(x) for x in v)
+        if ok and key == "extent_m":
+            ok = v[0] < v[1] and v[2] < v[3]
+        what = "[X0, X1, Y0, Y1] in m with X0 < X1, Y0 < Y1" if key == "extent_m" else f"{kind} numbers"
+        return None if ok else f"got {v!r} (expected {what})"
+    if not number(v) or (kind == "positive" and v <= 0):
+        return f"got {v!r} (expected {'a number > 0' if kind == 'positive' else 'a finite number'})"
+    return None
+
+
+def crlb_settings(sc) -> dict:
+    """The scenario's ``[aircraft.crlb]`` table, checked: a bad entry raises ``ScenarioError`` naming the
+    file and the key (``FILE: [aircraft.crlb] params: got 'both' (expected one of posvel, pos)``)."""
+    from net.scenario import ScenarioError
+
+    cfg = sc.aircraft.get("crlb", {})
+    if not isinstance(cfg, dict):
+        raise ScenarioError(f"[aircraft.crlb]: got {cfg!r} (expected a table)", file=sc.source or None)
+    for key, v in cfg.items():
+        if key not in CRLB_KEYS:
+            raise ScenarioError(f"[aircraft.crlb] {key}: unknown key (expected one of {', '.join(CRLB_KEYS)})",
+                                file=sc.source or None)
+        wrong = _crlb_entry(key, v, CRLB_KEYS[key])
+        if wrong:
+            raise ScenarioError(f"[aircraft.crlb] {key}: {wrong}", file=sc.source or None)
+    return dict(cfg)
+
+
 def run(args) -> int:
     from larns.analysis.crlb import compute, summary
     from larns.viz.crlb import plot_maps
     from net.scenario import load
 
-    sc = load(args.scenario)
-    cfg = dict(sc.aircraft.get("crlb", {}))
+    sc = load(args.scenario)  # a bad file: ScenarioError, one line and exit 2 (larns.cli.main)
+    cfg = crlb_settings(sc)
     height = args.height if args.height is not None else float(cfg.get("height_m", 1000.0))
     sigma_t_ns = args.sigma_t_ns if args.sigma_t_ns is not None else float(cfg.get("sigma_t_ns", 3.0))
     slot = args.slot_s if args.slot_s is not None else float(cfg.get("slot_s", sc.tdma.slot_s))

@@ -1,0 +1,143 @@
+"""`larns scenario list | show NAME | validate FILE...`: the packaged scenarios, one scenario as the
+emulator resolves it (defaults filled in, stations in the network frame), and a check of scenario
+files before a launch.
+
+    larns scenario list
+    larns scenario show seed003
+    larns scenario validate my.toml other.toml     # exit 0: all valid; 2: one line per bad file
+
+``validate`` runs the loader every command uses (``net/scenario.py``: syntax, unknown keys and
+sections, estimator and algorithm names, TDMA slots, frame geometry) and then the checks of the
+aircraft's table (``aircraft/config.py``) and of ``[aircraft.crlb]`` (``larns crlb``), so a file that
+validates also launches. Each bad file gives one line ``FILE: [section] key: what is wrong
+(expected ...)`` on stderr. Format: docs/scenarios.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import asdict
+
+
+def register(sub) -> None:
+    p = sub.add_parser("scenario", help="list the packaged scenarios, show one resolved, validate files",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ssub = p.add_subparsers(dest="action", metavar="ACTION")
+    ls = ssub.add_parser("list", help="the packaged scenarios (names for --scenario)")
+    ls.set_defaults(func=cmd_list)
+    show = ssub.add_parser("show", help="one scenario as the emulator resolves it (defaults filled in)")
+    show.add_argument("name", metavar="NAME", help="packaged scenario name or TOML file")
+    show.set_defaults(func=cmd_show)
+    val = ssub.add_parser("validate", help="check scenario files: exit 0 if all are valid, else 2")
+    val.add_argument("files", nargs="+", metavar="FILE", help="TOML files (or packaged names)")
+    val.add_argument("-q", "--quiet", action="store_true", help="print only the errors")
+    val.set_defaults(func=cmd_validate)
+    p.set_defaults(func=lambda a: (p.print_help(), 2)[1])
+
+
+def check(name_or_path: str):
+    """Load a scenario and check the tables its users read at launch (``[aircraft]``,
+    ``[aircraft.crlb]``); returns the scenario or raises ``ScenarioError`` naming file, section, key."""
+    from larns.commands.crlb import crlb_settings
+    from net.scenario import ScenarioError, load
+
+    sc = load(name_or_path)
+    if sc.aircraft:
+        from aircraft.config import from_scenario
+
+        try:
+            from_scenario(sc)
+        except (ValueError, TypeError) as e:
+            raise ScenarioError(f"[aircraft]: {e} (expected the keys of docs/aircraft.md)", file=sc.source) from None
+    crlb_settings(sc)
+    return sc
+
+
+def cmd_list(args: argparse.Namespace) -> int:
+    from net.scenario import packaged_names, read_toml, resolve
+
+    names = packaged_names()
+    width = max(len(n) for n in names)
+    for n in names:
+        raw = read_toml(resolve(n))
+        print(f"{n:<{width}}  {raw.get('description', '')}")
+    print(f"({len(names)} packaged scenarios; `larns scenario show NAME` for one, `--scenario FILE.toml` for "
+          "your own)")
+    return 0
+
+
+def _fields(obj) -> str:
+    return ", ".join(f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}" for k, v in asdict(obj).items())
+
+
+def _kv(table: dict) -> str:
+    return ", ".join(f"{k} = {v!r}" for k, v in table.items())
+
+
+def _link(lk) -> str:
+    sel = f"station {lk.ids[0]}" if len(lk.ids) == 1 else f"stations {list(lk.ids)}"
+    vals = {k: getattr(lk, k) for k in ("nlos_prob", "nlos_bias_m", "loss_prob", "bias_m")}
+    return ", ".join([sel] + [f"{k} {v:g}" for k, v in vals.items() if v is not None])
+
+
+def _fault(f) -> str:
+    from net.scenario import FAULT_KEYS
+
+    out = [f"kind {f.kind}", f"station {f.station}"]
+    for k in FAULT_KEYS[f.kind]:
+        v = getattr(f, k)
+        if v is None:
+            out.append(f"{k} (the scenario's)")
+        else:
+            out.append(f"{k} {list(v)}" if isinstance(v, tuple) else f"{k} {v:g}")
+    return ", ".join(out)
+
+
+def format_scenario(sc) -> str:
+    """The resolved scenario as text: every value the emulator uses, defaults filled in."""
+    joiners = f"; joining later: {', '.join(map(str, sc.join_ids))}" if sc.join_ids else ""
+    lines = [
+        f"file:        {sc.source or '(not from a file)'}",
+        f"name:        {sc.name}",
+        f"description: {sc.description}",
+        f"seed:        {sc.seed}",
+        f"stations:    {len(sc.ids)} (ids {sc.ids[0]}..{sc.ids[-1]}{joiners}); [frame] z_ref {sc.z_ref}",
+        f"[tdma]       {_fields(sc.tdma)} ({sc.tdma.slots_per_cycle} slots per cycle)",
+        f"[channel]    {_fields(sc.channel)}",
+        f"[clock]      {_fields(sc.clock)}",
+        f"[net]        {_fields(sc.net)}",
+        f"[init]       sigma0_m {sc.sigma0_m:g}",
+        f"[survey]     estimator {sc.estimator}, ranges_per_update {sc.ranges_per_update}",
+    ]
+    lines += [f"[[links]]    {_link(lk)}" for lk in sc.links] + [f"[[faults]]   {_fault(f)}" for f in sc.faults]
+    if sc.aircraft:
+        lines.append(f"[aircraft]   {_kv({k: v for k, v in sc.aircraft.items() if not isinstance(v, dict)})}")
+        lines += [f"[aircraft.{k}] {_kv(v)}" for k, v in sc.aircraft.items() if isinstance(v, dict)]
+    lines.append("stations in the network frame, m:")
+    lines.append(f"{'id':>5} {'x':>12} {'y':>12} {'z':>10}")
+    for sid, p in zip(sc.ids, sc.pos_m):
+        lines.append(f"{sid:>5} {p[0]:12.2f} {p[1]:12.2f} {p[2]:10.2f}" + ("  (joins later)" if sid in sc.join_ids else ""))
+    return "\n".join(lines)
+
+
+def cmd_show(args: argparse.Namespace) -> int:
+    print(format_scenario(check(args.name)))  # a bad file: one line and exit 2 (larns.cli.main)
+    return 0
+
+
+def cmd_validate(args: argparse.Namespace) -> int:
+    from net.scenario import ScenarioError
+
+    bad = 0
+    for f in args.files:
+        try:
+            sc = check(f)
+        except ScenarioError as e:
+            print(e, file=sys.stderr)
+            bad += 1
+            continue
+        if not args.quiet:
+            print(f"{f}: ok ({sc.name}: {len(sc.ids)} stations, {sc.tdma.slots_per_cycle} slots, "
+                  f"estimator {sc.estimator}{', aircraft ' + ','.join(sc.aircraft.get('algos', [])) if sc.aircraft else ''})")
+    return 2 if bad else 0
