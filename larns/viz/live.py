@@ -67,6 +67,9 @@ LIVE_SCHEMAS: dict[str, dict] = {
 }
 LIVE_SCHEMA_BYTES = {**SCHEMA_BYTES, **{k: json.dumps(v, sort_keys=True).encode() for k, v in LIVE_SCHEMAS.items()}}
 
+EAGER_CHANNELS = ((LOG_TOPIC, "foxglove.Log"), (SCENE_TOPIC, "foxglove.SceneUpdate"),
+                  ("larns/foxglove/tf", "foxglove.FrameTransform"), (TDMA_TOPIC, "larns.Exchange"))
+
 # foxglove.Log levels (the SDK's LogLevel values)
 INFO, WARNING = 2, 3
 
@@ -335,6 +338,9 @@ class FoxgloveServer:
         self.sent = 0
         self.failed: Counter[str] = Counter()
         self._time_ns = -1
+        # advertised from the start: a client subscribes before the first scene update or log line
+        for topic, schema in EAGER_CHANNELS:
+            self._channel(topic, schema)
 
     @property
     def port(self) -> int:
