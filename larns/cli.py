@@ -3,7 +3,8 @@
 Each module of :mod:`larns.commands` listed in ``COMMANDS`` exposes ``register(subparsers)`` which adds its parser and
 sets ``func`` (called with the parsed args, returns an exit code). Registration must stay cheap:
 heavy imports (zenoh, matplotlib, scipy) happen inside the command functions, so ``--help``
-is instant.
+is instant. Bad user input that reaches :func:`main` (a scenario file, a keystore: :func:`user_errors`)
+is printed as its one line on stderr with exit code 2.
 """
 
 from __future__ import annotations
@@ -21,8 +22,10 @@ COMMANDS: list[str] = [
     "larns.commands.view",
     "larns.commands.station",
     "larns.commands.fleet",
+    "larns.commands.monitor",
     "larns.commands.router",
     "larns.commands.crlb",
+    "larns.commands.scenario",
     "larns.commands.info",
     "larns.commands.replay",
     "larns.commands.reestimate",
@@ -64,6 +67,20 @@ def main(argv: list[str] | None = None) -> int:
         return int(func(args) or 0)
     except KeyboardInterrupt:
         return 130
+    except Exception as e:  # bad user input: its one line on stderr and exit 2, never a traceback
+        if not isinstance(e, user_errors()):
+            raise
+        print(e, file=sys.stderr)
+        return 2
+
+
+def user_errors() -> tuple[type[Exception], ...]:
+    """The errors that mean bad user input, whose message is the whole story: a scenario file
+    (``ScenarioError``: ``FILE: [section] key: what is wrong (expected ...)``) or a keystore."""
+    from net.scenario import ScenarioError
+    from net.security import KeystoreError
+
+    return (ScenarioError, KeystoreError)
 
 
 if __name__ == "__main__":

@@ -7,9 +7,45 @@ import json
 import logging
 import sys
 
+DESCRIPTION = """\
+Passive observer: subscribes to larns/** and writes the exact wire bytes to MCAP (one channel per
+key, message_encoding msgpack), plus Foxglove JSON channels. log_time = receive time, publish_time
+= sender stamp. SIGINT/SIGTERM finish the file.
+
+Beside a running `larns fleet`, --fleet FILE (default: runs/fleet.json when it describes a running
+fleet and no --epoch is given) takes the fleet's endpoints, epoch, speed and scenario; the
+recording then stops when the fleet ends unless --duration says otherwise."""
+
+
+def _attach(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
+    """``--fleet`` (or the default fleet file): the fleet's endpoints, epoch, speed, scenario; without
+    ``--duration``, record until the fleet's end."""
+    import time
+
+    from net.attach import apply_fleet, find_fleet
+
+    now = time.time()
+    found = find_fleet(args, now, "larns record")
+    if found is None:
+        return
+    path, rec = found
+    apply_fleet(args, rec, path, parser)
+    end = rec.get("end_unix_s")
+    if args.duration is None and isinstance(end, (int, float)):
+        args.duration = max(1.0, end - now + 1.0)  # wall seconds: a second past the fleet's end
+    print(f"larns record: attaching to the fleet of {path}: scenario {args.scenario}, epoch {args.epoch:.3f}, "
+          f"speed {args.speed:g}, connect {' '.join(args.connect or [])}", file=sys.stderr, flush=True)
+
 
 def cmd_record(args: argparse.Namespace) -> int:
+    from net.attach import FleetFileError
     from net.bus import bus_kwargs
+
+    try:
+        _attach(args, args.parser)
+    except FleetFileError as e:
+        print(f"larns record: {e}", file=sys.stderr)
+        return 2
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     md = {}
@@ -39,14 +75,18 @@ def cmd_record(args: argparse.Namespace) -> int:
 def register(sub) -> None:
     from net.bus import add_bus_args
 
-    p = sub.add_parser(
-        "record", help="record all LARNS traffic on Zenoh to an MCAP file",
-        description="Passive observer: subscribes to larns/** and writes the exact wire bytes to "
-                    "MCAP (one channel per key, message_encoding msgpack). log_time = receive "
-                    "time, publish_time = sender stamp. SIGINT/SIGTERM finish the file.")
+    from .helptext import add_parser
+
+    p = add_parser(sub, "record", help="record all LARNS traffic on Zenoh to an MCAP file", description=DESCRIPTION,
+                   example=["larns record -o runs/extra.mcap --fleet runs/fleet.json   # record a running fleet",
+                            "larns record -o run.mcap --connect tcp/127.0.0.1:7447 --epoch 1767225600 --duration 60"])
     p.add_argument("-o", "--output", required=True, help="output .mcap file")
     p.add_argument("--keyexpr", default="larns/**", help="key expression to record (default larns/**)")
-    p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="stop after S wall seconds (default: when the attached fleet ends, else at SIGINT)")
+    p.add_argument("--fleet", default=None, metavar="FILE",
+                   help="attach to the running `larns fleet` of this fleet file (default: runs/fleet.json if it "
+                        "describes a running fleet and no --epoch is given)")
     p.add_argument("--flush", type=float, default=2.0, help="finish a chunk every N seconds (default 2)")
     p.add_argument("--scenario", default=None, help="scenario name stored as metadata")
     p.add_argument("--epoch", type=float, default=None,
@@ -57,6 +97,6 @@ def register(sub) -> None:
                    help="do not write the Foxglove JSON channels (larns/foxglove/**: 3D scene, "
                         "transforms, plottable estimates and errors; see larns export)")
     p.add_argument("--json", action="store_true", help="print statistics as JSON at the end")
-    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     add_bus_args(p)
-    p.set_defaults(func=cmd_record)
+    p.set_defaults(func=cmd_record, parser=p)

@@ -20,16 +20,21 @@ def open_monitor(args: argparse.Namespace, p: FleetPlan, monitor: Monitor):
 
     bus = Bus(listen=[] if p.mode == "client" else [p.monitor_ep], connect=p.seeds, config_file=args.zenoh_config,
               mode=p.mode, secure=(p.secure, "monitor") if p.secure else None)
+    subscribe(bus, monitor, aircraft=args.aircraft, vehicle=wants_vehicle(args))
+    return bus
+
+
+def subscribe(bus, monitor: Monitor, aircraft: bool = True, vehicle: bool = True) -> None:
+    """What the live table needs from the bus (the fleet's own view and ``larns monitor``)."""
     bus.subscribe("larns/station/*/estimate", monitor.on_sample)
     bus.subscribe("larns/station/*/truth", monitor.on_sample)
     bus.subscribe("larns/station/*/integrity", monitor.on_sample)
-    if args.aircraft:
+    if aircraft:
         bus.subscribe("larns/aircraft/**", monitor.on_sample)
-    if wants_vehicle(args):
+    if vehicle:
         bus.subscribe("larns/vehicle/*/estimate", monitor.on_sample)
         bus.subscribe("larns/vehicle/*/truth", monitor.on_sample)
     bus.subscribe_liveliness("larns/alive/**", monitor.on_alive)
-    return bus
 
 
 def finished(args: argparse.Namespace, p: FleetPlan, now: float) -> bool:
