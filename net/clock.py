@@ -219,3 +219,89 @@ def broadcast_clock_var_m2(msg: dict) -> float:
         return 0.0
     dt = float(msg["t_tx_s"]) - corr[0]
     return SPEED_OF_LIGHT_M_S**2 * max(corr[3] + 2 * dt * corr[4] + dt * dt * corr[5], 0.0)
+
+
+# --------------------------------------------------------------------------- ensemble network time
+
+@dataclass(frozen=True)
+class TimeScale:
+    """Definition of network time as an ensemble of clocks (a paper clock), valid from ``T_ref_s`` on.
+
+    Network time ``E`` at an instant, in phase against true time, relative to any reference clock
+    ``x_R`` (every clock's phase ``x_k``; ``theta_k = x_k - x_R``; the weights sum to 1, so the choice of
+    ``R`` does not matter)::
+
+        E - x_R = sum_k w_k theta_k + a_s + b (T - T_ref_s)
+
+    ``T`` is the time axis on which the instant is placed (the station clock filter's own; the world
+    side uses the same: what the reference clock reads, true time plus its phase). ``a_s``, ``b`` keep network time
+    continuous in phase and in rate across a change of the members or their weights
+    (:func:`ensemble_change`); ``jump_s`` is the phase term ``sum (w_old - w_new) theta`` the change
+    applied, on the clocks as the changer estimated them (the world side compares it with the true
+    clocks: :func:`ensemble_step_s`)."""
+
+    weights: tuple[tuple[int, float], ...]
+    a_s: float = 0.0
+    b: float = 0.0
+    T_ref_s: float = 0.0
+    jump_s: float = 0.0
+
+    @property
+    def w(self) -> dict[int, float]:
+        return dict(self.weights)
+
+    def offset_s(self, theta_s: dict[int, float], T_s: float) -> float:
+        """``E - x_R`` at ``T_s`` from the members' offsets ``theta_s`` against ``x_R`` (s)."""
+        return sum(w * theta_s[k] for k, w in self.weights) + self.a_s + self.b * (T_s - self.T_ref_s)
+
+
+def ensemble_change(scale: TimeScale, weights: dict[int, float], theta_s: dict[int, float],
+                    freq: dict[int, float], T_s: float) -> TimeScale:
+    """The time scale with new ``weights`` from ``T_s`` on, continuous in phase and rate at ``T_s``.
+
+    ``theta_s`` / ``freq``: offsets and fractional frequencies, against one common reference clock, of
+    every clock in the old or the new weights, at ``T_s``. With the true (noise-free) clocks the new
+    scale equals the old one at every later instant of a linear world; with estimates the phase step
+    against the true clocks is ``sum (w_old - w_new)`` times their errors (``jump_s``)."""
+    old = scale.w
+    ks = set(old) | set(weights)
+    dw = {k: old.get(k, 0.0) - weights.get(k, 0.0) for k in ks}
+    jump = sum(d * theta_s[k] for k, d in dw.items())
+    a = scale.a_s + scale.b * (T_s - scale.T_ref_s) + jump
+    b = scale.b + sum(d * freq[k] for k, d in dw.items())
+    return TimeScale(tuple(sorted(weights.items())), float(a), float(b), float(T_s), float(jump))
+
+
+def scale_at(log: list[TimeScale], T_s: float) -> TimeScale:
+    """The definition in force at ``T_s`` (``log`` in order of ``T_ref_s``; the first before it)."""
+    cur = log[0]
+    for s in log[1:]:
+        if s.T_ref_s > T_s:
+            break
+        cur = s
+    return cur
+
+
+def true_network_offset_s(clocks: dict, log: list[TimeScale], sid: int, t_true_s: float,
+                          ref_id: int = 1) -> float:
+    """True offset of clock ``sid`` against network time at true time ``t_true_s``: its phase minus
+    the time scale of ``log`` evaluated on the true clocks (``clocks``: id -> oscillator with
+    ``error_s``, every member included; ``ref_id``: the clock the scale's time axis is placed on)."""
+    x_r = clocks[ref_id].error_s(t_true_s)
+    T = t_true_s + x_r  # what the reference clock reads
+    scale = scale_at(log, T)
+    th = {k: clocks[k].error_s(t_true_s) - x_r for k, _ in scale.weights}
+    return clocks[sid].error_s(t_true_s) - x_r - scale.offset_s(th, T)
+
+
+def ensemble_step_s(clocks: dict, prev: TimeScale, scale: TimeScale, ref_id: int = 1) -> float:
+    """Step of network time at the change ``prev`` -> ``scale``, against the true clocks: the phase term
+    the change applied (``scale.jump_s``, from estimates) minus the one the true clocks call for."""
+    T = scale.T_ref_s
+    tau = T
+    for _ in range(3):  # true time at which the reference clock reads T
+        tau = T - clocks[ref_id].error_s(tau)
+    x_r = clocks[ref_id].error_s(tau)
+    old, new = prev.w, scale.w
+    true = sum((old.get(k, 0.0) - new.get(k, 0.0)) * (clocks[k].error_s(tau) - x_r) for k in set(old) | set(new))
+    return scale.jump_s - true

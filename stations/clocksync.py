@@ -28,7 +28,19 @@ Measurements:
   at ``t_rx`` with transmit stamp ``t_tx`` gives ``theta_m = t_rx - (t_tx - theta_j(t_tx)) - d / c`` with
   the distance ``d`` unknown (variance ``(coarse_range_m / c)^2``): microseconds from the first nav heard.
 
-Station 1 is the time reference: ``theta = f = 0`` exactly.
+**Ensemble network time** (no station is special). The filter's states are placed against station 1's
+clock (its coordinates: ``theta_1 = f_1 = 0``, and the time axis ``T`` on which exchanges are placed and
+slots scheduled), but *network time* - what the broadcast clock corrections, the estimates and the
+truth refer to - is the ensemble ``E`` of :class:`net.clock.TimeScale`: the weighted mean of the member
+clocks plus a phase and a rate term that keep it continuous when the members change. It starts as
+station 1's clock alone (the founder defines time until the others are known); once per second of
+``T`` each station re-evaluates the members from what it hears (:meth:`ClockEstimator._membership`):
+a clock enters (weight from zero) once its offset against the ensemble is known to ``ENTER_SD_S``, a
+member not heard in an exchange for ``LEAVE_S`` leaves, and the weights are renormalized, continuous
+in phase and rate (:func:`net.clock.ensemble_change`). Weights are ``1 / sigma_y^2`` of each clock's
+class (one class per field: equal weights). Every station's filter is (up to the navs it missed) the
+centralized one, so every station computes the same scale; its changes are logged
+(``scale_log``) so the world side evaluates the same definition on the true clocks.
 """
 
 from __future__ import annotations
@@ -39,9 +51,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from nav.geometry import SPEED_OF_LIGHT_M_S
-from net.clock import transition
+from net.clock import TimeScale, ensemble_change, transition
 
 C = SPEED_OF_LIGHT_M_S
+ENTER_SD_S = 2e-9  # a clock enters the ensemble once its offset against it is known to 2 ns (1 sigma)
+LEAVE_S = 5.0  # a member not heard in any exchange for 5 s of network time leaves the ensemble
 
 
 @dataclass(frozen=True)
@@ -136,6 +150,11 @@ class ClockEstimator:
         self._retry_T = -np.inf
         self.exact = model.offset_sigma_s == 0 and model.freq_sigma == 0 and model.q_wf_s == 0 \
             and model.q_rw_per_s == 0  # perfect clocks: nothing to estimate
+        # ensemble network time (module docstring): station 1's clock until the others are known
+        self.scale = TimeScale(((1, 1.0),), T_ref_s=self.T_s)
+        self.scale_log: list[TimeScale] = [self.scale]
+        self._heard_T: dict[int, float] = {}  # network time of the last exchange of each clock
+        self._tick_T = math.floor(self.T_s)
         if not self.ref:
             self._add(station_id)
 
@@ -290,14 +309,88 @@ class ClockEstimator:
         return float(ptt + 2 * dt * ptf + dt * dt * pff + (2.0 * Q[0, 0] if dt > 0 else 0.0))
 
     def correction(self, t_local_s: float) -> list[float]:
-        """Broadcast clock correction at local time ``t_s``: ``[t_ref, theta, f, P_tt, P_tf, P_ff]``."""
-        if self.ref:
+        """Broadcast clock correction at local time ``t_s``: ``[t_ref, theta, f, P_tt, P_tf, P_ff]``, the
+        offset against (ensemble) network time."""
+        if self.exact:
             return [float(t_local_s), 0.0, 0.0, 0.0, 0.0, 0.0]
         self.predict(self.network_time(t_local_s))
-        a, f, ptt, ptf, pff = self._own()
+        a, f, ptt, ptf, pff, _ = self._ens(self.id)
         dt = self.network_time(t_local_s) - self.T_s  # 0 unless t_local_s lies in the filter's past
         return [float(t_local_s), float(a + f * dt), float(f), float(ptt + 2 * dt * ptf + dt * dt * pff),
                 float(ptf + dt * pff), float(pff)]
+
+    def ensemble_offset_at(self, t_local_s: float) -> tuple[float, float]:
+        """Estimated own offset against (ensemble) network time at local ``t_local_s`` and its variance
+        (predicted; the filter unchanged), s and s^2."""
+        if self.exact:
+            return 0.0, 0.0
+        e, f, ptt, ptf, pff, qfac = self._ens(self.id)
+        dt = self.network_time(t_local_s) - self.T_s
+        var = ptt + 2 * dt * ptf + dt * dt * pff + (qfac * self._Q(dt)[0] if dt > 0 else 0.0)
+        return float(e + f * dt), float(max(var, 0.0))
+
+    # ------------------------------------------------------------------ ensemble network time
+    def _coeffs(self, sid: int, weights: dict[int, float]) -> dict[int, float]:
+        """Clock ``sid``'s offset against the ensemble as coefficients of the raw clocks."""
+        c = {k: -w for k, w in weights.items()}
+        c[sid] = c.get(sid, 0.0) + 1.0
+        return c
+
+    def _combo(self, coeffs: dict[int, float]) -> tuple[float, float, float, float, float]:
+        """``sum c_k theta_k``, ``sum c_k f_k`` at ``T_s`` and their covariance ``(P_tt, P_tf, P_ff)``
+        (station 1, the filter's reference, has ``theta = f = 0``)."""
+        items = [(self.index[k], c) for k, c in coeffs.items() if k != 1 and c != 0.0]
+        th = sum(c * self.x[2 * k] for k, c in items)
+        f = sum(c * self.x[2 * k + 1] for k, c in items)
+        tt = tf = ff = 0.0
+        for ki, ci in items:
+            for kj, cj in items:
+                a, b, _, d = self._cov(ki, kj)
+                tt += ci * cj * a
+                tf += ci * cj * b
+                ff += ci * cj * d
+        return float(th), float(f), tt, tf, ff
+
+    def _ens(self, sid: int) -> tuple[float, float, float, float, float, float]:
+        """Clock ``sid``'s offset and frequency against network time at ``T_s``, their covariance
+        ``(P_tt, P_tf, P_ff)`` and the factor of one clock's ``Q`` its offset wanders with."""
+        sc = self.scale
+        coeffs = self._coeffs(sid, sc.w)
+        th, f, tt, tf, ff = self._combo(coeffs)
+        qfac = sum(c * c for c in coeffs.values())
+        return th - sc.a_s - sc.b * (self.T_s - sc.T_ref_s), f - sc.b, tt, tf, ff, qfac
+
+    def _state(self, sid: int) -> tuple[float, float]:
+        if sid == 1:
+            return 0.0, 0.0
+        k = self.index[sid]
+        return float(self.x[2 * k]), float(self.x[2 * k + 1])
+
+    def _membership(self) -> None:
+        """Once per second of ``T``: members not heard for ``LEAVE_S`` leave, clocks known against the
+        ensemble to ``ENTER_SD_S`` enter; on a change the weights are renormalized without a step
+        (:func:`net.clock.ensemble_change`)."""
+        if self.exact:
+            return
+        T = self.T_s
+        heard = self._heard_T
+        old = self.scale.w
+        alive = {s for s in old if s == self.id or T - heard.get(s, -math.inf) <= LEAVE_S}
+        if not alive:
+            return  # nobody left to define time: keep the scale (extrapolated)
+        w_alive = {s: 1.0 / len(alive) for s in alive}
+        new = set(alive)
+        for sid in [self.id, *self.index]:
+            if sid in new or (sid != self.id and T - heard.get(sid, -math.inf) > 1.5):
+                continue
+            if self._combo(self._coeffs(sid, w_alive))[2] <= ENTER_SD_S**2:
+                new.add(sid)
+        if new == set(old):
+            return
+        states = {s: self._state(s) for s in new | set(old)}
+        self.scale = ensemble_change(self.scale, {s: 1.0 / len(new) for s in new},
+                                     {s: v[0] for s, v in states.items()}, {s: v[1] for s, v in states.items()}, T)
+        self.scale_log.append(self.scale)
 
     # ------------------------------------------------------------------ filter steps
     def predict(self, T_s: float) -> None:
@@ -311,6 +404,9 @@ class ClockEstimator:
             return
         self.x[0::2] += dt * self.x[1::2]
         self.T_s = float(T_s)
+        if math.floor(self.T_s) > self._tick_T:
+            self._tick_T = math.floor(self.T_s)
+            self._membership()
 
     def _terms(self, T_s: float, terms: list[tuple[int, float]]) -> tuple[list[int], list[float], float]:
         """Sparse row of ``sum sign theta_sid(T_s)`` at the filter's time: block indices, signs and the
@@ -395,6 +491,8 @@ class ClockEstimator:
                 return None
             r += r_t
         self.predict(T_s)
+        for sid in (a, b):
+            self._heard_T[sid] = max(self._heard_T.get(sid, -math.inf), T_s)
         ks, signs, dt_h = self._terms(T_s, [(a, 1.0), (b, -1.0)])
         return self._update(ks, signs, dt_h, dtheta_s, r)
 

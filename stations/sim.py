@@ -17,6 +17,7 @@ from typing import Any, Callable
 import numpy as np
 
 from net.channel import AirChannel, Clock, coarse_fix, draw_clock, station_rng
+from net.clock import true_network_offset_s
 from net.scenario import Scenario
 
 from .admission import field_radius
@@ -40,7 +41,9 @@ class SimResult:
     counters: dict[int, dict] = field(default_factory=dict)
     clock_err_s: np.ndarray | None = None  # (K, n) estimated minus true clock offset vs network time
     clock_var_s2: np.ndarray | None = None  # (K, n) the estimator's offset variance
-    clock_true_s: np.ndarray | None = None  # (K, n) true offset vs network time (station 1's clock)
+    clock_true_s: np.ndarray | None = None  # (K, n) true offset vs network time (the ensemble, each
+    # station's definition of it evaluated on the true clocks: net.clock.true_network_offset_s)
+    time_scales: dict[int, list] = field(default_factory=dict)  # station id -> its TimeScale log
 
 
 def station_clock(scn: Scenario, station_id: int, seed: int | None = None):
@@ -50,7 +53,7 @@ def station_clock(scn: Scenario, station_id: int, seed: int | None = None):
 
 
 def network_offset_s(clock, ref_clock, t_true_s: float) -> float:
-    """True offset of a clock against network time (station 1's clock) at true time ``t_true_s``."""
+    """True offset of a clock against station 1's clock (``ref_clock``) at true time ``t_true_s``."""
     return clock.error_s(t_true_s) - ref_clock.error_s(t_true_s)
 
 
@@ -253,9 +256,9 @@ class Simulator:
                         cov[si, k] = c.est.cov_m2
                         nup[si, k] = c.est.n_updates
                         t_loc = self.clocks[k].to_local(snaps[si])
-                        ctrue[si, k] = network_offset_s(self.clocks[k], self.ref_clock, snaps[si])
-                        cerr[si, k] = c.clk.offset_at(t_loc) - ctrue[si, k]
-                        cvar[si, k] = c.clk.variance_at(t_loc)
+                        ctrue[si, k] = self.true_clock_offset_s(k, snaps[si])
+                        off, cvar[si, k] = c.clk.ensemble_offset_at(t_loc)
+                        cerr[si, k] = off - ctrue[si, k]
                 links[si] = self.links
                 si += 1
                 continue
@@ -265,4 +268,15 @@ class Simulator:
         return SimResult(ids=list(self.scn.ids), times_s=snaps, truth_m=self.scn.pos_m.copy(), pos_m=pos,
                          cov_m2=cov, n_updates=nup, link_counts=links,
                          counters={sid: dict(c.counters) for sid, c in zip(self.scn.ids, self.cores) if c},
-                         clock_err_s=cerr, clock_var_s2=cvar, clock_true_s=ctrue)
+                         clock_err_s=cerr, clock_var_s2=cvar, clock_true_s=ctrue,
+                         time_scales={sid: list(c.clk.scale_log) for sid, c in zip(self.scn.ids, self.cores) if c})
+
+    def true_clocks(self) -> dict:
+        """Station id -> its true oscillator (stations not started yet: drawn from the world seed)."""
+        return {sid: (self.clocks[k] if self.cores[k] is not None else station_clock(self.scn, sid, self.seed))
+                for k, sid in enumerate(self.scn.ids)}
+
+    def true_clock_offset_s(self, k: int, t_true_s: float) -> float:
+        """True offset of station index ``k``'s clock against network time as that station defines it
+        (its ensemble's members and constants, :attr:`ClockEstimator.scale_log`), on the true clocks."""
+        return true_network_offset_s(self.true_clocks(), self.cores[k].clk.scale_log, self.scn.ids[k], t_true_s)
