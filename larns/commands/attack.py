@@ -68,15 +68,23 @@ def cmd_attack(args: argparse.Namespace) -> int:
 
 
 def register(sub) -> None:
+    from .helptext import Formatter, examples
+
     p = sub.add_parser("attack", help="adversary for a --secure fleet (loopback only; docs/security.md)",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("attack", choices=[*ATTACK_NAMES, "all"])
+                       description=__doc__, formatter_class=Formatter,
+        epilog=examples(
+            "larns attack forge --secure runs/keys --as 3 --victim 5 --connect tls/127.0.0.1:7447",
+            "larns attack all --secure runs/keys --connect tls/127.0.0.1:7447 --duration 120",
+        ))
+    p.add_argument("attack", choices=[*ATTACK_NAMES, "all"], help="the attack to run (all: each in turn)")
     p.add_argument("--secure", default=None, metavar="DIR", help="keystore whose credentials are abused")
     p.add_argument("--as", dest="as_id", type=int, default=3, help="station whose credentials are used (default 3)")
     p.add_argument("--victim", type=int, default=5, help="station impersonated (default 5)")
     p.add_argument("--victims", default=None, help="flood: stations sent range requests (default all but 9)")
-    p.add_argument("--connect", action="append", default=None, metavar="ENDPOINT")
-    p.add_argument("--zenoh-mode", choices=("peer", "client"), default="peer")
+    p.add_argument("--connect", action="append", default=None, metavar="ENDPOINT",
+                   help="endpoint of the fleet to attack (repeatable; loopback only)")
+    p.add_argument("--zenoh-mode", choices=("peer", "client"), default="peer",
+                   help="peer, or client of the router given with --connect")
     p.add_argument("--duration", type=float, default=10.0, help="seconds (default 10)")
     p.add_argument("--period", type=float, default=0.3, help="forge: seconds between rounds; fuzz: between payloads")
     p.add_argument("--delay", type=float, default=1.0, help="replay: seconds between capture and replay")
@@ -84,7 +92,7 @@ def register(sub) -> None:
     p.add_argument("--rate", type=float, default=20000.0, help="flood: messages per second (default 20000)")
     p.add_argument("--seed", type=int, default=15, help="fuzz: random seed")
     p.add_argument("--epoch", type=float, default=None, help="fleet epoch (stamps of forged messages)")
-    p.add_argument("--speed", type=float, default=1.0)
+    p.add_argument("--speed", type=float, default=1.0, help="the fleet's speed factor")
     p.add_argument("--link-wait", type=float, default=5.0, help="seconds to wait for a link")
     p.set_defaults(func=cmd_attack)
 

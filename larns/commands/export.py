@@ -24,11 +24,16 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def register(sub) -> None:
+    from .helptext import Formatter, examples
+
     from . import doc_of
 
     p = sub.add_parser(
         "export", help="add Foxglove JSON channels (3D scene, transforms, plottable errors) to a recording",
-        description=doc_of("larns.viz.foxglove"), formatter_class=argparse.RawDescriptionHelpFormatter)
+        description=doc_of("larns.viz.foxglove"), formatter_class=Formatter,
+        epilog=examples(
+            "larns export runs/demo.mcap -o runs/demo-foxglove.mcap",
+        ))
     p.add_argument("files", nargs="+", help="MCAP recording(s), merged by log time")
     p.add_argument("-o", "--output", required=True, help="output .mcap (wire channels + JSON channels)")
     p.add_argument("--json", action="store_true", help="print statistics as JSON")

@@ -109,11 +109,17 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 
 def register(sub) -> None:
+    from .helptext import Formatter, examples
+
     p = sub.add_parser(
         "info", help="summarize an MCAP recording (like ros2 bag info)",
         description="Duration, message counts and rates per key, stations and aircraft found, loss "
                     "(sequence gaps), duplicates and latency. Works on recordings that were killed "
-                    "(no summary section): the file is stream-read up to the damage.")
+                    "(no summary section): the file is stream-read up to the damage.",
+        formatter_class=Formatter, epilog=examples(
+            "larns info runs/demo.mcap",
+            "larns info --json runs/a.mcap runs/b.mcap",
+        ))
     p.add_argument("files", nargs="+", help="MCAP file(s); several are merged by log time")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=cmd_info)

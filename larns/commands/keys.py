@@ -113,9 +113,16 @@ def _cmd_list(a: argparse.Namespace) -> int:
 
 
 def register(sub) -> None:
+    from .helptext import Formatter, examples
+
     p = sub.add_parser("keys", help="keystore for --secure: CA, per-process certificates, Zenoh access control",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ks = p.add_subparsers(dest="keys_cmd", required=True, metavar="ACTION")
+                       description=__doc__, formatter_class=Formatter,
+        epilog=examples(
+            "larns keys init runs/keys --stations 1-10 --aircraft ac1",
+            "larns keys add runs/keys --station 11",
+            "larns keys list runs/keys",
+        ))
+    ks = p.add_subparsers(dest="keys_cmd", required=True, metavar="ACTION", help="init, add or list")
     i = ks.add_parser("init", help="create a keystore (CA + enclaves)")
     i.add_argument("dir")
     i.add_argument("--stations", default="1-10", help="station ids to issue, e.g. 1-10 (default 1-10)")

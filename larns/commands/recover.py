@@ -34,9 +34,14 @@ def cmd_recover(args: argparse.Namespace) -> int:
 
 
 def register(sub) -> None:
+    from .helptext import Formatter, examples
+
     p = sub.add_parser(
         "recover", help="rewrite a killed/damaged MCAP recording as a clean indexed file",
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+        description=__doc__, formatter_class=Formatter,
+        epilog=examples(
+            "larns recover runs/killed.mcap -o runs/clean.mcap",
+        ))
     p.add_argument("input", help="damaged or unfinished .mcap")
     p.add_argument("-o", "--output", required=True, help="clean output .mcap")
     p.add_argument("--json", action="store_true", help="print statistics as JSON")

@@ -154,9 +154,15 @@ def cmd_offline(args: argparse.Namespace) -> int:
 def register(sub) -> None:
     from net.bus import add_bus_args
 
+    from .helptext import Formatter, examples
+
     p = sub.add_parser(
         "replay", help="play an MCAP recording back on Zenoh, or re-estimate it offline",
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+        description=__doc__, formatter_class=Formatter,
+        epilog=examples(
+            "larns replay runs/demo.mcap --rate 2",
+            "larns replay --offline runs/demo.mcap --estimator seed-ukf",
+        ))
     p.add_argument("files", nargs="+", help="MCAP file(s), merged by log time")
     p.add_argument("-r", "--rate", type=float, default=1.0, help="playback rate factor (default 1)")
     p.add_argument("-l", "--loop", action="store_true", help="loop playback")
@@ -175,7 +181,7 @@ def register(sub) -> None:
     g.add_argument("--offline", action="store_true", help="re-run the estimators on the recorded inputs")
     add_offline_args(g)
     p.add_argument("--json", action="store_true", help="print statistics as JSON")
-    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     add_bus_args(p)
     p.set_defaults(func=cmd_replay)
 

@@ -93,8 +93,14 @@ def cmd_router(args: argparse.Namespace) -> int:
 
 
 def register(sub) -> None:
+    from .helptext import Formatter, examples
+
     p = sub.add_parser("router", help="Zenoh router for the client/router topology (--zenoh-mode client)",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+                       description=__doc__, formatter_class=Formatter,
+        epilog=examples(
+            "larns router --listen tcp/127.0.0.1:7447",
+            "larns fleet --topology router --connect tcp/127.0.0.1:7447 --duration 60",
+        ))
     p.add_argument("--listen", action="append", default=None, metavar="ENDPOINT",
                    help="endpoint to listen on (repeatable; default tcp/127.0.0.1:7447)")
     p.add_argument("--connect", action="append", default=None, metavar="ENDPOINT",
@@ -110,7 +116,7 @@ def register(sub) -> None:
     p.add_argument("--nice", type=int, default=0, metavar="N",
                    help="niceness change (negative = ahead of the stations on a busy machine; needs privileges)")
     add_sched_args(p)
-    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("-q", "--quiet", action="store_true", help="no start and statistics lines")
     p.set_defaults(func=cmd_router)
 
 
