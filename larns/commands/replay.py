@@ -64,6 +64,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
         return cmd_verify_recordings(args.secure, args.files, args.topics, args.exclude)
     if args.offline:
         return cmd_offline(args)
+    if getattr(args, "view", None) is not None:  # into Foxglove instead of Zenoh (larns/commands/view.py)
+        from .view import cmd_replay_view
+
+        return cmd_replay_view(args)
     from net.bus import Bus, bus_kwargs
 
     try:
@@ -182,6 +186,9 @@ def register(sub) -> None:
     add_offline_args(g)
     p.add_argument("--json", action="store_true", help="print statistics as JSON")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
+    from .view import add_replay_view_args
+
+    add_replay_view_args(p)
     add_bus_args(p)
     p.set_defaults(func=cmd_replay)
 

@@ -67,3 +67,60 @@ def register(sub) -> None:
     p.add_argument("-q", "--quiet", action="store_true")
     add_bus_args(p)
     p.set_defaults(func=cmd_view)
+
+
+def cmd_replay_view(args: argparse.Namespace) -> int:
+    """`larns replay --view run.mcap`: the recording served through the live view on a Foxglove
+    WebSocket; Foxglove's playback controls (play, pause, speed, seek) drive the player."""
+    from larns.log import Timebase, merge, read_logs
+    from larns.log.player import select_messages
+    from larns.viz.live import serve_recording
+
+    try:
+        logs = read_logs(args.files, encodings=["msgpack"])
+    except (OSError, ValueError) as e:
+        print(f"larns replay --view: {e}", file=sys.stderr)
+        return 2
+    msgs = select_messages(merge(logs), args.topics, args.exclude, args.start_offset, args.until)
+    if not msgs:
+        print("larns replay --view: nothing to play (check --topics / --exclude / --start-offset / --until)",
+              file=sys.stderr)
+        return 1
+    if not 0 <= args.view <= 65535 or args.rate <= 0:
+        print(f"larns replay --view: expected a port 0..65535 (got {args.view}) and --rate > 0 (got {args.rate})",
+              file=sys.stderr)
+        return 2
+    stop = threading.Event()
+    for s in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(s, lambda *_: stop.set())
+
+    def ready(port: int) -> None:
+        if not args.quiet:
+            print(f"[replay] {len(msgs)} messages served on ws://{args.view_host}:{port} (Foxglove: Open "
+                  f"connection -> Foxglove WebSocket; the playback bar plays, pauses, seeks); Ctrl-C to stop",
+                  file=sys.stderr, flush=True)
+
+    try:
+        stats = serve_recording(msgs, Timebase.of(logs, msgs[0].log_time), host=args.view_host, port=args.view,
+                                speed=args.rate, start_paused=args.start_paused, stop=stop, on_ready=ready,
+                                duration_s=args.view_duration)
+    except RuntimeError as e:
+        print(f"larns replay --view: cannot serve on {args.view_host}:{args.view}: {e}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(json.dumps(stats))
+    elif not args.quiet:
+        print(f"[replay] delivered {stats['delivered']} of {stats['messages']} messages ({stats['seeks']} seeks)",
+              file=sys.stderr)
+    return 0
+
+
+def add_replay_view_args(p) -> None:
+    """``larns replay --view [PORT]`` and its options."""
+    g = p.add_argument_group("replay into Foxglove (docs/view.md)")
+    g.add_argument("--view", type=int, nargs="?", const=8765, default=None, metavar="PORT",
+                   help="serve the recording on a Foxglove WebSocket (default port 8765) instead of Zenoh; "
+                        "Foxglove's playback controls drive the player (--rate is the initial speed)")
+    g.add_argument("--view-host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
+    g.add_argument("--view-duration", type=float, default=None, metavar="S",
+                   help="stop serving after S wall seconds (default: until Ctrl-C)")

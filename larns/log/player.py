@@ -4,6 +4,7 @@ the player runs without Zenoh in the tests."""
 
 from __future__ import annotations
 
+import math
 import os
 import select
 import sys
@@ -173,3 +174,58 @@ def play(msgs: Sequence[Msg], publish, rate: float = 1.0, loop: bool = False, re
 
 
 # --------------------------------------------------------------------------- commands
+
+
+# --------------------------------------------------------------------------- remote controls (Foxglove)
+
+class SeekablePlayer:
+    """Playback driven by a remote client - Foxglove's playback controls (``larns replay --view``):
+    play, pause, speed and seek on one time axis ``times_ns`` (sorted, one per message).
+
+    No clock of its own: every call passes the wall time ``now_s``; thread-safe (the control
+    requests arrive on the server's thread)."""
+
+    def __init__(self, times_ns: Sequence[int], speed: float = 1.0, playing: bool = True, now_s: float = 0.0):
+        self.times_ns = list(times_ns)
+        self.start_ns = self.times_ns[0] if self.times_ns else 0
+        self.end_ns = self.times_ns[-1] if self.times_ns else 0
+        self.cur_ns = self.start_ns
+        self.i = 0                 # next message to deliver
+        self.speed = float(speed)
+        self.playing = playing
+        self.seeks = 0             # seeks so far (the caller resets its view on a change)
+        self._wall_s = now_s
+        self._lock = threading.Lock()
+
+    @property
+    def ended(self) -> bool:
+        return self.i >= len(self.times_ns)
+
+    def _advance(self, now_s: float) -> None:
+        if self.playing:
+            self.cur_ns = min(self.end_ns, self.cur_ns + int((now_s - self._wall_s) * 1e9 * self.speed))
+        self._wall_s = now_s
+
+    def control(self, play: bool, speed: float | None, seek_ns: int | None, now_s: float) -> None:
+        """A client's request: play or pause, a new speed (ignored unless > 0), an optional seek."""
+        import bisect
+
+        with self._lock:
+            self._advance(now_s)
+            if seek_ns is not None:
+                self.cur_ns = min(max(int(seek_ns), self.start_ns), self.end_ns)
+                self.i = bisect.bisect_left(self.times_ns, self.cur_ns)
+                self.seeks += 1
+            if speed is not None and speed > 0 and math.isfinite(speed):
+                self.speed = float(speed)
+            self.playing = bool(play)
+
+    def step(self, now_s: float) -> tuple[range, int]:
+        """Indices of the messages due by ``now_s`` (in order) and the current time, ns."""
+        with self._lock:
+            self._advance(now_s)
+            j = self.i
+            while j < len(self.times_ns) and self.times_ns[j] <= self.cur_ns:
+                j += 1
+            due, self.i = range(self.i, j), j
+            return due, self.cur_ns

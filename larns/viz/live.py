@@ -131,19 +131,23 @@ class LiveView:
         self._truths: dict[int, int] = {}                         # sid -> truths seen
 
     # ------------------------------------------------------------------ entry points
-    def on_sample(self, key: str, data: bytes) -> list[Out]:
+    def on_sample(self, key: str, data: bytes, log_ns: int | None = None) -> list[Out]:
+        """One wire sample. Its outputs are stamped with ``log_ns`` when given (a replay's player
+        time), else with the message's own fleet time (:func:`fleet_ns`)."""
         from net.messages import MessageError
 
         from ..log.series import decode
 
         self.samples += 1
+        if log_ns is not None:
+            self.t_ns = max(self.t_ns, int(log_ns))
         try:
             msg, _ = decode(data)
         except MessageError as e:
             return self._drop(e.reason, key)
         except Exception as e:  # noqa: BLE001 - a viewer never dies on a sample
             return self._drop(type(e).__name__, key)
-        ns = fleet_ns(msg)
+        ns = fleet_ns(msg) if log_ns is None else int(log_ns)
         self.t_ns = max(self.t_ns, ns)
         try:
             return self._convert(msg, ns)
@@ -340,13 +344,13 @@ class FoxgloveServer:
         self._time_ns = -1
         # advertised from the start: a client subscribes before the first scene update or log line
         for topic, schema in EAGER_CHANNELS:
-            self._channel(topic, schema)
+            self.channel(topic, schema)
 
     @property
     def port(self) -> int:
         return self.server.port
 
-    def _channel(self, topic: str, schema: str):
+    def channel(self, topic: str, schema: str):
         ch = self.channels.get(topic)
         if ch is None:
             import foxglove
@@ -366,7 +370,7 @@ class FoxgloveServer:
     def send(self, outs: list[Out]) -> None:
         for o in outs:
             try:
-                ch = self._channel(o.topic, o.schema)
+                ch = self.channel(o.topic, o.schema)
                 if o.schema.startswith("foxglove."):
                     ch.log(to_sdk(o.schema, o.data), log_time=o.log_ns)
                 else:
@@ -425,3 +429,109 @@ def serve_live(bus_kw: dict, host: str = "127.0.0.1", port: int = DEFAULT_PORT, 
     return {"samples": view.samples, "sent": srv.sent, "channels": len(srv.channels),
             "dropped": dict(view.dropped),
             "failed": dict(srv.failed)}
+
+
+# --------------------------------------------------------------------------- replay into Foxglove
+
+def replay_times_ns(msgs, timebase) -> list[int]:
+    """The player's time axis for recorded messages: fleet ns of each ``log_time`` (the recording's
+    timebase), clamped at 0 and never decreasing."""
+    out, last = [], 0
+    for m in msgs:
+        last = max(last, int(round(max(timebase.fleet_s(m.log_time), 0.0) * 1e9)))
+        out.append(last)
+    return out
+
+
+class _PlaybackListener:
+    """The SDK's server listener: Foxglove's playback controls drive the player."""
+
+    def __init__(self, player, clock=time.monotonic, auto_start: bool = True):
+        self.player = player
+        self.clock = clock
+        self.auto_start = auto_start  # play once the first client has subscribed
+        self.subscribed_s: float | None = None
+
+    def on_subscribe(self, client, channel) -> None:  # noqa: ARG002
+        if self.subscribed_s is None:
+            self.subscribed_s = self.clock()
+
+    def start_if_subscribed(self, settle_s: float = 0.25) -> None:
+        """Auto start ``settle_s`` after the first subscription (a client subscribes to its channels
+        one after another: none misses the first messages)."""
+        if self.auto_start and self.subscribed_s is not None and self.clock() - self.subscribed_s > settle_s:
+            self.auto_start = False
+            self.player.control(True, None, None, self.clock())
+
+    def on_playback_control_request(self, req):
+        from foxglove.websocket import PlaybackCommand, PlaybackState
+
+        p = self.player
+        p.control(req.playback_command == PlaybackCommand.Play, req.playback_speed, req.seek_time, self.clock())
+        return PlaybackState(status=_status(p), current_time=p.cur_ns, playback_speed=p.speed,
+                             did_seek=req.seek_time is not None, request_id=req.request_id)
+
+
+def _status(p):
+    from foxglove.websocket import PlaybackStatus
+
+    if p.ended:
+        return PlaybackStatus.Ended
+    return PlaybackStatus.Playing if p.playing else PlaybackStatus.Paused
+
+
+def serve_recording(msgs, timebase, host: str = "127.0.0.1", port: int = DEFAULT_PORT, speed: float = 1.0,
+                    start_paused: bool = False, duration_s: float | None = None,
+                    stop: threading.Event | None = None, on_ready: Callable[[int], None] | None = None,
+                    tick_s: float = 0.02) -> dict:
+    """Serve recorded wire messages (``msgpack``, sorted by log time) through the live view on a
+    Foxglove WebSocket with playback controls (play, pause, speed, seek) driving the player.
+    Playback starts when the first client subscribes (unless ``start_paused``: then on the client's
+    play). Serves until ``stop`` / ``duration_s`` (also after the end: the client may seek back)."""
+    from foxglove.websocket import PlaybackState
+
+    from ..log.player import SeekablePlayer
+
+    stop = stop or threading.Event()
+    times = replay_times_ns(msgs, timebase)
+    player = SeekablePlayer(times, speed=speed, playing=False, now_s=time.monotonic())
+    from foxglove.websocket import ServerListener
+
+    class Listener(_PlaybackListener, ServerListener):  # the SDK's no-op defaults for the other callbacks
+        pass
+
+    listener = Listener(player, auto_start=not start_paused)
+    srv = FoxgloveServer(host, port, name="larns replay", playback_range_ns=(player.start_ns, player.end_ns),
+                         listener=listener)
+    view, seeks, delivered, status = LiveView(), 0, 0, None
+    try:
+        dry = LiveView()  # every channel advertised before playing: a client gets each first message
+        for m, t in zip(msgs, times):
+            for o in dry.on_sample(m.topic, m.data, log_ns=t):
+                srv.channel(o.topic, o.schema)
+        if on_ready is not None:
+            on_ready(srv.port)
+        t_end = time.monotonic() + duration_s if duration_s else float("inf")
+        while not stop.is_set() and time.monotonic() < t_end:
+            if listener.subscribed_s is None:  # nobody to play to yet
+                time.sleep(tick_s)
+                continue
+            listener.start_if_subscribed()
+            due, cur_ns = player.step(time.monotonic())
+            if player.seeks != seeks:  # a seek: tracks and pending records start afresh
+                seeks, view = player.seeks, LiveView()
+            for i in due:
+                srv.send(view.on_sample(msgs[i].topic, msgs[i].data, log_ns=times[i]))
+                delivered += 1
+            srv.time(cur_ns)
+            st = _status(player)
+            if st != status:  # tell clients when playback ends (or its state changes by itself)
+                status = st
+                srv.server.broadcast_playback_state(PlaybackState(status=st, current_time=cur_ns,
+                                                                  playback_speed=player.speed, did_seek=False,
+                                                                  request_id=None))
+            time.sleep(tick_s)
+    finally:
+        srv.stop()
+    return {"messages": len(msgs), "delivered": delivered, "sent": srv.sent, "seeks": player.seeks,
+            "dropped": dict(view.dropped), "failed": dict(srv.failed)}
