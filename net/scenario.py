@@ -76,7 +76,7 @@ import numpy as np
 
 from nav.geometry import to_network_frame
 
-from .clock import ClockParams, clock_params
+from .clock import PRESETS, ClockParams, clock_params
 
 
 class ScenarioError(ValueError):
@@ -256,6 +256,8 @@ def _syntax_message(text: str, error: str) -> str:
     headers = [m[1] for m in map(_HEADER.match, lines[:line - 1]) if m]
     key = _KEYLINE.match(lines[line - 1]) if 0 < line <= len(lines) else None
     where = " ".join(x for x in (headers[-1] if headers else "", key[1] if key else "") if x)
+    if not key and 0 < line <= len(lines) and lines[line - 1].lstrip().startswith("["):
+        where = lines[line - 1].strip()  # the broken table header itself
     return f"{where + ': ' if where else ''}TOML syntax error at {position}: {reason} (expected valid TOML)"
 
 
@@ -719,6 +721,20 @@ def _validate_stations(raw: dict) -> None:
             raise ScenarioError(f"{w}.join: got {e['join']!r} (expected true or false)")
 
 
+def _validate_clock(raw: dict) -> None:
+    """``[clock]``: a known model and numbers >= 0 (``net/clock.py`` builds the parameters)."""
+    clock = _table(raw, "clock")
+    models = sorted(PRESETS) + ["custom"]
+    model = clock.get("model", "tcxo")
+    if model not in models:
+        raise ScenarioError(f"[clock] model: unknown model {model!r} (expected one of {', '.join(models)}"
+                            f"{_did_you_mean(str(model), models)})")
+    _known(clock, "[clock]", ["model", *(f.name for f in fields(ClockParams) if f.name != "model")])
+    for k, v in clock.items():
+        if k != "model":
+            _check_rule(_num(v, f"[clock] {k}"), f"[clock] {k}", _NONNEG)
+
+
 def _validate_survey(raw: dict) -> None:
     survey = _table(raw, "survey")
     _known(survey, "[survey]", _SURVEY_KEYS)
@@ -763,5 +779,6 @@ def validate(raw: dict[str, Any]) -> None:
     _known(frame, "[frame]", ("z_ref",))
     if "z_ref" in frame:
         _int(frame["z_ref"], "[frame] z_ref", 1)
+    _validate_clock(raw)
     _validate_survey(raw)
     _validate_aircraft(raw)
