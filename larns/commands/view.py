@@ -29,7 +29,7 @@ def cmd_view(args: argparse.Namespace) -> int:
     stop = threading.Event()
     for s in (signal.SIGINT, signal.SIGTERM):
         signal.signal(s, lambda *_: stop.set())
-    args.secure_cn = "recorder"  # a passive observer like the recorder: its keystore identity
+    args.secure_cn = "monitor"  # a passive observer: the keystore's observe-only identity
 
     def ready(port: int) -> None:
         if not args.quiet:
@@ -63,6 +63,10 @@ def register(sub) -> None:
     p.add_argument("--port", type=int, default=8765, help="WebSocket port (default 8765; 0 = any free port)")
     p.add_argument("--keyexpr", default="larns/**", help="key expression to view (default larns/**)")
     p.add_argument("--duration", type=float, default=None, help="stop after this many wall seconds")
+    p.add_argument("--epoch", type=float, default=None,
+                   help="fleet epoch, Unix s (accepted like every fleet process; not needed: fleet time "
+                        "comes from the messages)")
+    p.add_argument("--speed", type=float, default=None, help="fleet speed factor (accepted, not needed)")
     p.add_argument("--json", action="store_true", help="print statistics as JSON at the end")
     p.add_argument("-q", "--quiet", action="store_true")
     add_bus_args(p)

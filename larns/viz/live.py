@@ -403,7 +403,11 @@ def serve_live(bus_kw: dict, host: str = "127.0.0.1", port: int = DEFAULT_PORT, 
     q: queue.SimpleQueue = queue.SimpleQueue()
     bus = Bus(**bus_kw)
     view = LiveView()
-    srv = FoxgloveServer(host, port)
+    try:
+        srv = FoxgloveServer(host, port)
+    except Exception:
+        bus.close()
+        raise
     try:
         bus.subscribe(keyexpr, lambda k, d: q.put(("s", k, d)))
         bus.subscribe_liveliness("larns/alive/**", lambda k, a: q.put(("a", k, a)))
