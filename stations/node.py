@@ -52,7 +52,7 @@ from net.faults import WireFaults, merge_faults
 from net.procsched import add_sched_args, apply_sched_args
 from net.scenario import Scenario
 
-from .shell import PublishPolicy
+from .shell import PublishPolicy, true_clock_error_s
 from .shellfaults import ShellFaults
 
 log = logging.getLogger("larns.station")
@@ -74,7 +74,8 @@ class NodeOptions:
     join: bool = False
     speed: float = 1.0
     epoch_unix_s: float | None = None
-    duration_s: float | None = None  # fleet seconds since the epoch; None = forever
+    duration_s: float | None = None  # stop at this fleet time (seconds since the epoch); None = forever
+    run_s: float | None = None       # or: run this many fleet seconds from power-on (--duration)
     start_at_s: float | None = None  # fleet time at which the station powers on (None: now)
     estimator: str | None = None
     seed: int | None = None
@@ -110,7 +111,8 @@ class StationNode:
         self.air = AirChannel(scn.channel, station_rng(self.seed, self.id, 2), (self.seed, self.id))
         from .sim import station_clock
 
-        self.ref_clock = station_clock(scn, scn.ids[0], self.seed)  # network time (truth side only)
+        self.ref_clock = station_clock(scn, scn.ids[0], self.seed)  # station 1's clock (truth side only)
+        self.true_clocks = {i: station_clock(scn, i, self.seed) for i in scn.ids}  # network time's truth side
         self._last_input_s = -math.inf  # local time of the core's latest input
         self.shell = ShellFaults(scn, self.id)  # per-link channel, [[faults]] (as in the simulator)
         self.wire = WireFaults(scn.net, station_rng(self.seed, self.id, 3))
@@ -366,7 +368,8 @@ class StationNode:
     def _publish_truth(self, est: dict) -> None:
         tau = self.clock.to_true(float(est["stamp_s"]))  # the estimate's instant
         m = self.policy.truth(est, self.fleet_now(), self.true_pos,
-                              clock_error_s=self.clock.error_s(tau) - self.ref_clock.error_s(tau))
+                              clock_error_s=true_clock_error_s(self.core.clk, {**self.true_clocks, self.id: self.clock},
+                                                               self.id, tau))
         self.bus.publish(M.key_for(m), M.encode(m))
 
     # ------------------------------------------------------------------ main loop
@@ -418,8 +421,10 @@ class StationNode:
     def _sync_ns(self) -> float:
         """Current clock error against network time (estimate minus truth), ns - for status lines."""
         t = self.fleet_now()
-        true_s = self.clock.error_s(t) - self.ref_clock.error_s(t)
-        return (self.core.clk.offset_at(self.clock.to_local(t)) - true_s) * 1e9
+        true_s = true_clock_error_s(self.core.clk, {**self.true_clocks, self.id: self.clock}, self.id, t)
+        if true_s is None:
+            return math.nan
+        return (self.core.clk.ensemble_offset_at(self.clock.to_local(t))[0] - true_s) * 1e9
 
     def start_core(self) -> None:
         """Power on: build the core at the current fleet time (what ``run`` does first)."""
@@ -447,6 +452,8 @@ class StationNode:
             bus.subscribe("larns/station/*/nav", self._on_bytes)
         bus.declare_token(M.alive_key("station", me))
         end = math.inf if self.opts.duration_s is None else self.opts.duration_s
+        if self.opts.run_s is not None:  # --duration: counted from power-on, after the start-up
+            end = max(0.0, self.fleet_now()) + self.opts.run_s
         if not self.opts.quiet:
             print(f"[station {me}] scenario {self.scn.name}, join={self.opts.join}, speed={self.speed}, "
                   f"epoch={self.epoch:.3f}, slot={self.core.slot}", file=sys.stderr, flush=True)
@@ -613,7 +620,8 @@ def main_args(args: argparse.Namespace) -> int:
         print(f"error: station {args.id}: {e}", file=sys.stderr)
         return 2
     opts = NodeOptions(station_id=args.id, join=args.join, speed=args.speed, epoch_unix_s=args.epoch,
-                       duration_s=args.duration, start_at_s=args.start_at, estimator=args.estimator, seed=args.seed,
+                       duration_s=args.duration, run_s=getattr(args, "run_s", None), start_at_s=args.start_at,
+                       estimator=args.estimator, seed=args.seed,
                        status_every_s=args.status_every, quiet=args.quiet,
                        journal=not getattr(args, "no_journal", False),
                        lookahead_s=getattr(args, "lookahead", 0.05))

@@ -10,7 +10,8 @@ decorations:
 * ``estimate``: the core's estimate plus the station's TDMA ``slot`` (when it holds one) and, where
   the shell counts them, the number of received messages it ``dropped`` as malformed;
 * ``truth``: for each estimate, the station's true position (and, where the shell knows the true
-  clocks, its true clock error against network time), for the recorder and analysis only;
+  clocks, its true clock error against network time - the ensemble of the station's clock filter on
+  the true clocks, :func:`true_clock_error_s`), for the recorder and analysis only;
 * the core journal (``docs/protocol.md``, "Core journal"): ``core_init`` at power-on and every
   :attr:`PublishPolicy.init_every_navs` own navs, ``core_input`` (what the core consumed) after
   each own nav; a ``core_input`` too big for one message is split (:meth:`encode_journal`).
@@ -18,11 +19,25 @@ decorations:
 
 from __future__ import annotations
 
+import math
 from typing import Any, Callable
 
 from net import messages as M
+from net.clock import true_network_offset_s
 
 JOURNAL_INIT_EVERY_NAVS = 10  # a core_init every 10 own navs: a late recorder can still rebuild the core
+
+
+def true_clock_error_s(clk: Any, clocks: dict, sid: int, t_true_s: float) -> float | None:
+    """World side: the true offset of station ``sid``'s clock against network time at true time
+    ``t_true_s``, network time being the ensemble as this station's clock filter ``clk`` defines it
+    (members, weights and continuity terms: ``clk.scale_log``) evaluated on the true clocks
+    (``clocks``: id -> oscillator). None if a member's true clock is not in ``clocks``."""
+    try:
+        v = true_network_offset_s(clocks, clk.scale_log, sid, t_true_s)
+    except KeyError:
+        return None
+    return v if math.isfinite(v) else None
 
 
 class PublishPolicy:

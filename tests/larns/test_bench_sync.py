@@ -40,3 +40,22 @@ def test_bench_sync_short_run(tmp_path):
     # two trials of nine stations sharing network time: wider than nine independent stations would be
     assert band[1][1] > res["nees_band_95"][1]
     assert "band_lo" in r.stdout
+
+
+def test_bench_sync_trial_maximum_and_departure_step():
+    """One 70 s trial with station 1 silent from 30 s: the per-trial largest error from 60 s on is the
+    largest |error| of the stations alive there, and the departure's step of network time is reported
+    (small: the survivors renormalize without a step)."""
+    from larns.bench.sync import _trial, summarize
+
+    res_t = _trial(("seed000", "tcxo", 0.5, 10, 5, 70.0, {1: 30.0}))
+    assert set(res_t["steps_s"]) == {1} and res_t["steps_s"][1] < 0.3e-9
+    times = np.arange(1.0, 70.0 + 1e-9, 1.0)
+    res = summarize([res_t], times, [30.0, 60.0], {"clock": "tcxo", "sigma_d_m": 0.5, "stations": 10,
+                                                    "scenario": "seed000"})
+    e = np.abs(res_t["err_s"][times >= 60.0]) * 1e9
+    assert np.isnan(e[:, 0]).all() and np.isfinite(e[:, 1:]).all()  # station 1 gone, the others measured
+    assert res["sync_trial_max_ns"] == [np.nanmax(e)]
+    assert 0.0 < res["sync_trial_max_ns"][0] < 3.0
+    assert res["departure_step_ns"] == {"1": res_t["steps_s"][1] * 1e9}
+    assert "trial_max_from_60s_le_2ns_in_99pct" in res["bar"] and "departure_steps_le_0.3ns" in res["bar"]
