@@ -14,6 +14,7 @@ Shapes: ``M`` runs, ``m`` stations in a batch, ``n`` states. Stations are shared
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -26,7 +27,8 @@ from nav.ut import SigmaParams, unscented_transform
 
 from . import coords as crd
 from . import models as mdl
-from .fde import FdeConfig, FilterFde, protection_levels
+from .fde import FdeConfig, FilterFde, fault_vectors, protection_levels, snooping
+from .navigator import receiver as rx
 
 if TYPE_CHECKING:  # aircraft.initializer imports this module: annotation only, no import cycle
     from .initializer import InitConfig
@@ -1026,6 +1028,9 @@ class EstimatorConfig:
     init: InitConfig | None = None
     # filters: innovation gate, windowed residual test, exclusion, HPL/VPL (aircraft/fde.py); None = off
     fde: FdeConfig | None = field(default_factory=FdeConfig)
+    # the receiver rules (aircraft/navigator/receiver.py): usable broadcasts, consistent start,
+    # divergence restart, publishable estimates; None = off (the benches feed synthetic epochs)
+    receiver: rx.ReceiverConfig | None = field(default_factory=rx.ReceiverConfig)
 
 
 class AircraftEstimator:
@@ -1059,6 +1064,10 @@ class AircraftEstimator:
         self.n_deferred = 0  # batches set aside in a row at the start (InitConfig.defer_batches)
         self.init = None  # the InitResult of the latest start (broadcast initializer)
         self.fde = None if self.cfg.fde is None else FilterFde(self.cfg.fde)
+        rcfg = self.cfg.receiver
+        self.monitor = None if rcfg is None else rx.DivergenceMonitor(rcfg)
+        self.stats: Counter[str] = Counter()  # broadcasts not used, refused starts, restarts (by reason)
+        self.status = rx.WAITING
 
     # -- input
     def on_epoch(self, t_s: float, station_pos_m, station_cov_m2, rho_m, station_ids=None,
@@ -1086,6 +1095,10 @@ class AircraftEstimator:
                 and np.isfinite(cvar) and cvar >= 0):
             self.n_dropped += 1
             return
+        why = None if self.cfg.receiver is None else rx.unusable_reason(cvar, cov, self.cfg.receiver)
+        if why is not None:  # not yet synchronized / surveyed to a usable level: not used at all
+            self.stats[why] += 1
+            return
         if self.tracker is not None and self.model == "pr":
             # sequential scalar update at the slot's own time
             try:
@@ -1094,6 +1107,8 @@ class AircraftEstimator:
                              bias_ids=[station_id], bias_var_m2=np.array([cvar]))
             except np.linalg.LinAlgError:
                 self._reset()
+                return
+            if self.tracker is None:  # the divergence monitor restarted it
                 return
             self.t_s = t_s
             self.n_updates += 1
@@ -1130,16 +1145,18 @@ class AircraftEstimator:
             self.n_dropped += 1
             return
         if self.tracker is None:
-            self._start(t_s, pos, cov, rho)
+            self._start(t_s, pos, cov, rho, dt)
             return
         try:
             self.tracker.predict_to(t_s)
             if self.cfg.tuning.sequential and self.model == "pr" and not np.any(dt):
-                self.tracker.update_sequential(pos, rho, cov_trk, **bias_kw)
+                self._watch(*self.tracker.update_sequential(pos, rho, cov_trk, **bias_kw), ids)
             else:
                 self._update(pos, rho, cov_trk, dt if np.any(dt) else None, ids, **bias_kw)
         except np.linalg.LinAlgError:
             self._reset()
+            return
+        if self.tracker is None:  # the divergence monitor restarted it
             return
         if not np.all(np.isfinite(self.tracker.x)):
             self._reset()
@@ -1148,17 +1165,38 @@ class AircraftEstimator:
         self.n_updates += 1
 
     def _update(self, pos, rho, cov, dt, ids, **bias_kw) -> None:
-        """One filter update, through the integrity monitor when there is one."""
+        """One filter update, through the integrity monitor when there is one; the divergence monitor
+        sees its innovation."""
         if self.fde is None:
-            self.tracker.update(pos, rho, cov, dt, **bias_kw)
+            nu, S = self.tracker.update(pos, rho, cov, dt, **bias_kw)
         else:
-            self.fde.update(self.tracker, pos, rho, list(range(len(rho))) if ids is None else ids, cov, dt,
-                            **bias_kw)
+            nu, S = self.fde.update(self.tracker, pos, rho, list(range(len(rho))) if ids is None else ids, cov,
+                                    dt, **bias_kw)
+        self._watch(nu, S, ids)
 
-    def _start(self, t_s, pos, cov, rho) -> None:
+    def _watch(self, nu, S, ids) -> None:
+        """Feed one update's innovation ``nu`` (d,) and covariance ``S`` (d, d), or its diagonal (d,) for
+        sequential scalar updates, to the divergence monitor with each station's normalized innovation
+        (aircraft/fde.py ``snooping``); a lost filter restarts."""
+        if self.monitor is None:
+            return
+        nu = np.atleast_1d(np.asarray(nu, dtype=float))
+        S = np.asarray(S, dtype=float)
+        S = np.diag(S) if S.ndim == 1 else np.atleast_2d(S)
+        ids = list(range(nu.size + (self.model != "pr"))) if ids is None else list(ids)
+        try:
+            q, w = snooping(nu, S, fault_vectors(self.model, len(ids), self.tracker.base))
+        except np.linalg.LinAlgError:
+            q, w = np.inf, np.zeros(len(ids))
+        if self.monitor.push(float(q), nu.size, dict(zip(ids, np.atleast_1d(w).tolist()))):
+            self.stats["diverged"] += 1
+            self._reset()
+            self.status = rx.RESTARTING
+
+    def _start(self, t_s, pos, cov, rho, dt=None) -> None:
         """No filter yet: a snapshot fix from the batch (LSQ), or the filter's start."""
         if self.cfg.guess_sigma_m is None and (self.fix is None or self.method != "lsq"):
-            self._start_from_broadcasts(t_s, pos, cov, rho)
+            self._start_from_broadcasts(t_s, pos, cov, rho, dt)
             return
         tu = self.cfg.tuning
         var = tu.sigma_m**2
@@ -1178,12 +1216,23 @@ class AircraftEstimator:
             return
         self._start_from_guess(t_s, pos, rho)
 
-    def _start_from_broadcasts(self, t_s, pos, cov, rho) -> None:
-        """Start from the broadcasts alone: multi-start snapshot fix (or a wide prior)."""
+    def _start_from_broadcasts(self, t_s, pos, cov, rho, dt=None) -> None:
+        """Start from the broadcasts alone: multi-start snapshot fix (or a wide prior). With the receiver
+        rules on, a TDMA batch's members ``dt`` seconds before its last are weighted as the unknown
+        motion allows: range variance ``+ (vel_sigma_m_s dt)^2`` (the start's velocity prior), so a
+        moving aircraft's batch is not mistaken for an inconsistent one."""
         from .initializer import InitConfig, initial_state
 
         tu = self.cfg.tuning
+        if self.cfg.receiver is not None and dt is not None and np.any(dt):
+            v_sig = (self.cfg.init or InitConfig()).vel_sigma_m_s
+            cov = (np.zeros((len(rho), 3, 3)) if cov is None else cov) \
+                + ((v_sig * np.asarray(dt, float)) ** 2)[:, None, None] * np.eye(3)
         init = initial_state(self.model, tu, pos, cov, rho, self.cfg.init)
+        if self.cfg.receiver is not None:
+            init = self._consistent_start(init, pos, cov, rho)
+            if init is None:
+                return
         if not init.snapshot and len(rho) <= 4 and self.n_deferred < (self.cfg.init or InitConfig()).defer_batches:
             self.n_deferred += 1  # no redundancy, no snapshot: wait for a batch with more stations
             return
@@ -1192,10 +1241,31 @@ class AircraftEstimator:
         self.init = init
         self.t_s = t_s
         self.n_updates += 1
+        self.status = rx.TRACKING
         if self.method != "lsq":
             self.tracker = CvTracker(self.method, self.model, init.x0, tu, t0_s=t_s, P0=init.P0,
                                      ref_m=crd.reference_point(pos),
                                      ref_radius_m=crd.array_radius(pos))
+
+    def _consistent_start(self, init, pos, cov, rho):
+        """The start test (aircraft/navigator/receiver.py rule 2): the batch's weighted residual sum of
+        squares against chi-square with ``m - 4`` dof; a failing batch is refused unless leaving out
+        exactly one station makes it pass. Returns the start to use, or None."""
+        from .initializer import initial_state
+
+        rcfg, m = self.cfg.receiver, len(rho)
+        if rx.consistent(init.cost, m - 4, rcfg.p_start):
+            return init
+        if m - 5 >= 1:
+            keep = [np.arange(m) != j for j in range(m)]
+            subs = [initial_state(self.model, self.cfg.tuning, pos[k], None if cov is None else cov[k], rho[k],
+                                  self.cfg.init) for k in keep]
+            j = rx.leave_one_out(np.array([r.cost for r in subs]), m - 5, rcfg.p_start)
+            if j is not None:
+                self.stats["start_left_one_out"] += 1
+                return subs[j]
+        self.stats["start_inconsistent"] += 1
+        return None
 
     def _start_from_guess(self, t_s, pos, rho) -> None:
         """External coarse fix (``guess_sigma_m``): the filter starts from the guess with that sigma; the
@@ -1227,8 +1297,15 @@ class AircraftEstimator:
         self.tracker = None
         self.fix = None
         self.n_resets += 1
+        self._pending.clear()
+        if self.monitor is not None:
+            self.monitor.reset()
         if self.fde is not None:  # exclusions stand; the new filter's transient passes before the gate
             self.fde.restart()
+
+    def tracker_or_fix(self) -> bool:
+        """Whether there is anything to estimate from (a running filter, or an LSQ fix)."""
+        return self.tracker is not None or (self.method == "lsq" and self.fix is not None)
 
     # -- output
     def estimate(self) -> dict | None:

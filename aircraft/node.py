@@ -39,6 +39,8 @@ from nav.geometry import SPEED_OF_LIGHT_M_S
 
 from net.clock import broadcast_clock_var_m2, broadcast_time_error_s
 
+from .navigator import receiver as rx
+
 
 log = logging.getLogger("larns.aircraft")
 
@@ -90,6 +92,7 @@ class AircraftCore:
         self.net_clock = net_clock  # station 1's oscillator: network time (None: perfect clocks)
         self.seq: Counter[str] = Counter()
         self.stats: Counter[str] = Counter()
+        self._last_state: dict[str, tuple[str, float]] = {}  # algo -> (status, fleet time published)
 
     def measure(self, phy: dict, msg: dict | None = None) -> tuple[float, float, np.ndarray]:
         """Channel layer: (t_rx true, pseudorange, true aircraft position at reception).
@@ -129,13 +132,14 @@ class AircraftCore:
         for algo, est in self.estimators.items():
             n = est.n_updates
             est.on_measurement(t_rx, int(msg["src"]), msg["pos_m"], st_cov, rho, clock_var_m2=cvar)
-            if est.n_updates == n:
-                continue
-            e = est.estimate()
+            e = est.estimate() if est.n_updates != n and est.tracker_or_fix() else None
+            state = est.status
+            if e is not None and not rx.publishable(e["pos_m"], e["cov_m2"], est.cfg.receiver or rx.ReceiverConfig()):
+                e, state = None, rx.NO_FIX
+            out.extend(self._status_msgs(algo, t_rx, state, est))
             if e is None:
                 continue
-            e_cov = e["cov_m2"] if e["cov_m2"] is not None else np.zeros((3, 3))
-            m = self._msg("ac_estimate", t_s=float(e["t_s"]), pos_m=e["pos_m"], cov_m2=np.asarray(e_cov).tolist(),
+            m = self._msg("ac_estimate", t_s=float(e["t_s"]), pos_m=e["pos_m"], cov_m2=np.asarray(e["cov_m2"]).tolist(),
                           algo=algo, n_updates=int(e["n_updates"]))
             if e["vel_m_s"] is not None:
                 m["vel_m_s"] = e["vel_m_s"]
@@ -143,9 +147,27 @@ class AircraftCore:
             out.append(m)
         return out
 
+    def _status_msgs(self, algo: str, t_s: float, state: str, est) -> list[dict]:
+        """An ``ac_status`` when an algorithm's state changes, and once per ``STATUS_EVERY_S`` of fleet
+        time: what the navigator is doing when it publishes no estimate (docs/aircraft.md "Cold start")."""
+        last = self._last_state.get(algo)
+        if last is not None and last[0] == state and t_s - last[1] < STATUS_EVERY_S:
+            return []
+        self._last_state[algo] = (state, t_s)
+        return [self._msg("ac_status", t_s=t_s, algo=algo, state=state, detail=STATUS_TEXT.get(state, state),
+                          counts={k: float(v) for k, v in sorted(est.stats.items())[:16]})]
+
     def _msg(self, kind: str, **fields: Any) -> dict:
         self.seq[kind] += 1
         return {"kind": kind, "src": self.name, "seq": self.seq[kind], "stamp_s": float(fields["t_s"]), **fields}
+
+
+STATUS_EVERY_S = 1.0  # an unchanged ac_status is repeated this often (fleet time)
+
+
+STATUS_TEXT = {rx.WAITING: "waiting for synchronized stations", rx.TRACKING: "tracking",
+               rx.RESTARTING: "diverged: restarting from a consistent set",
+               rx.NO_FIX: "no fix (estimate not defensible)"}
 
 
 def integrity_fields(e: dict) -> dict:

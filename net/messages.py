@@ -312,6 +312,9 @@ SCHEMAS: dict[str, tuple[dict[str, Callable], dict[str, Callable]]] = {
                      "hpl_m": _nonneg, "vpl_m": _nonneg, "excluded": _members}),
     "ac_truth": ({**_COMMON_AIRCRAFT, "t_s": _num, "pos_m": _vec3},
                  {"vel_m_s": _vec3, "extra": _extra}),
+    # what a navigator is doing when it publishes no estimate (aircraft/navigator/receiver.py)
+    "ac_status": ({**_COMMON_AIRCRAFT, "t_s": _num, "algo": _name, "state": _text},
+                  {"detail": _text, "counts": _extra}),
     # the vehicle process (vehicle/core.py; docs/vehicle.md "The vehicle process")
     "veh_estimate": ({**_COMMON_AIRCRAFT, "t_s": _num, "pos_m": _vec3, "cov_m2": _cov33, "vel_m_s": _vec3,
                       "algo": _name, "n_updates": _count}, {"vel_cov": _cov33, "extra": _extra}),
@@ -520,6 +523,8 @@ def key_for(msg: dict[str, Any]) -> str:
         return aircraft_key(src, "estimate", msg["algo"])
     if kind == "ac_truth":
         return aircraft_key(src, "truth")
+    if kind == "ac_status":
+        return aircraft_key(src, "status", msg["algo"])
     if kind.startswith("veh_"):
         return vehicle_key(src, {"veh_estimate": "estimate", "veh_truth": "truth", "veh_init": "init",
                                  "veh_input": "input"}[kind])

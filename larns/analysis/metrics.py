@@ -126,6 +126,49 @@ def aircraft_numbers(track: dict, truth: dict) -> tuple[np.ndarray, dict[str, An
                "rms_err_m": float(np.sqrt(np.mean(tail**2))) if tail.size else math.nan}
 
 
+def nees_band(n: int, dof: int = 3, p: float = 0.95) -> tuple[float, float]:
+    """Two-sided ``p`` band of the mean of ``n`` independent NEES samples of ``dof`` degrees of freedom:
+    ``chi2.ppf((1 -+ p) / 2, n dof) / n``."""
+    from scipy.stats import chi2
+
+    return (float(chi2.ppf(0.5 * (1 - p), n * dof) / n), float(chi2.ppf(0.5 * (1 + p), n * dof) / n))
+
+
+def aircraft_accuracy(track: dict, truth: dict, t_from_s: float = 30.0, t_to_s: float | None = None,
+                      sample_s: float = 1.0) -> dict[str, Any]:
+    """A navigator's accuracy from its recording: horizontal error ``e_h`` of every estimate against
+    the interpolated truth; the first estimate's time; the first times from which ``e_h`` stays below
+    10 m and 3 m; the largest ``e_h`` in ``[t_from_s, t_to_s]`` and the last; the 3-D position NEES
+    ``e^T P^-1 e`` averaged over that window sampled once per ``sample_s`` (about one TDMA cycle apart)
+    with the band of :func:`nees_band` for that many samples (consecutive samples of a filter are
+    correlated, so the band is a yardstick, not a test); whether every estimate was finite."""
+    t = np.asarray(track["t_s"], float)
+    out: dict[str, Any] = {"n": int(t.size), "finite": bool(np.all(np.isfinite(track["pos_m"]))
+                                                           and np.all(np.isfinite(track["cov_m2"])))}
+    if not t.size:
+        return out
+    e = track["pos_m"] - interp_truth(truth, t)
+    eh = np.hypot(e[:, 0], e[:, 1])
+    t_to = float(t[-1]) if t_to_s is None else float(t_to_s)
+    win = (t >= t_from_s) & (t <= t_to)
+    out.update(first_t_s=float(t[0]), t_10m_s=first_time_staying_below(t, eh, 10.0),
+               t_3m_s=first_time_staying_below(t, eh, 3.0), final_t_s=float(t[-1]), final_eh_m=float(eh[-1]),
+               final_ev_m=float(abs(e[-1, 2])),
+               final_sigma_h_m=float(np.sqrt(max(track["cov_m2"][-1, 0, 0] + track["cov_m2"][-1, 1, 1], 0.0))))
+    if np.any(win):
+        out["max_eh_window_m"] = float(eh[win].max())
+        grid = np.arange(t_from_s, t_to + 1e-9, sample_s)
+        k = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, t.size - 1)
+        k = np.unique(k[t[k] >= t_from_s])
+        P = track["cov_m2"][k]
+        try:
+            q = np.einsum("ki,ki->k", e[k], np.linalg.solve(P, e[k][..., None])[..., 0])
+        except np.linalg.LinAlgError:
+            q = np.full(k.size, np.inf)
+        out.update(nees_mean=float(np.mean(q)), nees_n=int(k.size), nees_band=nees_band(int(k.size)))
+    return out
+
+
 def tdma_numbers(requests: Sequence[tuple], replies: set) -> dict[str, Any]:
     """Range requests recorded and how many were answered (a reply with the request's seq)."""
     n_ans = sum(1 for r in requests if (r[1], r[2], r[3]) in replies)

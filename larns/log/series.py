@@ -256,6 +256,7 @@ class AircraftSeries:
     messages: int = 0
     estimates: dict[str, list[dict]] = field(default_factory=dict)  # algo -> ac_estimate msgs
     truths: list[dict] = field(default_factory=list)
+    statuses: dict[str, list[dict]] = field(default_factory=dict)  # algo -> ac_status msgs
 
     @property
     def algos(self) -> list[str]:
@@ -475,6 +476,8 @@ class Recording:
             a.estimates.setdefault(msg["algo"], []).append(msg)
         elif msg["kind"] == "ac_truth":
             a.truths.append(msg)
+        elif msg["kind"] == "ac_status":
+            a.statuses.setdefault(msg["algo"], []).append(msg)
 
     @staticmethod
     def _add_vehicle(v: VehicleSeries, msg: dict) -> None:

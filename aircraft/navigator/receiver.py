@@ -1,0 +1,155 @@
+"""How the radio aircraft starts and keeps going like a receiver (navigator side: no truth, no I/O).
+
+A field that has just been switched on broadcasts clock corrections that are honest but useless: in
+the first cycle a station's clock is known to about a millisecond (``sqrt(c^2 P_theta)`` of 10^5 m),
+after its first exchanges to microseconds (10^3 m), and only after a few cycles to nanoseconds
+(docs/aircraft.md "Cold start" measures it on seed000). Four rules turn that into a receiver:
+
+1. **Usable broadcasts** (:func:`unusable_reason`): a broadcast is used only when its own clock and
+   position covariance put its range error within ``max_broadcast_sigma_m``, i.e. the station has
+   been synchronized and surveyed to a level a position fix can use; below that it is weighted by its
+   covariance (the bias states of the filter, the range variance of the snapshot). Without this gate
+   the first batch (10^5 m) starts the filter 10^3 km off and it never comes back.
+2. **A consistent start** (:func:`consistent`): a snapshot fix with redundancy (``dof >= 1``) starts
+   the filter only if its weighted residual sum of squares passes ``chi2.ppf(1 - p_start, dof)``;
+   otherwise the set is refused, or one station is left out if exactly that makes it pass
+   (:func:`leave_one_out`).
+3. **Divergence** (:class:`DivergenceMonitor`): the normalized innovations of the running filter,
+   summed over ``window`` updates, against ``chi2.ppf(1 - p_diverge, dof)``; beyond it the filter is
+   lost (not a single station: the integrity monitor handles those) and restarts from the next
+   consistent set.
+4. **Publish only what is defensible** (:func:`publishable`): a finite estimate with a
+   positive semi-definite covariance whose position sigma is below ``max_publish_sigma_m``; otherwise
+   the process publishes a status (``ac_status``) instead.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+
+# statuses a navigator reports (``ac_status.state``)
+WAITING = "waiting"  # no usable set of broadcasts yet (unsynchronized / too few stations)
+TRACKING = "tracking"  # a filter runs and its estimates are published
+RESTARTING = "restarting"  # the filter diverged and waits for a consistent set
+NO_FIX = "no fix"  # a filter runs but its estimate is not defensible (not published)
+
+
+@dataclass(frozen=True)
+class ReceiverConfig:
+    """The receiver rules (module docstring). ``max_broadcast_sigma_m``: largest range sigma of a
+    broadcast (clock and position) that is used; ``p_start``: false-refusal probability of the start
+    test; ``p_diverge`` / ``window``: the divergence test over ``window`` updates;
+    ``max_publish_sigma_m``: largest position sigma ``sqrt(tr P)`` of a published estimate."""
+
+    max_broadcast_sigma_m: float = 30.0
+    p_start: float = 1e-3
+    p_diverge: float = 1e-9
+    window: int = 20
+    max_publish_sigma_m: float = 1.0e4
+
+
+def broadcast_sigma_m(clock_var_m2: float, station_cov_m2: np.ndarray | None) -> float:
+    """Range-equivalent sigma of one broadcast: ``sqrt(c^2 P_theta + lambda_max(P_pos))`` (m)."""
+    pos_var = 0.0
+    if station_cov_m2 is not None:
+        cov = np.asarray(station_cov_m2, dtype=float).reshape(3, 3)
+        pos_var = float(np.max(np.linalg.eigvalsh(0.5 * (cov + cov.T))))
+    return float(np.sqrt(max(float(clock_var_m2), 0.0) + max(pos_var, 0.0)))
+
+
+def unusable_reason(clock_var_m2: float, station_cov_m2: np.ndarray | None, cfg: ReceiverConfig) -> str | None:
+    """Why a broadcast is not used (a counter name), or None if it is usable."""
+    if not np.isfinite(clock_var_m2) or clock_var_m2 < 0:
+        return "nav_bad_clock"
+    if station_cov_m2 is not None and not np.all(np.isfinite(station_cov_m2)):
+        return "nav_bad_cov"
+    if broadcast_sigma_m(clock_var_m2, station_cov_m2) > cfg.max_broadcast_sigma_m:
+        return "nav_unsynchronized"
+    return None
+
+
+def chi2_upper(p: float, dof: float) -> float:
+    """``chi2.ppf(1 - p, dof)``."""
+    from scipy.special import chdtri  # here, not at import: the CLI starts without scipy
+
+    return float(chdtri(float(dof), p))
+
+
+def consistent(cost: float, dof: int, p: float) -> bool:
+    """The start test: a batch without redundancy (``dof < 1``) cannot be tested and passes."""
+    if dof < 1:
+        return bool(np.isfinite(cost))
+    return bool(np.isfinite(cost) and cost <= chi2_upper(p, dof))
+
+
+def leave_one_out(costs: np.ndarray, dof: int, p: float) -> int | None:
+    """Index of the one station whose removal makes the batch pass (``costs[j]``: the cost without
+    station ``j``, ``dof`` the redundancy without it); None if none or several do."""
+    ok = [j for j, c in enumerate(np.asarray(costs, float)) if consistent(float(c), dof, p) and dof >= 1]
+    return ok[0] if len(ok) == 1 else None
+
+
+class DivergenceMonitor:
+    """Windowed, leave-one-out NIS test of a running filter (rule 3).
+
+    ``push(q, dof, w)`` takes one update's NIS ``q`` with ``dof`` degrees of freedom and each station's
+    normalized innovation ``w`` {station id: w_i} (aircraft/fde.py ``snooping``). Over the last
+    ``window`` updates, ``Q - W_i`` (the NIS with station ``i``'s bias estimated, chi-square with
+    ``D - N_i`` dof, ``N_i`` its measurements in the window) is tested for the station ``i`` with the
+    largest ``W_i``: a single faulty station passes (the integrity monitor excludes it), a filter
+    whose every station disagrees with it fails; True means the filter is lost."""
+
+    def __init__(self, cfg: ReceiverConfig):
+        self.cfg = cfg
+        self.win: deque = deque(maxlen=cfg.window)
+
+    def reset(self) -> None:
+        self.win.clear()
+
+    def push(self, q: float, dof: int, w: dict | None = None) -> bool:
+        if not np.isfinite(q):
+            return True
+        self.win.append((float(q), int(dof), dict(w or {})))
+        if len(self.win) < self.cfg.window:
+            return False
+        Q = sum(e[0] for e in self.win)
+        D = sum(e[1] for e in self.win)
+        W: dict = {}
+        N: dict = {}
+        for _, _, ws in self.win:
+            for i, wi in ws.items():
+                W[i] = W.get(i, 0.0) + float(wi)
+                N[i] = N.get(i, 0) + 1
+        if W:
+            i = max(W, key=W.get)
+            Q, D = Q - W[i], D - N[i]
+        return D > 0 and Q > chi2_upper(self.cfg.p_diverge, D)
+
+
+def nis(nu: np.ndarray, S: np.ndarray) -> tuple[float, int]:
+    """``(nu^T S^-1 nu, dim)`` of one innovation ``nu`` (d,) with covariance ``S`` (d, d) (Cholesky)."""
+    nu = np.atleast_1d(np.asarray(nu, dtype=float))
+    S = np.atleast_2d(np.asarray(S, dtype=float))
+    try:
+        L = np.linalg.cholesky(0.5 * (S + S.T))
+    except np.linalg.LinAlgError:
+        return float("inf"), nu.size
+    y = np.linalg.solve(L, nu)
+    return float(y @ y), nu.size
+
+
+def publishable(pos_m, cov_m2, cfg: ReceiverConfig) -> bool:
+    """A finite position with a finite, symmetric PSD covariance whose ``sqrt(tr P)`` is at most
+    ``max_publish_sigma_m``."""
+    p = np.asarray(pos_m, dtype=float)
+    if p.shape != (3,) or not np.all(np.isfinite(p)) or cov_m2 is None:
+        return False
+    P = np.asarray(cov_m2, dtype=float)
+    if P.shape != (3, 3) or not np.all(np.isfinite(P)):
+        return False
+    lam = np.linalg.eigvalsh(0.5 * (P + P.T))
+    return bool(lam[0] >= -1e-9 * max(lam[-1], 1.0) and np.sqrt(max(np.sum(lam), 0.0)) <= cfg.max_publish_sigma_m)

@@ -1,0 +1,155 @@
+"""The radio aircraft starts and keeps going like a receiver (aircraft/navigator/receiver.py, issue 28).
+
+Synthetic field: 8 stations on a 2 km square with 80 m of height spread, an aircraft hovering 1.5 km
+out at 60 m, pseudoranges every 10 ms slot (one station per slot, one 80 ms cycle per 8 slots), each
+station's broadcast clock error drawn from the covariance it broadcasts.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from aircraft.estimators import AircraftEstimator, EstimatorConfig
+from aircraft.navigator import receiver as rx
+from aircraft.node import AircraftCore
+from net import messages as M
+
+RNG_STATIONS = np.random.default_rng(7)
+STATIONS = np.column_stack([RNG_STATIONS.uniform(0, 2000, 8), RNG_STATIONS.uniform(0, 2000, 8),
+                            RNG_STATIONS.uniform(0, 80, 8)])
+TRUTH = np.array([3500.0, 900.0, 60.0])
+SIGMA_M = 1.0
+CLOCK_M = 250.0  # the receiver's clock offset, m
+
+
+def _slots(n_cycles: int, clock_sd_m, rng, bias_m=None):
+    """(t_s, id, pos, cov, rho, clock_var) per slot; ``clock_sd_m(cycle, j)`` the broadcast clock sigma,
+    the clock error drawn from it; ``bias_m(cycle, j)`` an extra range error not covered by any sigma."""
+    for c in range(n_cycles):
+        for j in range(len(STATIONS)):
+            sd = float(clock_sd_m(c, j))
+            err = sd * rng.standard_normal() + (0.0 if bias_m is None else bias_m(c, j))
+            rho = np.linalg.norm(TRUTH - STATIONS[j]) + CLOCK_M + err + SIGMA_M * rng.standard_normal()
+            yield c * 0.08 + j * 0.01, j + 1, STATIONS[j], np.eye(3) * 0.25, rho, sd**2
+
+
+def _feed(est, slots):
+    for t, sid, pos, cov, rho, cvar in slots:
+        est.on_measurement(t, sid, pos, cov, rho, clock_var_m2=cvar)
+
+
+def test_unsynchronized_broadcasts_are_not_used_for_the_first_fix():
+    """Cycles 0-1 broadcast clocks known to 10^5 m / 10^3 m (a field just switched on): none is used,
+    the filter starts from cycle 2's synchronized broadcasts and its first estimate is near the truth.
+    Without the gate the same broadcasts start it hundreds of kilometres off."""
+    sd = lambda c, j: {0: 1e5, 1: 1e3}.get(c, 0.5)  # noqa: E731
+    est = AircraftEstimator("ekf-pr", EstimatorConfig())
+    _feed(est, _slots(2, sd, np.random.default_rng(1)))
+    assert est.tracker is None and est.status == rx.WAITING
+    assert est.stats["nav_unsynchronized"] == 16
+    _feed(est, _slots(4, sd, np.random.default_rng(1)))
+    e = est.estimate()
+    assert est.status == rx.TRACKING and e is not None
+    assert np.linalg.norm(np.array(e["pos_m"]) - TRUTH) < 100.0
+
+    off = AircraftEstimator("ekf-pr", EstimatorConfig(receiver=None))
+    _feed(off, _slots(4, sd, np.random.default_rng(1)))
+    assert np.linalg.norm(np.array(off.estimate()["pos_m"]) - TRUTH) > 1e3
+
+
+def test_a_start_set_with_one_inconsistent_station_leaves_it_out_or_is_refused():
+    """Station 3 is 400 m off beyond what it claims: the start leaves it out (the other 7 agree), and
+    with two such stations the set is refused until they agree."""
+    est = AircraftEstimator("ekf-pr", EstimatorConfig(fde=None))
+    _feed(est, _slots(2, lambda c, j: 0.5, np.random.default_rng(2), bias_m=lambda c, j: 400.0 * (j == 2)))
+    assert est.stats["start_left_one_out"] == 1
+    assert np.linalg.norm(est.init.fix[:3] - TRUTH) < 50.0
+
+    two = AircraftEstimator("ekf-pr", EstimatorConfig(fde=None))
+    bad = lambda c, j: 400.0 * (j in (2, 5)) * (c < 3)  # noqa: E731
+    _feed(two, _slots(3, lambda c, j: 0.5, np.random.default_rng(3), bias_m=bad))
+    assert two.tracker is None and two.stats["start_inconsistent"] >= 2
+    _feed(two, _slots(6, lambda c, j: 0.5, np.random.default_rng(3), bias_m=bad))
+    assert two.tracker is not None
+
+
+def test_divergence_restarts_a_lost_filter_but_not_for_one_faulty_station():
+    cfg = rx.ReceiverConfig(window=10)
+    mon = rx.DivergenceMonitor(cfg)
+    rng = np.random.default_rng(4)
+    # one station with a large bias (every fourth update), the rest nominal: not divergence
+    for k in range(200):
+        i = k % 4
+        w = rng.chisquare(1) + (400.0 if i == 2 else 0.0)
+        assert not mon.push(w, 1, {i: w}), k
+    # every station disagrees: lost
+    lost = [mon.push(50.0 + rng.chisquare(1), 1, {k % 4: 50.0}) for k in range(10)]
+    assert lost[-1]
+
+
+def test_estimator_restarts_when_its_filter_has_lost_the_aircraft():
+    est = AircraftEstimator("ukf-pr", EstimatorConfig())
+    _feed(est, _slots(6, lambda c, j: 0.5, np.random.default_rng(5)))
+    assert est.status == rx.TRACKING
+    x = est.tracker.x.copy()
+    x[:2] += [3000.0, -2000.0]
+    est.tracker.x = x
+    est.tracker.P = est.tracker.P * 1e-4  # confidently wrong
+    _feed(est, ((t + 0.48, *rest) for t, *rest in _slots(10, lambda c, j: 0.5, np.random.default_rng(6))))
+    assert est.stats["diverged"] >= 1
+    assert np.linalg.norm(np.array(est.estimate()["pos_m"]) - TRUTH) < 100.0
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_no_published_estimate_is_ever_invalid_over_random_broadcast_sets(seed):
+    """Property: random broadcast sets (clock sigmas from 0.1 m to 10^6 m, wild station covariances,
+    biases, missing stations) through the live core never yield an ``ac_estimate`` that the wire
+    refuses or that has a non-finite / non-PSD covariance; what it does not publish it says in
+    ``ac_status``."""
+    from aircraft.config import from_scenario
+    from net.scenario import load
+
+    rng = np.random.default_rng(100 + seed)
+    ac = from_scenario(load("seed000"))
+    core = AircraftCore(ac, ("ekf-pr", "ukf-pr", "ukf-tdoa", "lsq-pr"), "ac1", np.random.default_rng(seed),
+                        horizon_s=120.0)
+    t_s, kinds = 0.0, set()
+    for k in range(600):
+        j = int(rng.integers(0, 8))
+        t_s += 0.01 + 0.05 * rng.random()
+        sd = float(10 ** rng.uniform(-1, 6))
+        cov = np.eye(3) * float(10 ** rng.uniform(-2, 5))
+        msg = {"kind": "nav", "src": j + 1, "seq": k + 1, "stamp_s": t_s, "cycle": k // 8, "slot": j, "t_tx_s": t_s,
+               "pos_m": (STATIONS[j] + rng.normal(0, 1, 3) * (0 if rng.random() < 0.7 else 500)).tolist(),
+               "cov_m2": cov.tolist(), "n_updates": k, "state": "surveying", "ranges": [], "members": [],
+               "clock": [t_s, sd * float(rng.standard_normal()) / 3e8, 0.0, (sd / 3e8) ** 2, 0.0, 0.0]}
+        phy = {"pos_m": STATIONS[j].tolist(), "t_true_s": t_s}
+        for out in core.on_nav(msg, phy):
+            kinds.add(out["kind"])
+            out, _ = M.decode(M.encode(out))  # what the wire takes (raises if it would refuse it)
+            if out["kind"] == "ac_estimate":
+                P = np.asarray(out["cov_m2"])
+                assert np.all(np.isfinite(P)) and np.linalg.eigvalsh(P)[0] >= -1e-6 * np.abs(P).max()
+    assert "ac_status" in kinds
+
+
+def test_live_core_says_why_it_publishes_nothing():
+    """Unsynchronized broadcasts: no estimate, an ``ac_status`` 'waiting' that names the counter."""
+    from aircraft.config import from_scenario
+    from net.scenario import load
+
+    core = AircraftCore(from_scenario(load("seed000")), ("ukf-pr",), "ac1", np.random.default_rng(0),
+                        horizon_s=60.0)
+    outs = []
+    for k in range(16):
+        j = k % 8
+        msg = {"kind": "nav", "src": j + 1, "seq": k + 1, "stamp_s": 0.01 * k, "cycle": 0, "slot": j,
+               "t_tx_s": 0.01 * k, "pos_m": STATIONS[j].tolist(), "cov_m2": np.eye(3).tolist(), "n_updates": 1,
+               "state": "surveying", "ranges": [], "members": [], "clock": [0.0, 0.0, 0.0, 1e-6, 0.0, 0.0]}
+        outs += core.on_nav(msg, {"pos_m": STATIONS[j].tolist(), "t_true_s": 0.01 * k})
+    status = [o for o in outs if o["kind"] == "ac_status"]
+    assert not [o for o in outs if o["kind"] == "ac_estimate"]
+    assert status and status[0]["state"] == rx.WAITING and status[-1]["counts"]["nav_unsynchronized"] >= 1
+    assert M.key_for(status[0]) == "larns/aircraft/ac1/status/ukf-pr"
+    assert M.decode(M.encode(status[0]))[0]["detail"] == "waiting for synchronized stations"
