@@ -66,6 +66,8 @@ def register(sub) -> None:
     p.add_argument("--no-table", action="store_true", help="no live table (final table only)")
     p.add_argument("--logs", default=None, help="folder for per-process logs (default FILE.mcap.logs/)")
     p.add_argument("--json", default=None, help="write the final table as JSON")
+    p.add_argument("--view", type=int, nargs="?", const=8765, default=None, metavar="PORT",
+                   help="also serve a live Foxglove view (larns view) on this port (default 8765; docs/view.md)")
     p.add_argument("--fleet-file", default=None, metavar="FILE",
                    help="where to write the fleet file (epoch, speed, scenario, endpoints, secure or not) that "
                         "`larns station/aircraft/vehicle/record/monitor --fleet FILE` attach with; default: "

@@ -128,3 +128,15 @@ def add_replay_view_args(p) -> None:
     g.add_argument("--view-host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
     g.add_argument("--view-duration", type=float, default=None, metavar="S",
                    help="stop serving after S wall seconds (default: until Ctrl-C)")
+
+
+def view_child(args: argparse.Namespace, plan):
+    """``larns fleet --view [PORT]``: the fleet's ``larns view`` process (a :class:`larns.fleet.spawn.Child`)."""
+    from net.bus import bus_argv
+
+    from larns.fleet.spawn import Child
+
+    cmd = [sys.executable, "-m", "larns", "view", "--port", str(args.view), "-q"]
+    cmd += bus_argv(["tcp/127.0.0.1:0"], plan.seeds, args.zenoh_config, plan.mode, plan.secure)
+    print(f"[fleet] live Foxglove view on ws://127.0.0.1:{args.view}", file=sys.stderr)
+    return Child("viewer", cmd, plan.logdir / "viewer.log" if plan.logdir else None)

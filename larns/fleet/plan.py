@@ -129,6 +129,10 @@ def plan_fleet(args: argparse.Namespace) -> FleetPlan:
                   file=sys.stderr)
         else:
             p.children.append(_vehicle_child(args, p, common))
+    if getattr(args, "view", None) is not None:  # --view: live Foxglove view (larns/commands/view.py)
+        from larns.commands.view import view_child
+
+        p.children.append(view_child(args, p))
     return p
 
 
