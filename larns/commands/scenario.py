@@ -8,9 +8,9 @@ files before a launch.
 
 ``validate`` runs the loader every command uses (``net/scenario.py``: syntax, unknown keys and
 sections, estimator and algorithm names, TDMA slots, frame geometry) and then the checks of the
-aircraft's table (``aircraft/config.py``) and of ``[aircraft.crlb]`` (``larns crlb``), so a file that
-validates also launches. Each bad file gives one line ``FILE: [section] key: what is wrong
-(expected ...)`` on stderr. Format: docs/scenarios.md.
+aircraft's table (``aircraft/config.py``) and of ``[aircraft.crlb]`` (``larns crlb``), so what a launch
+would refuse in the file is found before it. Each bad file gives one line ``FILE: [section] key: what
+is wrong (expected ...)`` on stderr. Format: docs/scenarios.md.
 """
 
 from __future__ import annotations
