@@ -37,7 +37,11 @@ from typing import Any
 
 import numpy as np
 
+from net.queues import DropOldestQueue
+
 log = logging.getLogger("larns.vehicle")
+INBOX_MAX = 4096  # samples waiting for the loop
+HELD_MAX = 4096   # broadcasts in the reorder buffer
 
 
 @dataclass
@@ -77,7 +81,8 @@ class VehicleNode:
                                 net_clock=net_clock, route_file=opts.route, imu_rate_hz=opts.imu_rate_hz,
                                 speed_m_s=opts.speed_m_s, outage_s=opts.outage_s)
         self.drops = M.DropCounter(f"vehicle {opts.name}")
-        self._inbox: queue.SimpleQueue = queue.SimpleQueue()
+        # bounded, drop-oldest (net/queues.py): a flood of samples costs old ones, never memory
+        self._inbox = DropOldestQueue(INBOX_MAX)
         self._stop = threading.Event()
         self._last_status = -math.inf
         self._last_est: dict | None = None
@@ -120,6 +125,9 @@ class VehicleNode:
             return
         self._n_in += 1
         heapq.heappush(self._held, (phy["t_true_s"], self._n_in, msg, phy))
+        if len(self._held) > HELD_MAX:  # bounded: the oldest broadcast goes
+            heapq.heappop(self._held)
+            self.drops.drop("held_full", f"reorder buffer over {HELD_MAX}")
 
     def _drain(self, t_s: float) -> None:
         """Feed the held broadcasts transmitted before ``t_s`` to the core in transmit order (the
@@ -128,9 +136,9 @@ class VehicleNode:
             _, _, msg, phy = heapq.heappop(self._held)
             try:
                 outs = self.core.on_nav(msg, phy)
-            except Exception as e:  # a navigator failure must not kill the node
-                log.exception("vehicle %s: navigator failed on nav from %s", self.opts.name, msg.get("src"))
-                self.drops.drop("estimator", type(e).__name__)
+            except Exception as e:  # a navigator failure must not kill the node (logged at a limited rate)
+                log.debug("vehicle %s: navigator failed on nav from %s", self.opts.name, msg.get("src"), exc_info=True)
+                self.drops.drop("estimator", f"nav from {msg.get('src')}: {type(e).__name__}: {e}")
                 continue
             self._publish(outs)
 
@@ -167,12 +175,18 @@ class VehicleNode:
                 break
             self._status(t)
             self._drain(t - 0.5 * lag)
-            self._publish(self.core.advance_to(t - lag))
+            try:
+                self._publish(self.core.advance_to(t - lag))
+            except Exception as e:  # the loop survives any core failure (counted, logged at a limited rate)
+                self.drops.drop("core", f"advance_to: {type(e).__name__}: {e}")
             try:
                 item = self._inbox.get(timeout=0.05)
             except queue.Empty:
                 continue
-            self._ingest(*item)
+            try:
+                self._ingest(*item)
+            except Exception as e:  # noqa: BLE001 - a malformed-but-valid sample must not stop the node
+                self.drops.drop("ingest", f"{type(e).__name__}: {e}")
         self._drain(math.inf)
         self._publish(self.core.close())
         return self.report()
@@ -180,7 +194,7 @@ class VehicleNode:
     def report(self) -> dict:
         st = self.core.stats
         return {"name": self.opts.name, "measurements": int(st["measurements"]), "stats": {**st, **self.core.nav.stats},
-                "drops": self.drops.as_dict(), "t_s": self.core.t0_s + self.core.nav.t,
+                "drops": self.drops.as_dict(), "queue_dropped": self._inbox.dropped, "t_s": self.core.t0_s + self.core.nav.t,
                 "n_updates": self.core.nav.n_updates, "err_m": self.error_m()}
 
 

@@ -67,6 +67,9 @@ def cmd_record(args: argparse.Namespace) -> int:
     except KeystoreError as e:
         print(f"larns record: --secure: {e}", file=sys.stderr)
         return 2
+    except OSError as e:  # full disk / file-size limit: the file was finished (larns/log/writer.py)
+        print(f"larns record: {e}", file=sys.stderr)
+        return 1
     if args.json:
         print(json.dumps(stats))
     return 0

@@ -8,6 +8,12 @@ The file's metadata record ``larns`` holds the scenario name, epoch and speed.
 
 The file is flushed (chunk finished) every ``--flush`` seconds, so a SIGKILLed recording loses at
 most that much. SIGINT / SIGTERM finish the file cleanly (summary + index).
+
+Bounded (issue 32): samples wait in a drop-oldest queue (``net/queues.py``, :data:`QUEUE_MAX`), and
+a source (``larns/<role>/<name>``) may open at most :data:`MAX_CHANNELS_PER_SOURCE` channels
+(:data:`MAX_CHANNELS` in all); samples on further keys are counted (``refused_keys``), not
+written. On a full disk (or a file-size limit) the recorder finishes the file with what it has
+(``larns/log/writer.py``) and stops with :class:`~larns.log.writer.LogWriteError`.
 """
 
 from __future__ import annotations
@@ -23,6 +29,9 @@ from pathlib import Path
 log = logging.getLogger("larns.record")
 
 MESSAGE_ENCODING = "msgpack"
+QUEUE_MAX = 65536              # samples between the Zenoh threads and the writer
+MAX_CHANNELS_PER_SOURCE = 512  # a station: nav, estimate, ..., a request and a reply key per peer
+MAX_CHANNELS = 32768
 
 
 class McapSink:
@@ -38,6 +47,8 @@ class McapSink:
         self._peek = peek_stamp
         self.path = Path(path)
         self.channels: dict[str, int] = {}   # wire key -> channel id
+        self._per_source: dict[str, int] = {}  # larns/<role>/<name> -> channels opened
+        self.refused_keys = 0  # samples on a key beyond the channel caps
         self.count = 0
         self.bytes = 0
         self.epoch_unix_s = epoch_unix_s
@@ -60,8 +71,20 @@ class McapSink:
     def finished(self) -> bool:
         return self.log.finished
 
+    def _admit_key(self, key: str) -> bool:
+        """A new key opens a channel while its source and the file are below their caps."""
+        src = "/".join(key.split("/", 3)[:3])
+        n = self._per_source.get(src, 0)
+        if n >= MAX_CHANNELS_PER_SOURCE or len(self.channels) >= MAX_CHANNELS:
+            self.refused_keys += 1
+            return False
+        self._per_source[src] = n + 1
+        return True
+
     def write(self, key: str, data: bytes, recv_ns: int) -> None:
         if key not in self.channels:
+            if not self._admit_key(key):
+                return
             self.channels[key] = self.log.channel(key, MESSAGE_ENCODING, metadata=_WIRE_CHANNEL)
         pub_ns = recv_ns
         if self.epoch_unix_s is not None:
@@ -103,6 +126,9 @@ def run_recorder(out: str, bus_kw: dict, keyexpr: str = "larns/**", duration_s: 
                  epoch_unix_s: float | None = None, speed: float = 1.0,
                  quiet: bool = False, foxglove: bool = True) -> dict:
     from net.bus import Bus
+    from net.queues import DropOldestQueue
+
+    from .writer import LogWriteError
 
     stop = threading.Event()
 
@@ -111,8 +137,10 @@ def run_recorder(out: str, bus_kw: dict, keyexpr: str = "larns/**", duration_s: 
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
+    if hasattr(signal, "SIGXFSZ"):  # a file-size limit is a write error (the file gets finished), not a kill
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
 
-    q: queue.SimpleQueue = queue.SimpleQueue()
+    q = DropOldestQueue(QUEUE_MAX)
     bus = Bus(**bus_kw)  # first: credentials that cannot be loaded fail before the file is created
     sink = McapSink(out, metadata=metadata, epoch_unix_s=epoch_unix_s, speed=speed, foxglove=foxglove)
     on_sample = lambda k, d: q.put((time.time_ns(), k, d))  # noqa: E731
@@ -131,6 +159,7 @@ def run_recorder(out: str, bus_kw: dict, keyexpr: str = "larns/**", duration_s: 
         print(f"[record] writing {keyexpr} to {out} (Ctrl-C to stop)", file=sys.stderr, flush=True)
     t_end = time.monotonic() + duration_s if duration_s else float("inf")
     next_flush = time.monotonic() + flush_s
+    failed: LogWriteError | None = None
     try:
         while not stop.is_set() and time.monotonic() < t_end:
             try:
@@ -146,16 +175,26 @@ def run_recorder(out: str, bus_kw: dict, keyexpr: str = "larns/**", duration_s: 
             if time.monotonic() >= next_flush:
                 sink.flush()
                 next_flush = time.monotonic() + flush_s
+    except LogWriteError as e:  # full disk: the writer finished the file with what it had
+        failed = e
     finally:
         bus.close()
-        while True:  # whatever arrived before the session closed
-            try:
-                r, k, d = q.get_nowait()
-            except queue.Empty:
-                break
-            sink.write(k, d, r)
-        sink.finish()
-    stats = {"file": out, "messages": sink.count, "bytes": sink.bytes, "channels": len(sink.channels)}
+        try:
+            while failed is None:  # whatever arrived before the session closed
+                try:
+                    r, k, d = q.get_nowait()
+                except queue.Empty:
+                    break
+                sink.write(k, d, r)
+            sink.finish()
+        except LogWriteError as e:
+            failed = e
+    stats = {"file": out, "messages": sink.count, "bytes": sink.bytes, "channels": len(sink.channels),
+             "queue_dropped": q.dropped, "refused_keys": sink.refused_keys}
+    if failed is not None:
+        stats["error"] = str(failed)
+        raise LogWriteError(f"{failed}; {out} is finished and holds every message up to its last complete "
+                            "chunk")
     if limiter is not None:
         stats["throttled"] = dict(limiter.throttled)
     if not quiet:
