@@ -9,8 +9,9 @@ running. Values given explicitly on the command line win, except a ``--scenario`
 contradicting the fleet's, which is refused (exit 2, one line).
 
 Run length: ``--duration S`` is the length of the run in fleet seconds, counted from when the process
-powers on (``--start-at``, the epoch if it starts before it, else now); ``--until T`` stops at fleet
-time T. Attached without either, a process stops when the fleet ends.
+starts (``--start-at``, the epoch if it starts before it, else now; a station counts from its power-on,
+after its start-up, with ``args.run_s``); ``--until T`` stops at fleet time T. Attached without
+either, a process stops when the fleet ends.
 
 Only file reading and argument arithmetic here: no sockets, no clocks of our own (``now_unix_s`` is
 passed in).
@@ -201,7 +202,8 @@ def day_start_s(now_unix_s: float) -> float:
 def resolve(args: argparse.Namespace, now_unix_s: float, who: str,
             parser: argparse.ArgumentParser | None = None) -> argparse.Namespace:
     """Attach (``--fleet``, or the default fleet file) and turn ``--duration`` / ``--until`` into the
-    absolute end the nodes take (``args.duration`` = stop at this fleet time, None = never).
+    absolute end the nodes take (``args.duration`` = stop at this fleet time, None = never; ``args.run_s``
+    = the run length when it came from ``--duration``).
     Without an epoch the process uses the start of the UTC day. Idempotent (``args.attach_resolved``)."""
     if getattr(args, "attach_resolved", False):
         return args
@@ -217,7 +219,10 @@ def resolve(args: argparse.Namespace, now_unix_s: float, who: str,
     now_fleet = (now_unix_s - epoch) * speed
     start_at = getattr(args, "start_at", None)
     start = max(0.0, now_fleet, start_at if start_at is not None else -math.inf)
-    args.duration = end_fleet_s(getattr(args, "duration", None), getattr(args, "until", None), start,
-                                args.fleet_end_s)
+    run_s = getattr(args, "duration", None)
+    until = getattr(args, "until", None)
+    args.duration = end_fleet_s(run_s, until, start, args.fleet_end_s)
+    # the run length itself, for a node that counts it from its power-on (after its start-up)
+    args.run_s = float(run_s) if until is None and run_s is not None and run_s > 0 else None
     args.attach_resolved = True
     return args
