@@ -16,6 +16,7 @@ is wrong (expected ...)`` on stderr. Format: docs/scenarios.md.
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 from dataclasses import asdict
 
@@ -49,9 +50,18 @@ def check(name_or_path: str):
         try:
             from_scenario(sc)
         except (ValueError, TypeError) as e:
-            raise ScenarioError(f"[aircraft]: {e} (expected the keys of docs/aircraft.md)", file=sc.source) from None
+            raise ScenarioError(_aircraft_message(str(e)), file=sc.source) from None
     crlb_settings(sc)
     return sc
+
+
+def _aircraft_message(error: str) -> str:
+    """``aircraft/config.py``'s "unknown keys in [aircraft]: ['x']; known: [...]" as ``[aircraft] x: ...``."""
+    m = re.match(r"unknown keys in \[([\w.]+)\]: \['([^']+)'[^\]]*\](?:; known: \[(.*)\])?$", error)
+    if m is None:
+        return f"[aircraft]: {error} (expected what docs/aircraft.md describes)"
+    known = f"one of {m[3].replace(chr(39), '')}" if m[3] else "the keys of docs/aircraft.md"
+    return f"[{m[1]}] {m[2]}: unknown key (expected {known})"
 
 
 def cmd_list(args: argparse.Namespace) -> int:
@@ -126,6 +136,12 @@ def cmd_show(args: argparse.Namespace) -> int:
     return 0
 
 
+def _aircraft_summary(sc) -> str:
+    if not sc.aircraft:
+        return ""
+    return f", aircraft {','.join(sc.aircraft['algos']) if 'algos' in sc.aircraft else '(default algos)'}"
+
+
 def cmd_validate(args: argparse.Namespace) -> int:
     from net.scenario import ScenarioError
 
@@ -139,5 +155,5 @@ def cmd_validate(args: argparse.Namespace) -> int:
             continue
         if not args.quiet:
             print(f"{f}: ok ({sc.name}: {len(sc.ids)} stations, {sc.tdma.slots_per_cycle} slots, "
-                  f"estimator {sc.estimator}{', aircraft ' + ','.join(sc.aircraft.get('algos', [])) if sc.aircraft else ''})")
+                  f"estimator {sc.estimator}{_aircraft_summary(sc)})")
     return 2 if bad else 0
