@@ -20,7 +20,7 @@ def register(sub) -> None:
 
     p = add_parser(sub, "aircraft", help="run an aircraft process: positions itself from the stations' broadcasts",
                    description=DESCRIPTION,
-                   example=["larns aircraft --fleet runs/fleet.json --scenario seed003 --algo ukf-pr --duration 120",
+                   example=["larns aircraft --fleet runs/fleet.json --algo ukf-pr --duration 120",
                             "larns aircraft --scenario seed003 --algo ekf-tdoa --epoch 1767225600 "
                             "--connect tcp/127.0.0.1:7447 --duration 600"])
     node.add_args(p)
