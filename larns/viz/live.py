@@ -14,7 +14,7 @@ on ``larns/**`` to both.
 | ``larns/foxglove/station/<id>/sync`` | ``larns.StationSync`` | the station's clock estimate against network time, its sigma, the true clock error and the sync error |
 | ``larns/foxglove/aircraft/<name>/<algo>``, ``larns/foxglove/vehicle/<name>/<algo>`` | ``larns.AircraftEstimate`` | as in recordings |
 | ``larns/foxglove/tdma`` | ``larns.Exchange`` | one record per range request: fleet time, cycle, slot, initiator, addressee (TDMA timeline) |
-| ``larns/foxglove/log`` | ``foxglove.Log`` | integrity decisions, processes appearing / leaving (liveliness), malformed messages dropped |
+| ``larns/foxglove/log`` | ``foxglove.Log`` | integrity decisions, processes appearing / leaving (liveliness), aircraft navigator states (``ac_status`` changes), malformed messages dropped (here, and the stations' own ``dropped`` counts) |
 
 Message times (``log_time``) and the server's time (the ``time`` capability) are **fleet time**:
 nanoseconds since the fleet epoch (``t_s`` of a message, else its ``stamp_s``), so Foxglove's
@@ -129,6 +129,8 @@ class LiveView:
         self._clock_truth: dict[int, tuple[float, float]] = {}   # sid -> (stamp_s, clock_error_s)
         self._pending_sync: dict[int, tuple[float, dict]] = {}   # sid -> (stamp_s, sync record)
         self._truths: dict[int, int] = {}                         # sid -> truths seen
+        self._dropped_at: dict[int, int] = {}                     # sid -> its last `dropped` count
+        self._ac_state: dict[tuple[str, str], str] = {}           # (aircraft, algo) -> last ac_status state
 
     # ------------------------------------------------------------------ entry points
     def on_sample(self, key: str, data: bytes, log_ns: int | None = None) -> list[Out]:
@@ -175,7 +177,7 @@ class LiveView:
         out = [Out(t, s, d, ns) for t, s, d in self.fox.convert(msg, ns)]
         if kind == "estimate":
             self.station_pos[msg["src"]] = msg["pos_m"]
-            out += self._sync_from_estimate(msg, ns)
+            out += self._sync_from_estimate(msg, ns) + self._station_drops(msg, ns)
         elif kind == "truth":
             out += self._truth_again(msg, ns, bool(out)) + self._sync_from_truth(msg)
         elif kind == "range_req":
@@ -184,7 +186,29 @@ class LiveView:
             out += self._integrity(msg, ns)
         elif kind in ("ac_estimate", "veh_estimate", "ac_truth", "veh_truth"):
             out += self._track(msg, ns)
+        elif kind == "ac_status":
+            out += self._status_change(msg, ns)
         return out
+
+    def _station_drops(self, msg: dict, ns: int) -> list[Out]:
+        """A station's count of malformed messages it dropped went up: a warning."""
+        sid, n = msg["src"], int(msg.get("dropped", 0))
+        before = self._dropped_at.get(sid, 0)
+        self._dropped_at[sid] = n
+        if n <= before:
+            return []
+        text = f"station {sid} dropped {n - before} malformed message(s) ({n} so far)"
+        return [Out(LOG_TOPIC, "foxglove.Log", log_record(ns, WARNING, f"station/{sid}", text), ns)]
+
+    def _status_change(self, msg: dict, ns: int) -> list[Out]:
+        """An aircraft navigator's state (waiting, tracking, restarting, ...) when it changes."""
+        who = (msg["src"], msg["algo"])
+        if self._ac_state.get(who) == msg["state"]:
+            return []
+        self._ac_state[who] = msg["state"]
+        detail = f" ({msg['detail']})" if msg.get("detail") else ""
+        text = f"{msg['src']} {msg['algo']}: {msg['state']}{detail}"
+        return [Out(LOG_TOPIC, "foxglove.Log", log_record(ns, INFO, f"aircraft/{msg['src']}", text), ns)]
 
     def _truth_again(self, msg: dict, ns: int, sent: bool) -> list[Out]:
         """A station's truth cube again every ``TRUTH_EVERY`` truths: the recording view draws it once,

@@ -139,3 +139,17 @@ def test_server_sends_what_the_view_makes_to_a_protocol_client():
     assert "dropped malformed" in got.of(LOG_TOPIC)[0]["message"]
     assert got.times_ns[-1] == 8_000_000_000
     assert srv.failed == {}
+
+
+def test_station_drop_counts_and_aircraft_states_are_logged_on_change():
+    v = LiveView()
+    assert not [o for o in v.on_sample(*_est(2, 1.0, [0.0, 0.0, 0.0], dropped=0)) if o.topic == LOG_TOPIC]
+    (o,) = [o for o in v.on_sample(*_est(2, 2.0, [0.0, 0.0, 0.0], dropped=3)) if o.topic == LOG_TOPIC]
+    assert o.data["message"] == "station 2 dropped 3 malformed message(s) (3 so far)" and o.data["level"] == 3
+    assert not [o for o in v.on_sample(*_est(2, 3.0, [0.0, 0.0, 0.0], dropped=3)) if o.topic == LOG_TOPIC]
+    logs = []
+    for i, state in enumerate(["waiting", "waiting", "tracking"]):
+        m = {"kind": "ac_status", "src": "ac1", "seq": i, "stamp_s": float(i), "t_s": float(i), "algo": "ukf-pr",
+             "state": state}
+        logs += [o.data["message"] for o in v.on_sample(M.key_for(m), M.encode(m))]
+    assert logs == ["ac1 ukf-pr: waiting", "ac1 ukf-pr: tracking"]
