@@ -153,3 +153,20 @@ def test_station_drop_counts_and_aircraft_states_are_logged_on_change():
              "state": state}
         logs += [o.data["message"] for o in v.on_sample(M.key_for(m), M.encode(m))]
     assert logs == ["ac1 ukf-pr: waiting", "ac1 ukf-pr: tracking"]
+
+
+def test_fleet_view_adds_a_viewer_child(tmp_path):
+    from scenario_text import five_stations
+
+    from larns.cli import build_parser
+    from larns.fleet.plan import plan_fleet
+
+    scn = tmp_path / "v.toml"
+    scn.write_text(five_stations("v", 1))
+    args = build_parser().parse_args(["fleet", "--scenario", str(scn), "--view", "--logs", str(tmp_path)])
+    (viewer,) = [c for c in plan_fleet(args).children if c.name == "viewer"]
+    i = viewer.cmd.index("view")
+    assert viewer.cmd[i + 1:i + 3] == ["--port", "8765"] and "--connect" in viewer.cmd
+    assert viewer.log_path == tmp_path / "viewer.log"
+    args = build_parser().parse_args(["fleet", "--scenario", str(scn)])
+    assert not [c for c in plan_fleet(args).children if c.name == "viewer"]
