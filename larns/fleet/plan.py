@@ -47,7 +47,9 @@ def parse_joins(args: argparse.Namespace, scn) -> list[tuple[int, float]]:
         joins = [(s, t) for s, t in joins if t < args.duration]
     for sid, _ in joins:
         if sid not in scn.ids:
-            raise SystemExit(f"--join {sid}: no such station in scenario {scn.name} (ids {scn.ids})")
+            print(f"larns fleet: --join {sid}: no such station in scenario {scn.name} (ids {scn.ids}); add it with "
+                  f"--n-stations, or start it beside the fleet with `larns station --id {sid} --join`", file=sys.stderr)
+            raise SystemExit(2)
     return joins
 
 
