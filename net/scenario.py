@@ -462,8 +462,11 @@ FAULT_KEYS = {
     "range_bias": {"bias_m": "float", "from_s": "float"},
     "clock_jump": {"jump_s": "float", "at_s": "float"},
     "bad_fix": {"offset_m": "vec3", "sigma0_m": "float"},
+    "leave": {"at_s": "float"},
+    "kill": {"at_s": "float"},
 }
 FAULT_OPTIONAL = {"from_s": 0.0, "at_s": 0.0}
+DEPARTURE_KINDS = ("leave", "kill")  # the station falls silent at at_s (required)
 
 
 @dataclass(frozen=True)
@@ -472,7 +475,8 @@ class StationFault:
     estimator. ``liar``: broadcasts (nav, range answers) carry ``pos_m + offset_m`` from ``from_s``;
     ``range_bias``: every range of ``station`` is ``bias_m`` long from ``from_s``; ``clock_jump``: its
     clock steps by ``jump_s`` at true time ``at_s``; ``bad_fix``: its coarse fix is off by ``offset_m``
-    while it claims ``sigma0_m`` (default: the scenario's)."""
+    while it claims ``sigma0_m`` (default: the scenario's); ``leave`` / ``kill``: the station falls
+    silent at true time ``at_s`` (a departure or a SIGKILL; in the simulator both stop the station)."""
 
     kind: str
     station: int
@@ -485,7 +489,9 @@ class StationFault:
 
     @property
     def onset_s(self) -> float:
-        return self.at_s if self.kind == "clock_jump" else (0.0 if self.kind == "bad_fix" else self.from_s)
+        if self.kind in ("clock_jump", *DEPARTURE_KINDS):
+            return self.at_s
+        return 0.0 if self.kind == "bad_fix" else self.from_s
 
 
 def _num(v: Any, where: str) -> float:
@@ -523,7 +529,7 @@ def parse_faults(entries: Any, ids: list[int]) -> list[StationFault]:
         kw: dict[str, Any] = {"kind": kind, "station": _station(e["station"], f"{w}.station", ids)}
         for key, typ in spec.items():
             if key not in e:
-                if key in FAULT_OPTIONAL or (kind == "bad_fix" and key == "sigma0_m"):
+                if (key in FAULT_OPTIONAL and kind not in DEPARTURE_KINDS) or (kind == "bad_fix" and key == "sigma0_m"):
                     continue
                 raise ScenarioError(f"{w}.{key}: missing (expected it: required for kind {kind!r})")
             v = e[key]

@@ -18,7 +18,7 @@ import numpy as np
 
 from net.channel import AirChannel, Clock, coarse_fix, draw_clock, station_rng
 from net.clock import true_network_offset_s
-from net.scenario import Scenario
+from net.scenario import DEPARTURE_KINDS, Scenario
 
 from .admission import field_radius
 from .core import StationConfig, StationCore
@@ -100,7 +100,8 @@ class Simulator:
     estimator : override the scenario's estimator.
     seed : override the world seed.
     start_s : {station id: true start time}; stations in ``scn.join_ids`` default to joining.
-    stop_s : {station id: true time the station dies (SIGKILL-like: silent from then on)}.
+    stop_s : {station id: true time the station dies (SIGKILL-like: silent from then on)}; the scenario's
+        ``[[faults]]`` of kind ``leave`` / ``kill`` add theirs (``at_s``) unless given here.
     core_factory : builds a station's ``(core, clock)``; same signature as :func:`make_core` (the
         default). The injection point for tests and tools that change how a core is built.
     journal : the stations' shells publish their core journal (``core_init``, ``core_input``).
@@ -121,7 +122,8 @@ class Simulator:
         self.seed = scn.seed if seed is None else seed
         self.estimator = estimator
         self.start_s = dict(start_s or {})
-        self.stop_s = dict(stop_s or {})
+        self.stop_s = {f.station: f.at_s for f in scn.faults if f.kind in DEPARTURE_KINDS}
+        self.stop_s.update(stop_s or {})
         for j in scn.join_ids:
             self.start_s.setdefault(j, 20.0)
         n = len(scn.ids)

@@ -135,3 +135,21 @@ def test_a_clock_enters_with_weight_zero_until_it_is_known():
         core = sim.cores[scn.ids.index(sid)]
         assert all(s.T_ref_s >= 2.0 for s in log[1:])
         assert core.clk.scale is log[-1]
+
+
+def test_leave_and_kill_faults_silence_stations_in_the_simulator():
+    from net.scenario import ScenarioError
+
+    scn = load("seed000", seed=5, faults=[{"kind": "kill", "station": 1, "at_s": 20.0},
+                                          {"kind": "leave", "station": 3, "at_s": 25.0}])
+    assert [f.onset_s for f in scn.faults] == [20.0, 25.0]
+    sim = Simulator(scn)
+    assert sim.stop_s == {1: 20.0, 3: 25.0}
+    r = sim.run(40.0, [19.0, 40.0])
+    assert np.isfinite(r.clock_err_s[0]).all()
+    assert np.isnan(r.clock_err_s[1, [0, 2]]).all() and np.isfinite(r.clock_err_s[1, [1, *range(3, 10)]]).all()
+    assert set(r.time_scales[2][-1].w) == {2, *range(4, 11)}  # both left network time
+    with pytest.raises(ScenarioError, match=r"faults\[0\]\.at_s: missing"):
+        load("seed000", faults=[{"kind": "kill", "station": 1}])
+    with pytest.raises(ScenarioError, match=r"faults\[0\]\.kind: .*kill.*leave"):
+        load("seed000", faults=[{"kind": "die", "station": 1, "at_s": 3.0}])
