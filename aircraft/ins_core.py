@@ -36,7 +36,8 @@ from nav import errorstate as es
 from nav.geometry import SPEED_OF_LIGHT_M_S
 from nav.rotations import euler_from_dcm
 
-from net.clock import broadcast_clock_var_m2, broadcast_time_error_s
+from net.clock import broadcast_clock_var_m2
+from net.nettime import pseudorange_time_error_s
 from .navigator.ins_ekf import JAC_FORCE_TC_S, InsEkf, InsTuning
 from .navigator.ins_start import SideTest, StartConfig, enough, moved_on, radio_fix, start
 from .world import clock as wclock
@@ -183,7 +184,7 @@ class InsAircraftCore:
             t_rx = t_tx + float(np.linalg.norm(p - p_tx)) / SPEED_OF_LIGHT_M_S
         p, _, _ = self.truth_n(t_rx)
         rho = float(np.linalg.norm(p - p_tx)) \
-            + SPEED_OF_LIGHT_M_S * broadcast_time_error_s(msg, t_tx, t_rx, self.net_clock) \
+            + SPEED_OF_LIGHT_M_S * pseudorange_time_error_s(msg, t_tx, t_rx, self.net_clock) \
             + float(self.ac.clock.bias_m(t_rx))
         return t_rx, rho + (self.noise_m() if noise else 0.0)
 

@@ -37,7 +37,8 @@ import numpy as np
 
 from nav.geometry import SPEED_OF_LIGHT_M_S
 
-from net.clock import broadcast_clock_var_m2, broadcast_time_error_s
+from net.clock import broadcast_clock_var_m2
+from net.nettime import network_time, pseudorange_time_error_s
 
 from .navigator import receiver as rx
 
@@ -106,7 +107,7 @@ class AircraftCore:
         t_rx = t_tx + np.linalg.norm(p - p_tx) / SPEED_OF_LIGHT_M_S
         p, _ = self.track.at(t_rx)  # one fixed-point step is exact to micrometres at aircraft speeds
         r = float(np.linalg.norm(p - p_tx))
-        dt_s = broadcast_time_error_s(msg, t_tx, t_rx, self.net_clock)
+        dt_s = pseudorange_time_error_s(msg, t_tx, t_rx, self.net_clock)
         rho = r + SPEED_OF_LIGHT_M_S * dt_s + float(self.ac.clock.bias_m(t_rx)) \
             + self.ac.sigma_m * float(self.rng.standard_normal())
         return t_rx, rho, p
@@ -198,9 +199,9 @@ class AircraftNode:
         seed = scn.seed if opts.seed is None else opts.seed
         rng = np.random.default_rng([int(seed), 0xA1C, sum(map(ord, opts.name))])
         horizon = (opts.duration_s or 7200.0) + 10.0
-        from net.channel import draw_clock, station_rng
+        from net.nettime import network_time
 
-        net_clock = None if scn.clock.perfect else draw_clock(scn.clock, station_rng(seed, scn.ids[0], 0))
+        net_clock = network_time(scn, seed)  # the receivers run on network time as the field realizes it
         triad = opts.satellites is not None or "triad" in opts.algos  # the triad: aircraft/triad_core.py
         if triad and set(opts.algos) - {"triad"}:
             raise ValueError(f"triad runs alone in its 6-DOF world; drop {sorted(set(opts.algos) - {'triad'})}")

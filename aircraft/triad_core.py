@@ -44,7 +44,8 @@ from nav.rotations import dcm_from_euler, euler_from_dcm
 from nav.strapdown import G0_M_S2
 
 from .ins_core import motion_from_config
-from net.clock import broadcast_clock_var_m2, broadcast_time_error_s
+from net.clock import broadcast_clock_var_m2
+from net.nettime import pseudorange_time_error_s
 from .navigator import field_tie as ft
 from .navigator.ins_ekf import InsTuning
 from .navigator.triad_ekf import (TRIAD_LAYOUT, Epoch, TriadEkf, TriadFrame, initial_fix, satellite_elevation_deg,
@@ -169,7 +170,7 @@ class TriadAircraftCore:
             t_rx = t_tx + float(np.linalg.norm(self.truth_n(t_rx)[0] - p_tx)) / SPEED_OF_LIGHT_M_S
         rng = np.random.default_rng(self._key + [6, sum(map(ord, str(msg.get("src")))), int(msg.get("seq", 0))])
         rho = float(np.linalg.norm(self.truth_n(t_rx)[0] - p_tx)) \
-            + SPEED_OF_LIGHT_M_S * broadcast_time_error_s(msg, t_tx, t_rx, self.net_clock) \
+            + SPEED_OF_LIGHT_M_S * pseudorange_time_error_s(msg, t_tx, t_rx, self.net_clock) \
             + float(self.ac.clock.bias_m(t_rx)) + self.ac.sigma_m * float(rng.standard_normal())
         return t_rx, rho
 

@@ -36,7 +36,8 @@ from typing import Any
 import numpy as np
 
 from nav.geometry import SPEED_OF_LIGHT_M_S
-from net.clock import broadcast_clock_var_m2, broadcast_time_error_s
+from net.clock import broadcast_clock_var_m2
+from net.nettime import pseudorange_time_error_s
 from vehicle.navigator.live import MapTie, VehicleNavigator, route_of
 from vehicle.world import sensors
 
@@ -186,7 +187,7 @@ class VehicleCore:
         r = float(np.linalg.norm(d))
         rng = np.random.default_rng(self._key + [2, int(msg["src"]), int(msg.get("seq", 0))])
         n = rng.standard_normal(2)
-        rho = r + SPEED_OF_LIGHT_M_S * broadcast_time_error_s(msg, t_tx, t_rx, self.net_clock) \
+        rho = r + SPEED_OF_LIGHT_M_S * pseudorange_time_error_s(msg, t_tx, t_rx, self.net_clock) \
             + self.clock_m(t_rx) + self.sigma_rho_m * float(n[0])
         rate = -float(d @ v) / r + self.clock_drift_m_s + self.sigma_rate_m_s * float(n[1])
         return t_rx, rho, rate

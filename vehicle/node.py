@@ -64,7 +64,7 @@ class VehicleNode:
 
     def __init__(self, scn, opts: VehicleOptions, bus: Any):
         from net import messages as M
-        from net.channel import draw_clock, station_rng
+        from net.nettime import network_time
 
         from .core import VehicleCore
 
@@ -76,7 +76,7 @@ class VehicleNode:
         self.epoch = (math.floor(time.time() / 86400.0) * 86400.0 if opts.epoch_unix_s is None
                       else float(opts.epoch_unix_s))
         seed = scn.seed if opts.seed is None else opts.seed
-        net_clock = None if scn.clock.perfect else draw_clock(scn.clock, station_rng(seed, scn.ids[0], 0))
+        net_clock = network_time(scn, seed)  # the receiver runs on network time as the field realizes it
         self.core = VehicleCore(scn, opts.name, seed=int(seed), t0_s=max(0.0, math.ceil(self.fleet_now())),
                                 net_clock=net_clock, route_file=opts.route, imu_rate_hz=opts.imu_rate_hz,
                                 speed_m_s=opts.speed_m_s, outage_s=opts.outage_s)

@@ -383,9 +383,9 @@ def reestimate_aircraft(logs: Sequence[LogFile], msgs: Sequence[Msg], algos: Seq
     md, scn, ac, name, seed = _aircraft_world(logs, scenario, name, seed)
     horizon = float(md.get("duration_s", 7200.0)) + 10.0
     rng = np.random.default_rng([int(seed), 0xA1C, sum(map(ord, name))])  # as aircraft.node.AircraftNode
-    from net.channel import draw_clock, station_rng
+    from net.nettime import network_time
 
-    net_clock = None if scn.clock.perfect else draw_clock(scn.clock, station_rng(seed, scn.ids[0], 0))
+    net_clock = network_time(scn, seed)
     core = AircraftCore(ac, tuple(algos), name, rng, height_m, horizon_s=horizon, net_clock=net_clock)
     ep = logs[0].epoch_unix_s if logs else None
     speed = logs[0].speed if logs else 1.0
@@ -427,9 +427,9 @@ def reestimate_ins(logs: Sequence[LogFile], msgs: Sequence[Msg], scenario: str |
     rng = np.random.default_rng([int(seed), 0x1A5, sum(map(ord, name))])  # as aircraft.node.AircraftNode
     recorded = _recorded_estimates(msgs, name, "ins-ekf")
     t0 = float(recorded[0].get("extra", {}).get("t0_s", 0.0)) if recorded else 0.0  # the aircraft's start
-    from net.channel import draw_clock, station_rng
+    from net.nettime import network_time
 
-    net_clock = None if scn.clock.perfect else draw_clock(scn.clock, station_rng(seed, scn.ids[0], 0))
+    net_clock = network_time(scn, seed)
     core = InsAircraftCore(scn, ac, name, rng, imu=imu or ac.imu or "adis16480", height_m=height_m, seed=int(seed),
                            t0_s=t0, net_clock=net_clock)
     return _refly_inertial(core, logs, msgs, name, "ins-ekf", recorded)
@@ -447,9 +447,9 @@ def reestimate_triad(logs: Sequence[LogFile], msgs: Sequence[Msg], scenario: str
     md, scn, ac, name, seed = _aircraft_world(logs, scenario, name, seed)
     recorded = _recorded_estimates(msgs, name, "triad")
     x = recorded[0].get("extra", {}) if recorded else {}
-    from net.channel import draw_clock, station_rng
+    from net.nettime import network_time
 
-    net_clock = None if scn.clock.perfect else draw_clock(scn.clock, station_rng(seed, scn.ids[0], 0))
+    net_clock = network_time(scn, seed)
     imu = list(PRESETS)[int(x["imu_preset"])] if "imu_preset" in x else DEFAULT_IMU
     core = TriadAircraftCore(scn, ac, name, n_sv=int(x.get("n_sv", 4)), imu=imu, imu_rate_hz=float(x.get("imu_rate_hz", 10.0)),
                              height_m=height_m, seed=int(seed), t0_s=float(x.get("t0_s", 0.0)), net_clock=net_clock)
