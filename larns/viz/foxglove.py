@@ -13,6 +13,10 @@ NaN or infinity anywhere):
 | ``larns/foxglove/aircraft/<name>/<algo>`` | ``larns.AircraftEstimate`` | same for each aircraft algorithm |
 | ``larns/foxglove/vehicle/<name>/<algo>`` | ``larns.AircraftEstimate`` | same for a ground vehicle (``larns vehicle``) |
 
+The ``foxglove.*`` JSON Schemas are generated from the Foxglove SDK's typed schemas
+(:mod:`larns.viz.sdk_schema`), the same messages the live view (``larns view``) sends: one
+definition of what a viewer sees, live or recorded.
+
 Open a recording in Foxglove and load ``docs/foxglove-layout.json`` (3D panel + error plots).
 The conversion is a pure function of the wire messages (:class:`FoxgloveView`), shared by the
 recorder and ``larns export``.
@@ -27,6 +31,8 @@ from typing import Any, Iterator
 
 import numpy as np
 
+from .sdk_schema import json_schema
+
 FRAME = "network"
 TF_TOPIC = "larns/foxglove/tf"
 SCENE_TOPIC = "larns/foxglove/scene"
@@ -34,57 +40,11 @@ N_SIGMA = 3.0
 MIN_DIAMETER_M = 0.5  # frame stations have zero covariance: keep them visible
 
 # --------------------------------------------------------------------------- JSON Schemas (draft 7)
-_TIME = {"type": "object", "properties": {"sec": {"type": "integer", "minimum": 0},
-                                          "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999}},
-         "required": ["sec", "nsec"]}
-_DURATION = {"type": "object", "properties": {"sec": {"type": "integer"},
-                                              "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999}},
-             "required": ["sec", "nsec"]}
+# The Foxglove messages: generated from the Foxglove SDK's own schemas (larns/viz/sdk_schema.py), the
+# same definitions the live view sends as typed messages (larns/viz/live.py). The larns.* ones are ours.
 _NUM = {"type": "number"}
-_VEC3 = {"type": "object", "properties": {"x": _NUM, "y": _NUM, "z": _NUM}, "required": ["x", "y", "z"]}
-_QUAT = {"type": "object", "properties": {"x": _NUM, "y": _NUM, "z": _NUM, "w": _NUM},
-         "required": ["x", "y", "z", "w"]}
-_COLOR = {"type": "object", "properties": {"r": _NUM, "g": _NUM, "b": _NUM, "a": _NUM},
-          "required": ["r", "g", "b", "a"]}
-_POSE = {"type": "object", "properties": {"position": _VEC3, "orientation": _QUAT},
-         "required": ["position", "orientation"]}
-_SHAPE = {"type": "object", "properties": {"pose": _POSE, "size": _VEC3, "color": _COLOR},
-          "required": ["pose", "size", "color"]}
-_TEXT = {"type": "object", "properties": {"pose": _POSE, "billboard": {"type": "boolean"}, "font_size": _NUM,
-                                          "scale_invariant": {"type": "boolean"}, "color": _COLOR,
-                                          "text": {"type": "string"}},
-         "required": ["pose", "billboard", "font_size", "scale_invariant", "color", "text"]}
-_KV = {"type": "object", "properties": {"key": {"type": "string"}, "value": {"type": "string"}},
-       "required": ["key", "value"]}
 
-SCHEMAS: dict[str, dict] = {
-    "foxglove.FrameTransform": {
-        "title": "foxglove.FrameTransform", "description": "A transform between two reference frames in 3D space",
-        "type": "object",
-        "properties": {"timestamp": _TIME, "parent_frame_id": {"type": "string"},
-                       "child_frame_id": {"type": "string"}, "translation": _VEC3, "rotation": _QUAT},
-        "required": ["timestamp", "parent_frame_id", "child_frame_id", "translation", "rotation"]},
-    "foxglove.SceneUpdate": {
-        "title": "foxglove.SceneUpdate", "description": "An update to the entities displayed in a 3D scene",
-        "type": "object",
-        "properties": {
-            "deletions": {"type": "array", "items": {
-                "type": "object", "properties": {"timestamp": _TIME, "type": {"enum": [0, 1]},
-                                                 "id": {"type": "string"}},
-                "required": ["timestamp", "type", "id"]}},
-            "entities": {"type": "array", "items": {
-                "type": "object",
-                "properties": {"timestamp": _TIME, "frame_id": {"type": "string"}, "id": {"type": "string"},
-                               "lifetime": _DURATION, "frame_locked": {"type": "boolean"},
-                               "metadata": {"type": "array", "items": _KV},
-                               "arrows": {"type": "array"}, "cubes": {"type": "array", "items": _SHAPE},
-                               "spheres": {"type": "array", "items": _SHAPE}, "cylinders": {"type": "array"},
-                               "lines": {"type": "array"}, "triangles": {"type": "array"},
-                               "texts": {"type": "array", "items": _TEXT}, "models": {"type": "array"}},
-                "required": ["timestamp", "frame_id", "id", "lifetime", "frame_locked", "metadata", "arrows",
-                             "cubes", "spheres", "cylinders", "lines", "triangles", "texts", "models"]}}},
-        "required": ["deletions", "entities"]},
-}
+SCHEMAS: dict[str, dict] = {name: json_schema(name) for name in ("foxglove.FrameTransform", "foxglove.SceneUpdate")}
 _EST_PROPS = {"t_s": _NUM, "x_m": _NUM, "y_m": _NUM, "z_m": _NUM, "sigma_x_m": _NUM, "sigma_y_m": _NUM,
               "sigma_z_m": _NUM, "sigma_m": _NUM, "bound3_m": _NUM, "n_updates": {"type": "integer"},
               "err_m": _NUM, "err_x_m": _NUM, "err_y_m": _NUM, "err_z_m": _NUM,

@@ -12,6 +12,7 @@ import pytest
 from foxglove_ws import FoxgloveClient, ProtoSchema
 from net import messages as M
 
+from larns.viz.sdk_schema import json_schema
 from larns.viz.live import LIVE_SCHEMAS, LOG_TOPIC, SCHEMA_BYTES, TDMA_TOPIC, FoxgloveServer, LiveView, to_sdk
 
 I3 = [[1.0, 0.0, 0.0], [0.0, 4.0, 0.0], [0.0, 0.0, 9.0]]
@@ -96,6 +97,7 @@ def test_tracks_and_typed_messages_decode_back_by_their_own_schema():
     kinds = set()
     for o in outs:
         if o.schema.startswith("foxglove."):
+            jsonschema.validate(o.data, json_schema(o.schema))  # the recorder's JSON form, same definition
             msg = to_sdk(o.schema, o.data)
             schema = type(msg).get_schema()
             assert schema.encoding == "protobuf"
@@ -170,3 +172,19 @@ def test_fleet_view_adds_a_viewer_child(tmp_path):
     assert viewer.log_path == tmp_path / "viewer.log"
     args = build_parser().parse_args(["fleet", "--scenario", str(scn)])
     assert not [c for c in plan_fleet(args).children if c.name == "viewer"]
+
+
+def test_json_schemas_generated_from_the_sdk_reject_what_the_sdk_would_not_encode():
+    tf = {"timestamp": {"sec": 1, "nsec": 5}, "parent_frame_id": "network", "child_frame_id": "station_2",
+          "translation": {"x": 1.0, "y": 2.0, "z": 3.0}, "rotation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}
+    jsonschema.validate(tf, json_schema("foxglove.FrameTransform"))
+    for bad in ({k: v for k, v in tf.items() if k != "child_frame_id"},
+                {**tf, "timestamp": {"sec": 1, "nsec": 1_000_000_000}},
+                {**tf, "translation": {"x": "1", "y": 2.0, "z": 3.0}}):
+        with pytest.raises(jsonschema.ValidationError):
+            jsonschema.validate(bad, json_schema("foxglove.FrameTransform"))
+    scene = json_schema("foxglove.SceneUpdate")
+    ent = scene["properties"]["entities"]["items"]
+    assert ent["properties"]["lifetime"]["required"] == ["sec", "nsec"]
+    assert ent["properties"]["lines"]["items"]["properties"]["points"]["items"]["title"] == "foxglove.Point3"
+    assert set(json_schema("foxglove.Log")["properties"]) == {"timestamp", "level", "message", "name", "file", "line"}
