@@ -120,3 +120,32 @@ class AirChannel:
             # an NLOS leg lengthens the two-way range by nlos_bias_m on average
             t += 2.0 * float(rng.exponential(p.nlos_bias_m)) / SPEED_OF_LIGHT_M_S
         return rx_clock.to_local(t)
+
+
+class SenderTruth:
+    """The channel owns physics (issue 32): the physical part of a reception comes from the
+    scenario's truth of the *named* sender, not from the ``phy`` block it sent.
+
+    ``positions`` maps each station id of the world to its true position; ``clock_of(id)`` builds
+    that station's true clock (the world seed's draw, with its scenario faults), kept once built.
+    :meth:`transmission` returns the true sender position and the true transmit time: the later of
+    the time the sender's own clock stamp ``t_tx_s`` implies and the time its ``phy`` claims, so a
+    compromised process can delay its signal but never advance it (no shortened ranges); None for
+    an id the world does not hold. Pure apart from the clocks it builds."""
+
+    def __init__(self, positions: dict[int, np.ndarray], clock_of):
+        self.positions = {int(k): np.asarray(v, float) for k, v in positions.items()}
+        self._clock_of = clock_of
+        self._clocks: dict[int, object] = {}
+
+    def transmission(self, tx_id: int, claimed_t_true_s: float,
+                     t_tx_local_s: float | None) -> tuple[np.ndarray, float] | None:
+        pos = self.positions.get(tx_id)
+        if pos is None:
+            return None
+        if t_tx_local_s is None:
+            return pos, float(claimed_t_true_s)
+        clock = self._clocks.get(tx_id)
+        if clock is None:
+            clock = self._clocks[tx_id] = self._clock_of(tx_id)
+        return pos, max(float(claimed_t_true_s), float(clock.to_true(t_tx_local_s)))

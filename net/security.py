@@ -390,35 +390,84 @@ def expected_signer(key: str) -> str | None:
 
 
 class Verifier:
-    """Checks signed frames against the keystore's CA-verified certificates. Certificates are
-    loaded on first use; an unknown signer is looked up again at most every ``rescan_s`` (a
-    hot-joiner's certificate issued after we started, `larns keys add`)."""
+    """Checks signed frames against CA-issued certificates that are usable now (not expired, not
+    revoked: :class:`net.trust.TrustStore`). A signer's certificate is looked for in the keystore
+    (``<cn>/cert.pem``, else the public ``certs/<cn>.pem``) and, once :meth:`set_fetch` is given
+    a way, fetched from the bus; an unknown signer is looked up again at most every ``rescan_s``
+    (a hot-joiner's certificate issued after we started, `larns keys add`). The keystore's
+    revocation list (``crl.pem``) is re-read when it changes (checked at most every ``rescan_s``);
+    one that arrives on the bus (:func:`net.trust.attach_trust`) counts from the next sample."""
 
-    def __init__(self, ks: Keystore, rescan_s: float = 2.0, clock: Callable[[], float] = time.monotonic):
+    def __init__(self, ks: Keystore, rescan_s: float = 2.0, clock: Callable[[], float] = time.monotonic,
+                 wall_s: Callable[[], float] = time.time):
+        from net.trust import TrustStore
+
         self.ks = ks
         self.rescan_s = rescan_s
         self.clock = clock
-        self._pub: dict[str, Any] = {}
+        self.wall_s = wall_s
+        self.trust = TrustStore(ks.ca_cert())
+        self._fetch: Callable[[str], None] | None = None
         self._missing: dict[str, float] = {}
+        self._crl_seen: tuple | None = None
+        self._crl_next = -math.inf
+        self._crl_file()
 
-    def public_key(self, cn: str):
-        pk = self._pub.get(cn)
-        if pk is not None:
-            return pk
+    def set_fetch(self, fetch: Callable[[str], None] | None) -> None:
+        """``fetch(cn)``: ask the bus for ``cn``'s certificate (asynchronous)."""
+        self._fetch = fetch
+
+    def _crl_file(self) -> None:
+        from net.trust import CRL_FILE, TrustError
+
+        self._crl_next = self.clock() + self.rescan_s
+        p = self.ks.root / CRL_FILE
+        try:
+            st = p.stat()
+        except OSError:
+            return
+        if (st.st_mtime_ns, st.st_size) == self._crl_seen:
+            return
+        self._crl_seen = (st.st_mtime_ns, st.st_size)
+        try:
+            self.trust.add_crl(p.read_bytes())
+        except (OSError, TrustError):
+            pass
+
+    def _look_up(self, cn: str) -> None:
+        from net.trust import CERTS_DIR, TrustError
+
         now = self.clock()
         if now - self._missing.get(cn, -math.inf) < self.rescan_s:
-            return None
-        try:
-            pk = self.ks.certificate(cn).public_key()
-        except KeystoreError:
-            self._missing[cn] = now
-            return None
-        self._pub[cn] = pk
-        return pk
+            return
+        self._missing[cn] = now
+        self._crl_file()
+        for p in (self.ks.path(cn, "cert.pem"), self.ks.root / CERTS_DIR / f"{cn}.pem"):
+            try:
+                self.trust.add_cert(p.read_bytes(), cn)
+            except (OSError, TrustError):
+                continue
+        if self._fetch is not None:
+            self._fetch(cn)
+
+    def public_keys(self, cn: str) -> list:
+        """Public keys of ``cn``'s certificates usable now (looked up if there is none)."""
+        if self.clock() >= self._crl_next:
+            self._crl_file()
+        keys = self.trust.keys(cn, self.wall_s())
+        if not keys:
+            self._look_up(cn)
+            keys = self.trust.keys(cn, self.wall_s())
+        return keys
+
+    def public_key(self, cn: str):
+        keys = self.public_keys(cn)
+        return keys[0] if keys else None
 
     def parse(self, key: str, data: bytes) -> tuple[str, bytes, bytes]:
-        """``(signer, signature, envelope)`` of a frame on ``key`` whose signer may sign on ``key``;
-        the signature is not checked yet (:meth:`verify`). Raises :class:`SecurityError`."""
+        """``(signer, signature, envelope)`` of a frame on ``key`` whose signer may sign on ``key``
+        and is not revoked; the signature is not checked yet (:meth:`verify`). Raises
+        :class:`SecurityError`."""
         parts = split_signed(data)
         if parts is None:
             raise SecurityError("unsigned", key)
@@ -428,19 +477,34 @@ class Verifier:
             raise SecurityError("signer_mismatch", f"{signer} on {key}")
         if not signer.replace("-", "").replace("_", "").isalnum() or len(signer) > 64:
             raise SecurityError("unknown_signer", signer[:64])
+        if self.trust.status(signer, self.wall_s()) == "revoked":  # access rule: a revoked signer
+            raise SecurityError("revoked", signer)                  # is refused before its budget
         return signer, sig, env
 
     def verify(self, key: str, signer: str, sig: bytes, env: bytes) -> None:
-        """Check ``sig`` over ``key`` and ``env`` against ``signer``'s certificate (~50 us)."""
+        """Check ``sig`` over ``key`` and ``env`` against ``signer``'s usable certificates
+        (~50 us); a signature by a revoked key is refused as ``revoked``, a signer with no usable
+        certificate as ``unknown_signer``, ``expired`` or ``revoked``."""
         from cryptography.exceptions import InvalidSignature
 
-        pk = self.public_key(signer)
-        if pk is None:
-            raise SecurityError("unknown_signer", signer)
-        try:
-            pk.verify(sig, _signed_bytes(key, env))
-        except InvalidSignature:
-            raise SecurityError("bad_signature", f"{signer} on {key}") from None
+        data = _signed_bytes(key, env)
+        keys = self.public_keys(signer)
+        for pk in keys:
+            try:
+                pk.verify(sig, data)
+                return
+            except InvalidSignature:
+                continue
+        if not keys:
+            st = self.trust.status(signer, self.wall_s())
+            raise SecurityError("unknown_signer" if st == "ok" else st, signer)
+        for reason, pk in self.trust.unusable_keys(signer):
+            try:
+                pk.verify(sig, data)
+            except InvalidSignature:
+                continue
+            raise SecurityError(reason, f"{signer} on {key}")
+        raise SecurityError("bad_signature", f"{signer} on {key}")
 
     def open(self, key: str, data: bytes) -> tuple[str, bytes]:
         """``(signer, envelope)`` of a valid frame on ``key``; raises :class:`SecurityError`."""
@@ -478,24 +542,32 @@ class ReplayGuard:
 
 
 class RateLimiter:
-    """Token buckets per source (a key, or a sender): ``rate`` messages per second (fleet),
-    ``burst`` at most at once.
-    ``allow(source, now_s)`` is O(1) and runs before any decoding, so a flood costs a dict lookup."""
+    """Token buckets per source (a key, or a sender): ``rate`` messages per second, ``burst`` at
+    most at once. ``allow(source, now_s)`` is O(1) and runs before any decoding, so a flood costs a
+    dict lookup.
 
-    def __init__(self, rate_per_s: float, burst: float, max_sources: int = 4096):
+    Time: with ``clock`` (e.g. :func:`monotonic_fleet_clock`) the buckets refill on that clock and
+    ``now_s`` is ignored; without, on the ``now_s`` given. Either way time never runs backwards for
+    a bucket: a step back (a wall clock set back 30 s) refills nothing and blocks nothing."""
+
+    def __init__(self, rate_per_s: float, burst: float, max_sources: int = 4096,
+                 clock: Callable[[], float] | None = None):
         self.rate = float(rate_per_s)
         self.burst = float(burst)
         self.max_sources = max_sources
+        self.clock = clock
         self._b: dict[Any, list[float]] = {}
         self.throttled: Counter = Counter()
 
-    def allow(self, source: Any, now_s: float) -> bool:
+    def allow(self, source: Any, now_s: float | None = None) -> bool:
+        if self.clock is not None or now_s is None:
+            now_s = (self.clock or time.monotonic)()
         b = self._b.get(source)
         if b is None:
             if len(self._b) >= self.max_sources:
                 self._b.clear()  # bounded memory under a flood of fake sources
             b = self._b[source] = [self.burst, now_s]
-        tokens = min(self.burst, b[0] + (now_s - b[1]) * self.rate)
+        tokens = min(self.burst, b[0] + max(now_s - b[1], 0.0) * self.rate)
         b[1] = now_s
         if tokens < 1.0:
             b[0] = tokens
@@ -503,6 +575,13 @@ class RateLimiter:
             return False
         b[0] = tokens - 1.0
         return True
+
+
+def monotonic_fleet_clock(speed: float = 1.0) -> Callable[[], float]:
+    """Seconds at fleet rate (``speed`` fleet seconds per wall second) from the monotonic clock: what
+    a receiver's rate limiter runs on (a wall-clock step changes fleet time, not this)."""
+    speed = float(speed)
+    return lambda: time.monotonic() * speed
 
 
 STALE_S = 60.0  # fleet seconds: a stamp further than this from the receiver's clock is stale
@@ -585,21 +664,24 @@ class Security:
         return self.signer.seal(key, data)
 
     def guard(self, now_s: Callable[[], float], rate_per_s: float | None, burst: float,
-              window_s: float | None) -> ReceiveGuard:
-        """A receive guard; ``now_s`` is the receiver's fleet clock (stamps are fleet seconds)."""
+              window_s: float | None, speed: float | None = None) -> ReceiveGuard:
+        """A receive guard; ``now_s`` is the receiver's fleet clock (stamps are fleet seconds). With
+        ``speed`` the rate limiter runs on the monotonic clock at fleet rate
+        (:func:`monotonic_fleet_clock`), else on ``now_s`` (never backwards either way)."""
         on = rate_limits_on()
         own = "/".join(self.cn.split("-", 1)) if "-" in self.cn else None  # station-5 -> station/5
-        return ReceiveGuard(self.verifier, RateLimiter(rate_per_s, burst) if rate_per_s and on else None,
+        clock = None if speed is None else monotonic_fleet_clock(speed)
+        return ReceiveGuard(self.verifier, RateLimiter(rate_per_s, burst, clock=clock) if rate_per_s and on else None,
                             ReplayGuard(window_s) if window_s else None, now_s, own)
 
-    def station_guard(self, cycle_s: float, now_s: Callable[[], float]) -> ReceiveGuard:
+    def station_guard(self, cycle_s: float, now_s: Callable[[], float], speed: float | None = None) -> ReceiveGuard:
         """A station hears from each peer at most a nav, a request and a reply per cycle: budget 4
         per cycle, burst 8; stamps more than :data:`STALE_S` (or 20 cycles) away from our fleet
         clock are stale. The window is wide on purpose: replays inside it are caught by the
         ``(stamp, seq)`` order, and a nav delivered seconds late on a loaded machine (speed 5: a
         second of wall time is 5 fleet seconds) is still one the core would use."""
-        return self.guard(now_s, 4.0 / cycle_s, 8.0, max(STALE_S, 20.0 * cycle_s))
+        return self.guard(now_s, 4.0 / cycle_s, 8.0, max(STALE_S, 20.0 * cycle_s), speed)
 
-    def aircraft_guard(self, cycle_s: float, now_s: Callable[[], float]) -> ReceiveGuard:
+    def aircraft_guard(self, cycle_s: float, now_s: Callable[[], float], speed: float | None = None) -> ReceiveGuard:
         """The aircraft hears one nav per station and cycle: budget 2 per cycle, burst 4."""
-        return self.guard(now_s, 2.0 / cycle_s, 4.0, max(STALE_S, 20.0 * cycle_s))
+        return self.guard(now_s, 2.0 / cycle_s, 4.0, max(STALE_S, 20.0 * cycle_s), speed)

@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 
 from net import messages as M
-from net.channel import AirChannel, station_rng
+from net.channel import AirChannel, SenderTruth, station_rng
 from net.faults import WireFaults, merge_faults
 from net.procsched import add_sched_args, apply_sched_args
 from net.scenario import Scenario
@@ -58,6 +58,7 @@ from .shellfaults import ShellFaults
 log = logging.getLogger("larns.station")
 
 AIR_KINDS = ("range_req", "range_rsp", "nav")
+PENDING_MAX = 4096  # messages held back by emulated wire delays (bounded under a flood)
 SWITCH_INTERVAL_S = 0.0005  # GIL hand-over interval of a station process (Python default 5 ms)
 
 
@@ -111,6 +112,8 @@ class StationNode:
         self.air = AirChannel(scn.channel, station_rng(self.seed, self.id, 2), (self.seed, self.id))
         from .sim import station_clock
 
+        self.senders = SenderTruth({i: scn.true_pos(i) for i in scn.ids},  # the channel's truth of each sender
+                                   lambda sid: ShellFaults(scn, sid).clock(station_clock(scn, sid, self.seed)))
         self.ref_clock = station_clock(scn, scn.ids[0], self.seed)  # station 1's clock (truth side only)
         self.true_clocks = {i: station_clock(scn, i, self.seed) for i in scn.ids}  # network time's truth side
         self._last_input_s = -math.inf  # local time of the core's latest input
@@ -137,7 +140,7 @@ class StationNode:
         # (key, bytes) -> (msg, phy); --secure: rate limit, signature, replay first (net/security.py)
         sec = getattr(bus, "security", None)
         self._decode = (lambda key, data: M.decode(data)) if sec is None else \
-            sec.station_guard(self.cycle_s, self.fleet_now).decode
+            sec.station_guard(self.cycle_s, self.fleet_now, self.speed).decode  # (limiter: monotonic clock)
 
     # ------------------------------------------------------------------ time
     def fleet_now(self) -> float:
@@ -251,6 +254,9 @@ class StationNode:
         for delay in self.wire.deliveries():
             self._order += 1
             heapq.heappush(self._pending, (recv_wall + delay / self.speed, self._order, msg, phy))
+            if len(self._pending) > PENDING_MAX:  # bounded under a flood: the longest-waiting one goes
+                heapq.heappop(self._pending)
+                self.drops.drop("pending_full", f"more than {PENDING_MAX} messages held by wire delays")
         if not self.wire.active:
             return
         self.stats["wire_in"] += 1
@@ -266,8 +272,12 @@ class StationNode:
             self._seen.discard(self._seen_q.popleft())
         if msg["kind"] in ("range_req", "range_rsp"):
             self._wire_delay_s.append((self.fleet_now() - phy["t_true_s"]) / self.speed)  # wall: tx -> here
-        t_rx_local = self.shell.arrival_local_s(self.air, msg["src"], np.asarray(phy["pos_m"]), phy["t_true_s"],
-                                                self.true_pos, self.clock)
+        # the channel owns physics: the named sender's true position and clock, not its phy claims
+        tx = self.senders.transmission(msg["src"], phy["t_true_s"], msg.get("t_tx_s"))
+        if tx is None:
+            self.drops.drop("sender_unknown", f"{msg['kind']} from station {msg['src']}, not in the scenario")
+            return
+        t_rx_local = self.shell.arrival_local_s(self.air, msg["src"], tx[0], tx[1], self.true_pos, self.clock)
         if t_rx_local is None:
             self.stats["air_lost"] += 1
             return
@@ -277,10 +287,21 @@ class StationNode:
                 self.stats["host_late"] += 1  # behind the core's clock: handed over anyway, the core decides
             self._last_input_s = max(self._last_input_s, t_rx_local)
         lost = self.core.counters["ignored"] + self.core.counters["late"]
-        outs = self.core.on_message(msg, t_rx_local)  # phy stripped: the core sees msg only
+        try:
+            outs = self.core.on_message(msg, t_rx_local)  # phy stripped: the core sees msg only
+        except Exception as e:  # noqa: BLE001 - the delivery loop survives any core exception
+            self._core_error("on_message", e)
+            return
         if self.core.counters["ignored"] + self.core.counters["late"] != lost:
             self.stats["core_late"] += 1
         self._send(outs)
+
+    def _core_error(self, where: str, e: Exception) -> None:
+        """A core exception: counted (``core_errors``, drop reason ``core``), logged at a limited rate
+        (the drop counter's), the traceback at debug level; the node keeps running."""
+        self.stats["core_errors"] += 1
+        self.drops.drop("core", f"{where}: {type(e).__name__}: {e}")
+        log.debug("station %d: core %s failed", self.id, where, exc_info=True)
 
     # ------------------------------------------------------------------ transmit path
     def _send(self, outs: list[dict]) -> None:
@@ -387,7 +408,11 @@ class StationNode:
             if not is_req and self.core.pending and now < wall + self.opts.lookahead_s:
                 return  # emulated-time order: the outstanding reply first (bounded wait)
             self._last_input_s = max(self._last_input_s, dl)
-            outs = self.core.on_timer(dl)
+            try:
+                outs = self.core.on_timer(dl)
+            except Exception as e:  # noqa: BLE001 - the timer loop survives any core exception
+                self._core_error("on_timer", e)
+                return
             if is_req:
                 self.stats["slots"] += 1
                 self.max_lateness_s = max(self.max_lateness_s, lateness * self.speed)

@@ -58,9 +58,17 @@ def make_node(net=None, station_id=2):
     return node, bus, scn
 
 
+def local_of(scn, src, t_true):
+    """What station ``src``'s own clock reads at true time ``t_true`` (the stamp a real sender puts in
+    ``t_tx_s``; the receiving channel takes the true transmit time from it, issue 32)."""
+    from stations.sim import station_clock
+
+    return station_clock(scn, src).to_local(t_true)
+
+
 def req_from(scn, src, dst, seq, t_true):
     m = {"kind": "range_req", "src": src, "seq": seq, "stamp_s": t_true, "dst": dst, "cycle": 10,
-         "slot": 0, "t_tx_s": t_true}
+         "slot": 0, "t_tx_s": local_of(scn, src, t_true)}
     return M.key_for(m), M.encode(m, {"pos_m": scn.true_pos(src), "t_true_s": t_true})
 
 
@@ -84,7 +92,7 @@ def test_request_answered_with_true_timing():
 
 def req_in_slot(scn, src, dst, seq, t_true, cycle, slot):
     m = {"kind": "range_req", "src": src, "seq": seq, "stamp_s": t_true, "dst": dst, "cycle": cycle,
-         "slot": slot, "t_tx_s": t_true}
+         "slot": slot, "t_tx_s": local_of(scn, src, t_true)}
     return M.key_for(m), M.encode(m, {"pos_m": scn.true_pos(src), "t_true_s": t_true})
 
 
