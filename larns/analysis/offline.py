@@ -347,6 +347,7 @@ def _refly_inertial(core, logs: Sequence[LogFile], msgs: Sequence[Msg], name: st
     speed = logs[0].speed if logs else 1.0
     navs, order = aircraft_nav_sequence(msgs, name)
     truth, flown = _refly(core, navs, ep, speed)
+    flown = [(o, rec) for o, rec in flown if o["kind"] == "ac_estimate"]  # not ac_status
     est = [rec for _o, rec in flown]
     err = [float(np.linalg.norm(np.asarray(o["pos_m"]) - core.truth_n(o["t_s"])[0])) for o, _rec in flown]
     new = [decode(x.data)[0] for x in est]
@@ -393,6 +394,8 @@ def reestimate_aircraft(logs: Sequence[LogFile], msgs: Sequence[Msg], algos: Seq
     navs, order = aircraft_nav_sequence(msgs, name)
     truth, flown = _refly(core, navs, ep, speed)
     for o, rec in flown:
+        if o["kind"] != "ac_estimate":  # ac_status (waiting / restarting / no fix) has no position
+            continue
         d = out[o["algo"]]
         d["estimates"].append(rec)
         p_true, _ = core.track.at(o["t_s"])
