@@ -458,6 +458,9 @@ class StationNode:
                                                 join=self.opts.join, start_s=t0, seed=self.seed)
         for kind, fields in self.policy.start(self.core):
             self._journal_submit(kind, fields)
+        senders = getattr(self, "senders", None)  # the channel's truth of each sender (net.channel.SenderTruth)
+        if senders is not None and not isinstance(senders.positions, WorldPositions):
+            senders.positions = WorldPositions(senders.positions, self.scn)  # + joiners from outside the scenario
 
     def run(self) -> dict:
         bus = self.bus
@@ -547,10 +550,6 @@ def add_args(p: argparse.ArgumentParser) -> None:
                    help="hot-join a running fleet: listen for a cycle, claim a free slot, initialize")
     p.add_argument("--start-at", type=float, default=None, metavar="T",
                    help="power on at fleet time T (with --join: hot-join at T); default: now")
-    p.add_argument("--pos", type=_pos_arg, default=None, metavar="X,Y,Z",
-                   help="true position (network frame, m) of a --join station that is not in the scenario; "
-                        "default for a random layout: drawn from the scenario seed and the id inside the "
-                        "layout's area (as the scenario's own joiners; only the world side sees it)")
     p.add_argument("--estimator", default=None, help="override the scenario's survey estimator")
     cli.add_process_args(p, scenario="seed000", what="station")
     add_sched_args(p)
@@ -575,51 +574,64 @@ def load_scenario(args: argparse.Namespace) -> Scenario:
     net = merge_faults(scn.net, args.net_delay, args.net_jitter, args.net_loss, args.net_dup)
     scn = replace(scn, net=net)
     if getattr(args, "join", False) and args.id not in scn.ids:
-        scn = with_joiner(scn, args.id, getattr(args, "pos", None), args.n_stations)
-    elif getattr(args, "pos", None) is not None:
-        raise ValueError(f"--pos: station {args.id} is in scenario {scn.name}; its position comes from the "
-                         "scenario (--pos is for a --join station from outside it)")
+        scn = with_joiner(scn, args.id)
     return scn
 
 
-def _pos_arg(text: str) -> tuple[float, float, float]:
-    """``X,Y,Z`` in metres (argparse type: a bad value is one usage error line, exit 2)."""
-    try:
-        xyz = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        xyz = ()
-    if len(xyz) != 3 or not all(math.isfinite(v) for v in xyz):
-        raise argparse.ArgumentTypeError(f"expected X,Y,Z in metres (three numbers), got {text!r}")
-    return xyz  # type: ignore[return-value]
+class WorldPositions(dict):
+    """Station id -> true position, as the receive side's channel looks senders up: a sender the
+    scenario does not list is a hot-joiner from outside it, at :func:`joiner_position` - the same
+    place its own process puts itself (drawn from the scenario, so every process agrees)."""
+
+    def __init__(self, known: dict, scn: Scenario):
+        super().__init__(known)
+        self.scn = scn
+
+    def get(self, station_id, default=None):
+        if station_id not in self and isinstance(station_id, int) and 1 <= station_id <= 65535:
+            self[station_id] = joiner_position(self.scn, station_id)
+        return super().get(station_id, default)
 
 
-def with_joiner(scn: Scenario, station_id: int, pos_m: tuple[float, float, float] | None = None,
-                n_stations: int | None = None) -> Scenario:
-    """``scn`` plus a hot-joining station ``station_id`` that it does not list. Its true position
-    (world side only: channel, truth topic, coarse fix - never the estimator) is ``pos_m`` (network
-    frame), else - random layouts - the scenario's own joiner draw extended to this id (the same
-    stream as ``[layout] joiners``: station 11 of seed000 sits where seed000-join puts it)."""
-    from dataclasses import replace
-
+def joiner_position(scn: Scenario, station_id: int) -> np.ndarray:
+    """True position (network frame) of a hot-joining station ``station_id`` that ``scn`` does not list,
+    drawn from the scenario alone. Random layout: the scenario's own joiner stream (``[layout]
+    joiners``) extended to this id - station 11 of seed000 sits where seed000-join puts it. Listed
+    stations: uniform in the box the listed stations span, at least 100 m (horizontally) from each,
+    from the stream (seed, 7, id)."""
     from net import scenario as S
+
+    if station_id in scn.ids:
+        return np.asarray(scn.true_pos(station_id), float)
+    lay = scn.raw.get("layout")
+    if "stations" not in scn.raw and isinstance(lay, dict):
+        n = int(lay.get("n", 10))
+        if station_id > n:
+            raw = {k: (dict(v) if isinstance(v, dict) else v) for k, v in scn.raw.items()}
+            raw["layout"] = {**lay, "n": n, "joiners": station_id - n}
+            return np.asarray(S.from_dict(raw).true_pos(station_id), float)
+    pos = np.asarray(scn.pos_m, float)
+    lo, hi = pos.min(axis=0), pos.max(axis=0)
+    rng = np.random.default_rng([int(scn.seed), 7, int(station_id)])
+    p = lo + rng.uniform(0.0, 1.0, 3) * (hi - lo)
+    for _ in range(1000):
+        if all(np.hypot(*(p[:2] - q[:2])) >= 100.0 for q in pos):
+            break
+        p = lo + rng.uniform(0.0, 1.0, 3) * (hi - lo)
+    return p
+
+
+def with_joiner(scn: Scenario, station_id: int) -> Scenario:
+    """``scn`` plus a hot-joining station ``station_id`` that it does not list, at
+    :func:`joiner_position` (world side only: channel, truth topic, coarse fix - never the
+    estimator)."""
+    from dataclasses import replace
 
     if station_id < 1 or station_id > 65535:
         raise ValueError(f"--id {station_id}: expected a station id in 1..65535")
-    if pos_m is None:
-        lay = scn.raw.get("layout")
-        if "stations" in scn.raw or not isinstance(lay, dict):
-            raise ValueError(f"station {station_id} is not in scenario {scn.name} (ids {scn.ids}) and its "
-                             "stations are listed: give the joiner's position with --pos X,Y,Z (network frame, m)")
-        n = int(n_stations or lay.get("n", 10))
-        if station_id <= n:
-            raise ValueError(f"station {station_id} is not in scenario {scn.name} (ids {scn.ids})")
-        raw = {k: (dict(v) if isinstance(v, dict) else v) for k, v in scn.raw.items()}
-        raw["layout"] = {**lay, "n": n, "joiners": station_id - n}
-        drawn = S.from_dict(raw)
-        pos_m = drawn.true_pos(station_id)
     ids = sorted([*scn.ids, station_id])
     pos = dict(zip(scn.ids, np.asarray(scn.pos_m, float)))
-    pos[station_id] = np.asarray(pos_m, float)
+    pos[station_id] = joiner_position(scn, station_id)
     return replace(scn, ids=ids, pos_m=np.array([pos[i] for i in ids]),
                    join_ids=sorted([*scn.join_ids, station_id]))
 

@@ -145,18 +145,24 @@ def test_joiner_outside_the_scenario_sits_where_the_scenario_joiners_do():
     np.testing.assert_allclose(scn.pos_m, ref.pos_m, atol=1e-9)
     twelve = with_joiner(base, 12)
     assert 11 not in twelve.ids and np.linalg.norm(twelve.true_pos(12) - scn.true_pos(11)) > 100.0
-    np.testing.assert_allclose(with_joiner(base, 12, (1.0, 2.0, 3.0)).true_pos(12), [1.0, 2.0, 3.0])
 
 
-def test_joiner_of_a_listed_scenario_needs_pos(tmp_path):
+def test_joiner_of_a_listed_scenario_is_drawn_inside_it_and_peers_agree():
     from net import scenario as S
-    from stations.node import with_joiner
+    from stations.node import WorldPositions, joiner_position, with_joiner
 
-    scn = S.from_dict({"name": "listed", "stations": [
-        {"id": 1, "pos_m": [0, 0, 0]}, {"id": 2, "pos_m": [500, 0, 0]}, {"id": 3, "pos_m": [0, 500, 0]}]})
-    with pytest.raises(ValueError, match="give the joiner's position with --pos X,Y,Z"):
-        with_joiner(scn, 7)
-    assert with_joiner(scn, 7, (100.0, 100.0, 5.0)).true_pos(7).tolist() == [100.0, 100.0, 5.0]
+    scn = S.from_dict({"name": "listed", "seed": 5, "stations": [
+        {"id": 1, "pos_m": [0, 0, 0]}, {"id": 2, "pos_m": [900, 0, 10]}, {"id": 3, "pos_m": [0, 900, 20]}]})
+    p7 = with_joiner(scn, 7).true_pos(7)
+    lo, hi = scn.pos_m.min(axis=0), scn.pos_m.max(axis=0)
+    assert np.all(p7 >= lo) and np.all(p7 <= hi)
+    assert min(np.hypot(*(p7[:2] - q[:2])) for q in scn.pos_m) >= 100.0
+    assert np.linalg.norm(joiner_position(scn, 8) - p7) > 1.0  # another id, another place
+    # the receive side (a peer that only knows the scenario) looks the joiner up at the same place
+    world = WorldPositions({i: scn.true_pos(i) for i in scn.ids}, scn)
+    np.testing.assert_array_equal(world.get(7), p7)
+    np.testing.assert_array_equal(world.get(2), scn.true_pos(2))
+    assert world.get(70000) is None  # not a station id
 
 
 def test_station_cli_errors_are_one_line_exit_2(tmp_path):
@@ -164,10 +170,9 @@ def test_station_cli_errors_are_one_line_exit_2(tmp_path):
         return subprocess.run([PY, "-m", "larns", "station", *argv, "--quiet"], capture_output=True, text=True,
                               cwd=tmp_path, timeout=60)
 
-    r = run("--id", "11", "--scenario", "seed000", "--pos", "1,2")
-    assert r.returncode == 2 and "--pos: expected X,Y,Z in metres" in r.stderr and "Traceback" not in r.stderr
-    r = run("--id", "3", "--pos", "1,2,3", "--join", "--duration", "1")
-    assert r.returncode == 2 and "station 3 is in scenario seed000" in r.stderr and "Traceback" not in r.stderr
+    r = run("--id", "70000", "--join", "--duration", "1")
+    assert r.returncode == 2 and "--id 70000: expected a station id in 1..65535" in r.stderr
+    assert "Traceback" not in r.stderr
     (tmp_path / "bad.json").write_text("{}")
     r = run("--id", "11", "--join", "--fleet", "bad.json")
     assert r.returncode == 2 and "bad.json: not a fleet file" in r.stderr and "Traceback" not in r.stderr
