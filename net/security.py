@@ -390,84 +390,35 @@ def expected_signer(key: str) -> str | None:
 
 
 class Verifier:
-    """Checks signed frames against CA-issued certificates that are usable now (not expired, not
-    revoked: :class:`net.trust.TrustStore`). A signer's certificate is looked for in the keystore
-    (``<cn>/cert.pem``, else the public ``certs/<cn>.pem``) and, once :meth:`set_fetch` is given
-    a way, fetched from the bus; an unknown signer is looked up again at most every ``rescan_s``
-    (a hot-joiner's certificate issued after we started, `larns keys add`). The keystore's
-    revocation list (``crl.pem``) is re-read when it changes (checked at most every ``rescan_s``);
-    one that arrives on the bus (:func:`net.trust.attach_trust`) counts from the next sample."""
+    """Checks signed frames against the keystore's CA-verified certificates. Certificates are
+    loaded on first use; an unknown signer is looked up again at most every ``rescan_s`` (a
+    hot-joiner's certificate issued after we started, `larns keys add`)."""
 
-    def __init__(self, ks: Keystore, rescan_s: float = 2.0, clock: Callable[[], float] = time.monotonic,
-                 wall_s: Callable[[], float] = time.time):
-        from net.trust import TrustStore
-
+    def __init__(self, ks: Keystore, rescan_s: float = 2.0, clock: Callable[[], float] = time.monotonic):
         self.ks = ks
         self.rescan_s = rescan_s
         self.clock = clock
-        self.wall_s = wall_s
-        self.trust = TrustStore(ks.ca_cert())
-        self._fetch: Callable[[str], None] | None = None
+        self._pub: dict[str, Any] = {}
         self._missing: dict[str, float] = {}
-        self._crl_seen: tuple | None = None
-        self._crl_next = -math.inf
-        self._crl_file()
-
-    def set_fetch(self, fetch: Callable[[str], None] | None) -> None:
-        """``fetch(cn)``: ask the bus for ``cn``'s certificate (asynchronous)."""
-        self._fetch = fetch
-
-    def _crl_file(self) -> None:
-        from net.trust import CRL_FILE, TrustError
-
-        self._crl_next = self.clock() + self.rescan_s
-        p = self.ks.root / CRL_FILE
-        try:
-            st = p.stat()
-        except OSError:
-            return
-        if (st.st_mtime_ns, st.st_size) == self._crl_seen:
-            return
-        self._crl_seen = (st.st_mtime_ns, st.st_size)
-        try:
-            self.trust.add_crl(p.read_bytes())
-        except (OSError, TrustError):
-            pass
-
-    def _look_up(self, cn: str) -> None:
-        from net.trust import CERTS_DIR, TrustError
-
-        now = self.clock()
-        if now - self._missing.get(cn, -math.inf) < self.rescan_s:
-            return
-        self._missing[cn] = now
-        self._crl_file()
-        for p in (self.ks.path(cn, "cert.pem"), self.ks.root / CERTS_DIR / f"{cn}.pem"):
-            try:
-                self.trust.add_cert(p.read_bytes(), cn)
-            except (OSError, TrustError):
-                continue
-        if self._fetch is not None:
-            self._fetch(cn)
-
-    def public_keys(self, cn: str) -> list:
-        """Public keys of ``cn``'s certificates usable now (looked up if there is none)."""
-        if self.clock() >= self._crl_next:
-            self._crl_file()
-        keys = self.trust.keys(cn, self.wall_s())
-        if not keys:
-            self._look_up(cn)
-            keys = self.trust.keys(cn, self.wall_s())
-        return keys
 
     def public_key(self, cn: str):
-        keys = self.public_keys(cn)
-        return keys[0] if keys else None
+        pk = self._pub.get(cn)
+        if pk is not None:
+            return pk
+        now = self.clock()
+        if now - self._missing.get(cn, -math.inf) < self.rescan_s:
+            return None
+        try:
+            pk = self.ks.certificate(cn).public_key()
+        except KeystoreError:
+            self._missing[cn] = now
+            return None
+        self._pub[cn] = pk
+        return pk
 
     def parse(self, key: str, data: bytes) -> tuple[str, bytes, bytes]:
-        """``(signer, signature, envelope)`` of a frame on ``key`` whose signer may sign on ``key``
-        and is not revoked; the signature is not checked yet (:meth:`verify`). Raises
-        :class:`SecurityError`."""
+        """``(signer, signature, envelope)`` of a frame on ``key`` whose signer may sign on ``key``;
+        the signature is not checked yet (:meth:`verify`). Raises :class:`SecurityError`."""
         parts = split_signed(data)
         if parts is None:
             raise SecurityError("unsigned", key)
@@ -477,34 +428,19 @@ class Verifier:
             raise SecurityError("signer_mismatch", f"{signer} on {key}")
         if not signer.replace("-", "").replace("_", "").isalnum() or len(signer) > 64:
             raise SecurityError("unknown_signer", signer[:64])
-        if self.trust.status(signer, self.wall_s()) == "revoked":  # access rule: a revoked signer
-            raise SecurityError("revoked", signer)                  # is refused before its budget
         return signer, sig, env
 
     def verify(self, key: str, signer: str, sig: bytes, env: bytes) -> None:
-        """Check ``sig`` over ``key`` and ``env`` against ``signer``'s usable certificates
-        (~50 us); a signature by a revoked key is refused as ``revoked``, a signer with no usable
-        certificate as ``unknown_signer``, ``expired`` or ``revoked``."""
+        """Check ``sig`` over ``key`` and ``env`` against ``signer``'s certificate (~50 us)."""
         from cryptography.exceptions import InvalidSignature
 
-        data = _signed_bytes(key, env)
-        keys = self.public_keys(signer)
-        for pk in keys:
-            try:
-                pk.verify(sig, data)
-                return
-            except InvalidSignature:
-                continue
-        if not keys:
-            st = self.trust.status(signer, self.wall_s())
-            raise SecurityError("unknown_signer" if st == "ok" else st, signer)
-        for reason, pk in self.trust.unusable_keys(signer):
-            try:
-                pk.verify(sig, data)
-            except InvalidSignature:
-                continue
-            raise SecurityError(reason, f"{signer} on {key}")
-        raise SecurityError("bad_signature", f"{signer} on {key}")
+        pk = self.public_key(signer)
+        if pk is None:
+            raise SecurityError("unknown_signer", signer)
+        try:
+            pk.verify(sig, _signed_bytes(key, env))
+        except InvalidSignature:
+            raise SecurityError("bad_signature", f"{signer} on {key}") from None
 
     def open(self, key: str, data: bytes) -> tuple[str, bytes]:
         """``(signer, envelope)`` of a valid frame on ``key``; raises :class:`SecurityError`."""
