@@ -91,7 +91,7 @@ class VehicleNode:
         self._n_in = 0
         sec = getattr(bus, "security", None)
         self._decode = (lambda key, data: M.decode(data)) if sec is None else \
-            sec.aircraft_guard(scn.tdma.cycle_s, self.fleet_now).decode
+            sec.aircraft_guard(scn.tdma.cycle_s, self.fleet_now, opts.speed).decode  # (limiter: monotonic clock)
 
     def fleet_now(self) -> float:
         return (time.time() - self.epoch) * self.opts.speed
