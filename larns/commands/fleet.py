@@ -30,7 +30,7 @@ def register(sub) -> None:
                        description=__doc__, formatter_class=Formatter,
         epilog=examples(
             "larns fleet --scenario seed000 --duration 60 --record runs/demo.mcap   # fleet file: runs/fleet.json",
-            "larns fleet --scenario seed000 --duration 60 --join 11@20 --n-stations 11 --speed 2",
+            "larns fleet --scenario seed000 --duration 60 --join 11@20 --speed 2        # station 11 hot-joins at 20 s",
             "larns fleet --duration 0 --topology router --aircraft                   # until Ctrl-C",
         ))
     p.add_argument("--scenario", default="seed000", help="scenario name or TOML path (default seed000)")

@@ -46,11 +46,21 @@ def parse_joins(args: argparse.Namespace, scn) -> list[tuple[int, float]]:
     if args.duration:
         joins = [(s, t) for s, t in joins if t < args.duration]
     for sid, _ in joins:
-        if sid not in scn.ids:
-            print(f"larns fleet: --join {sid}: no such station in scenario {scn.name} (ids {scn.ids}); add it with "
-                  f"--n-stations, or start it beside the fleet with `larns station --id {sid} --join`", file=sys.stderr)
+        if not 1 <= sid <= 65535:
+            print(f"larns fleet: --join {sid}: expected a station id in 1..65535", file=sys.stderr)
             raise SystemExit(2)
     return joins
+
+
+def with_outside_joiners(scn, joins: list[tuple[int, float]]):
+    """The scenario plus the joiners it does not list (``--join 11@20`` on seed000's ten stations),
+    each where its own process and its peers put it (``stations.node.joiner_position``)."""
+    from stations.node import with_joiner
+
+    for sid, _ in joins:
+        if sid not in scn.ids:
+            scn = with_joiner(scn, sid)
+    return scn
 
 
 def log_folder(args: argparse.Namespace) -> Path:
@@ -94,6 +104,7 @@ def plan_fleet(args: argparse.Namespace) -> FleetPlan:
 
     scn = S.load_cli(args.scenario, args.n_stations)
     joins = parse_joins(args, scn)
+    scn = with_outside_joiners(scn, joins)
     join_ids = {j for j, _ in joins}
     secure = _fleet_keystore(args, scn) if getattr(args, "secure", None) else None
     eps = [f"tcp/127.0.0.1:{p}" for p in free_tcp_ports(len(scn.ids) + (1 if args.record else 0) + 2)]

@@ -282,3 +282,21 @@ def test_duration_means_seconds_of_run(tmp_path, command, span_s):
     assert 5.0 <= wall < 30.0, wall
     ts = [float(t) for t in re.findall(r"\] t=\s*([\d.]+)s", r.stderr)]
     assert len(ts) >= 2 and ts[-1] - ts[0] >= span_s, r.stderr  # status lines across the run
+
+
+def test_fleet_plans_a_joiner_from_outside_the_scenario(tmp_path):
+    from larns.cli import build_parser
+    from larns.fleet.plan import plan_fleet
+
+    args = build_parser().parse_args(["fleet", "--scenario", "seed000", "--duration", "60", "--join", "11@20",
+                                      "--logs", str(tmp_path)])
+    p = plan_fleet(args)
+    assert p.scn.ids == list(range(1, 12)) and p.joins == [(11, 20.0)] and 11 not in p.initial
+    child = next(c for c in p.children if c.name == "station 11")
+    assert child.cmd[child.cmd.index("--start-at") + 1] == "20.0" and "--join" in child.cmd
+    assert child.cmd[child.cmd.index("--until") + 1] == "60.0" and "--duration" not in child.cmd
+    assert "station 11" in p.endpoints
+    args = build_parser().parse_args(["fleet", "--duration", "60", "--join", "70000@20", "--logs", str(tmp_path)])
+    with pytest.raises(SystemExit) as ei:
+        plan_fleet(args)
+    assert ei.value.code == 2
