@@ -300,3 +300,16 @@ def test_fleet_plans_a_joiner_from_outside_the_scenario(tmp_path):
     with pytest.raises(SystemExit) as ei:
         plan_fleet(args)
     assert ei.value.code == 2
+
+
+def test_monitor_and_record_refuse_a_missing_fleet_in_one_line(tmp_path):
+    def run(*argv):
+        return subprocess.run([PY, "-m", "larns", *argv], capture_output=True, text=True, cwd=tmp_path, timeout=60)
+
+    r = run("monitor")
+    assert r.returncode == 2 and r.stderr.startswith("larns monitor: no fleet to watch") and "Traceback" not in r.stderr
+    r = run("monitor", "--fleet", "nowhere.json")
+    assert r.returncode == 2 and "nowhere.json: no such fleet file" in r.stderr and "Traceback" not in r.stderr
+    r = run("record", "-o", "x.mcap", "--fleet", "nowhere.json")
+    assert r.returncode == 2 and "nowhere.json: no such fleet file" in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "x.mcap").exists()
