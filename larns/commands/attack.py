@@ -72,10 +72,10 @@ def register(sub) -> None:
 
     p = sub.add_parser("attack", help="adversary for a --secure fleet (loopback only; docs/security.md)",
                        description=__doc__, formatter_class=Formatter,
-        epilog=examples(
-            "larns attack forge --secure runs/keys --as 3 --victim 5 --connect tls/127.0.0.1:7447",
-            "larns attack all --secure runs/keys --connect tls/127.0.0.1:7447 --duration 120",
-        ))
+                       epilog=examples(
+                           "larns attack forge --secure runs/keys --as 3 --victim 5 --connect tls/127.0.0.1:7447",
+                           "larns attack all --secure runs/keys --connect tls/127.0.0.1:7447 --duration 120",
+                       ))
     p.add_argument("attack", choices=[*ATTACK_NAMES, "all"], help="the attack to run (all: each in turn)")
     p.add_argument("--secure", default=None, metavar="DIR", help="keystore whose credentials are abused")
     p.add_argument("--as", dest="as_id", type=int, default=3, help="station whose credentials are used (default 3)")

@@ -28,11 +28,11 @@ def register(sub) -> None:
 
     p = sub.add_parser("fleet", help="launch a local fleet: one process per station + recorder, live table",
                        description=__doc__, formatter_class=Formatter,
-        epilog=examples(
-            "larns fleet --scenario seed000 --duration 60 --record runs/demo.mcap   # fleet file: runs/fleet.json",
-            "larns fleet --scenario seed000 --duration 60 --join 11@20 --speed 2        # station 11 hot-joins at 20 s",
-            "larns fleet --duration 0 --topology router --aircraft                   # until Ctrl-C",
-        ))
+                       epilog=examples(
+                           "larns fleet --scenario seed000 --duration 60 --record runs/demo.mcap   # fleet file: runs/fleet.json",
+                           "larns fleet --scenario seed000 --duration 60 --join 11@20 --speed 2        # station 11 hot-joins at 20 s",
+                           "larns fleet --duration 0 --topology router --aircraft                   # until Ctrl-C",
+                       ))
     p.add_argument("--scenario", default="seed000", help="scenario name or TOML path (default seed000)")
     p.add_argument("--duration", type=float, default=60.0,
                    help="fleet seconds to run (0 = until Ctrl-C; default 60)")

@@ -25,9 +25,9 @@ def register(sub) -> None:
 
     p = sub.add_parser("report", help="PNG figures and a Markdown summary of a recording",
                        description=doc_of("larns.viz.report"), formatter_class=Formatter,
-        epilog=examples(
-            "larns report runs/demo.mcap -o runs/report",
-        ))
+                       epilog=examples(
+                           "larns report runs/demo.mcap -o runs/report",
+                       ))
     p.add_argument("files", nargs="+", help="MCAP recording(s), merged by log time")
     p.add_argument("-o", "--output", default="report", help="output folder (default ./report)")
     p.add_argument("--scenario", default=None, help="scenario (for the aircraft's ranging sigma in the CRLB); "

@@ -97,10 +97,10 @@ def register(sub) -> None:
 
     p = sub.add_parser("router", help="Zenoh router for the client/router topology (--zenoh-mode client)",
                        description=__doc__, formatter_class=Formatter,
-        epilog=examples(
-            "larns router --listen tcp/127.0.0.1:7447",
-            "larns fleet --topology router --connect tcp/127.0.0.1:7447 --duration 60",
-        ))
+                       epilog=examples(
+                           "larns router --listen tcp/127.0.0.1:7447",
+                           "larns fleet --topology router --connect tcp/127.0.0.1:7447 --duration 60",
+                       ))
     p.add_argument("--listen", action="append", default=None, metavar="ENDPOINT",
                    help="endpoint to listen on (repeatable; default tcp/127.0.0.1:7447)")
     p.add_argument("--connect", action="append", default=None, metavar="ENDPOINT",
