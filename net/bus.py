@@ -235,6 +235,8 @@ class Bus:
         self._lock = threading.Lock()
         self._express = express
         self.closed = False
+        if self.security is not None:  # certificates and the revocation list on the bus (net/trust.py)
+            self.security.attach(self)
 
     # ------------------------------------------------------------------ publish
     def publish(self, key: str, data: bytes, block: bool = False) -> None:
@@ -333,6 +335,8 @@ class Bus:
         if self.closed:
             return
         self.closed = True
+        if self.security is not None:
+            self.security.close()  # the replay history, for a restart
         for t in self._tokens:
             try:
                 t.undeclare()

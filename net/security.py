@@ -129,7 +129,28 @@ class Keystore:
             cert.verify_directly_issued_by(self.ca_cert())
         except Exception as e:
             raise KeystoreError(f"{p}: not issued by {self.root}/ca.crt ({type(e).__name__})") from None
+        self._check_current(p, cert)
         return cert
+
+    def _check_current(self, p: Path, cert) -> None:
+        """Raise :class:`KeystoreError` if ``cert`` is expired, not yet valid or revoked by the
+        keystore's ``crl.pem`` (a process does not start on such credentials)."""
+        from net.trust import CRL_FILE, RevocationList, TrustError
+
+        now = time.time()
+        nb, na = cert.not_valid_before_utc.timestamp(), cert.not_valid_after_utc.timestamp()
+        if not nb <= now <= na:
+            when = cert.not_valid_after_utc if now > na else cert.not_valid_before_utc
+            raise KeystoreError(f"{p}: {'expired' if now > na else 'not valid before'} {when:%Y-%m-%d %H:%M} UTC "
+                                f"(renew it with `larns keys renew {self.root} ...`)")
+        crl = self.root / CRL_FILE
+        if crl.is_file():
+            try:
+                rl = RevocationList.parse(crl.read_bytes(), self.ca_cert())
+            except TrustError as e:
+                raise KeystoreError(f"{crl}: {e}") from None
+            if int(cert.serial_number) in rl.serials:
+                raise KeystoreError(f"{p}: revoked by {crl} (issue new credentials with `larns keys add`)")
 
     def signer(self, cn: str) -> "Signer":
         from cryptography.hazmat.primitives import serialization as ser
@@ -172,9 +193,12 @@ def access_control(ks: Keystore, me: str) -> dict:
 
     def subject(sid: str, cns: list[str], rule_ids: list[str]) -> None:
         subjects.append({"id": sid, "cert_common_names": cns})
-        policies.append({"id": "p-" + sid, "rules": rule_ids, "subjects": [sid]})
+        policies.append({"id": "p-" + sid, "rules": [*rule_ids, "trust-all"], "subjects": [sid]})
 
     everyone = rule("egress-all", _ALL_MSGS, ["larns/**"], flows=("egress",))
+    # certificates and the revocation list (net/trust.py): CA-signed, so anyone may carry them
+    rule("trust-all", ["put", "declare_subscriber", "query", "reply", "declare_queryable"],
+                 ["larns/trust/**"])
     observe = rule("observe-all", _OBSERVE, ["larns/**"])
     for sid in ks.reserved:
         r_pub = rule(f"pub-station-{sid}", ["put"], [f"larns/station/{sid}/**"])
@@ -390,35 +414,84 @@ def expected_signer(key: str) -> str | None:
 
 
 class Verifier:
-    """Checks signed frames against the keystore's CA-verified certificates. Certificates are
-    loaded on first use; an unknown signer is looked up again at most every ``rescan_s`` (a
-    hot-joiner's certificate issued after we started, `larns keys add`)."""
+    """Checks signed frames against CA-issued certificates that are usable now (not expired, not
+    revoked: :class:`net.trust.TrustStore`). A signer's certificate is looked for in the keystore
+    (``<cn>/cert.pem``, else the public ``certs/<cn>.pem``) and, once :meth:`set_fetch` is given
+    a way, fetched from the bus; an unknown signer is looked up again at most every ``rescan_s``
+    (a hot-joiner's certificate issued after we started, `larns keys add`). The keystore's
+    revocation list (``crl.pem``) is re-read when it changes (checked at most every ``rescan_s``);
+    one that arrives on the bus (:func:`net.trust.attach_trust`) counts from the next sample."""
 
-    def __init__(self, ks: Keystore, rescan_s: float = 2.0, clock: Callable[[], float] = time.monotonic):
+    def __init__(self, ks: Keystore, rescan_s: float = 2.0, clock: Callable[[], float] = time.monotonic,
+                 wall_s: Callable[[], float] = time.time):
+        from net.trust import TrustStore
+
         self.ks = ks
         self.rescan_s = rescan_s
         self.clock = clock
-        self._pub: dict[str, Any] = {}
+        self.wall_s = wall_s
+        self.trust = TrustStore(ks.ca_cert())
+        self._fetch: Callable[[str], None] | None = None
         self._missing: dict[str, float] = {}
+        self._crl_seen: tuple | None = None
+        self._crl_next = -math.inf
+        self._crl_file()
 
-    def public_key(self, cn: str):
-        pk = self._pub.get(cn)
-        if pk is not None:
-            return pk
+    def set_fetch(self, fetch: Callable[[str], None] | None) -> None:
+        """``fetch(cn)``: ask the bus for ``cn``'s certificate (asynchronous)."""
+        self._fetch = fetch
+
+    def _crl_file(self) -> None:
+        from net.trust import CRL_FILE, TrustError
+
+        self._crl_next = self.clock() + self.rescan_s
+        p = self.ks.root / CRL_FILE
+        try:
+            st = p.stat()
+        except OSError:
+            return
+        if (st.st_mtime_ns, st.st_size) == self._crl_seen:
+            return
+        self._crl_seen = (st.st_mtime_ns, st.st_size)
+        try:
+            self.trust.add_crl(p.read_bytes())
+        except (OSError, TrustError):
+            pass
+
+    def _look_up(self, cn: str) -> None:
+        from net.trust import CERTS_DIR, TrustError
+
         now = self.clock()
         if now - self._missing.get(cn, -math.inf) < self.rescan_s:
-            return None
-        try:
-            pk = self.ks.certificate(cn).public_key()
-        except KeystoreError:
-            self._missing[cn] = now
-            return None
-        self._pub[cn] = pk
-        return pk
+            return
+        self._missing[cn] = now
+        self._crl_file()
+        for p in (self.ks.path(cn, "cert.pem"), self.ks.root / CERTS_DIR / f"{cn}.pem"):
+            try:
+                self.trust.add_cert(p.read_bytes(), cn)
+            except (OSError, TrustError):
+                continue
+        if self._fetch is not None:
+            self._fetch(cn)
+
+    def public_keys(self, cn: str) -> list:
+        """Public keys of ``cn``'s certificates usable now (looked up if there is none)."""
+        if self.clock() >= self._crl_next:
+            self._crl_file()
+        keys = self.trust.keys(cn, self.wall_s())
+        if not keys:
+            self._look_up(cn)
+            keys = self.trust.keys(cn, self.wall_s())
+        return keys
+
+    def public_key(self, cn: str):
+        keys = self.public_keys(cn)
+        return keys[0] if keys else None
 
     def parse(self, key: str, data: bytes) -> tuple[str, bytes, bytes]:
-        """``(signer, signature, envelope)`` of a frame on ``key`` whose signer may sign on ``key``;
-        the signature is not checked yet (:meth:`verify`). Raises :class:`SecurityError`."""
+        """``(signer, signature, envelope)`` of a frame on ``key`` whose signer may sign on ``key``
+        and is not revoked; the signature is not checked yet (:meth:`verify`). Raises
+        :class:`SecurityError`."""
         parts = split_signed(data)
         if parts is None:
             raise SecurityError("unsigned", key)
@@ -428,19 +501,36 @@ class Verifier:
             raise SecurityError("signer_mismatch", f"{signer} on {key}")
         if not signer.replace("-", "").replace("_", "").isalnum() or len(signer) > 64:
             raise SecurityError("unknown_signer", signer[:64])
+        if self.trust.status(signer, self.wall_s()) == "revoked":  # access rule: a revoked signer
+            self._look_up(signer)                                   # is refused before its budget
+            if self.trust.status(signer, self.wall_s()) == "revoked":  # (unless re-issued since)
+                raise SecurityError("revoked", signer)
         return signer, sig, env
 
     def verify(self, key: str, signer: str, sig: bytes, env: bytes) -> None:
-        """Check ``sig`` over ``key`` and ``env`` against ``signer``'s certificate (~50 us)."""
+        """Check ``sig`` over ``key`` and ``env`` against ``signer``'s usable certificates
+        (~50 us); a signature by a revoked key is refused as ``revoked``, a signer with no usable
+        certificate as ``unknown_signer``, ``expired`` or ``revoked``."""
         from cryptography.exceptions import InvalidSignature
 
-        pk = self.public_key(signer)
-        if pk is None:
-            raise SecurityError("unknown_signer", signer)
-        try:
-            pk.verify(sig, _signed_bytes(key, env))
-        except InvalidSignature:
-            raise SecurityError("bad_signature", f"{signer} on {key}") from None
+        data = _signed_bytes(key, env)
+        keys = self.public_keys(signer)
+        for pk in keys:
+            try:
+                pk.verify(sig, data)
+                return
+            except InvalidSignature:
+                continue
+        if not keys:
+            st = self.trust.status(signer, self.wall_s())
+            raise SecurityError("unknown_signer" if st == "ok" else st, signer)
+        for reason, pk in self.trust.unusable_keys(signer):
+            try:
+                pk.verify(sig, data)
+            except InvalidSignature:
+                continue
+            raise SecurityError(reason, f"{signer} on {key}")
+        raise SecurityError("bad_signature", f"{signer} on {key}")
 
     def open(self, key: str, data: bytes) -> tuple[str, bytes]:
         """``(signer, envelope)`` of a valid frame on ``key``; raises :class:`SecurityError`."""
@@ -452,25 +542,46 @@ class Verifier:
 class ReplayGuard:
     """Per (signer, kind): accept a message only if ``(stamp_s, seq)`` is newer than the last one
     accepted (a restarted sender's sequence restarts, its stamps do not), and only if its stamp is
-    within ``window_s`` of the receiver's fleet time (an old recording replayed is stale)."""
+    within ``window_s`` of the receiver's fleet time (an old recording replayed is stale).
 
-    def __init__(self, window_s: float):
+    A sender this receiver holds no history of gets the narrower ``fresh_window_s``: a message
+    replayed to a receiver that never heard the original must be that recent. With ``store``
+    (:class:`net.trust.ReplayStore`) the history survives a restart of the receiver: it is loaded
+    at start and saved as it grows; entries newer than the receiver's clock allows (a file from
+    another fleet epoch) are forgotten at the first message."""
+
+    def __init__(self, window_s: float, fresh_window_s: float | None = None, store=None):
         self.window_s = float(window_s)
-        self._last: dict[tuple[str, str], tuple[float, int]] = {}
+        self.fresh_window_s = self.window_s if fresh_window_s is None else min(float(fresh_window_s), self.window_s)
+        self.store = store
+        self._last: dict[tuple[str, str], tuple[float, int]] = store.load() if store is not None else {}
+        self._purge = bool(self._last)
 
     def peek(self, signer: str, msg: dict, now_s: float) -> None:
         """Raise ``stale`` or ``replayed`` as :meth:`check` would, without recording anything (a
         copy is refused before it costs a signature check or its sender's budget)."""
         stamp, seq = float(msg["stamp_s"]), int(msg["seq"])
+        if self._purge:  # loaded history from another epoch would refuse the new one's stamps
+            self._purge = False
+            self._last = {k: v for k, v in self._last.items() if v[0] <= now_s + self.fresh_window_s}
         if abs(stamp - now_s) > self.window_s:
             raise SecurityError("stale", f"{signer} {msg['kind']} stamp {stamp:.3f} s at {now_s:.3f} s")
         last = self._last.get((signer, msg["kind"]))
+        if last is None and abs(stamp - now_s) > self.fresh_window_s:
+            raise SecurityError("stale", f"{signer} {msg['kind']} first stamp {stamp:.3f} s at {now_s:.3f} s")
         if last is not None and (stamp, seq) <= last:
             raise SecurityError("replayed", f"{signer} {msg['kind']} seq {seq}")
 
     def record(self, signer: str, msg: dict) -> None:
         """Remember an accepted (verified) message as its sender's newest."""
         self._last[(signer, msg["kind"])] = (float(msg["stamp_s"]), int(msg["seq"]))
+        if self.store is not None:
+            self.store.maybe_save(self._last)
+
+    def flush(self) -> None:
+        """Save the history now (a receiver that stops)."""
+        if self.store is not None:
+            self.store.flush(self._last)
 
     def check(self, signer: str, msg: dict, now_s: float) -> None:
         self.peek(signer, msg, now_s)
@@ -521,6 +632,7 @@ def monotonic_fleet_clock(speed: float = 1.0) -> Callable[[], float]:
 
 
 STALE_S = 60.0  # fleet seconds: a stamp further than this from the receiver's clock is stale
+FRESH_S = 10.0  # fleet seconds (or 5 cycles): the same for a sender the receiver has no history of
 RECORDER_BUDGET = (200.0, 400.0)  # per source: messages per wall second, burst
 
 
@@ -595,12 +707,40 @@ class Security:
         self.ks = load_keystore(root, cn)
         self.signer = self.ks.signer(cn)
         self.verifier = Verifier(self.ks)
+        self.verifier.trust.add_cert(self.ks.certificate(cn))  # ours, served on the bus
+        self._replay: list[ReplayGuard] = []
+        self._trust_bus: dict | None = None
+
+    def attach(self, bus) -> None:
+        """On a running bus: serve our certificate and the newest revocation list, take lists put
+        on the bus, fetch unknown signers' certificates (:func:`net.trust.attach_trust`)."""
+        from net.trust import attach_trust
+
+        self._trust_bus = attach_trust(bus, self.verifier.trust, self.cn)
+        self.verifier.set_fetch(self._trust_bus["fetch"])
+
+    def close(self) -> None:
+        """Save the receive guards' replay history (also saved as it grows)."""
+        for g in self._replay:
+            g.flush()
+
+    def replay_guard(self, window_s: float, fresh_window_s: float | None = None) -> ReplayGuard:
+        """A replay guard whose history survives a restart (:func:`net.trust.replay_state_path`)."""
+        from cryptography.hazmat.primitives import serialization as ser
+
+        from net.trust import ReplayStore, replay_state_path
+
+        path = replay_state_path(self.ks.ca_cert().public_bytes(ser.Encoding.DER), f"{self.cn}-{len(self._replay)}")
+        g = ReplayGuard(window_s, fresh_window_s, ReplayStore(path))
+        self._replay.append(g)
+        return g
 
     def seal(self, key: str, data: bytes) -> bytes:
         return self.signer.seal(key, data)
 
     def guard(self, now_s: Callable[[], float], rate_per_s: float | None, burst: float,
-              window_s: float | None, speed: float | None = None) -> ReceiveGuard:
+              window_s: float | None, speed: float | None = None, cycle_s: float = 1.0,
+              fresh_cycles: float = 5.0) -> ReceiveGuard:
         """A receive guard; ``now_s`` is the receiver's fleet clock (stamps are fleet seconds). With
         ``speed`` the rate limiter runs on the monotonic clock at fleet rate
         (:func:`monotonic_fleet_clock`), else on ``now_s`` (never backwards either way)."""
@@ -608,7 +748,8 @@ class Security:
         own = "/".join(self.cn.split("-", 1)) if "-" in self.cn else None  # station-5 -> station/5
         clock = None if speed is None else monotonic_fleet_clock(speed)
         return ReceiveGuard(self.verifier, RateLimiter(rate_per_s, burst, clock=clock) if rate_per_s and on else None,
-                            ReplayGuard(window_s) if window_s else None, now_s, own)
+                            self.replay_guard(window_s, max(FRESH_S, fresh_cycles * cycle_s)) if window_s else None,
+                            now_s, own)
 
     def station_guard(self, cycle_s: float, now_s: Callable[[], float], speed: float | None = None) -> ReceiveGuard:
         """A station hears from each peer at most a nav, a request and a reply per cycle: budget 4
@@ -616,8 +757,8 @@ class Security:
         clock are stale. The window is wide on purpose: replays inside it are caught by the
         ``(stamp, seq)`` order, and a nav delivered seconds late on a loaded machine (speed 5: a
         second of wall time is 5 fleet seconds) is still one the core would use."""
-        return self.guard(now_s, 4.0 / cycle_s, 8.0, max(STALE_S, 20.0 * cycle_s), speed)
+        return self.guard(now_s, 4.0 / cycle_s, 8.0, max(STALE_S, 20.0 * cycle_s), speed, cycle_s)
 
     def aircraft_guard(self, cycle_s: float, now_s: Callable[[], float], speed: float | None = None) -> ReceiveGuard:
         """The aircraft hears one nav per station and cycle: budget 2 per cycle, burst 4."""
-        return self.guard(now_s, 2.0 / cycle_s, 4.0, max(STALE_S, 20.0 * cycle_s), speed)
+        return self.guard(now_s, 2.0 / cycle_s, 4.0, max(STALE_S, 20.0 * cycle_s), speed, cycle_s)

@@ -1,9 +1,13 @@
 """`larns keys`: a LARNS keystore (in the spirit of SROS2's: one certificate authority, one enclave
 per process, security switched on by pointing a process at the keystore).
 
-    larns keys init DIR --stations 1-10 --aircraft ac1 --recorder
+    larns keys init DIR --stations 1-10 --aircraft ac1 --recorder [--days 30]
     larns keys add DIR --station 11          # a hot-joiner, CA of DIR
     larns keys list DIR
+    larns keys renew DIR --all [--days 30]   # new certificates for the same keys (before expiry)
+    larns keys revoke DIR --station 5 [--publish --connect tls/HOST:PORT]   # CA-signed crl.pem
+    larns keys export DIR OUT --enclave station-5   # what one host holds: its enclave, ca.crt,
+                                                    # public certificates, crl.pem; never ca.key
 
 Layout::
 
@@ -13,6 +17,11 @@ Layout::
     DIR/<cn>/cert.pem          the enclave's certificate, common name <cn>, signed by the CA
     DIR/<cn>/key.pem           the enclave's private key (0600)
     DIR/<cn>/zenoh.json5       its Zenoh security settings: TLS/mTLS links only and access control
+    DIR/crl.pem                the revocation list, signed by the CA (after `keys revoke`)
+    DIR/certs/<cn>.pem         public certificates of the other enclaves (in an exported host copy)
+
+Certificates last ``--days`` (default 30): renew them with ``keys renew`` before they expire;
+receivers refuse signatures by an expired or revoked certificate (``expired``, ``revoked``).
 
 Common names: ``station-<id>``, ``aircraft-<name>``, ``recorder``, ``monitor`` (the launcher's
 observer), ``router``, ``attacker-<n>`` is never issued. Keys are Ed25519 (RFC 8032): the same key
@@ -71,11 +80,91 @@ def cmd_verify_recordings(keystore: str, paths, topics=None, exclude=None) -> in
 
 # --------------------------------------------------------------------------- command line
 
+def _enclave_names(a: argparse.Namespace, ks: Keystore) -> list[str]:
+    """The common names picked by --station / --aircraft / --enclave / --all."""
+    from net.security import aircraft_cn, station_cn
+
+    if getattr(a, "all", False):
+        return sorted(ks.enclaves)
+    cns = [station_cn(i) for i in (parse_ids(a.station) if a.station else [])]
+    cns += [aircraft_cn(n) for n in a.aircraft or []] + list(getattr(a, "enclave", None) or [])
+    if not cns:
+        raise ValueError("name what to act on: --station ID, --aircraft NAME, --enclave CN"
+                         + (" or --all" if hasattr(a, "all") else ""))
+    return cns
+
+
+def _cmd_renew(a: argparse.Namespace) -> int:
+    try:
+        ks = WritableKeystore(a.dir)
+        for cn in _enclave_names(a, ks):
+            until = ks.renew(cn, a.days)
+            print(f"[keys] {cn}: renewed until {until:%Y-%m-%d %H:%M} UTC", file=sys.stderr)
+    except (KeystoreError, ValueError) as e:
+        print(f"larns keys renew: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+def _cmd_revoke(a: argparse.Namespace) -> int:
+    try:
+        ks = WritableKeystore(a.dir)
+        cns = _enclave_names(a, ks)
+        for cn in cns:
+            serial = ks.revoke(cn)
+            print(f"[keys] {cn}: certificate {serial:x} revoked ({ks.root}/crl.pem, "
+                  f"number {ks.index['crl_number']})", file=sys.stderr)
+        ks.write_configs()
+    except (KeystoreError, ValueError) as e:
+        print(f"larns keys revoke: {e}", file=sys.stderr)
+        return 2
+    if a.publish:
+        return _publish_crl(a, ks)
+    return 0
+
+
+def _publish_crl(a: argparse.Namespace, ks) -> int:
+    """Put ``crl.pem`` on the bus as the ``monitor`` enclave (every secure process takes it)."""
+    import time
+
+    from net.bus import Bus
+    from net.trust import CRL_FILE, RevocationList, publish_crl
+
+    if not a.connect:
+        print("larns keys revoke --publish: give the field's address with --connect tls/HOST:PORT", file=sys.stderr)
+        return 2
+    der = RevocationList.parse((ks.root / CRL_FILE).read_bytes(), ks.ca_cert()).der
+    try:
+        bus = Bus(listen=[], connect=a.connect, mode="client" if a.client else "peer", secure=(str(ks.root), "monitor"))
+    except KeystoreError as e:
+        print(f"larns keys revoke --publish: {e}", file=sys.stderr)
+        return 2
+    time.sleep(a.link_wait)
+    for _ in range(3):   # a few times, a second apart: a peer still linking gets one of them
+        publish_crl(bus, der)
+        time.sleep(1.0)
+    bus.close()
+    print(f"[keys] revocation list published on the bus ({', '.join(a.connect)})", file=sys.stderr)
+    return 0
+
+
+def _cmd_export(a: argparse.Namespace) -> int:
+    from net.keystore import export_host
+
+    try:
+        files = export_host(a.dir, a.out, list(a.enclave))
+    except (KeystoreError, OSError) as e:
+        print(f"larns keys export: {e}", file=sys.stderr)
+        return 2
+    print(f"[keys] {a.out}: {', '.join(a.enclave)} + {len(files) - 3 * len(a.enclave)} public files", file=sys.stderr)
+    return 0
+
+
 def _cmd_init(a: argparse.Namespace) -> int:
     try:
         ks = init_keystore(a.dir, parse_ids(a.stations), a.aircraft or [], recorder=a.recorder,
                            reserve=parse_ids(a.reserve) if a.reserve else None,
-                           hosts=a.host or None, force=a.force)
+                           hosts=a.host or None, force=a.force, valid_days=a.days)
     except (KeystoreError, ValueError) as e:
         print(f"larns keys: {e}", file=sys.stderr)
         return 1
@@ -117,12 +206,15 @@ def register(sub) -> None:
 
     p = sub.add_parser("keys", help="keystore for --secure: CA, per-process certificates, Zenoh access control",
                        description=__doc__, formatter_class=Formatter,
-        epilog=examples(
-            "larns keys init runs/keys --stations 1-10 --aircraft ac1",
-            "larns keys add runs/keys --station 11",
-            "larns keys list runs/keys",
-        ))
-    ks = p.add_subparsers(dest="keys_cmd", required=True, metavar="ACTION", help="init, add or list")
+                       epilog=examples(
+                           "larns keys init runs/keys --stations 1-10 --aircraft ac1",
+                           "larns keys add runs/keys --station 11",
+                           "larns keys list runs/keys",
+                           "larns keys revoke runs/keys --station 5 --publish --connect tls/127.0.0.1:7447",
+                           "larns keys export runs/keys runs/host5 --enclave station-5",
+                       ))
+    ks = p.add_subparsers(dest="keys_cmd", required=True, metavar="ACTION",
+                          help="init, add, list, renew, revoke or export")
     i = ks.add_parser("init", help="create a keystore (CA + enclaves)")
     i.add_argument("dir")
     i.add_argument("--stations", default="1-10", help="station ids to issue, e.g. 1-10 (default 1-10)")
@@ -136,6 +228,8 @@ def register(sub) -> None:
                    help="host name / address put in every certificate (repeatable; default localhost, "
                         "127.0.0.1; add the compose service names for containers)")
     i.add_argument("--force", action="store_true", help="overwrite an existing keystore")
+    i.add_argument("--days", type=float, default=VALID_DAYS,
+                   help=f"lifetime of the enclaves' certificates, days (default {VALID_DAYS}; `keys renew`)")
     i.set_defaults(func=_cmd_init)
     a = ks.add_parser("add", help="issue more enclaves with the keystore's CA (e.g. a hot-joiner)")
     a.add_argument("dir")
@@ -146,3 +240,26 @@ def register(sub) -> None:
     ls = ks.add_parser("list", help="enclaves and whether their credentials check out")
     ls.add_argument("dir")
     ls.set_defaults(func=_cmd_list)
+    r = ks.add_parser("renew", help="new certificates for the same keys (before they expire)")
+    r.add_argument("dir")
+    r.add_argument("--station", default=None, help="station id(s), e.g. 5 or 1-10")
+    r.add_argument("--aircraft", action="append", metavar="NAME")
+    r.add_argument("--enclave", action="append", metavar="CN", help="common name, e.g. recorder")
+    r.add_argument("--all", action="store_true", help="every enclave")
+    r.add_argument("--days", type=float, default=None, help="lifetime, days (default: the keystore's)")
+    r.set_defaults(func=_cmd_renew)
+    v = ks.add_parser("revoke", help="revoke enclaves: CA-signed crl.pem; --publish puts it on the bus")
+    v.add_argument("dir")
+    v.add_argument("--station", default=None, help="station id(s), e.g. 5")
+    v.add_argument("--aircraft", action="append", metavar="NAME")
+    v.add_argument("--enclave", action="append", metavar="CN")
+    v.add_argument("--publish", action="store_true", help="put the list on the bus (as the monitor enclave)")
+    v.add_argument("--connect", action="append", metavar="ENDPOINT", help="tls/HOST:PORT of the field (repeatable)")
+    v.add_argument("--client", action="store_true", help="connect as a Zenoh client (router topology)")
+    v.add_argument("--link-wait", type=float, default=2.0, help="seconds to wait for links before publishing")
+    v.set_defaults(func=_cmd_revoke)
+    x = ks.add_parser("export", help="one host's part of a keystore: its enclave(s), ca.crt, public certificates")
+    x.add_argument("dir")
+    x.add_argument("out")
+    x.add_argument("--enclave", action="append", required=True, metavar="CN", help="e.g. station-5 (repeatable)")
+    x.set_defaults(func=_cmd_export)
