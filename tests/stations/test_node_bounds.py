@@ -69,15 +69,6 @@ def test_a_phy_block_claiming_an_earlier_signal_or_another_place_does_not_shorte
     assert d["t_rx_s"] - h["t_rx_s"] > 0.9e-6
 
 
-def test_a_sender_outside_the_world_is_dropped_by_reason():
-    node, bus, scn = make_node()
-    scn5 = S.load("seed000", layout={"n": 6})
-    t = node.fleet_now()
-    m = {"kind": "range_req", "src": 5, "seq": 1, "stamp_s": t, "dst": 2, "cycle": 10, "slot": 0, "t_tx_s": t}
-    node._on_bytes(M.key_for(m), M.encode(m, {"pos_m": scn5.true_pos(5), "t_true_s": t}))
-    assert node.drops.by_reason["sender_unknown"] == 1 and not bus.rsps()
-
-
 def test_the_delivery_loop_survives_core_exceptions():
     node, bus, scn = make_node()
     real = node.core.on_message
