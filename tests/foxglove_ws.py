@@ -147,7 +147,7 @@ class Received:
 
     info: dict = field(default_factory=dict)
     channels: dict[int, dict] = field(default_factory=dict)
-    messages: list[tuple[float, str, int, dict]] = field(default_factory=list)  # (wall s, topic, log ns, msg)
+    messages: list[tuple[float, str, int, dict]] = field(default_factory=list)  # (arrival wall s, topic, log ns, msg)
     times_ns: list[int] = field(default_factory=list)
     text: list[dict] = field(default_factory=list)
     undecodable: list[str] = field(default_factory=list)
@@ -167,6 +167,7 @@ class FoxgloveClient:
         self.got = Received()
         self._schemas: dict[int, object] = {}
         self._validators: dict[int, object] = {}
+        self._raw: list[tuple[float, bytes]] = []
         self.ws = None
 
     async def __aenter__(self) -> "FoxgloveClient":
@@ -198,8 +199,16 @@ class FoxgloveClient:
             if isinstance(frame, str):
                 await self._text(json.loads(frame))
             else:
-                self._binary(frame)
+                self._raw.append((time.time(), frame))  # decoded after reading: the clock sees arrivals
+                if until is not None:
+                    self._decode_raw()
+        self._decode_raw()
         return self.got
+
+    def _decode_raw(self) -> None:
+        for wall, frame in self._raw:
+            self._binary(frame, wall)
+        self._raw.clear()
 
     async def _text(self, d: dict) -> None:
         self.got.text.append(d)
@@ -221,7 +230,7 @@ class FoxgloveClient:
 
             self._validators[c["id"]] = jsonschema.Draft7Validator(json.loads(c["schema"]))
 
-    def _binary(self, b: bytes) -> None:
+    def _binary(self, b: bytes, wall: float) -> None:
         op = b[0]
         if op == 2:  # time
             self.got.times_ns.append(struct.unpack_from("<Q", b, 1)[0])
@@ -233,7 +242,7 @@ class FoxgloveClient:
             except Exception as e:  # noqa: BLE001 - recorded; the tests assert there are none
                 self.got.undecodable.append(f"{c['topic']}: {e!r}")
                 return
-            self.got.messages.append((time.time(), c["topic"], log_ns, msg))
+            self.got.messages.append((wall, c["topic"], log_ns, msg))
 
     def _decode(self, cid: int, c: dict, payload: bytes) -> dict:
         if c["encoding"] == "json":

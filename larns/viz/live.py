@@ -41,6 +41,7 @@ log = logging.getLogger("larns.view")
 LOG_TOPIC = "larns/foxglove/log"
 TDMA_TOPIC = "larns/foxglove/tdma"
 TRACK_POINTS = 300        # last positions kept per track
+TRACK_PERIOD_NS = 500_000_000  # a track (up to 300 points) is sent at most every 0.5 fleet s
 EXCHANGE_LIFETIME_S = 1.0  # an exchange line stays one (default) TDMA cycle
 DEFAULT_PORT = 8765
 TRUTH_EVERY = 10           # a station's truth cube is sent again every 10 of its truths
@@ -126,6 +127,7 @@ class LiveView:
         self.dropped: Counter[str] = Counter()
         self.station_pos: dict[int, list[float]] = {}
         self.tracks: dict[str, deque] = {}
+        self._track_sent: dict[str, int] = {}                     # track id -> fleet ns last sent
         self._clock_truth: dict[int, tuple[float, float]] = {}   # sid -> (stamp_s, clock_error_s)
         self._pending_sync: dict[int, tuple[float, dict]] = {}   # sid -> (stamp_s, sync record)
         self._truths: dict[int, int] = {}                         # sid -> truths seen
@@ -276,8 +278,9 @@ class LiveView:
         tid = f"{role}/{msg['src']}/{'truth' if truth else msg['algo']}/track"
         pts = self.tracks.setdefault(tid, deque(maxlen=self.track_points))
         pts.append(msg["pos_m"])
-        if len(pts) < 2:
+        if len(pts) < 2 or ns - self._track_sent.get(tid, -TRACK_PERIOD_NS) < TRACK_PERIOD_NS:
             return []
+        self._track_sent[tid] = ns
         color = COLORS["ac_truth" if truth else "aircraft"][:3] + (0.9,)
         ent = _line_entity(ns, tid, list(pts), color, 1.5)
         return [Out(SCENE_TOPIC, "foxglove.SceneUpdate", {"deletions": [], "entities": [ent]}, ns)]
