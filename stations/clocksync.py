@@ -36,8 +36,9 @@ clocks plus a phase and a rate term that keep it continuous when the members cha
 station 1's clock alone (the founder defines time until the others are known); once per second of
 ``T`` each station re-evaluates the members from what it hears (:meth:`ClockEstimator._membership`):
 a clock enters (weight from zero) once its offset against the ensemble is known to ``ENTER_SD_S``, a
-member not heard in an exchange for ``LEAVE_S`` leaves, and the weights are renormalized, continuous
-in phase and rate (:func:`net.clock.ensemble_change`). Weights are ``1 / sigma_y^2`` of each clock's
+member not heard in an exchange for ``LEAVE_S`` leaves (dated back to its last exchange, where its
+offset was last measured), and the weights are renormalized, continuous in phase and rate
+(:func:`net.clock.ensemble_change`). Weights are ``1 / sigma_y^2`` of each clock's
 class (one class per field: equal weights). Every station's filter is (up to the navs it missed) the
 centralized one, so every station computes the same scale; its changes are logged
 (``scale_log``) so the world side evaluates the same definition on the true clocks.
@@ -387,9 +388,14 @@ class ClockEstimator:
                 new.add(sid)
         if new == set(old):
             return
+        # a departure dates back to the leaver's last exchange: its offset is taken where it was last
+        # measured, not extrapolated over LEAVE_S (the others' states are moved back to that time)
+        gone = set(old) - new
+        T_c = max([heard.get(s, T) for s in gone] + [self.scale.T_ref_s]) if gone else T
         states = {s: self._state(s) for s in new | set(old)}
         self.scale = ensemble_change(self.scale, {s: 1.0 / len(new) for s in new},
-                                     {s: v[0] for s, v in states.items()}, {s: v[1] for s, v in states.items()}, T)
+                                     {s: th - f * (T - T_c) for s, (th, f) in states.items()},
+                                     {s: f for s, (_, f) in states.items()}, T_c)
         self.scale_log.append(self.scale)
 
     # ------------------------------------------------------------------ filter steps

@@ -369,7 +369,10 @@ def test_aircraft_pseudorange_error_equals_the_station_sync_error_times_c():
     ac = from_scenario(scn)
     net_clock = draw_clock(scn.clock, station_rng(scn.seed, 1, 0))
     st_clock = draw_clock(scn.clock, station_rng(scn.seed, 5, 0))
-    core = AircraftCore(ac, ("ekf-pr",), "ac1", np.random.default_rng(0), net_clock=net_clock)
+    from net.nettime import network_time
+
+    # the receiver's network time as the field realizes it; no station nav observed: the founder's clock
+    core = AircraftCore(ac, ("ekf-pr",), "ac1", np.random.default_rng(0), net_clock=network_time(scn, scn.seed))
     rng = np.random.default_rng(1)
     for tau_tx in (3.0, 40.0, 400.0):
         t_tx = st_clock.to_local(tau_tx)
