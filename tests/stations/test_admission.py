@@ -196,10 +196,19 @@ def _run_timers(core: StationCore, until_s: float) -> None:
         dl = core.next_deadline()
 
 
-def test_fuzz_20000_absurd_messages_from_a_stolen_key(converged):
-    """Station 2's key stolen: 20,000 wire-valid navs / replies with fields at their limits. No
-    exception escapes, and the survey and clock estimates stay within 3 sigma of a twin core that
-    ran the same timers and heard nothing."""
+def test_fuzz_20000_absurd_messages_from_a_stolen_key(converged, tmp_path, monkeypatch):
+    """Station 2's key stolen: 20,000 navs / replies with fields at their limits, signed with its real
+    key and opened by station 5's real receive guard (signature, replay order; the per-key budget
+    off so that every one reaches the core). No exception escapes, and the survey and clock
+    estimates stay within 3 sigma of a twin core that ran the same timers and heard nothing."""
+    from net.keystore import init_keystore
+    from net.security import Security
+
+    monkeypatch.setenv("LARNS_RATE_LIMITS", "off")
+    init_keystore(tmp_path / "keys", [1, 2, 3, 4, 5], recorder=False)
+    thief_key = Security(tmp_path / "keys", "station-2")
+    now = [0.0]
+    guard = Security(tmp_path / "keys", "station-5").station_guard(PLAN.cycle_s, lambda: now[0])
     core, twin = copy.deepcopy(converged), copy.deepcopy(converged)
     me, thief = core.id, 2
     t = float(core.next_deadline())
@@ -222,7 +231,9 @@ def test_fuzz_20000_absurd_messages_from_a_stolen_key(converged):
                    "pos_m": [float(rng.choice(ABSURD))] * 3, "cov_m2": np.eye(3).tolist(), "n_updates": 0,
                    "state": "surveying", "t_tx_s": tk, "t_rx_s": tk - float(rng.choice([-1.0, 1e6])),
                    "clock": [tk, 0.0, float(rng.choice([-1.0, 1e-3, -M.MAX_ABS])), 0.0, 0.0, 0.0]}
-        msg = M.decode(M.encode(msg))[0]  # every message is wire-valid (a signed frame of the thief would be)
+        key = M.key_for(msg)
+        now[0] = tk
+        msg = guard.decode(key, thief_key.seal(key, M.encode(msg)))[0]  # signed, verified: wire-valid
         try:
             core.on_message(msg, tk + 1e-6)
         except Exception:  # noqa: BLE001 - counted: none may escape
@@ -238,4 +249,4 @@ def test_fuzz_20000_absurd_messages_from_a_stolen_key(converged):
     assert d_off <= 3.0 * math.sqrt(twin.clk.variance_at(t_end)), d_off
     assert core.slot == twin.slot and core.state == twin.state
     assert len(core.clk.index) <= core.admission.max_peers
-    assert core.counters["implausible"] > 1000
+    assert core.counters["implausible"] > 1000 and escaped == 0
