@@ -534,6 +534,8 @@ class StationNode:
             "sync_err_ns": self._sync_ns(),
             "journal_dropped": int(self.stats["journal_dropped"]),
             "drops": self.drops.as_dict(), "counters": dict(self.core.counters),
+            "implausible": dict(self.core.admission.dropped),  # by reason (stations/admission.py)
+            "core_errors": int(self.stats["core_errors"]),
             "exchanges": [list(e) for e in self.core.exchanges],  # [t_tx_s local, addressee, replied]
             "tx": {k[3:]: v for k, v in self.stats.items() if k.startswith("tx_")},
             "rx": {k[3:]: v for k, v in self.stats.items() if k.startswith("rx_")},
