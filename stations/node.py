@@ -113,7 +113,7 @@ class StationNode:
         from .sim import station_clock
 
         self.senders = SenderTruth({i: scn.true_pos(i) for i in scn.ids},  # the channel's truth of each sender
-                                   lambda sid: ShellFaults(scn, sid).clock(station_clock(scn, sid, self.seed)))
+                                   lambda sid: ShellFaults(scn, sid).clock(self._true_clock(sid)))
         self.ref_clock = station_clock(scn, scn.ids[0], self.seed)  # station 1's clock (truth side only)
         self.true_clocks = {i: station_clock(scn, i, self.seed) for i in scn.ids}  # network time's truth side
         self._last_input_s = -math.inf  # local time of the core's latest input
@@ -295,6 +295,14 @@ class StationNode:
         if self.core.counters["ignored"] + self.core.counters["late"] != lost:
             self.stats["core_late"] += 1
         self._send(outs)
+
+    def _true_clock(self, sid: int):
+        """Station ``sid``'s true oscillator, shared with the truth side (one realization per process:
+        extending one to late fleet times costs seconds and megabytes)."""
+        from .sim import station_clock
+
+        clk = self.true_clocks.get(sid)  # (a joiner from outside the scenario: its own, kept by SenderTruth)
+        return station_clock(self.scn, sid, self.seed) if clk is None else clk
 
     def _core_error(self, where: str, e: Exception) -> None:
         """A core exception: counted (``core_errors``, drop reason ``core``), logged at a limited rate
