@@ -350,10 +350,23 @@ def to_sdk(schema: str, d: dict):
 
 # --------------------------------------------------------------------------- the shell: Foxglove WebSocket
 
+def _latch_listener(subscribed: queue.SimpleQueue):
+    """The SDK server listener of the live view: the topic of every subscription into ``subscribed``."""
+    from foxglove.websocket import ServerListener
+
+    class Latch(ServerListener):
+        def on_subscribe(self, client, channel) -> None:  # noqa: ARG002
+            subscribed.put(channel.topic)
+
+    return Latch()
+
+
 class FoxgloveServer:
     """A Foxglove WebSocket server (SDK) with one channel per topic, made on first use.
 
-    ``playback`` (``(start_ns, end_ns)``, a listener) turns on the playback-control capability."""
+    ``playback_range_ns`` (``(start_ns, end_ns)``, with a ``listener``) turns on the playback-control
+    capability. Without a listener (live) a channel is latched: a client that subscribes gets its
+    latest message again (:meth:`resend_latched`, called by the serving loop)."""
 
     def __init__(self, host: str = "127.0.0.1", port: int = DEFAULT_PORT, name: str = "larns view",
                  playback_range_ns: tuple[int, int] | None = None, listener=None) -> None:
@@ -362,6 +375,10 @@ class FoxgloveServer:
 
         self.ctx = foxglove.Context()
         caps = [Capability.Time]
+        self.last: dict[str, Out] = {}                      # topic -> its latest message
+        self._subscribed: queue.SimpleQueue = queue.SimpleQueue()  # topics a client just subscribed to
+        if listener is None:  # live: a new subscriber gets the channel's latest message (latched)
+            listener = _latch_listener(self._subscribed)
         self.server = foxglove.start_server(name=name, host=host, port=port, context=self.ctx, capabilities=caps,
                                             playback_time_range=playback_range_ns, server_listener=listener,
                                             supported_encodings=["json", "protobuf"])
@@ -396,18 +413,36 @@ class FoxgloveServer:
 
     def send(self, outs: list[Out]) -> None:
         for o in outs:
+            if self._log(o):
+                self.last[o.topic] = o
+                self.sent += 1
+
+    def _log(self, o: Out) -> bool:
+        try:
+            ch = self.channel(o.topic, o.schema)
+            if o.schema.startswith("foxglove."):
+                ch.log(to_sdk(o.schema, o.data), log_time=o.log_ns)
+            else:
+                ch.log(json.dumps(o.data, allow_nan=False, separators=(",", ":")).encode(), log_time=o.log_ns)
+            return True
+        except Exception as e:  # noqa: BLE001 - one message lost, never the server
+            self.failed[f"{o.schema}:{type(e).__name__}"] += 1
+            if self.failed[f"{o.schema}:{type(e).__name__}"] == 1:
+                log.warning("cannot send %s on %s: %r", o.schema, o.topic, e)
+            return False
+
+    def resend_latched(self) -> int:
+        """The latest message of each channel a client subscribed to since the last call, again (the
+        first message of a new channel goes out before anyone could subscribe to it). Returns how many."""
+        topics = set()
+        while True:
             try:
-                ch = self.channel(o.topic, o.schema)
-                if o.schema.startswith("foxglove."):
-                    ch.log(to_sdk(o.schema, o.data), log_time=o.log_ns)
-                else:
-                    ch.log(json.dumps(o.data, allow_nan=False, separators=(",", ":")).encode(), log_time=o.log_ns)
-            except Exception as e:  # noqa: BLE001 - one message lost, never the server
-                self.failed[f"{o.schema}:{type(e).__name__}"] += 1
-                if self.failed[f"{o.schema}:{type(e).__name__}"] == 1:
-                    log.warning("cannot send %s on %s: %r", o.schema, o.topic, e)
-                continue
-            self.sent += 1
+                topics.add(self._subscribed.get_nowait())
+            except queue.Empty:
+                break
+        n = sum(self._log(self.last[t]) for t in topics if t in self.last)
+        self.sent += n
+        return n
 
     def time(self, t_ns: int) -> None:
         """The server's time (Foxglove's current time), sent when it changes."""
@@ -442,6 +477,7 @@ def serve_live(bus_kw: dict, host: str = "127.0.0.1", port: int = DEFAULT_PORT, 
             on_ready(srv.port)
         t_end = time.monotonic() + duration_s if duration_s else float("inf")
         while not stop.is_set() and time.monotonic() < t_end:
+            srv.resend_latched()
             try:
                 item = q.get(timeout=0.1)
             except queue.Empty:

@@ -188,3 +188,24 @@ def test_json_schemas_generated_from_the_sdk_reject_what_the_sdk_would_not_encod
     assert ent["properties"]["lifetime"]["required"] == ["sec", "nsec"]
     assert ent["properties"]["lines"]["items"]["properties"]["points"]["items"]["title"] == "foxglove.Point3"
     assert set(json_schema("foxglove.Log")["properties"]) == {"timestamp", "level", "message", "name", "file", "line"}
+
+
+def test_a_late_subscriber_gets_each_channel_latest_message():
+    srv = FoxgloveServer(port=0)
+    v = LiveView()
+    try:
+        srv.send(v.on_sample(*_est(4, 3.0, [1.0, 2.0, 3.0])))  # before any client: lost but for the latch
+
+        async def go():
+            async with FoxgloveClient(f"ws://127.0.0.1:{srv.port}") as c:
+                await c.run(0.5)
+                n = srv.resend_latched()
+                await c.run(2.0, until=lambda g: g.of("larns/foxglove/station/4"))
+                return c.got, n
+
+        got, n = asyncio.run(go())
+    finally:
+        srv.stop()
+    assert n >= 3  # tf, scene and the station's numbers
+    assert [m["t_s"] for m in got.of("larns/foxglove/station/4")] == [3.0]
+    assert srv.resend_latched() == 0  # nothing new subscribed
