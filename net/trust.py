@@ -236,9 +236,10 @@ def replay_state_path(ca_der: bytes, cn: str) -> Path:
 # --------------------------------------------------------------------------- on the bus
 
 def attach_trust(bus, store: TrustStore, cn: str, on_change: Callable[[], None] | None = None,
-                 now_unix_s: Callable[[], float] = time.time) -> dict:
+                 now_unix_s: Callable[[], float] = time.time, pull_every_s: float = 10.0) -> dict:
     """Serve ``cn``'s certificate and the newest revocation list on Zenoh queryables, take
-    revocation lists put on :data:`CRL_KEY`, and fetch the lists held by others once. Returns
+    revocation lists put on :data:`CRL_KEY`, and ask the others for theirs every ``pull_every_s``
+    (a list put while this process was still linking reaches it that way). Returns
     ``{"fetch": fn(cn)}``: fetch a signer's certificate from the bus (asynchronous; the reply
     lands in ``store``). ``on_change`` runs after a newer list was taken."""
     session = bus.session
@@ -275,7 +276,16 @@ def attach_trust(bus, store: TrustStore, cn: str, on_change: Callable[[], None] 
     keep = [session.declare_queryable(cert_key(cn), serve_cert),
             session.declare_queryable(CRL_KEY, serve_crl),
             session.declare_subscriber(CRL_KEY, lambda s: take_crl(s.payload.to_bytes()))]
-    session.get(CRL_KEY, on_reply, timeout=5.0)
+
+    def pull() -> None:  # the newest list any process holds (a put missed while linking)
+        while not getattr(bus, "closed", False):
+            try:
+                session.get(CRL_KEY, on_reply, timeout=5.0)
+            except Exception:  # noqa: BLE001 - the session is closing
+                return
+            time.sleep(pull_every_s)
+
+    threading.Thread(target=pull, name="larns-trust-pull", daemon=True).start()
 
     def fetch(signer: str) -> None:
         try:

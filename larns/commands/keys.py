@@ -139,7 +139,9 @@ def _publish_crl(a: argparse.Namespace, ks) -> int:
     except KeystoreError as e:
         print(f"larns keys revoke --publish: {e}", file=sys.stderr)
         return 2
-    time.sleep(a.link_wait)
+    t_end = time.monotonic() + a.link_wait
+    while time.monotonic() < t_end and len(bus.peers()) + len(bus.routers()) < len(a.connect):
+        time.sleep(0.1)
     for _ in range(3):   # a few times, a second apart: a peer still linking gets one of them
         publish_crl(bus, der)
         time.sleep(1.0)
@@ -256,7 +258,8 @@ def register(sub) -> None:
     v.add_argument("--publish", action="store_true", help="put the list on the bus (as the monitor enclave)")
     v.add_argument("--connect", action="append", metavar="ENDPOINT", help="tls/HOST:PORT of the field (repeatable)")
     v.add_argument("--client", action="store_true", help="connect as a Zenoh client (router topology)")
-    v.add_argument("--link-wait", type=float, default=2.0, help="seconds to wait for links before publishing")
+    v.add_argument("--link-wait", type=float, default=10.0,
+                   help="seconds to wait at most for a link to every --connect before publishing (default 10)")
     v.set_defaults(func=_cmd_revoke)
     x = ks.add_parser("export", help="one host's part of a keystore: its enclave(s), ca.crt, public certificates")
     x.add_argument("dir")

@@ -1,0 +1,100 @@
+"""Revocation on a live secure fleet (issue 32, item 3 bar): four stations over real Zenoh TLS on
+loopback; at fleet second ~14 station 3 is revoked with `larns keys revoke --publish`. Within one
+cycle of the revocation list's arrival nobody measures a range with station 3 any more (its
+requests and replies are refused), and every other station counts station 3's samples as
+``revoked`` - while station 3 itself keeps running and sending."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from net.bus import free_tcp_ports
+
+PY = sys.executable
+ROOT = Path(__file__).resolve().parents[2]
+CYCLE_S = 1.0   # seed000
+
+_WATCH = """
+import json, sys, time
+from net.bus import Bus
+from net import messages as M
+b = Bus(listen=["tls/127.0.0.1:0"], connect=sys.argv[3:], secure=(sys.argv[1], "monitor"))
+out = {"crl_wall_s": [], "navs": []}
+def on_crl(k, d):
+    out["crl_wall_s"].append(time.time())
+def on_nav(k, d):
+    m = M.decode(d)[0]
+    out["navs"].append([m["src"], m["stamp_s"], [r[:3] for r in m["ranges"]]])
+b.subscribe("larns/trust/crl", on_crl)
+b.subscribe("larns/station/*/nav", on_nav)
+time.sleep(float(sys.argv[2]))
+b.close()
+print(json.dumps(out))
+"""
+
+
+def _station(ks, sid, ports, epoch, duration, seeds, state):
+    cmd = [PY, "-m", "larns", "station", "--id", str(sid), "--scenario", "seed000", "--epoch", repr(epoch),
+           "--duration", repr(duration), "--quiet", "--report-json", "--secure", str(ks),
+           "--listen", f"tcp/127.0.0.1:{ports[sid]}"]
+    cmd += [f"--connect=tcp/127.0.0.1:{ports[s]}" for s in seeds if s != sid]
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+                            env={**os.environ, "LARNS_STATE_DIR": str(state)})
+
+
+def _json_out(p, timeout=90) -> dict:
+    out, err = p.communicate(timeout=timeout)
+    assert p.returncode == 0, err[-2000:]
+    assert "Traceback" not in err, err[-2000:]
+    return json.loads(out.strip().splitlines()[-1])
+
+
+@pytest.mark.e2e
+@pytest.mark.timeout(180)
+def test_revoked_station_dropped_within_one_cycle_of_the_list(tmp_path):
+    from net.keystore import init_keystore
+
+    ks = tmp_path / "keys"
+    init_keystore(ks, [1, 2, 3, 5], [], recorder=True)
+    ids = [1, 2, 3, 5]
+    ports = dict(zip(ids, free_tcp_ports(len(ids))))
+    epoch = time.time() + 6.0
+    dur, t_revoke = 30.0, 14.0
+    procs = {s: _station(ks, s, ports, epoch, dur, [1, 2], tmp_path / "state") for s in ids}
+    watch = subprocess.Popen([PY, "-c", _WATCH, str(ks), str(6.0 + dur + 2.0),
+                              *[f"tls/127.0.0.1:{ports[s]}" for s in ids]],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    time.sleep(max(0.0, epoch + t_revoke - time.time()))
+    rv = subprocess.run([PY, "-m", "larns", "keys", "revoke", str(ks), "--station", "3", "--publish",
+                         *[f"--connect=tcp/127.0.0.1:{ports[s]}" for s in (1, 2, 5)]],
+                        capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert rv.returncode == 0, rv.stderr
+    reps = {s: _json_out(p) for s, p in procs.items()}
+    w = _json_out(watch)
+    assert w["crl_wall_s"], "the revocation list never arrived on the bus"
+    t_arr = (min(w["crl_wall_s"]) - epoch)           # fleet s (speed 1)
+    assert t_revoke < t_arr < t_revoke + 10.0, t_arr
+
+    def ranges_with_3(lo, hi):
+        return [(src, r) for src, stamp, rs in w["navs"] if src != 3 and lo <= stamp < hi
+                for r in rs if r[0] == 3 and lo <= r[2] < hi]
+
+    before = ranges_with_3(0.0, t_arr)
+    after = ranges_with_3(t_arr + CYCLE_S, dur)
+    diag = {"t_arr": t_arr, "drops": {s: reps[s]["drops"]["by_reason"] for s in ids},
+            "ranges_by_t": sorted((round(r[2]), src, r[0]) for src, _st, rs in w["navs"] for r in rs)}
+    assert len(before) >= 2, diag                    # the exchanges with 3 ran before
+    assert after == [], after[:5]                    # none from one cycle after the list arrived
+    navs3_after = [n for n in w["navs"] if n[0] == 3 and n[1] > t_arr + CYCLE_S]
+    assert len(navs3_after) >= 5                     # station 3 kept sending (the monitor is not a station)
+    for s in (1, 2, 5):
+        by = reps[s]["drops"]["by_reason"]
+        assert by.get("revoked", 0) >= 5, (s, by)
+    assert reps[2]["n_updates"] > 5 and reps[5]["n_updates"] > 5
