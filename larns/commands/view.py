@@ -90,9 +90,11 @@ def cmd_replay_view(args: argparse.Namespace) -> int:
         print("larns replay --view: nothing to play (check --topics / --exclude / --start-offset / --until)",
               file=sys.stderr)
         return 1
-    if not 0 <= args.view <= 65535 or args.rate <= 0:
-        print(f"larns replay --view: expected a port 0..65535 (got {args.view}) and --rate > 0 (got {args.rate})",
-              file=sys.stderr)
+    if not 0 <= args.view <= 65535:
+        print(f"larns replay --view {args.view}: expected a port 0..65535", file=sys.stderr)
+        return 2
+    if not args.rate > 0:
+        print(f"larns replay --view: --rate {args.rate:g}: expected > 0", file=sys.stderr)
         return 2
     stop = threading.Event()
     for s in (signal.SIGINT, signal.SIGTERM):
