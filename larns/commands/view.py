@@ -80,6 +80,12 @@ def cmd_replay_view(args: argparse.Namespace) -> int:
     from larns.log.player import select_messages
     from larns.viz.live import serve_recording
 
+    if not 0 <= args.view <= 65535:
+        print(f"larns replay --view {args.view}: expected a port 0..65535", file=sys.stderr)
+        return 2
+    if not args.rate > 0:
+        print(f"larns replay --view: --rate {args.rate:g}: expected > 0", file=sys.stderr)
+        return 2
     try:
         logs = read_logs(args.files, encodings=["msgpack"])
     except (OSError, ValueError) as e:
@@ -90,12 +96,6 @@ def cmd_replay_view(args: argparse.Namespace) -> int:
         print("larns replay --view: nothing to play (check --topics / --exclude / --start-offset / --until)",
               file=sys.stderr)
         return 1
-    if not 0 <= args.view <= 65535:
-        print(f"larns replay --view {args.view}: expected a port 0..65535", file=sys.stderr)
-        return 2
-    if not args.rate > 0:
-        print(f"larns replay --view: --rate {args.rate:g}: expected > 0", file=sys.stderr)
-        return 2
     stop = threading.Event()
     for s in (signal.SIGINT, signal.SIGTERM):
         signal.signal(s, lambda *_: stop.set())

@@ -209,3 +209,23 @@ def test_a_late_subscriber_gets_each_channel_latest_message():
     assert n >= 3  # tf, scene and the station's numbers
     assert [m["t_s"] for m in got.of("larns/foxglove/station/4")] == [3.0]
     assert srv.resend_latched() == 0  # nothing new subscribed
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["view", "--port", "70000"], "larns view: --port 70000: expected 0..65535"),
+    (["replay", "nonexistent.mcap", "--view", "0"], "larns replay --view: "),
+    (["replay", "{bad}", "--view", "0"], "not an MCAP file"),
+    (["replay", "{bad}", "--view", "99999"], "larns replay --view 99999: expected a port 0..65535"),
+])
+def test_bad_input_is_one_line_and_exit_2(tmp_path, argv, says):
+    import subprocess
+    import sys
+
+    bad = tmp_path / "bad.mcap"
+    bad.write_text("garbage")
+    argv = [a.replace("{bad}", str(bad)) for a in argv]
+    r = subprocess.run([sys.executable, "-m", "larns", *argv], capture_output=True, text=True, timeout=60,
+                       cwd=tmp_path)
+    assert r.returncode == 2, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and says in lines[0] and "Traceback" not in r.stderr, r.stderr
