@@ -229,3 +229,20 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, argv, says):
     assert r.returncode == 2, r.stderr
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and says in lines[0] and "Traceback" not in r.stderr, r.stderr
+
+
+def test_vehicle_estimate_and_truth_draw_tracks_and_numbers():
+    v = LiveView()
+    topics, ents = set(), set()
+    for i in range(3):
+        t = float(i)
+        for m in ({"kind": "veh_estimate", "src": "veh1", "seq": i, "stamp_s": t, "t_s": t, "pos_m": [t, 0.0, 0.0],
+                   "cov_m2": I3, "vel_m_s": [1.0, 0.0, 0.0], "algo": "cdekf-map", "n_updates": i},
+                  {"kind": "veh_truth", "src": "veh1", "seq": i, "stamp_s": t, "t_s": t, "pos_m": [t, 0.1, 0.0],
+                   "vel_m_s": [1.0, 0.0, 0.0]}):
+            for o in v.on_sample(M.key_for(m), M.encode(m)):
+                topics.add(o.topic)
+                if o.topic == "larns/foxglove/scene":
+                    ents |= {e["id"] for e in o.data["entities"]}
+    assert "larns/foxglove/vehicle/veh1/cdekf-map" in topics
+    assert {"vehicle/veh1/cdekf-map/track", "vehicle/veh1/truth/track", "vehicle/veh1/cdekf-map"} <= ents
