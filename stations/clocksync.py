@@ -56,6 +56,13 @@ from net.clock import TimeScale, ensemble_change, transition
 
 C = SPEED_OF_LIGHT_M_S
 ENTER_SD_S = 2e-9  # a clock enters the ensemble once its offset against it is known to 2 ns (1 sigma)
+# consensus on the definition (docs/sync.md "One time scale"): once per second of T the scale's phase
+# moves by STEER_P times the mean disagreement with the peers' definitions and its rate by STEER_I
+# times it (a second-order loop: the rate term removes a constant drift between definitions)
+STEER_P = 0.3
+STEER_I = 0.05
+STEER_GATE_S = 2e-9  # a peer's correction and our estimate of its clock both known to 2 ns (1 sigma)
+SCALE_LOG_MAX = 4096  # definitions kept for the world side (the recent ones; about an hour of steering)
 LEAVE_S = 5.0  # a member not heard in any exchange for 5 s of network time leaves the ensemble
 
 
@@ -155,6 +162,7 @@ class ClockEstimator:
         self.scale = TimeScale(((1, 1.0),), T_ref_s=self.T_s)
         self.scale_log: list[TimeScale] = [self.scale]
         self._heard_T: dict[int, float] = {}  # network time of the last exchange of each clock
+        self._disagree: list[float] = []  # N_peer - N_me seen since the last tick (s)
         self._tick_T = math.floor(self.T_s)
         if not self.ref:
             self._add(station_id)
@@ -361,6 +369,43 @@ class ClockEstimator:
         qfac = sum(c * c for c in coeffs.values())
         return th - sc.a_s - sc.b * (self.T_s - sc.T_ref_s), f - sc.b, tt, tf, ff, qfac
 
+    def on_peer_scale(self, src: int, t_tx_src_s: float, corr) -> None:
+        """A peer's broadcast correction ``corr`` (its offset against *its* network time at its stamp
+        ``t_tx_src_s``) against our estimate of the same clock against *our* network time: their
+        difference is how far the two definitions are apart, ``N_src - N_me`` (both filters are, up
+        to the navs they missed, the centralized one, so only the definitions differ). Collected for
+        the steering at the next tick."""
+        if self.exact or corr is None or src == self.id or (src != 1 and src not in self.index):
+            return
+        dT = t_tx_src_s - corr[0]
+        th_peer = corr[1] + corr[2] * dT
+        if corr[3] + 2 * dT * corr[4] + dT * dT * corr[5] > STEER_GATE_S**2:
+            return
+        T, _ = self.peer_time(src, t_tx_src_s)
+        e, f, ptt, ptf, pff, _ = self._ens(src)
+        dt = T - self.T_s
+        if ptt + 2 * dt * ptf + dt * dt * pff > STEER_GATE_S**2:
+            return
+        d = (e + f * dt) - th_peer
+        if math.isfinite(d) and abs(d) < 1e-6:
+            self._disagree.append(d)
+
+    def _steer(self) -> None:
+        """Once per second of ``T``: move this station's definition toward its peers' (consensus)."""
+        if not self._disagree:
+            return
+        d = float(np.mean(self._disagree))
+        self._disagree.clear()
+        sc, T = self.scale, self.T_s
+        # the phase at T moves by STEER_P d and the rate by STEER_I d; T_ref_s is kept (a departure can
+        # still be dated back before this tick: _membership)
+        db = STEER_I * d
+        self.scale = TimeScale(sc.weights, a_s=sc.a_s + STEER_P * d - db * (T - sc.T_ref_s), b=sc.b + db,
+                               T_ref_s=sc.T_ref_s, jump_s=0.0)
+        self.scale_log.append(self.scale)
+        if len(self.scale_log) > SCALE_LOG_MAX:
+            del self.scale_log[: len(self.scale_log) - SCALE_LOG_MAX]
+
     def _state(self, sid: int) -> tuple[float, float]:
         if sid == 1:
             return 0.0, 0.0
@@ -413,6 +458,7 @@ class ClockEstimator:
         if math.floor(self.T_s) > self._tick_T:
             self._tick_T = math.floor(self.T_s)
             self._membership()
+            self._steer()
 
     def _terms(self, T_s: float, terms: list[tuple[int, float]]) -> tuple[list[int], list[float], float]:
         """Sparse row of ``sum sign theta_sid(T_s)`` at the filter's time: block indices, signs and the

@@ -374,6 +374,7 @@ class StationCore:
         corr = msg.get("clock")
         if corr is not None:
             self.clk.on_nav(src, t_rx_s, msg["t_tx_s"], corr)  # coarse, only while unknown
+            self.clk.on_peer_scale(src, msg["t_tx_s"], corr)  # one time scale: consensus on its definition
         for r in msg.get("ranges", ()):
             if not self._plausible_entry(src, r, msg.get("t_tx_s", t_rx_s), t_rx_s):
                 continue

@@ -131,7 +131,7 @@ def test_a_clock_enters_with_weight_zero_until_it_is_known():
         assert scale_at(log, 1.0).w == {1: 1.0}  # at 1 s nobody else is known to 2 ns
         assert len(log[-1].w) == 10
         core = sim.cores[scn.ids.index(sid)]
-        assert all(s.T_ref_s >= 2.0 for s in log[1:])
+        assert all(s.T_ref_s >= 2.0 for s in log[1:] if s.w != log[0].w)  # membership changes (not steering)
         assert core.clk.scale is log[-1]
 
 
