@@ -157,7 +157,7 @@ class Run:
     append: str = ""                          # arguments appended
     before: tuple[str, ...] = ()              # table lines run first in the same directory (their own rewrite)
     in_dir_of: str = ""                       # run where this (cached, once per session) table line ran
-    expect: str = ""                          # regex that must be in stdout + stderr
+    expect: str | tuple[str, ...] = ""        # regex(es) that must be in stdout + stderr
     rc: int = 0
     timeout_s: float = 120.0
     slow: bool = False
@@ -179,6 +179,7 @@ SUITE = "a pytest run of this suite's own files: the suite runs them (path check
 MANUAL = "a piece of a fleet started by hand on fixed ports (7447/7450/7500), typed beside a running fleet in other terminals; the launcher does the same with free ports: larns fleet lines RUN here, tests/net/test_bus_router.py (router + clients), tests/larns/test_record.py (record)"
 HOTJOIN = "covered by tests/larns/test_attach.py::test_readme_hot_join_attaches_to_a_running_fleet (this very line against ./dev demo, with larns monitor)"
 VIEW = "serves Foxglove on the fixed port 8765 (shared machine: others may hold it) and runs until Ctrl-C; the live view beside a fleet is tests/larns/test_view_live.py, replay --view tests/larns/test_view_replay.py"
+SURVEYED = r"(?m)^\s+10 surveying"  # the fleet's final table: station 10 surveyed itself
 DEMO = "the session recording (30 fleet s at speed 3 with aircraft and vehicle) in place of this file"
 
 
@@ -194,7 +195,7 @@ TABLE: dict[str, Run | Skip] = {
     "./dev larns scenario list": Run(expect=r"seed000"),
     "./dev larns fleet --scenario seed000 --duration 60 --speed 5 --record runs/run.mcap":
         Run("--duration 60 -> 45 (~10 s wall)", edits=_short("--duration 60", "--duration 45"),
-            expect=r"fleet file runs/fleet.json", slow=True),
+            expect=(r"fleet file runs/fleet.json", SURVEYED), slow=True),
     "./dev larns station --id 11 --scenario seed000 --join": Skip(HOTJOIN),
     "./dev larns monitor": Skip("needs a running fleet (a 3rd terminal); covered by tests/larns/test_attach.py (larns monitor --once against ./dev demo)"),
     "./dev bench survey --trials 100 --json survey.json": Skip(BENCH),
@@ -209,9 +210,11 @@ TABLE: dict[str, Run | Skip] = {
     "./dev bench vehicle --json vehicle.json": Skip(BENCH),
     "./dev bench triad --json triad.json --png triad.png": Skip(BENCH),
     "./dev larns aircraft --scenario seed003-text --imu adis16480":
-        Run("runs until Ctrl-C beside a fleet: --duration 5 appended", append="--duration 5", slow=True),
+        Run("runs until Ctrl-C beside a fleet: --duration 5 appended", append="--duration 5",
+            expect=r"\[aircraft ac1\] stopped", slow=True),
     "./dev larns vehicle --scenario seed000 --route docs/routes/field-straight.toml":
-        Run("runs until Ctrl-C beside a fleet: --duration 5 appended", append="--duration 5", slow=True),
+        Run("runs until Ctrl-C beside a fleet: --duration 5 appended", append="--duration 5",
+            expect=r"\[vehicle veh1\] stopped", slow=True),
     "./dev larns info runs/demo.mcap": Run(expect=r"Stations:\s+10"),
     "./dev larns replay runs/demo.mcap --rate 2": Run(expect=r"\[replay\] published \d+ messages"),
     "./dev larns fleet --scenario seed000 --aircraft --view": Skip(VIEW),
@@ -221,7 +224,7 @@ TABLE: dict[str, Run | Skip] = {
     "./dev larns keys init runs/keys --stations 1-10 --aircraft ac1": Run(expect=r"keystore runs/keys: CA \+ 14 enclaves"),
     "./dev larns fleet --secure runs/keys --duration 60":
         Run("--duration 60 -> 20, after the README's keys init line", edits=_short("--duration 60", "--duration 20"),
-            before=("./dev larns keys init runs/keys --stations 1-10 --aircraft ac1",), slow=True),
+            before=("./dev larns keys init runs/keys --stations 1-10 --aircraft ac1",), expect=SURVEYED, slow=True),
     "scripts/docker-build.sh": Skip(COMPOSE),
     "docker compose up": Skip(COMPOSE),
     "docker compose run --rm keys add /keys --station 11": Skip(COMPOSE),
@@ -241,7 +244,8 @@ TABLE: dict[str, Run | Skip] = {
     "larns aircraft --scenario seed003 --algo ukf-pr --algo ekf-tdoa [--name ac1] [--speed K] [--epoch T]": Skip(SYNOPSIS, concrete=False),
     "python -m aircraft ...": Skip(SYNOPSIS + " (= larns aircraft ...)", concrete=False),
     "larns fleet --scenario seed000 --aircraft":
-        Run("default 60 fleet s: --duration 20 appended", append="--duration 20", expect=r"aircraft\s+ac1", slow=True),
+        Run("default 60 fleet s: --duration 20 appended", append="--duration 20",
+            expect=(SURVEYED, r"aircraft\s+ac1\s+ukf-pr: t="), slow=True),
     "larns bench integrity --aircraft seed001 seed003": Skip(BENCH),
     "larns bench integrity --aircraft": Skip(BENCH),
     "./dev larns fleet --scenario FILE --duration 45 --speed 3 --aircraft --record f.mcap": Skip(SYNOPSIS + " (FILE: a world written from tests/scenario_text.py)", concrete=False),
@@ -276,14 +280,16 @@ TABLE: dict[str, Run | Skip] = {
     "larns info runs/fleet.mcap": Run("runs/fleet.mcap (the compose recorder's file): " + DEMO, expect=r"complete"),
     # --- docs/fleet.md
     "larns fleet --scenario seed000 --duration 60 --speed 1 --record run.mcap":
-        Run("--duration 60 -> 15", edits=_short("--duration 60", "--duration 15"), expect=r"recording: run.mcap", slow=True),
+        Run("--duration 60 -> 15", edits=_short("--duration 60", "--duration 15"),
+            expect=(r"recording: run.mcap", SURVEYED), slow=True),
     "larns fleet --scenario seed000 --duration 60 --join 11@20":
         Run("--duration 60 -> 40 (the join is at 20 s)", edits=_short("--duration 60", "--duration 40"),
             expect=r"(?m)^\s+11 +(joining|surveying)", slow=True),
     "larns fleet --scenario seed000 --duration 60 --topology router":
-        Run("--duration 60 -> 15", edits=_short("--duration 60", "--duration 15"), slow=True),
+        Run("--duration 60 -> 15", edits=_short("--duration 60", "--duration 15"), expect=(r"router", SURVEYED), slow=True),
     "larns fleet --scenario seed000 --duration 180 --speed 2 --vehicle --record run.mcap":
-        Run("--duration 180 -> 30", edits=_short("--duration 180", "--duration 30"), expect=r"vehicle\s+veh1", slow=True),
+        Run("--duration 180 -> 30", edits=_short("--duration 180", "--duration 30"),
+            expect=(SURVEYED, r"vehicle\s+veh1\s+cdekf-map: t="), slow=True),
     "larns record -o runs/extra.mcap --fleet runs/fleet.json": Skip("attaches to the running ./dev demo (terminal 4); the attach logic (fleet file, its end) is tests/larns/test_attach.py"),
     "larns aircraft --fleet runs/fleet.json --duration 120": Skip("attaches to the running ./dev demo (terminal 5); the attach logic (fleet file, its end) is tests/larns/test_attach.py"),
     "larns station --id 5 --scenario seed000 --epoch 1795300000 --listen tcp/127.0.0.1:7450 --connect tcp/127.0.0.1:7447": Skip(MANUAL),
@@ -293,7 +299,7 @@ TABLE: dict[str, Run | Skip] = {
     "larns station --id 5 --scenario seed000 --zenoh-mode client --connect tcp/127.0.0.1:7447": Skip(MANUAL),
     "larns record -o run.mcap --zenoh-mode client --connect tcp/127.0.0.1:7447": Skip(MANUAL),
     "larns fleet --scenario seed000 --topology router":
-        Run("default 60 fleet s: --duration 15 appended", append="--duration 15", slow=True),
+        Run("default 60 fleet s: --duration 15 appended", append="--duration 15", expect=(r"router", SURVEYED), slow=True),
     "larns bench scale --topology router --n 50": Skip(BENCH),
     "larns bench net": Skip("real-time Zenoh latency bench (~1 min); options checked by the parser here"),
     "larns bench scale": Skip(BENCH),
@@ -303,13 +309,15 @@ TABLE: dict[str, Run | Skip] = {
     "larns bench scale --topology peer|router --n N --duration 60": Skip(SYNOPSIS, concrete=False),
     # --- docs/ins.md
     "larns aircraft --scenario seed003-text --imu adis16480":
-        Run("runs until Ctrl-C beside a fleet: --duration 5 appended", append="--duration 5", slow=True),
+        Run("runs until Ctrl-C beside a fleet: --duration 5 appended", append="--duration 5",
+            expect=r"\[aircraft ac1\] stopped", slow=True),
     "larns fleet --scenario seed003-text --duration 120 --aircraft --record runs/ins.mcap":
-        Run("--duration 120 -> 25", edits=_short("--duration 120", "--duration 25"), expect=r"ins-ekf", slow=True),
+        Run("--duration 120 -> 45 (the INS starts from the broadcasts at ~35 s)", edits=_short("--duration 120", "--duration 45"),
+            expect=r"aircraft\s+ac1\s+ins-ekf: t=", slow=True),
     "larns replay --offline runs/ins.mcap --algo ins-ekf":
         Run("on the recording of ins.md's fleet line (shortened)",
             in_dir_of="larns fleet --scenario seed003-text --duration 120 --aircraft --record runs/ins.mcap",
-            expect=r"ins-ekf", slow=True),
+            expect=r"aircraft ac1 ins-ekf: [1-9]\d* estimates.*vs the (\d+) recorded: \1/\1 identical", slow=True),
     "larns replay --offline runs/ins600/ins.mcap --algo ins-ekf --scenario seed003-text-10": Skip("needs the 600 s ten-station INS recording of the text (runs/ins600); the same re-flight RUNs on ins.md's fleet line"),
     "./dev larns bench ins --json ins.json --png ins.png": Skip(BENCH),
     "./dev larns bench ins --runs 64 --no-speed --no-tilt-cost --json ins64.json": Skip(BENCH),
@@ -341,7 +349,8 @@ TABLE: dict[str, Run | Skip] = {
     "larns keys init keys/ --stations 1-10 --aircraft ac1": Run(expect=r"CA \+ 14 enclaves"),
     "larns fleet --secure keys/ --duration 120 --record run.mcap":
         Run("--duration 120 -> 20, after the keys init line", edits=_short("--duration 120", "--duration 20"),
-            before=("larns keys init keys/ --stations 1-10 --aircraft ac1",), expect=r"recording: run.mcap", slow=True),
+            before=("larns keys init keys/ --stations 1-10 --aircraft ac1",), expect=(r"recording: run.mcap", SURVEYED),
+            slow=True),
     "larns keys add keys/ --station 11": Run("after the keys init line", before=("larns keys init keys/ --stations 1-10 --aircraft ac1",),
                                              expect=r"issued station-11"),
     "larns station --id 11 --join --secure keys/ --connect tls/127.0.0.1:PORT": Skip(MANUAL + "; PORT is a placeholder", concrete=False),
@@ -379,19 +388,21 @@ TABLE: dict[str, Run | Skip] = {
     "./dev test tests/aircraft/test_triad_live.py -q": Skip(SUITE),
     "./dev larns aircraft --scenario seed003-text --satellites 4 --epoch E --connect EP": Skip(MANUAL + "; E, EP are placeholders", concrete=False),
     "./dev larns fleet --scenario triad_live.toml --duration 60 --aircraft --record runs/triad.mcap":
-        Run("--duration 60 -> 25; triad_live.toml written as the doc says (seed003-text, algos = [\"triad\"])",
-            edits=_short("--duration 60", "--duration 25"), expect=r"triad", slow=True),
+        Run("--duration 60 -> 45 (the triad starts from the broadcasts); triad_live.toml written as the doc says "
+            "(seed003-text with algos = [\"triad\"])",
+            edits=_short("--duration 60", "--duration 45"), expect=r"aircraft\s+ac1\s+triad: t=", slow=True),
     "./dev larns replay --offline runs/triad.mcap --algo triad --scenario triad_live.toml":
         Run("on the recording of triad.md's fleet line (shortened)",
             in_dir_of="./dev larns fleet --scenario triad_live.toml --duration 60 --aircraft --record runs/triad.mcap",
-            expect=r"triad", slow=True),
+            expect=r"aircraft ac1 triad: [1-9]\d* estimates.*vs the (\d+) recorded: \1/\1 identical", slow=True),
     # --- docs/vehicle.md
     "larns bench vehicle --json vehicle.json --png-dir img/": Skip(BENCH),
     "larns vehicle --scenario seed000 --route docs/routes/field-straight.toml":
-        Run("runs until Ctrl-C beside a fleet: --duration 5 appended", append="--duration 5", slow=True),
+        Run("runs until Ctrl-C beside a fleet: --duration 5 appended", append="--duration 5",
+            expect=r"\[vehicle veh1\] stopped", slow=True),
     "larns fleet --scenario seed000 --duration 180 --speed 2 --vehicle --vehicle-outage 80,110 --record run.mcap":
         Run("--duration 180 -> 30 (the outage then lies after the run)", edits=_short("--duration 180", "--duration 30"),
-            expect=r"vehicle\s+veh1", slow=True),
+            expect=(SURVEYED, r"vehicle\s+veh1\s+cdekf-map: t="), slow=True),
     "larns reestimate run.mcap": Run(expect=r"vehicle veh1 cdekf-map: .*identical"),
     "larns fleet --scenario seed000 --duration 180 --speed 2 --record run.mcap --vehicle --vehicle-outage 80,110 --no-table":
         Skip("the same run as the line above it in docs/vehicle.md (RUN) with --no-table"),
@@ -661,5 +672,5 @@ def test_doc_command_runs(cmd, docs_session, tmp_path, tmp_path_factory):
         rc, out = run_line(rewritten(cmd), _directory(cmd, docs_session, tmp_path, tmp_path_factory), entry.timeout_s)
     assert rc == entry.rc, f"{rewritten(cmd)!r} exited {rc} (expected {entry.rc}):\n{out[-3000:]}"
     assert "Traceback" not in out, out[-3000:]
-    if entry.expect:
-        assert re.search(entry.expect, out), f"{rewritten(cmd)!r}: no {entry.expect!r} in its output:\n{out[-3000:]}"
+    for rx in (entry.expect,) if isinstance(entry.expect, str) else entry.expect:
+        assert re.search(rx, out), f"{rewritten(cmd)!r}: no {rx!r} in its output:\n{out[-3000:]}"
