@@ -144,8 +144,9 @@ class WritableKeystore(Keystore):
 
     def revoke(self, cn: str) -> int:
         """Revoke ``cn``'s current certificate: its serial goes on the CA-signed revocation list
-        (``crl.pem``, a higher number than before) and its files are removed, so `larns keys add`
-        can issue it anew (a new key). Returns the serial revoked."""
+        (``crl.pem``, a higher number than before), its key is deleted and its certificate moved to
+        ``revoked/<cn>-<serial>.pem``, so `larns keys add` can issue it anew (a new key). Returns
+        the serial revoked."""
         from cryptography import x509
 
         p = self.path(cn, "cert.pem")
@@ -155,7 +156,10 @@ class WritableKeystore(Keystore):
         revoked = self.index.setdefault("revoked", [])
         revoked.append({"cn": cn, "serial": str(serial), "at": dt.datetime.now(dt.timezone.utc).isoformat()})
         self.write_crl()
-        for name in ("key.pem", "cert.pem", "zenoh.json5"):
+        kept = self.root / "revoked"          # the public part, kept: offline tools name the reason
+        kept.mkdir(exist_ok=True)
+        p.replace(kept / f"{cn}-{serial:x}.pem")
+        for name in ("key.pem", "zenoh.json5"):
             self.path(cn, name).unlink(missing_ok=True)
         del self.index["enclaves"][cn]
         self._save_index()

@@ -466,7 +466,8 @@ class Verifier:
             return
         self._missing[cn] = now
         self._crl_file()
-        for p in (self.ks.path(cn, "cert.pem"), self.ks.root / CERTS_DIR / f"{cn}.pem"):
+        for p in (self.ks.path(cn, "cert.pem"), self.ks.root / CERTS_DIR / f"{cn}.pem",
+                  *sorted((self.ks.root / "revoked").glob(f"{cn}-*.pem"))):
             try:
                 self.trust.add_cert(p.read_bytes(), cn)
             except (OSError, TrustError):

@@ -17,14 +17,21 @@ from pathlib import Path
 from typing import Any, Sequence
 
 
-def summarize(paths: Sequence[str | Path], logs=None, rec=None) -> dict[str, Any]:
+def summarize(paths: Sequence[str | Path], logs=None, rec=None, keystore=None) -> dict[str, Any]:
     """Everything ``larns info`` prints, as a JSON-able dict (from the decoded series of
-    :mod:`larns.log.series`; pass ``rec`` to reuse an already decoded recording)."""
+    :mod:`larns.log.series`; pass ``rec`` to reuse an already decoded recording). Messages are
+    attributed by key; with ``keystore`` (a :class:`net.security.Keystore`) also by signer; the
+    ones refused are in ``refused`` (:func:`refused_table`) and nowhere else."""
     from ..log.reader import read_logs
     from ..log.series import Recording
 
     if rec is None:
-        rec = Recording.from_logs(logs if logs is not None else read_logs(paths))
+        check = None
+        if keystore is not None:
+            from .verify import signer_check
+
+            check = signer_check(keystore)
+        rec = Recording.from_logs(logs if logs is not None else read_logs(paths), check)
     out: dict[str, Any] = {"files": [_file_info(lg) for lg in rec.logs], "messages": len(rec.messages)}
     if not rec.messages:
         out.update(duration_s=0.0, topics={}, stations={}, aircraft={}, vehicles={}, loss={}, latency_ms={})
@@ -36,8 +43,17 @@ def summarize(paths: Sequence[str | Path], logs=None, rec=None) -> dict[str, Any
     out["vehicles"] = {name: vehicle_row(v) for name, v in sorted(rec.vehicles.items())}
     out["loss"], out["loss_total"] = rec.net.loss()
     out["invalid"] = dict(rec.net.invalid)
+    out["refused"] = refused_table(rec.net.refused)
+    out["verified"] = keystore is not None
     out["latency_ms"] = rec.net.latency_summary()
     return out
+
+
+def refused_table(refused) -> list[dict[str, Any]]:
+    """Messages not attributed (``Recording.net.refused``), largest count first: ``[{"key",
+    "src" (what the message claimed), "reason", "count"}]``."""
+    return [{"key": k, "src": src, "reason": why, "count": n}
+            for (k, src, why), n in sorted(refused.items(), key=lambda kv: (-kv[1], kv[0]))]
 
 
 def vehicle_row(v) -> dict[str, Any]:

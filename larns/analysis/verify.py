@@ -1,16 +1,46 @@
 """Checking the signatures in recordings against a keystore, as a live receiver would
-(``larns replay --secure DIR``; :mod:`net.security`)."""
+(``larns replay --secure DIR``, ``larns info --keystore DIR``; :mod:`net.security`)."""
 
 from __future__ import annotations
 
 from net.security import Keystore, aircraft_cn, station_cn
 
 
+def expected_cn(src) -> str:
+    """The enclave that may send as ``src`` (station id, or aircraft / vehicle name)."""
+    return aircraft_cn(src) if isinstance(src, str) else station_cn(src)
+
+
+def signer_check(ks: Keystore):
+    """``check(m, msg) -> reason or None`` for :meth:`larns.log.series.Recording.from_logs`: the
+    recorded frame must carry a valid signature, by a certificate of the keystore's CA that was
+    valid at the message's log time and is not revoked by the keystore's ``crl.pem``, of the
+    sender the key and ``src`` name (certificates from ``<cn>/cert.pem`` or ``certs/<cn>.pem``).
+    Reasons as a live receiver counts them (``unsigned``, ``signer_mismatch``, ``bad_signature``,
+    ``unknown_signer``, ``revoked``, ``expired``)."""
+    from net.security import SecurityError, Verifier
+
+    at = [0.0]
+    v = Verifier(ks, rescan_s=1e9, wall_s=lambda: at[0])
+
+    def check(m, msg) -> str | None:
+        at[0] = m.log_time * 1e-9
+        try:
+            signer, _env = v.open(m.topic, m.data)
+        except SecurityError as e:
+            return e.reason
+        return None if signer == expected_cn(msg["src"]) else "signer_mismatch"
+
+    check.verifier = v
+    return check
+
+
 def verify_recording(ks: Keystore, paths, topics=None, exclude=None) -> dict:
     """Check every signed wire sample of MCAP recordings against the keystore: ``{"checked",
     "by_reason": {...}, "by_signer": {cn: n valid}}``. Samples are checked as a live receiver would
-    (signature, signer named by the key, signer is the message's source); time is not checked
-    (a recording is old by nature). Unsigned samples count as ``unsigned``."""
+    (signature, signer named by the key, signer is the message's source, certificate valid at the
+    sample's log time and not revoked); stamps are not checked against a clock (a recording is old
+    by nature). Unsigned samples count as ``unsigned``."""
     from collections import Counter
 
     from net import messages as M
@@ -23,18 +53,21 @@ def verify_recording(ks: Keystore, paths, topics=None, exclude=None) -> dict:
         for lg in read_logs(list(paths), topics=topics, exclude=exclude, encodings=["msgpack"], sort=False):
             yield from lg.messages
 
-    v = Verifier(ks, rescan_s=1e9)
+    at = [0.0]
+    v = Verifier(ks, rescan_s=1e9, wall_s=lambda: at[0])
     reasons: Counter = Counter()
     signers: Counter = Counter()
     n = 0
     for m in read_messages(paths, topics, exclude):
+        if m.topic.startswith("larns/trust/"):
+            continue
         n += 1
+        at[0] = m.log_time * 1e-9
         try:
             signer, env = v.open(m.topic, m.data)
             msg, _ = decode(env)
-            src = msg["src"]
-            if signer != (aircraft_cn(src) if isinstance(src, str) else station_cn(src)):
-                raise SecurityError("signer_mismatch", f"{signer} sent src {src}")
+            if signer != expected_cn(msg["src"]):
+                raise SecurityError("signer_mismatch", f"{signer} sent src {msg['src']}")
         except SecurityError as e:
             reasons[e.reason] += 1
             continue

@@ -80,6 +80,7 @@ def format_info(s: dict[str, Any]) -> str:
              f"{lt['duplicates']:>5}")
     if s["invalid"]:
         L.append("Undecodable:       " + ", ".join(f"{k}: {v}" for k, v in s["invalid"].items()))
+    L += refused_lines(s.get("refused", []), s.get("verified", False))
     if s["latency_ms"]:
         L.append("Latency (log_time - publish_time, wall ms):")
         for k, d in s["latency_ms"].items():
@@ -87,11 +88,33 @@ def format_info(s: dict[str, Any]) -> str:
     return "\n".join(L)
 
 
+def refused_lines(refused: list[dict], verified: bool) -> list[str]:
+    """Messages attributed to nobody: their ``src`` is not the key's publisher, or (with
+    ``--keystore``) their signature does not hold."""
+    how = "by key and signer" if verified else "by key (--keystore DIR: also by signer)"
+    if not refused:
+        return [f"Attribution:       every message {how}"]
+    L = [f"Refused:           {sum(r['count'] for r in refused)} messages not attributed ({how}):"]
+    L += [f"  {r['key']}  src {r['src']}: {r['reason']} x{r['count']}" for r in refused[:20]]
+    if len(refused) > 20:
+        L.append(f"  ... {len(refused) - 20} more (--json)")
+    return L
+
+
 def cmd_info(args: argparse.Namespace) -> int:
     from larns.analysis.summary import summarize
 
+    ks = None
+    if getattr(args, "keystore", None):
+        from net.security import Keystore, KeystoreError
+
+        try:
+            ks = Keystore(args.keystore)
+        except KeystoreError as e:
+            print(f"larns info --keystore: {e}", file=sys.stderr)
+            return 2
     try:
-        s = summarize(args.files)
+        s = summarize(args.files, keystore=ks)
     except (OSError, ValueError) as e:
         print(f"larns info: {e}", file=sys.stderr)
         return 1
@@ -122,6 +145,9 @@ def register(sub) -> None:
         ))
     p.add_argument("files", nargs="+", help="MCAP file(s); several are merged by log time")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.add_argument("--keystore", metavar="DIR", default=None,
+                   help="also attribute messages by signer: refuse those whose signature does not hold "
+                        "against DIR's CA and certificates (docs/security.md)")
     p.set_defaults(func=cmd_info)
 
 

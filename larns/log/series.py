@@ -169,7 +169,10 @@ def collect_journals(msgs: Sequence[Msg], strict: bool = True) -> dict[int, Jour
             msg = _unpack(m.data)
             if msg is None or msg.get("kind") not in ("core_init", "core_input", "estimate"):
                 continue
-        j = out.setdefault(int(msg["src"]), Journal(int(msg["src"])))
+        sid = key_publisher(m.topic)
+        if sid is None or msg.get("src") != sid:  # attributed by key, not by src (issue 32)
+            continue
+        j = out.setdefault(sid, Journal(sid))
         k = msg["kind"]
         if k == "core_init":
             if j.init is None:
@@ -332,6 +335,7 @@ class NetworkStats:
     seqs: dict[tuple, list[int]] = field(default_factory=lambda: defaultdict(list))  # (src, kind) -> seqs
     latency_ms: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))
     invalid: Counter = field(default_factory=Counter)
+    refused: Counter = field(default_factory=Counter)  # (topic, claimed src, reason): not attributed
 
     def count(self, m: Msg) -> dict:
         t = self.topics.get(m.topic)
@@ -408,14 +412,18 @@ class Recording:
     init_record: dict | None = None  # the first core_init journal record recorded (any station)
 
     @classmethod
-    def from_logs(cls, logs: Sequence[LogFile]) -> "Recording":
+    def from_logs(cls, logs: Sequence[LogFile], check=None) -> "Recording":
+        """Decode ``logs``. Every message is attributed by its key, not by its ``src`` field: one
+        whose ``src`` is not the key's publisher is refused (``src_mismatch``, counted in
+        ``net.refused``). ``check(m, msg)`` (:func:`larns.analysis.verify.signer_check`, from a
+        keystore) may refuse more by returning a reason (its signer)."""
         from net import messages as M
 
         msgs = merge(logs)
         rec = cls(list(logs), msgs, Timebase.of(logs, msgs[0].log_time if msgs else 0))
         for m in msgs:
             t = rec.net.count(m)
-            if m.encoding != "msgpack":
+            if m.encoding != "msgpack" or m.topic.startswith("larns/trust/"):  # (certificates: DER)
                 t["kinds"][m.schema or m.encoding] += 1
                 continue
             try:
@@ -423,6 +431,12 @@ class Recording:
             except M.MessageError as e:
                 rec.net.invalid[e.reason] += 1
                 t["kinds"]["invalid"] += 1
+                rec.records.append((m, None))
+                continue
+            why = "src_mismatch" if key_publisher(m.topic) != msg["src"] else (check(m, msg) if check else None)
+            if why:
+                rec.net.refused[(m.topic, str(msg["src"]), why)] += 1
+                t["kinds"]["refused"] += 1
                 rec.records.append((m, None))
                 continue
             rec.records.append((m, msg))
@@ -504,6 +518,18 @@ class Recording:
         return self.logs[0].larns_meta if self.logs else {}
 
 
-def load(paths: Sequence[str | Path]) -> Recording:
-    """Read and decode one or several recordings (merged by log time)."""
-    return Recording.from_logs(read_logs(paths))
+def load(paths: Sequence[str | Path], check=None) -> Recording:
+    """Read and decode one or several recordings (merged by log time; ``check``: see
+    :meth:`Recording.from_logs`)."""
+    return Recording.from_logs(read_logs(paths), check)
+
+
+def key_publisher(topic: str) -> int | str | None:
+    """Who publishes on ``topic`` (access control lets only them): ``larns/station/7/nav`` -> 7,
+    ``larns/aircraft/ac1/...`` and ``larns/vehicle/v1/...`` -> the name; None for other keys."""
+    parts = str(topic).split("/")
+    if len(parts) < 3 or parts[0] != "larns":
+        return None
+    if parts[1] == "station":
+        return int(parts[2]) if parts[2].isdigit() else None
+    return parts[2] if parts[1] in ("aircraft", "vehicle") else None

@@ -333,13 +333,14 @@ def test_recording_keeps_signatures_and_replay_verifies(ks, tmp_path):
     sink = McapSink(tmp_path / "r.mcap", epoch_unix_s=0.0, foxglove=False)
     good = [s3.seal(key, M.encode(_nav(3, i, float(i)), {"pos_m": [0.0, 0.0, 0.0], "t_true_s": float(i)}))
             for i in range(1, 6)]
+    t0 = time.time_ns()                                    # (certificates are checked at the log time)
     for i, f in enumerate(good):
-        sink.write(key, f, i * 1000)
+        sink.write(key, f, t0 + i * 1000)
     bad = bytearray(good[0])
     bad[-3] ^= 0x40
-    sink.write(key, bytes(bad), 9000)
-    sink.write(key, M.encode(_nav(3, 9, 9.0)), 9500)
-    sink.write("larns/station/5/nav", good[1], 9900)      # moved to another key
+    sink.write(key, bytes(bad), t0 + 9000)
+    sink.write(key, M.encode(_nav(3, 9, 9.0)), t0 + 9500)
+    sink.write("larns/station/5/nav", good[1], t0 + 9900)  # moved to another key
     sink.finish()
     res = verify_recording(S.Keystore(ks), [tmp_path / "r.mcap"])
     assert res["checked"] == 8 and res["by_signer"] == {"station-3": 5}
