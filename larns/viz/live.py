@@ -44,6 +44,7 @@ TRACK_POINTS = 300        # last positions kept per track
 TRACK_PERIOD_NS = 500_000_000  # a track (up to 300 points) is sent at most every 0.5 fleet s
 EXCHANGE_LIFETIME_S = 1.0  # an exchange line stays one (default) TDMA cycle
 DEFAULT_PORT = 8765
+BACKLOG_MESSAGES = 16384   # per client before the SDK drops its oldest (a slow link; default 1024)
 TRUTH_EVERY = 10           # a station's truth cube is sent again every 10 of its truths
 
 _NUM = {"type": "number"}
@@ -124,6 +125,7 @@ class LiveView:
         self.track_points = track_points
         self.t_ns = 0
         self.samples = 0
+        self.sources: Counter[str] = Counter()   # samples per sender (first three key chunks)
         self.dropped: Counter[str] = Counter()
         self.station_pos: dict[int, list[float]] = {}
         self.tracks: dict[str, deque] = {}
@@ -143,6 +145,7 @@ class LiveView:
         from ..log.series import decode
 
         self.samples += 1
+        self.sources["/".join(key.split("/")[:3])] += 1
         if log_ns is not None:
             self.t_ns = max(self.t_ns, int(log_ns))
         try:
@@ -381,7 +384,8 @@ class FoxgloveServer:
             listener = _latch_listener(self._subscribed)
         self.server = foxglove.start_server(name=name, host=host, port=port, context=self.ctx, capabilities=caps,
                                             playback_time_range=playback_range_ns, server_listener=listener,
-                                            supported_encodings=["json", "protobuf"])
+                                            supported_encodings=["json", "protobuf"],
+                                            message_backlog_size=BACKLOG_MESSAGES)
         self.channels: dict[str, Any] = {}
         self.sent = 0
         self.failed: Counter[str] = Counter()
@@ -493,7 +497,8 @@ def serve_live(bus_kw: dict, host: str = "127.0.0.1", port: int = DEFAULT_PORT, 
     finally:
         bus.close()
         srv.stop()
-    return {"samples": view.samples, "sent": srv.sent, "channels": len(srv.channels),
+    return {"samples": view.samples, "sources": dict(sorted(view.sources.items())), "sent": srv.sent,
+            "channels": len(srv.channels),
             "dropped": dict(view.dropped),
             "failed": dict(srv.failed)}
 

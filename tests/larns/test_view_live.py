@@ -78,7 +78,8 @@ def test_live_view_beside_fleet(tmp_path: Path):
                 t_end = time.monotonic() + 120
                 while fleet.poll() is None and time.monotonic() < t_end:
                     await c.run(0.5)
-                await c.run(1.0)
+                # messages still in flight: until every advertised channel has spoken (5 s at most)
+                await c.run(5.0, until=lambda g: {ch["topic"] for ch in g.channels.values()} <= g.topics())
                 return c.got
 
         got = asyncio.run(watch())
@@ -95,9 +96,9 @@ def test_live_view_beside_fleet(tmp_path: Path):
     assert got.info["op"] == "serverInfo" and "time" in got.info["capabilities"]
     assert got.undecodable == []
     advertised = {c["topic"] for c in got.channels.values()}
-    assert advertised == got.topics(), advertised ^ got.topics()
+    assert advertised == got.topics(), (advertised ^ got.topics(), out)
     enc = {c["topic"]: (c["encoding"], c["schemaName"]) for c in got.channels.values()}
-    assert {f"larns/foxglove/station/{i}" for i in range(1, 6)} <= set(enc), (sorted(enc), out, err[-2000:])
+    assert {f"larns/foxglove/station/{i}" for i in range(1, 6)} <= set(enc), (sorted(enc), out, fleet_log[-3000:])
     assert enc["larns/foxglove/scene"] == ("protobuf", "foxglove.SceneUpdate")
     assert enc["larns/foxglove/tf"] == ("protobuf", "foxglove.FrameTransform")
     assert enc["larns/foxglove/log"] == ("protobuf", "foxglove.Log")
