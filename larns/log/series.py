@@ -49,15 +49,23 @@ def decode_all(msgs: Iterable[Msg]) -> Iterator[tuple[Msg, dict | None]]:
             msg, _ = M.decode(m.data)
         except M.MessageError:
             msg = None
+        if msg is not None and key_publisher(m.topic) != msg["src"]:  # attributed by key (issue 32)
+            msg = None
         yield m, msg
 
 
 def decoded(msgs: Iterable[Msg], invalid: Counter[str] | None = None) -> Iterator[tuple[Msg, dict, dict | None]]:
     """``(record, msg, phy)`` for the valid LARNS envelopes among ``msgs``; invalid ones are counted by
-    reason in ``invalid`` and skipped (``net.messages.decode_valid`` on the records' payloads)."""
+    reason in ``invalid`` and skipped (``net.messages.decode_valid`` on the records' payloads), and so
+    is one whose ``src`` is not its key's publisher (``src_mismatch``: attributed by key, issue 32)."""
     from net import messages as M
 
-    yield from M.decode_valid(msgs, lambda m: m.data, invalid)
+    for m, msg, phy in M.decode_valid(msgs, lambda m: m.data, invalid):
+        if key_publisher(m.topic) != msg["src"]:
+            if isinstance(invalid, Counter):
+                invalid["src_mismatch"] += 1
+            continue
+        yield m, msg, phy
 
 
 # --- the station journals (offline re-estimation reads them) ------------------------------------

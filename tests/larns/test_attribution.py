@@ -121,3 +121,21 @@ def test_journals_attributed_by_key(tmp_path):
                 encoding="msgpack", schema="")]
     j = collect_journals(msgs)
     assert sorted(j) == [3] and sorted(j[3].estimates) == [1]
+
+
+def test_decoded_streams_attribute_by_key(recording):
+    """The decoders every offline tool reads through (`decoded`, `decode_all`) drop a message
+    whose src is not its key's publisher, and count it."""
+    from collections import Counter
+
+    from larns.log.reader import read_logs
+    from larns.log.series import decode_all, decoded
+
+    path, _ks = recording
+    msgs = [m for lg in read_logs([path]) for m in lg.messages]
+    invalid: Counter = Counter()
+    got = [(m.topic, msg["src"]) for m, msg, _phy in decoded(msgs, invalid)]
+    assert invalid["src_mismatch"] == 4
+    assert ("larns/station/3/nav", 5) not in got and len(got) == 23
+    none = [m.topic for m, msg in decode_all(msgs) if msg is None]
+    assert none == ["larns/station/3/nav"] * 4
