@@ -732,6 +732,10 @@ class Security:
         from net.trust import ReplayStore, replay_state_path
 
         path = replay_state_path(self.ks.ca_cert().public_bytes(ser.Encoding.DER), f"{self.cn}-{len(self._replay)}")
+        if not self._replay:
+            from net.trust import prune_replay_states
+
+            prune_replay_states(path.parent)
         g = ReplayGuard(window_s, fresh_window_s, ReplayStore(path))
         self._replay.append(g)
         return g

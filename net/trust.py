@@ -233,6 +233,24 @@ def replay_state_path(ca_der: bytes, cn: str) -> Path:
     return Path(base) / f"replay-{tag}-{cn}.json"
 
 
+def prune_replay_states(folder: str | Path, max_age_s: float = 7 * 86400.0) -> int:
+    """Remove replay histories not written for ``max_age_s`` (keystores long gone: every test run
+    makes a new CA). Returns how many were removed."""
+    n = 0
+    cutoff = time.time() - max_age_s
+    try:
+        for p in Path(folder).glob("replay-*.json"):
+            try:
+                if p.stat().st_mtime < cutoff:
+                    p.unlink()
+                    n += 1
+            except OSError:
+                continue
+    except OSError:
+        pass
+    return n
+
+
 # --------------------------------------------------------------------------- on the bus
 
 def attach_trust(bus, store: TrustStore, cn: str, on_change: Callable[[], None] | None = None,

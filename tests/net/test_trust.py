@@ -260,3 +260,14 @@ def test_certificate_fetched_over_zenoh_by_a_host_with_only_its_own_credentials(
     finally:
         b3.close()
         b5.close()
+
+
+def test_old_replay_histories_are_pruned(tmp_path):
+    import os
+
+    old, new = tmp_path / "replay-a-station-1-0.json", tmp_path / "replay-b-station-1-0.json"
+    for p in (old, new):
+        p.write_text("{}")
+    os.utime(old, (time.time() - 8 * 86400, time.time() - 8 * 86400))
+    assert T.prune_replay_states(tmp_path) == 1
+    assert not old.exists() and new.exists()
