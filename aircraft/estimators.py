@@ -1217,20 +1217,14 @@ class AircraftEstimator:
         self._start_from_guess(t_s, pos, rho)
 
     def _start_from_broadcasts(self, t_s, pos, cov, rho, dt=None) -> None:
-        """Start from the broadcasts alone: multi-start snapshot fix (or a wide prior). With the receiver
-        rules on, a TDMA batch's members ``dt`` seconds before its last are weighted as the unknown
-        motion allows: range variance ``+ (vel_sigma_m_s dt)^2`` (the start's velocity prior), so a
-        moving aircraft's batch is not mistaken for an inconsistent one."""
+        """Start from the broadcasts alone: multi-start snapshot fix (or a wide prior), from a batch that
+        passes the start test when the receiver rules are on."""
         from .initializer import InitConfig, initial_state
 
         tu = self.cfg.tuning
-        if self.cfg.receiver is not None and dt is not None and np.any(dt):
-            v_sig = (self.cfg.init or InitConfig()).vel_sigma_m_s
-            cov = (np.zeros((len(rho), 3, 3)) if cov is None else cov) \
-                + ((v_sig * np.asarray(dt, float)) ** 2)[:, None, None] * np.eye(3)
         init = initial_state(self.model, tu, pos, cov, rho, self.cfg.init)
         if self.cfg.receiver is not None:
-            init = self._consistent_start(init, pos, cov, rho)
+            init = self._consistent_start(init, pos, cov, rho, dt)
             if init is None:
                 return
         if not init.snapshot and len(rho) <= 4 and self.n_deferred < (self.cfg.init or InitConfig()).defer_batches:
@@ -1247,20 +1241,33 @@ class AircraftEstimator:
                                      ref_m=crd.reference_point(pos),
                                      ref_radius_m=crd.array_radius(pos))
 
-    def _consistent_start(self, init, pos, cov, rho):
+    def _consistent_start(self, init, pos, cov, rho, dt=None):
         """The start test (aircraft/navigator/receiver.py rule 2): the batch's weighted residual sum of
-        squares against chi-square with ``m - 4`` dof; a failing batch is refused unless leaving out
-        exactly one station makes it pass. Returns the start to use, or None."""
-        from .initializer import initial_state
+        squares at the fix against chi-square with ``m - 4`` dof; a failing batch is refused unless
+        leaving out exactly one station makes it pass. The test allows for the aircraft's own motion
+        across a TDMA batch: a member ``dt`` seconds before the last gets the range variance
+        ``(vel_sigma_m_s dt)^2`` more (the start's velocity prior), so a moving aircraft's batch is not
+        mistaken for an inconsistent one. Returns the start to use, or None."""
+        from .initializer import InitConfig, batch_cost, initial_state
 
         rcfg, m = self.cfg.receiver, len(rho)
-        if rx.consistent(init.cost, m - 4, rcfg.p_start):
+        cov_t = cov
+        if dt is not None and np.any(dt):
+            v_sig = (self.cfg.init or InitConfig()).vel_sigma_m_s
+            cov_t = (np.zeros((m, 3, 3)) if cov is None else cov) \
+                + ((v_sig * np.asarray(dt, float)) ** 2)[:, None, None] * np.eye(3)
+
+        def cost(r, k):
+            c = None if cov_t is None else cov_t[k]
+            return float(batch_cost(self.model, r.fix, pos[k], c, rho[k], self.cfg.tuning.sigma_m)[0])
+
+        if rx.consistent(cost(init, np.arange(m)), m - 4, rcfg.p_start):
             return init
         if m - 5 >= 1:
-            keep = [np.arange(m) != j for j in range(m)]
+            keep = [np.flatnonzero(np.arange(m) != j) for j in range(m)]
             subs = [initial_state(self.model, self.cfg.tuning, pos[k], None if cov is None else cov[k], rho[k],
                                   self.cfg.init) for k in keep]
-            j = rx.leave_one_out(np.array([r.cost for r in subs]), m - 5, rcfg.p_start)
+            j = rx.leave_one_out(np.array([cost(r, k) for r, k in zip(subs, keep)]), m - 5, rcfg.p_start)
             if j is not None:
                 self.stats["start_left_one_out"] += 1
                 return subs[j]

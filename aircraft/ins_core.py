@@ -38,6 +38,8 @@ from nav.rotations import euler_from_dcm
 
 from net.clock import broadcast_clock_var_m2
 from net.nettime import pseudorange_time_error_s
+
+from .navigator import receiver as rx
 from .navigator.ins_ekf import JAC_FORCE_TC_S, InsEkf, InsTuning
 from .navigator.ins_start import SideTest, StartConfig, enough, moved_on, radio_fix, start
 from .world import clock as wclock
@@ -101,6 +103,7 @@ class InsAircraftCore:
         self.imu_steps = 0
         self.seq: Counter[str] = Counter()
         self.stats: Counter[str] = Counter()
+        self._pacer = rx.StatusPacer()
 
     def advance_to(self, t_s: float) -> int:
         """Integrate every IMU step that ends at or before ``t_s``; returns how many were run."""
@@ -209,7 +212,7 @@ class InsAircraftCore:
             self._win.append((t_rx, s, cov, rho, self.tn.sigma_range_m**2 + broadcast_clock_var_m2(msg),
                               str(msg.get("src"))))
             self.stats["start_buffered"] += 1
-            return [self._truth_msg(t_rx)]
+            return [self._truth_msg(t_rx)] + self._status(t_rx, rx.WAITING, "starting: collecting broadcasts")
         self.advance_to(t_rx + self.tn.dt_s)  # the step that contains t_rx
         if self.ekf.t_s < t_rx:
             self.advance_to(self.ekf.t_s + self.tn.dt_s)
@@ -218,7 +221,16 @@ class InsAircraftCore:
         var = self.tn.sigma_range_m**2 + float(u @ cov @ u) + broadcast_clock_var_m2(msg)
         self.ekf.pseudorange(t_rx, s, np.array([rho]), var)
         self.stats["measurements"] += 1
-        return [self._truth_msg(t_rx), self.estimate_msg()]
+        est = self.estimate_msg()
+        if not rx.publishable(est["pos_m"], est["cov_m2"], rx.ReceiverConfig()):
+            return [self._truth_msg(t_rx)] + self._status(t_rx, rx.NO_FIX)
+        return [self._truth_msg(t_rx), est] + self._status(t_rx, rx.TRACKING)
+
+    def _status(self, t_s: float, state: str, detail: str | None = None) -> list[dict]:
+        """The navigator's ``ac_status`` when due (aircraft/navigator/receiver.py StatusPacer)."""
+        if not self._pacer.due("ins-ekf", state, t_s):
+            return []
+        return [rx.status_msg(self.name, self.seq, "ins-ekf", t_s, state, self.stats, detail)]
 
     def _truth_msg(self, t_rx: float) -> dict[str, Any]:
         """World side: the ``ac_truth`` record of a measured broadcast (identifies it for re-flight)."""

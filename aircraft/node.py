@@ -93,7 +93,7 @@ class AircraftCore:
         self.net_clock = net_clock  # station 1's oscillator: network time (None: perfect clocks)
         self.seq: Counter[str] = Counter()
         self.stats: Counter[str] = Counter()
-        self._last_state: dict[str, tuple[str, float]] = {}  # algo -> (status, fleet time published)
+        self._pacer = rx.StatusPacer()
 
     def measure(self, phy: dict, msg: dict | None = None) -> tuple[float, float, np.ndarray]:
         """Channel layer: (t_rx true, pseudorange, true aircraft position at reception).
@@ -149,26 +149,15 @@ class AircraftCore:
         return out
 
     def _status_msgs(self, algo: str, t_s: float, state: str, est) -> list[dict]:
-        """An ``ac_status`` when an algorithm's state changes, and once per ``STATUS_EVERY_S`` of fleet
-        time: what the navigator is doing when it publishes no estimate (docs/aircraft.md "Cold start")."""
-        last = self._last_state.get(algo)
-        if last is not None and last[0] == state and t_s - last[1] < STATUS_EVERY_S:
+        """An ``ac_status`` when an algorithm's state changes, and once per second of fleet time: what
+        the navigator is doing when it publishes no estimate (docs/aircraft.md "Cold start")."""
+        if not self._pacer.due(algo, state, t_s):
             return []
-        self._last_state[algo] = (state, t_s)
-        return [self._msg("ac_status", t_s=t_s, algo=algo, state=state, detail=STATUS_TEXT.get(state, state),
-                          counts={k: float(v) for k, v in sorted(est.stats.items())[:16]})]
+        return [rx.status_msg(self.name, self.seq, algo, t_s, state, {**self.stats, **est.stats})]
 
     def _msg(self, kind: str, **fields: Any) -> dict:
         self.seq[kind] += 1
         return {"kind": kind, "src": self.name, "seq": self.seq[kind], "stamp_s": float(fields["t_s"]), **fields}
-
-
-STATUS_EVERY_S = 1.0  # an unchanged ac_status is repeated this often (fleet time)
-
-
-STATUS_TEXT = {rx.WAITING: "waiting for synchronized stations", rx.TRACKING: "tracking",
-               rx.RESTARTING: "diverged: restarting from a consistent set",
-               rx.NO_FIX: "no fix (estimate not defensible)"}
 
 
 def integrity_fields(e: dict) -> dict:

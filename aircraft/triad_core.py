@@ -46,6 +46,8 @@ from nav.strapdown import G0_M_S2
 from .ins_core import motion_from_config
 from net.clock import broadcast_clock_var_m2
 from net.nettime import pseudorange_time_error_s
+
+from .navigator import receiver as rx
 from .navigator import field_tie as ft
 from .navigator.ins_ekf import InsTuning
 from .navigator.triad_ekf import (TRIAD_LAYOUT, Epoch, TriadEkf, TriadFrame, initial_fix, satellite_elevation_deg,
@@ -124,6 +126,7 @@ class TriadAircraftCore:
         self.imu_steps = 0
         self.seq: Counter[str] = Counter()
         self.stats: Counter[str] = Counter()
+        self._pacer = rx.StatusPacer()
         self._epoch(0)
 
     # ---------------------------------------------------------------------------- world
@@ -277,7 +280,7 @@ class TriadAircraftCore:
         self.advance_to(t_rx + self.tn.dt_s)  # the step that contains t_rx
         if self.ekf is None:
             self.stats["nav_before_start"] += 1
-            return out
+            return out + self._status(t_rx, rx.WAITING, "starting: window fix")
         if self.ekf.t_s < t_rx:
             self.advance_to(self.ekf.t_s + self.tn.dt_s)
         loc = self._station_local(src)
@@ -290,7 +293,16 @@ class TriadAircraftCore:
         var = self.tn.sigma_range_m**2 + float(u @ cov @ u) + broadcast_clock_var_m2(msg)
         self.ekf.pseudorange(t_rx, s, np.array([rho]), var)
         self.stats["measurements"] += 1
-        return out + [self.estimate_msg()]
+        est = self.estimate_msg()
+        if not rx.publishable(est["pos_m"], est["cov_m2"], rx.ReceiverConfig()):
+            return out + self._status(t_rx, rx.NO_FIX)
+        return out + [est] + self._status(t_rx, rx.TRACKING)
+
+    def _status(self, t_s: float, state: str, detail: str | None = None) -> list[dict]:
+        """The navigator's ``ac_status`` when due (aircraft/navigator/receiver.py StatusPacer)."""
+        if not self._pacer.due("triad", state, t_s):
+            return []
+        return [rx.status_msg(self.name, self.seq, "triad", t_s, state, self.stats, detail)]
 
     def estimate_msg(self) -> dict[str, Any]:
         e = self.ekf

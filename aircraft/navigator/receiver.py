@@ -153,3 +153,32 @@ def publishable(pos_m, cov_m2, cfg: ReceiverConfig) -> bool:
         return False
     lam = np.linalg.eigvalsh(0.5 * (P + P.T))
     return bool(lam[0] >= -1e-9 * max(lam[-1], 1.0) and np.sqrt(max(np.sum(lam), 0.0)) <= cfg.max_publish_sigma_m)
+
+
+class StatusPacer:
+    """When a navigator's status is due: at every change of state, and every ``every_s`` of fleet time
+    while it stays the same (one pacer per aircraft, keyed by algorithm)."""
+
+    def __init__(self, every_s: float = 1.0):
+        self.every_s = float(every_s)
+        self._last: dict[str, tuple[str, float]] = {}
+
+    def due(self, algo: str, state: str, t_s: float) -> bool:
+        last = self._last.get(algo)
+        if last is not None and last[0] == state and t_s - last[1] < self.every_s:
+            return False
+        self._last[algo] = (state, float(t_s))
+        return True
+
+
+STATUS_TEXT = {WAITING: "waiting for synchronized stations", TRACKING: "tracking",
+               RESTARTING: "diverged: restarting from a consistent set", NO_FIX: "no fix (estimate not defensible)"}
+
+
+def status_msg(name: str, seq, algo: str, t_s: float, state: str, counts: dict, detail: str | None = None) -> dict:
+    """An ``ac_status`` message (``seq``: the aircraft's per-kind sequence counter, advanced here)."""
+    seq["ac_status"] += 1
+    return {"kind": "ac_status", "src": name, "seq": seq["ac_status"], "stamp_s": float(t_s), "t_s": float(t_s),
+            "algo": algo, "state": state, "detail": (detail or STATUS_TEXT.get(state, state))[:64],
+            "counts": {str(k)[:64]: float(v) for k, v in sorted(counts.items())[:16]}}
+

@@ -576,7 +576,7 @@ def test_ins_aircraft_core_flies_on_nav_broadcasts():
     ac = from_scenario(sc)
     core = InsAircraftCore(sc, ac, "ac1", np.random.default_rng(1), imu="adis16480")
     rng = np.random.default_rng(2)
-    last = None
+    last, statuses = None, []
     window = core.start_cfg.window_s
     for k in range(600):
         t = k * sc.tdma.slot_s
@@ -589,11 +589,16 @@ def test_ins_aircraft_core_flies_on_nav_broadcasts():
         out = core.on_nav(msg, {"pos_m": truth.tolist(), "t_true_s": t})
         core.advance_to(t + 0.05)
         started = t >= window - 1e-9  # the first broadcast received after the window starts the EKF
+        for m in out:  # what the navigator is doing, once per second and at every change
+            if m["kind"] == "ac_status":
+                statuses.append(M.validate_msg(m)["state"])
+        out = [m for m in out if m["kind"] != "ac_status"]
         assert [m["kind"] for m in out] == (["ac_truth", "ac_estimate"] if started else ["ac_truth"]), t
         M.validate_msg(out[0])
         if started:
             last = M.validate_msg(out[1])
     assert core.stats["start_measurements"] >= 90
+    assert statuses[0] == "waiting" and statuses[-1] == "tracking" and "waiting" not in statuses[statuses.index("tracking"):]
     assert core.imu_steps == int(np.floor((599 * 0.1 + 0.05) / core.tn.dt_s + 1e-9))
     p, _, _ = core.truth_n(last["t_s"])
     assert np.linalg.norm(np.asarray(last["pos_m"][:2]) - p[:2]) < 5.0
