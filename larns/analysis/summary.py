@@ -39,7 +39,7 @@ def summarize(paths: Sequence[str | Path], logs=None, rec=None, keystore=None) -
     out.update(_times(rec))
     out["topics"] = _topics(rec.net.topics)
     out["stations"] = station_table(rec)
-    out["aircraft"] = {name: {"messages": a.messages, "algos": a.algos} for name, a in sorted(rec.aircraft.items())}
+    out["aircraft"] = {name: aircraft_row(a) for name, a in sorted(rec.aircraft.items())}
     out["vehicles"] = {name: vehicle_row(v) for name, v in sorted(rec.vehicles.items())}
     out["loss"], out["loss_total"] = rec.net.loss()
     out["invalid"] = dict(rec.net.invalid)
@@ -54,6 +54,24 @@ def refused_table(refused) -> list[dict[str, Any]]:
     "src" (what the message claimed), "reason", "count"}]``."""
     return [{"key": k, "src": src, "reason": why, "count": n}
             for (k, src, why), n in sorted(refused.items(), key=lambda kv: (-kv[1], kv[0]))]
+
+
+def aircraft_row(a) -> dict[str, Any]:
+    """An aircraft's line of ``larns info``: per algorithm its accuracy against its own truth topic
+    (:func:`larns.analysis.metrics.aircraft_accuracy`: first estimate, time to 10 m / 3 m horizontal,
+    final errors, largest error and NEES from 30 s on) and how often it reported each status."""
+    from .metrics import aircraft_accuracy
+
+    tt = a.truth_track()
+    acc = {}
+    for algo in sorted(set(a.estimates) | set(a.statuses)):
+        row = aircraft_accuracy(a.track(algo), tt) if algo in a.estimates and tt is not None else {"n": 0}
+        row.pop("nees_band", None)
+        counts: dict[str, int] = {}
+        for st in a.statuses.get(algo, ()):
+            counts[st["state"]] = counts.get(st["state"], 0) + 1
+        acc[algo] = {**row, "statuses": counts}
+    return {"messages": a.messages, "algos": a.algos, "accuracy": acc}
 
 
 def vehicle_row(v) -> dict[str, Any]:

@@ -18,6 +18,20 @@ def _size(n: float) -> str:
     return str(n)
 
 
+def aircraft_line(name: str, algo: str, r: dict) -> str:
+    """One aircraft algorithm: first estimate, time to 10 m / 3 m horizontal, final and worst (from 30 s)
+    horizontal error, NEES from 30 s, statuses."""
+    def t(v):
+        return "-" if v is None else f"{v:.1f}s"
+
+    st = " ".join(f"{k}={n}" for k, n in r.get("statuses", {}).items())
+    if not r.get("n"):
+        return f"  {name} {algo}: no estimate published  [{st}]"
+    return (f"  {name} {algo}: {r['n']} estimates, first at {t(r.get('first_t_s'))}, <10 m from {t(r.get('t_10m_s'))}, "
+            f"<3 m from {t(r.get('t_3m_s'))}, final horizontal {r['final_eh_m']:.2f} m (sigma {r['final_sigma_h_m']:.2f}), "
+            f"max from 30 s {r.get('max_eh_window_m', math.nan):.2f} m, NEES {r.get('nees_mean', math.nan):.2f}  [{st}]")
+
+
 def vehicle_line(name: str, v: dict) -> str:
     """One ground vehicle of ``larns info``: its position error against its truth."""
     if "rms_err_m" not in v:
@@ -63,6 +77,8 @@ def format_info(s: dict[str, Any]) -> str:
     ac = s["aircraft"]
     L.append(f"Aircraft:          {len(ac)}" + ("  " + ", ".join(f"{k} ({', '.join(v['algos']) or 'no estimates'})"
                                                                for k, v in ac.items()) if ac else ""))
+    for name, v in ac.items():
+        L += [aircraft_line(name, algo, r) for algo, r in v.get("accuracy", {}).items()]
     L += [vehicle_line(name, v) for name, v in s.get("vehicles", {}).items()]
     L.append("Topics:")
     w = max(len(k) for k in s["topics"])

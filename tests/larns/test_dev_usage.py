@@ -14,8 +14,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 USAGE = ["usage: ./dev COMMAND [ARGS]",
-         "  ./dev demo [fleet args]   run the local fleet demo (10 stations + recorder), live table, MCAP in runs/",
-         "  ./dev test [pytest args]  run the default test suite",
+         "  ./dev demo [fleet args]   run the local fleet demo (10 stations + aircraft + recorder), live table, MCAP in runs/",
+         "  ./dev test [pytest args]  run the default test suite, then (no args) the long defaults matrix (-m matrix)",
          "  ./dev bench ...           run `larns bench ...`",
          "  ./dev larns ...           run any larns command inside the venv"]
 
