@@ -169,7 +169,7 @@ def _cmd_init(a: argparse.Namespace) -> int:
                            hosts=a.host or None, force=a.force, valid_days=a.days)
     except (KeystoreError, ValueError) as e:
         print(f"larns keys: {e}", file=sys.stderr)
-        return 1
+        return 2
     print(f"[keys] keystore {ks.root}: CA + {len(ks.enclaves)} enclaves "
           f"({', '.join(sorted(ks.enclaves))}); station ids reserved {ks.reserved[0]}..{ks.reserved[-1]}",
           file=sys.stderr)
@@ -182,7 +182,7 @@ def _cmd_add(a: argparse.Namespace) -> int:
                                   recorder=a.recorder)
     except (KeystoreError, ValueError) as e:
         print(f"larns keys: {e}", file=sys.stderr)
-        return 1
+        return 2
     print(f"[keys] {ks.root}: issued {', '.join(new) if new else 'nothing new'}", file=sys.stderr)
     return 0
 
@@ -192,7 +192,7 @@ def _cmd_list(a: argparse.Namespace) -> int:
         ks = Keystore(a.dir)
     except KeystoreError as e:
         print(f"larns keys: {e}", file=sys.stderr)
-        return 1
+        return 2
     for cn, e in sorted(ks.enclaves.items()):
         try:
             ks.check_enclave(cn)

@@ -271,3 +271,28 @@ def test_old_replay_histories_are_pruned(tmp_path):
     os.utime(old, (time.time() - 8 * 86400, time.time() - 8 * 86400))
     assert T.prune_replay_states(tmp_path) == 1
     assert not old.exists() and new.exists()
+
+
+def test_process_refuses_to_start_on_revoked_credentials(ks, tmp_path):
+    """A host that still holds station 5's enclave, once the new crl.pem reaches it: station 5
+    does not start there (one line, exit 2)."""
+    import shutil
+
+    host = tmp_path / "host5"
+    export_host(ks, host, ["station-5"])
+    WritableKeystore(ks).revoke("station-5")
+    shutil.copy(ks / "crl.pem", host / "crl.pem")
+    with pytest.raises(S.KeystoreError, match="revoked by"):
+        S.Keystore(host).check_enclave("station-5")
+    p = subprocess.run([PY, "-m", "larns", "station", "--id", "5", "--scenario", "seed000", "--secure", str(host),
+                        "--duration", "1"], capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert p.returncode == 2 and "revoked by" in p.stderr and "Traceback" not in p.stderr, p.stderr
+    assert len(p.stderr.strip().splitlines()) == 1, p.stderr
+
+
+def test_keys_init_add_list_bad_input_exit_2(ks, tmp_path):
+    for args in (["init", str(ks), "--stations", "1-3"], ["add", str(tmp_path / "none"), "--station", "4"],
+                 ["list", str(tmp_path / "none")], ["init", str(tmp_path / "x"), "--stations", "0-3"]):
+        p = subprocess.run([PY, "-m", "larns", "keys", *args], capture_output=True, text=True, timeout=60, cwd=ROOT)
+        assert p.returncode == 2 and len(p.stderr.strip().splitlines()) == 1, (args, p.stderr)
+        assert "Traceback" not in p.stderr
