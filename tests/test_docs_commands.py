@@ -180,6 +180,7 @@ MANUAL = "a piece of a fleet started by hand on fixed ports (7447/7450/7500), ty
 HOTJOIN = "covered by tests/larns/test_attach.py::test_readme_hot_join_attaches_to_a_running_fleet (this very line against ./dev demo, with larns monitor)"
 VIEW = "serves Foxglove on the fixed port 8765 (shared machine: others may hold it) and runs until Ctrl-C; the live view beside a fleet is tests/larns/test_view_live.py, replay --view tests/larns/test_view_replay.py"
 SURVEYED = r"(?m)^\s+10 surveying"  # the fleet's final table: station 10 surveyed itself
+ROUTER = r"processes alive: 11"  # 10 stations + the router (no recorder without --record)
 DEMO = "the session recording (30 fleet s at speed 3 with aircraft and vehicle) in place of this file"
 
 
@@ -286,7 +287,7 @@ TABLE: dict[str, Run | Skip] = {
         Run("--duration 60 -> 40 (the join is at 20 s)", edits=_short("--duration 60", "--duration 40"),
             expect=r"(?m)^\s+11 +(joining|surveying)", slow=True),
     "larns fleet --scenario seed000 --duration 60 --topology router":
-        Run("--duration 60 -> 15", edits=_short("--duration 60", "--duration 15"), expect=(r"router", SURVEYED), slow=True),
+        Run("--duration 60 -> 15", edits=_short("--duration 60", "--duration 15"), expect=(ROUTER, SURVEYED), slow=True),
     "larns fleet --scenario seed000 --duration 180 --speed 2 --vehicle --record run.mcap":
         Run("--duration 180 -> 30", edits=_short("--duration 180", "--duration 30"),
             expect=(SURVEYED, r"vehicle\s+veh1\s+cdekf-map: t="), slow=True),
@@ -299,7 +300,7 @@ TABLE: dict[str, Run | Skip] = {
     "larns station --id 5 --scenario seed000 --zenoh-mode client --connect tcp/127.0.0.1:7447": Skip(MANUAL),
     "larns record -o run.mcap --zenoh-mode client --connect tcp/127.0.0.1:7447": Skip(MANUAL),
     "larns fleet --scenario seed000 --topology router":
-        Run("default 60 fleet s: --duration 15 appended", append="--duration 15", expect=(r"router", SURVEYED), slow=True),
+        Run("default 60 fleet s: --duration 15 appended", append="--duration 15", expect=(ROUTER, SURVEYED), slow=True),
     "larns bench scale --topology router --n 50": Skip(BENCH),
     "larns bench net": Skip("real-time Zenoh latency bench (~1 min); options checked by the parser here"),
     "larns bench scale": Skip(BENCH),
@@ -354,6 +355,24 @@ TABLE: dict[str, Run | Skip] = {
     "larns keys add keys/ --station 11": Run("after the keys init line", before=("larns keys init keys/ --stations 1-10 --aircraft ac1",),
                                              expect=r"issued station-11"),
     "larns station --id 11 --join --secure keys/ --connect tls/127.0.0.1:PORT": Skip(MANUAL + "; PORT is a placeholder", concrete=False),
+    "larns keys revoke keys/ --station 5 --publish --connect tls/127.0.0.1:PORT":
+        Skip("publishes to a running --secure fleet (PORT: a placeholder); revocation on a live fleet is tests/net/test_security.py",
+             concrete=False),
+    "larns keys renew keys/ --all": Run("after the keys init line", before=("larns keys init keys/ --stations 1-10 --aircraft ac1",), expect=r"station-9: renewed until"),
+    "larns keys export keys/ host5/ --enclave station-5": Run("after the keys init line", before=("larns keys init keys/ --stations 1-10 --aircraft ac1",),
+                                                               expect=r"host5/: station-5 \+ \d+ public files"),
+    "larns info run.mcap --keystore keys/":
+        Run("on the recording of the secure fleet line (shortened) in its directory",
+            in_dir_of="larns fleet --secure keys/ --duration 120 --record run.mcap", expect=r"Stations:\s+10", slow=True),
+    "larns keys revoke --publish": Skip(MENTION, concrete=False),
+    "larns keys revoke DIR --station 5": Skip(SYNOPSIS, concrete=False),
+    "larns keys add DIR --station 5": Skip(SYNOPSIS, concrete=False),
+    "larns keys init --days N": Skip(MENTION, concrete=False),
+    "larns keys renew DIR --all [--days N]": Skip(SYNOPSIS, concrete=False),
+    "larns keys export DIR OUT --enclave station-5": Skip(SYNOPSIS, concrete=False),
+    "larns info --keystore DIR": Skip(MENTION, concrete=False),
+    "larns keys add / renew / revoke": Skip(MENTION, concrete=False),
+    "docker compose run --rm keys revoke /keys --station 5": Skip(COMPOSE),
     "larns router --secure keys/ --listen tls/127.0.0.1:7447": Skip(MANUAL),
     "larns fleet --secure keys/ --topology router --connect tls/127.0.0.1:7447": Skip(MANUAL + " (connects to the router of the line above)"),
     "larns bench scale --topology router --n 20 --duration 30": Skip(BENCH),
@@ -363,7 +382,7 @@ TABLE: dict[str, Run | Skip] = {
     "scripts/secure-bar.sh 120 runs/secure-barK": Skip("the secure bar: secure fleets and all attacks for 120 s (minutes); path checked"),
     "scripts/secure-bar.sh 120": Skip("the secure bar: secure fleets and all attacks for 120 s (minutes); path checked"),
     "scripts/secure-bar.sh 45": Skip("the secure bar: secure fleets and all attacks for 45 s (minutes); path checked"),
-    "larns keys init /keys --stations 1-10 --aircraft ac1 --host station1 ...": Skip(SYNOPSIS + " (the compose keys service)", concrete=False),
+    "larns keys init /keys --stations 1-10 --aircraft ac1": Skip("the compose keys service's command (/keys: its volume); " + COMPOSE),
     # --- docs/survey.md
     "./dev bench survey --trials 100 --json bench-out/survey.json --png-dir bench-out/survey": Skip(BENCH),
     "./dev bench survey --trials 100 --sigma-d 0.5 --estimator dmap --no-map": Skip(BENCH),
@@ -621,6 +640,13 @@ def rewritten(cmd: str) -> str:
     return f"{line} {entry.append}".strip()
 
 
+def run_before(cmd: str, d: Path) -> None:
+    """The ``before`` lines of a table line, in d."""
+    for pre in TABLE[cmd].before:
+        rc, out = run_line(rewritten(pre), d, TABLE[pre].timeout_s)
+        assert rc == 0, f"{pre!r} (run first) exited {rc}:\n{out[-3000:]}"
+
+
 _ONCE: dict[str, tuple[Path, int, str]] = {}
 
 
@@ -628,6 +654,7 @@ def run_once(cmd: str, tmp_path_factory, s: Session) -> tuple[Path, int, str]:
     """A table line run once per session in its own directory (a recording other lines read)."""
     if cmd not in _ONCE:
         d = scratch(tmp_path_factory.mktemp("docs_once"), s)
+        run_before(cmd, d)
         rc, out = run_line(rewritten(cmd), d, TABLE[cmd].timeout_s)
         _ONCE[cmd] = (d, rc, out)
     return _ONCE[cmd]
@@ -654,9 +681,7 @@ def _directory(cmd: str, s: Session, tmp_path: Path, factory) -> Path:
         assert rc == 0, f"{entry.in_dir_of!r} (run first) exited {rc}:\n{out[-3000:]}"
         return d
     d = scratch(tmp_path, s)
-    for pre in entry.before:
-        rc, out = run_line(rewritten(pre), d, TABLE[pre].timeout_s)
-        assert rc == 0, f"{pre!r} (run first) exited {rc}:\n{out[-3000:]}"
+    run_before(cmd, d)
     return d
 
 
