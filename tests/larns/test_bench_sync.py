@@ -56,6 +56,8 @@ def test_bench_sync_trial_maximum_and_departure_step():
     e = np.abs(res_t["err_s"][times >= 60.0]) * 1e9
     assert np.isnan(e[:, 0]).all() and np.isfinite(e[:, 1:]).all()  # station 1 gone, the others measured
     assert res["sync_trial_max_ns"] == [np.nanmax(e)]
+    # the stations' definitions of network time, on the true clocks: apart by far less than the sync error
+    assert len(res["sync_spread_ns"]) == 2 and 0.0 < res["sync_spread_ns"][1] < 0.5
     assert 0.0 < res["sync_trial_max_ns"][0] < 3.0
     assert res["departure_step_ns"] == {"1": res_t["steps_s"][1] * 1e9}
     assert "trial_max_from_60s_le_2ns_in_99pct" in res["bar"] and "departure_steps_le_0.3ns" in res["bar"]
