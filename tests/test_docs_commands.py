@@ -170,7 +170,6 @@ class Skip:
     options_exist: bool = True  # its --options exist (False only for a doc that says they do not yet)
 
 
-SESSION = "made once per session as the recording every other line reads (see the module docstring)"
 MENTION = "prose: names an option or mode of the command inside a sentence, not a line to run"
 SYNOPSIS = "synopsis with placeholders or [optional] parts, not a line to run as written"
 COMPOSE = "needs a Docker engine: the compose timeline (up, hot-join station11 with its keys, logs, down -v -> a valid MCAP) is tests/larns/test_compose.py (marker compose)"
@@ -313,7 +312,7 @@ TABLE: dict[str, Run | Skip] = {
         Run("runs until Ctrl-C beside a fleet: --duration 5 appended", append="--duration 5",
             expect=r"\[aircraft ac1\] stopped", slow=True),
     "larns fleet --scenario seed003-text --duration 120 --aircraft --record runs/ins.mcap":
-        Run("--duration 120 -> 45 (the INS starts from the broadcasts at ~35 s)", edits=_short("--duration 120", "--duration 45"),
+        Run("--duration 120 -> 50 (the INS starts from the broadcasts at ~35 s)", edits=_short("--duration 120", "--duration 50"),
             expect=r"aircraft\s+ac1\s+ins-ekf: t=", slow=True),
     "larns replay --offline runs/ins.mcap --algo ins-ekf":
         Run("on the recording of ins.md's fleet line (shortened)",
@@ -356,7 +355,7 @@ TABLE: dict[str, Run | Skip] = {
                                              expect=r"issued station-11"),
     "larns station --id 11 --join --secure keys/ --connect tls/127.0.0.1:PORT": Skip(MANUAL + "; PORT is a placeholder", concrete=False),
     "larns keys revoke keys/ --station 5 --publish --connect tls/127.0.0.1:PORT":
-        Skip("publishes to a running --secure fleet (PORT: a placeholder); revocation on a live fleet is tests/net/test_security.py",
+        Skip("publishes to a running --secure fleet (PORT: a placeholder); revocation on a live fleet is tests/net/test_revocation_live.py",
              concrete=False),
     "larns keys renew keys/ --all": Run("after the keys init line", before=("larns keys init keys/ --stations 1-10 --aircraft ac1",), expect=r"station-9: renewed until"),
     "larns keys export keys/ host5/ --enclave station-5": Run("after the keys init line", before=("larns keys init keys/ --stations 1-10 --aircraft ac1",),
