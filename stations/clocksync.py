@@ -62,6 +62,7 @@ ENTER_SD_S = 2e-9  # a clock enters the ensemble once its offset against it is k
 STEER_P = 0.3
 STEER_I = 0.05
 STEER_GATE_S = 2e-9  # a peer's correction and our estimate of its clock both known to 2 ns (1 sigma)
+UNAGREED_SD_S = 1e-6  # a definition not yet compared with any peer's: broadcast offsets carry 1 us more
 SCALE_LOG_MAX = 4096  # definitions kept for the world side (the recent ones; about an hour of steering)
 LEAVE_S = 5.0  # a member not heard in any exchange for 5 s of network time leaves the ensemble
 
@@ -162,7 +163,11 @@ class ClockEstimator:
         self.scale = TimeScale(((1, 1.0),), T_ref_s=self.T_s)
         self.scale_log: list[TimeScale] = [self.scale]
         self._heard_T: dict[int, float] = {}  # network time of the last exchange of each clock
-        self._disagree: list[float] = []  # N_peer - N_me seen since the last tick (s)
+        self._disagree: list[tuple[float, bool]] = []  # (N_peer - N_me (s), peer agreed) since the last tick
+        # variance of our definition against the field's, added to the broadcast offset's: unknown (1 us)
+        # until the first steering, which adopts the field's definition in full; then what is left of
+        # the last measured disagreement
+        self._scale_var_s2 = UNAGREED_SD_S**2
         self._tick_T = math.floor(self.T_s)
         if not self.ref:
             self._add(station_id)
@@ -325,8 +330,8 @@ class ClockEstimator:
         self.predict(self.network_time(t_local_s))
         a, f, ptt, ptf, pff, _ = self._ens(self.id)
         dt = self.network_time(t_local_s) - self.T_s  # 0 unless t_local_s lies in the filter's past
-        return [float(t_local_s), float(a + f * dt), float(f), float(ptt + 2 * dt * ptf + dt * dt * pff),
-                float(ptf + dt * pff), float(pff)]
+        return [float(t_local_s), float(a + f * dt), float(f),
+                float(ptt + 2 * dt * ptf + dt * dt * pff + self._scale_var_s2), float(ptf + dt * pff), float(pff)]
 
     def ensemble_offset_at(self, t_local_s: float) -> tuple[float, float]:
         """Estimated own offset against (ensemble) network time at local ``t_local_s`` and its variance
@@ -379,7 +384,9 @@ class ClockEstimator:
             return
         dT = t_tx_src_s - corr[0]
         th_peer = corr[1] + corr[2] * dT
-        if corr[3] + 2 * dT * corr[4] + dT * dT * corr[5] > STEER_GATE_S**2:
+        var_peer = corr[3] + 2 * dT * corr[4] + dT * dT * corr[5]
+        agreed = var_peer <= STEER_GATE_S**2  # a peer still unagreed carries UNAGREED_SD_S in it
+        if not agreed and var_peer > UNAGREED_SD_S**2 + STEER_GATE_S**2:
             return
         T, _ = self.peer_time(src, t_tx_src_s)
         e, f, ptt, ptf, pff, _ = self._ens(src)
@@ -387,21 +394,27 @@ class ClockEstimator:
         if ptt + 2 * dt * ptf + dt * dt * pff > STEER_GATE_S**2:
             return
         d = (e + f * dt) - th_peer
-        if math.isfinite(d) and abs(d) < 1e-6:
-            self._disagree.append(d)
+        if math.isfinite(d) and abs(d) < 1e-5:
+            self._disagree.append((d, agreed))
 
     def _steer(self) -> None:
         """Once per second of ``T``: move this station's definition toward its peers' (consensus)."""
         if not self._disagree:
             return
-        d = float(np.mean(self._disagree))
+        # agreed peers' definitions first (a joiner takes the field's); none agreed yet (a cold start):
+        # the founders steer on each other's
+        agreed = [d for d, ok in self._disagree if ok]
+        d = float(np.mean(agreed or [d for d, _ in self._disagree]))
         self._disagree.clear()
         sc, T = self.scale, self.T_s
-        # the phase at T moves by STEER_P d and the rate by STEER_I d; T_ref_s is kept (a departure can
-        # still be dated back before this tick: _membership)
+        # the phase at T moves by g d and the rate by STEER_I d (T_ref_s kept: a departure can still be
+        # dated back before this tick, _membership); the first steering adopts the field's definition
+        # in full (g = 1: a joiner, which starts from its own, takes the field's at once)
+        g = 1.0 if self._scale_var_s2 >= UNAGREED_SD_S**2 else STEER_P
         db = STEER_I * d
-        self.scale = TimeScale(sc.weights, a_s=sc.a_s + STEER_P * d - db * (T - sc.T_ref_s), b=sc.b + db,
+        self.scale = TimeScale(sc.weights, a_s=sc.a_s + g * d - db * (T - sc.T_ref_s), b=sc.b + db,
                                T_ref_s=sc.T_ref_s, jump_s=0.0)
+        self._scale_var_s2 = ((1.0 - g) * d) ** 2
         self.scale_log.append(self.scale)
         if len(self.scale_log) > SCALE_LOG_MAX:
             del self.scale_log[: len(self.scale_log) - SCALE_LOG_MAX]
