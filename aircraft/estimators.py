@@ -1013,6 +1013,12 @@ def _scaled(S2: np.ndarray, k) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- message-level API
+def _init_config():
+    from .initializer import InitConfig  # the initializer imports this module
+
+    return InitConfig()
+
+
 @dataclass
 class EstimatorConfig:
     """Configuration of one :class:`AircraftEstimator` (defaults = the bench's shared tuning)."""
@@ -1140,6 +1146,11 @@ class AircraftEstimator:
             # snapshot uses (LSQ, the filter start): each residual seen once, as range variance
             # (an isotropic term on the station covariance: u^T (P + s I) u = u^T P u + s)
             cov = (np.zeros((m, 3, 3)) if cov is None else cov) + cvar[:, None, None] * np.eye(3)
+        if self.method == "lsq" and self.cfg.receiver is not None and dt is not None and np.any(dt):
+            # a snapshot of a TDMA batch: the aircraft's unknown motion over each member's dt is noise
+            # to it (the start's velocity prior), in its weights and in the covariance it reports
+            v_sig = (self.cfg.init or _init_config()).vel_sigma_m_s
+            cov = (np.zeros((m, 3, 3)) if cov is None else cov) + ((v_sig * np.asarray(dt, float)) ** 2)[:, None, None] * np.eye(3)
         self._last_geom = (pos, cov)
         if m < self.cfg.min_stations:
             self.n_dropped += 1

@@ -40,12 +40,15 @@ from nav.geometry import SPEED_OF_LIGHT_M_S
 from net.clock import broadcast_clock_var_m2
 from net.nettime import network_time, pseudorange_time_error_s
 
+from net.queues import DropOldestQueue
+
 from .navigator import receiver as rx
 
 
 log = logging.getLogger("larns.aircraft")
 
 USABLE_STATES = ("frame", "surveying")
+INBOX_MAX = 4096  # samples waiting for the loop (a few seconds of every station's navs)
 
 
 @dataclass
@@ -214,13 +217,14 @@ class AircraftNode:
                                          t0_s=max(0.0, math.floor(self.fleet_now())), net_clock=net_clock)
             self.ins.seq = self.core.seq
         self.drops = M.DropCounter(f"aircraft {opts.name}")
-        self._inbox: queue.SimpleQueue = queue.SimpleQueue()
+        # bounded, drop-oldest (net/queues.py): a flood of samples costs old ones, never memory
+        self._inbox = DropOldestQueue(INBOX_MAX)
         self._stop = threading.Event()
         self._last_status = -math.inf
         # (key, bytes) -> (msg, phy); --secure: rate limit, signature, replay first (net/security.py)
         sec = getattr(bus, "security", None)
         self._decode = (lambda key, data: M.decode(data)) if sec is None else \
-            sec.aircraft_guard(scn.tdma.cycle_s, self.fleet_now).decode
+            sec.aircraft_guard(scn.tdma.cycle_s, self.fleet_now, opts.speed).decode  # (limiter: monotonic clock)
 
     def fleet_now(self) -> float:
         return (time.time() - self.epoch) * self.opts.speed
@@ -299,13 +303,19 @@ class AircraftNode:
             if t >= end:
                 break
             self._status(t)
-            if self.ins is not None:  # integrate behind fleet time so delayed broadcasts still fit
-                self.ins.advance_to(t - self.ins.lag_s * self.opts.speed)
             try:
+                if self.ins is not None:  # integrate behind fleet time so delayed broadcasts still fit
+                    self.ins.advance_to(t - self.ins.lag_s * self.opts.speed)
                 item = self._inbox.get(timeout=0.1 if self.ins is None else self.ins.tn.dt_s)
             except queue.Empty:
                 continue
-            self._ingest(*item)
+            except Exception as e:  # the loop survives any core failure (counted, logged at a limited rate)
+                self.drops.drop("core", type(e).__name__)
+                continue
+            try:
+                self._ingest(*item)
+            except Exception as e:
+                self.drops.drop("core", type(e).__name__)
         return self.report()
 
     def report(self) -> dict:

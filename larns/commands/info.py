@@ -18,6 +18,13 @@ def _size(n: float) -> str:
     return str(n)
 
 
+def aircraft_lines(ac: dict) -> list[str]:
+    """The aircraft found, then one line per aircraft algorithm (:func:`aircraft_line`)."""
+    head = f"Aircraft:          {len(ac)}" + ("  " + ", ".join(f"{k} ({', '.join(v['algos']) or 'no estimates'})"
+                                                             for k, v in ac.items()) if ac else "")
+    return [head] + [aircraft_line(name, algo, r) for name, v in ac.items() for algo, r in v.get("accuracy", {}).items()]
+
+
 def aircraft_line(name: str, algo: str, r: dict) -> str:
     """One aircraft algorithm: first estimate, time to 10 m / 3 m horizontal, final and worst (from 30 s)
     horizontal error, NEES from 30 s, statuses."""
@@ -74,11 +81,7 @@ def format_info(s: dict[str, Any]) -> str:
         for sid, v in st.items():
             if v.get("excluded_by"):
                 L.append(f"  integrity: station {sid} EXCLUDED by {','.join(map(str, v['excluded_by']))}")
-    ac = s["aircraft"]
-    L.append(f"Aircraft:          {len(ac)}" + ("  " + ", ".join(f"{k} ({', '.join(v['algos']) or 'no estimates'})"
-                                                               for k, v in ac.items()) if ac else ""))
-    for name, v in ac.items():
-        L += [aircraft_line(name, algo, r) for algo, r in v.get("accuracy", {}).items()]
+    L += aircraft_lines(s["aircraft"])
     L += [vehicle_line(name, v) for name, v in s.get("vehicles", {}).items()]
     L.append("Topics:")
     w = max(len(k) for k in s["topics"])

@@ -786,7 +786,10 @@ def test_start_waits_for_a_batch_with_redundancy():
         assert e.init.snapshot, algo                  # started from a 5-station snapshot
         est = e.estimate()
         d = np.linalg.norm(np.array(est["pos_m"]) - p_ac)
-        assert d < 25.0 and d <= 4.0 * np.sqrt(np.trace(est["cov_m2"])) + 1.0, (algo, d, est["cov_m2"])
+        # the snapshot (lsq) weights each slot with the aircraft's unknown motion since (receiver rules):
+        # a covariance it can defend on a moving aircraft, a little less accuracy on this hovering one
+        bound = 50.0 if algo.startswith("lsq") else 25.0
+        assert d < bound and d <= 4.0 * np.sqrt(np.trace(est["cov_m2"])) + 1.0, (algo, d, est["cov_m2"])
     n_def = InitConfig().defer_batches
     only4 = AircraftEstimator("ukf-pr", EstimatorConfig(fde=None))
     for c in range(n_def + 2):

@@ -29,6 +29,7 @@ def test_aircraft_process_in_a_fleet_from_mcap(fleet_run):
     assert all(v == 0 for v in rep["exit_codes"].values()), rep["exit_codes"]
     est: dict[str, list[dict]] = {}
     truth = []
+    statuses: dict[str, list[str]] = {}
     with open(out, "rb") as f:
         for _s, ch, m in make_reader(f).iter_messages():
             if not ch.topic.startswith("larns/aircraft/"):
@@ -37,11 +38,15 @@ def test_aircraft_process_in_a_fleet_from_mcap(fleet_run):
             assert phy is None  # nothing physical leaves the aircraft
             if msg["kind"] == "ac_truth":
                 truth.append(msg)
+            elif msg["kind"] == "ac_status":  # what a navigator does when it publishes no estimate
+                assert ch.topic == f"larns/aircraft/ac1/status/{msg['algo']}"
+                statuses.setdefault(msg["algo"], []).append(msg["state"])
             else:
                 assert ch.topic == f"larns/aircraft/ac1/estimate/{msg['algo']}"
                 est.setdefault(msg["algo"], []).append(msg)
     assert len(truth) > 100
     assert set(est) == {"ukf-pr", "ekf-tdoa", "lsq-pr"}
+    assert all(s and s[-1] == "tracking" for s in statuses.values()) and set(statuses) == set(est), statuses
     truth.sort(key=lambda m: m["t_s"])
     tt = np.array([m["t_s"] for m in truth])
     tp = np.array([m["pos_m"] for m in truth])
