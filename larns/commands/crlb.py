@@ -18,11 +18,27 @@ import numpy as np
 from nav.geometry import SPEED_OF_LIGHT_M_S
 
 
+DESCRIPTION = """\
+Cramer-Rao bound maps of one TDMA cycle (seed 003, eqs. 1-7): for every point of a horizontal grid
+at a fixed height, the best accuracy any unbiased estimator can reach for an aircraft that hears
+every station once, in its own slot, while it flies uniformly. Draws the horizontal
+sqrt(var x + var y) and vertical sqrt(var z) bounds as a PNG (two maps) and prints them by distance
+from the station area (docs/aircraft.md).
+
+Options not given come from the scenario's [aircraft.crlb] table, then from the defaults below;
+`larns scenario validate FILE` checks that table."""
+
+
 def register(sub) -> None:
-    p = sub.add_parser(
-        "crlb",
+    from .helptext import add_parser
+
+    p = add_parser(
+        sub, "crlb",
         help="CRLB maps (horizontal / vertical) of one TDMA cycle over an area (seed 003)",
-        description=__doc__,
+        description=DESCRIPTION,
+        example=["larns crlb                                   # seed003, 1000 m, position + velocity: crlb.png",
+                 "larns crlb --height 3000 --params pos --clock --png crlb_pos.png",
+                 "larns crlb --scenario seed000 --step 2000 --png seed000.png --json seed000.json"],
     )
     p.add_argument("--scenario", default="seed003", help="scenario name or file (default seed003)")
     p.add_argument("--height", type=float, default=None, help="aircraft height above station 1, m (default 1000)")
@@ -31,7 +47,8 @@ def register(sub) -> None:
     p.add_argument("--velocity", type=float, nargs=3, default=None, metavar=("VX", "VY", "VZ"),
                    help="aircraft velocity during the cycle, m/s (default 50 0 0)")
     p.add_argument("--params", choices=("posvel", "pos"), default=None,
-                   help="estimated parameters: position and velocity (seed 003, default) or position only")
+                   help="estimated parameters: posvel = position and velocity (seed 003) or pos = position "
+                        "only (default posvel)")
     p.add_argument("--clock", action="store_true", help="also estimate a receiver clock offset (pseudoranges)")
     p.add_argument("--extent", type=float, nargs=4, default=None, metavar=("X0", "X1", "Y0", "Y1"),
                    help="map area in the network frame, m (default: station area +- 35 km)")
