@@ -21,16 +21,53 @@ import sys
 from dataclasses import asdict
 
 
+DESCRIPTION = """\
+Scenario files describe a world: the stations and their layout, the TDMA plan, the air channel,
+the oscillators, faults, and the aircraft's table (docs/scenarios.md). Every command that takes
+--scenario accepts a packaged name (seed000, seed003, ...) or a TOML file of your own.
+
+  list      the packaged scenarios and their descriptions
+  show      one scenario as the emulator resolves it: defaults filled in, stations in the
+            network frame
+  validate  check files before a launch, with the checks a launch would make; each bad file
+            gives one line FILE: [section] key: what is wrong (expected ...); exit 0 if all
+            are valid, else 2"""
+
+VALIDATE_DESCRIPTION = """\
+Check scenario files with the loader every command uses (syntax, unknown keys and sections,
+estimator and algorithm names, TDMA slots, frame geometry), then the aircraft's table and
+[aircraft.crlb] (`larns crlb`): what a launch would refuse is found before it. Prints
+`FILE: ok (...)` per valid file on stdout and one line per bad file on stderr; exit 0 if all
+are valid, else 2."""
+
+
 def register(sub) -> None:
-    p = sub.add_parser("scenario", help="list the packaged scenarios, show one resolved, validate files",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    from .helptext import Formatter, add_parser, examples
+
+    p = add_parser(sub, "scenario", help="list the packaged scenarios, show one resolved, validate files",
+                   description=DESCRIPTION,
+                   example=["larns scenario list",
+                            "larns scenario show seed003                  # seed003 resolved, defaults filled in",
+                            "larns scenario show my.toml                  # your own file (e.g. an edited copy of one)",
+                            "larns scenario validate my.toml seed000      # exit 0: all valid; 2: a line per bad file"])
     ssub = p.add_subparsers(dest="action", metavar="ACTION")
-    ls = ssub.add_parser("list", help="the packaged scenarios (names for --scenario)")
+    ls = ssub.add_parser("list", help="the packaged scenarios (names for --scenario)",
+                         description="The packaged scenarios (names for --scenario) and their descriptions.",
+                         epilog=examples("larns scenario list"), formatter_class=Formatter)
     ls.set_defaults(func=cmd_list)
-    show = ssub.add_parser("show", help="one scenario as the emulator resolves it (defaults filled in)")
+    show = ssub.add_parser("show", help="one scenario as the emulator resolves it (defaults filled in)",
+                           description="One scenario as the emulator resolves it: every value it uses, "
+                                       "defaults filled in,\nand the stations in the network frame. A bad "
+                                       "file is one line and exit 2.",
+                           epilog=examples("larns scenario show seed003",
+                                           "larns scenario show my.toml     # your own file"),
+                           formatter_class=Formatter)
     show.add_argument("name", metavar="NAME", help="packaged scenario name or TOML file")
     show.set_defaults(func=cmd_show)
-    val = ssub.add_parser("validate", help="check scenario files: exit 0 if all are valid, else 2")
+    val = ssub.add_parser("validate", help="check scenario files: exit 0 if all are valid, else 2",
+                          description=VALIDATE_DESCRIPTION, formatter_class=Formatter,
+                          epilog=examples("larns scenario validate my.toml other.toml",
+                                          "larns scenario validate -q seed000 seed003 my.toml   # only the errors"))
     val.add_argument("files", nargs="+", metavar="FILE", help="TOML files (or packaged names)")
     val.add_argument("-q", "--quiet", action="store_true", help="print only the errors")
     val.set_defaults(func=cmd_validate)
