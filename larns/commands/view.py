@@ -53,22 +53,41 @@ def cmd_view(args: argparse.Namespace) -> int:
     return 0
 
 
+VIEW_DESCRIPTION = """\
+Watch a running fleet live in Foxglove (docs/view.md): the view joins the fleet's Zenoh network as
+a passive peer (--connect to any process of the fleet; ./dev demo's endpoints are in
+runs/fleet.json) and serves a Foxglove WebSocket; in Foxglove, Open connection -> Foxglove
+WebSocket -> ws://HOST:PORT. It shows the stations' 3-sigma ellipsoids and truth, the aircraft
+and vehicle with their tracks and covariance, range exchanges, plottable errors, sigmas and clock
+sync per station, and integrity decisions and processes coming and going as logs. The view's
+clock is the fleet time. With --secure DIR it connects with the keystore's observe-only identity.
+
+`larns fleet --view` starts one with the fleet; `larns replay --view` serves a recording."""
+
+
 def register(sub) -> None:
     from net.bus import add_bus_args
 
-    p = sub.add_parser("view", help="live Foxglove view of a running fleet (WebSocket, default :8765)",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    from .helptext import add_parser
+
+    p = add_parser(sub, "view", help="live Foxglove view of a running fleet (WebSocket, default :8765)",
+                   description=VIEW_DESCRIPTION,
+                   example=["larns view --connect tcp/127.0.0.1:7447        # then open ws://127.0.0.1:8765 in Foxglove",
+                            "larns view --host 0.0.0.0 --port 8766 --connect tcp/10.0.0.5:7447   # other hosts may connect",
+                            "larns view --connect tcp/127.0.0.1:7447 --duration 60 --json     # statistics at the end",
+                            "larns fleet --scenario seed000 --aircraft --view                 # a fleet with its own view"])
     p.add_argument("--host", default="127.0.0.1",
                    help="address to serve on (default 127.0.0.1; 0.0.0.0 in a container)")
     p.add_argument("--port", type=int, default=8765, help="WebSocket port (default 8765; 0 = any free port)")
     p.add_argument("--keyexpr", default="larns/**", help="key expression to view (default larns/**)")
-    p.add_argument("--duration", type=float, default=None, help="stop after this many wall seconds")
+    p.add_argument("--duration", type=float, default=None,
+                   help="stop after this many wall seconds (default: until Ctrl-C)")
     p.add_argument("--epoch", type=float, default=None,
                    help="fleet epoch, Unix s (accepted like every fleet process; not needed: fleet time "
                         "comes from the messages)")
     p.add_argument("--speed", type=float, default=None, help="fleet speed factor (accepted, not needed)")
     p.add_argument("--json", action="store_true", help="print statistics as JSON at the end")
-    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
     add_bus_args(p)
     p.set_defaults(func=cmd_view)
 
