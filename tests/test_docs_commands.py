@@ -366,6 +366,7 @@ TABLE: dict[str, Run | Skip] = {
     "larns keys revoke --publish": Skip(MENTION, concrete=False),
     "larns keys revoke DIR --station 5": Skip(SYNOPSIS, concrete=False),
     "larns keys add DIR --station 5": Skip(SYNOPSIS, concrete=False),
+    "larns keys add DIR": Skip(SYNOPSIS, concrete=False),
     "larns keys init --days N": Skip(MENTION, concrete=False),
     "larns keys renew DIR --all [--days N]": Skip(SYNOPSIS, concrete=False),
     "larns keys export DIR OUT --enclave station-5": Skip(SYNOPSIS, concrete=False),
@@ -390,6 +391,7 @@ TABLE: dict[str, Run | Skip] = {
     "./dev larns bench integrity --cases --aircraft seed001 seed003": Skip(BENCH),
     # --- docs/sync.md
     "larns bench sync --founders-leave": Skip(BENCH),
+    "larns bench sync --trials 100 --founders-leave --json bench-out/sync/founders-leave.json": Skip(BENCH),
     "larns bench sync --trials 100 --json bench-out/sync/sync.json": Skip(BENCH),
     "larns fleet --scenario seed000 --duration 600 --speed 1 --record ten.mcap": Skip("a 10-minute measurement run; the same line with --duration 15 RUNs as docs/fleet.md's 'larns fleet --scenario seed000 --duration 60 --speed 1 --record run.mcap'"),
     "larns info ten.mcap": Run("ten.mcap: " + DEMO, expect=r"Stations:\s+10"),
