@@ -198,6 +198,7 @@ class AircraftNode:
         if triad and set(opts.algos) - {"triad"}:
             raise ValueError(f"triad runs alone in its 6-DOF world; drop {sorted(set(opts.algos) - {'triad'})}")
         ins_algos, opts.algos = ((), ()) if triad else _split_ins(opts)
+        self.all_algos = ("triad",) if triad else tuple(opts.algos) + tuple(ins_algos)  # for the start line
         self.core = AircraftCore(self.ac, opts.algos, opts.name, rng, opts.height_m, horizon_s=horizon,
                                  net_clock=net_clock)
         self.ins = None
@@ -295,7 +296,7 @@ class AircraftNode:
         self.bus.declare_token(self.M.alive_key("aircraft", self.opts.name))
         end = math.inf if self.opts.duration_s is None else self.opts.duration_s
         if not self.opts.quiet:
-            print(f"[aircraft {self.opts.name}] algos {','.join(self.opts.algos)}, trajectory "
+            print(f"[aircraft {self.opts.name}] algos {','.join(self.all_algos)}, trajectory "
                   f"{self.ac.trajectory.get('kind')}, speed={self.opts.speed}, epoch={self.epoch:.3f}",
                   file=sys.stderr, flush=True)
         while not self._stop.is_set():

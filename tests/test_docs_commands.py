@@ -26,7 +26,8 @@ same command in several places is one key. Every key must be in ``TABLE`` below,
   ``edits`` / ``append`` state every rewrite (durations shortened, ``--duration`` given to a
   process that otherwise runs until Ctrl-C); the doc line itself is never changed. A run must end
   with the stated exit code within its timeout, and ``expect`` (a regex) must be in its output.
-  Long ones are marked ``slow`` (fleets of 10-25 s wall each; the default suite skips them).
+  Long ones (``slow=True`` in the table: fleets of 10-25 s wall each) are marked ``matrix``: ``./dev test``
+  runs them after the default suite, with the defaults matrix (CI runs both stages).
 * ``Skip``: not executed, with the reason (long bench, Docker, fixed ports or a second terminal
   beside a fleet, prose). Skipped ``larns`` lines are still checked statically.
 
@@ -662,7 +663,7 @@ def run_once(cmd: str, tmp_path_factory, s: Session) -> tuple[Path, int, str]:
 
 
 def _runs() -> list:
-    return [pytest.param(c, marks=[pytest.mark.slow] if e.slow else [], id=c[:90])
+    return [pytest.param(c, marks=[pytest.mark.matrix] if e.slow else [], id=c[:90])
             for c, e in TABLE.items() if isinstance(e, Run)]
 
 

@@ -12,50 +12,19 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
-import subprocess
-import sys
 import time
-from pathlib import Path
 
 import pytest
+from compose_support import ROOT, compose_cmd, larns_image, run
 
 pytestmark = [pytest.mark.compose, pytest.mark.timeout(900)]
 
-ROOT = Path(__file__).resolve().parents[2]
 
 
-def _run(cmd, timeout=120, **kw) -> subprocess.CompletedProcess:
-    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, **kw)
-
-
-def _compose() -> list[str] | None:
-    if shutil.which("docker") is None or _run(["docker", "info"], timeout=30).returncode != 0:
-        return None
-    for cmd in (["docker", "compose"], ["docker-compose"]):
-        try:
-            if _run([*cmd, "version"], timeout=20).returncode == 0:
-                return cmd
-        except (OSError, subprocess.TimeoutExpired):
-            pass
-    return None
-
-
-COMPOSE = _compose()
+COMPOSE = compose_cmd()
 if COMPOSE is None:
     pytest.skip("compose tests need a Docker engine and docker compose", allow_module_level=True)
-
-
-def _image() -> str:
-    if os.environ.get("LARNS_TEST_IMAGE"):
-        return os.environ["LARNS_TEST_IMAGE"]
-    base = _run([str(ROOT / "scripts/docker-base.sh")], timeout=900)
-    if base.returncode != 0:
-        pytest.skip(f"cannot build the local base image: {base.stderr.strip()[-300:]}")
-    b = _run([str(ROOT / "scripts/docker-build.sh"), "--tag", "larns:latest"], timeout=1200,
-             env={**os.environ, "PYTHON": sys.executable})
-    assert b.returncode == 0, b.stderr[-3000:]
-    return "larns:latest"
+_run, _image = run, larns_image
 
 
 OWN = {"station1": "station-1", "station2": "station-2", "station3": "station-3", "station11": "station-11",
