@@ -372,6 +372,11 @@ TABLE: dict[str, Run | Skip] = {
     "larns keys renew DIR --all [--days N]": Skip(SYNOPSIS, concrete=False),
     "larns keys export DIR OUT --enclave station-5": Skip(SYNOPSIS, concrete=False),
     "larns info --keystore DIR": Skip(MENTION, concrete=False),
+    # docs/aircraft.md "Cold start": issue 28's bar run and how it is read
+    "larns fleet --scenario seed000 --duration 90 --aircraft --record run.mcap":
+        Skip("the issue-28 bar run (90 s at speed 1, measured in docs/aircraft.md); the same fleet whole, scored "
+             "from its MCAP, is tests/test_defaults_matrix.py::test_the_default_scenario_whole (speed 2)"),
+    "larns info RUN.mcap": Run("RUN.mcap: " + DEMO, expect=r"ac1 ukf-pr: \d+ estimates, first at"),
     "larns keys add / renew / revoke": Skip(MENTION, concrete=False),
     "docker compose run --rm keys revoke /keys --station 5": Skip(COMPOSE),
     "larns router --secure keys/ --listen tls/127.0.0.1:7447": Skip(MANUAL),
@@ -549,7 +554,7 @@ def test_doc_command_is_well_formed(cmd):
 # ----------------------------------------------------------------------------- running
 
 DEMO_ARGS = ["--duration", "30", "--speed", "3", "--aircraft", "--vehicle", "--no-table"]
-RECORDING_NAMES = ["run.mcap", "old.mcap", "out.mcap", "ten.mcap", "f.mcap", "runs/fleet.mcap"]
+RECORDING_NAMES = ["run.mcap", "old.mcap", "out.mcap", "ten.mcap", "f.mcap", "runs/fleet.mcap", "RUN.mcap"]
 
 
 def _dev_beside_venv(d: Path) -> None:
