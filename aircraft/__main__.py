@@ -1,7 +1,7 @@
 """`python -m aircraft --scenario S --algo ukf-pr ...`: one aircraft process (same as `larns aircraft`)."""
 
-import sys
+from net.cli import exit_process
 
 from .node import main
 
-sys.exit(main())
+exit_process(main())

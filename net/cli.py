@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import signal
 import sys
 import threading
@@ -122,7 +123,23 @@ def serve(args: argparse.Namespace, bus: Any, make_node: Callable[[], Any],
             node.stop()
         rep = node.run() if run is None else run(node)
     finally:
-        bus.close()
+        closed = bus.close()
     if args.report_json:
         print(json.dumps(rep), flush=True)
+    if closed is False:  # the process entry points exit at once (exit_process): its data is out
+        global BUS_HUNG
+        BUS_HUNG = True
     return rep
+
+
+BUS_HUNG = False  # a serve() whose Zenoh session did not close in time (net.bus.Bus.close)
+
+
+def exit_process(code: int) -> None:
+    """``sys.exit(code)`` for a ``python -m`` entry point; after a hung session close, ``os._exit`` (with
+    the streams flushed) so that the hung Zenoh thread cannot keep a stopped process alive."""
+    if BUS_HUNG:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    sys.exit(code)

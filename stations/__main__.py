@@ -1,7 +1,7 @@
 """`python -m stations --id N --scenario S ...`: one station process (same as `larns station`)."""
 
-import sys
+from net.cli import exit_process
 
 from .node import main
 
-sys.exit(main())
+exit_process(main())

@@ -1,7 +1,7 @@
 """`python -m vehicle --scenario S [--route FILE]`: one vehicle process (same as `larns vehicle`)."""
 
-import sys
+from net.cli import exit_process
 
 from .node import main
 
-sys.exit(main())
+exit_process(main())
