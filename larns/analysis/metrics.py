@@ -131,7 +131,7 @@ def nees_band(n: int, dof: int = 3, p: float = 0.95) -> tuple[float, float]:
     ``chi2.ppf((1 -+ p) / 2, n dof) / n``."""
     from scipy.stats import chi2
 
-    return (float(chi2.ppf(0.5 * (1 - p), n * dof) / n), float(chi2.ppf(0.5 * (1 + p), n * dof) / n))
+    return (float(chi2.ppf(0.5 * (1 - p), n * dof) / n), float(chi2.ppf(0.5 * (1 + p), n * dof) / n))  # n may be fractional
 
 
 def aircraft_accuracy(track: dict, truth: dict, t_from_s: float = 30.0, t_to_s: float | None = None,
@@ -140,8 +140,9 @@ def aircraft_accuracy(track: dict, truth: dict, t_from_s: float = 30.0, t_to_s: 
     the interpolated truth; the first estimate's time; the first times from which ``e_h`` stays below
     10 m and 3 m; the largest ``e_h`` in ``[t_from_s, t_to_s]`` and the last; the 3-D position NEES
     ``e^T P^-1 e`` averaged over that window sampled once per ``sample_s`` (about one TDMA cycle apart)
-    with the band of :func:`nees_band` for that many samples (consecutive samples of a filter are
-    correlated, so the band is a yardstick, not a test); whether every estimate was finite."""
+    with the band of :func:`nees_band` for the *effective* number of independent samples: a filter's
+    consecutive errors are correlated, so ``n_eff = n (1 - rho) / (1 + rho)`` with ``rho`` the lag-1
+    autocorrelation of the NEES series (AR(1)); whether every estimate was finite."""
     t = np.asarray(track["t_s"], float)
     out: dict[str, Any] = {"n": int(t.size), "finite": bool(np.all(np.isfinite(track["pos_m"]))
                                                            and np.all(np.isfinite(track["cov_m2"])))}
@@ -165,7 +166,11 @@ def aircraft_accuracy(track: dict, truth: dict, t_from_s: float = 30.0, t_to_s: 
             q = np.einsum("ki,ki->k", e[k], np.linalg.solve(P, e[k][..., None])[..., 0])
         except np.linalg.LinAlgError:
             q = np.full(k.size, np.inf)
-        out.update(nees_mean=float(np.mean(q)), nees_n=int(k.size), nees_band=nees_band(int(k.size)))
+        rho = float(np.corrcoef(q[:-1], q[1:])[0, 1]) if q.size > 3 and np.all(np.isfinite(q)) and np.std(q) > 0 else 0.0
+        rho = min(max(rho, 0.0), 0.99) if np.isfinite(rho) else 0.0
+        n_eff = max(1.0, q.size * (1.0 - rho) / (1.0 + rho))
+        out.update(nees_mean=float(np.mean(q)), nees_n=int(k.size), nees_n_eff=float(n_eff),
+                   nees_band=nees_band(n_eff))
     return out
 
 
