@@ -18,28 +18,7 @@ from nav.geometry import SPEED_OF_LIGHT_M_S
 from net import messages as M
 from net import scenario as S
 from stations.node import NodeOptions, StationNode, default_epoch
-
-
-class FakeBus:
-    def __init__(self):
-        self.sent: list[tuple[str, bytes]] = []
-
-    def publish(self, key, data):
-        self.sent.append((key, data))
-
-    def subscribe(self, keyexpr, cb):
-        return None
-
-    def declare_token(self, key):
-        return None
-
-    def of_kind(self, kind):
-        out = []
-        for k, d in self.sent:
-            msg, phy = M.decode(d)
-            if msg["kind"] == kind:
-                out.append((k, msg, phy))
-        return out
+from fake_bus import FakeBus
 
 
 SPEED = 0.01  # a 10 ms slot lasts 1 s of wall time: the test is far from any slot boundary

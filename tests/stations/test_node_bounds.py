@@ -12,25 +12,9 @@ from net import messages as M
 from net import scenario as S
 from stations import node as N
 from stations.sim import station_clock
+from fake_bus import FakeBus
 
 SPEED = 0.01
-
-
-class FakeBus:
-    def __init__(self):
-        self.sent: list[tuple[str, bytes]] = []
-
-    def publish(self, key, data):
-        self.sent.append((key, data))
-
-    def subscribe(self, keyexpr, cb):
-        return None
-
-    def declare_token(self, key):
-        return None
-
-    def rsps(self):
-        return [M.decode(d)[0] for k, d in self.sent if "/range/rsp/" in k]
 
 
 def make_node(net=None):
