@@ -13,6 +13,12 @@ os.environ.setdefault("LARNS_JIT", "off")
 _HERE = str(Path(__file__).resolve().parent)
 if _HERE not in sys.path:
     sys.path.insert(0, _HERE)
+# the repository root too: ``tests/larns`` (no __init__) on the path would otherwise be found as a
+# namespace package ``larns`` before the editable install's finder (a meta-path finder placed after
+# the path finder by recent setuptools) when a test imports ``larns`` first
+_ROOT = str(Path(__file__).resolve().parents[1])
+if _ROOT not in sys.path:
+    sys.path.append(_ROOT)
 
 
 def _compose_module(item):

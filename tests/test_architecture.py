@@ -87,6 +87,62 @@ def test_navigator_never_imports_the_world(pkg):
     assert not bad, "\n".join(bad)
 
 
+# modules that hold truth besides ``world/`` (the flat radio trajectory until it moves into world/)
+TRUTH_MODULES = {"aircraft": ("aircraft.world", "aircraft.trajectory"), "vehicle": ("vehicle.world",)}
+
+
+def _owner(name: str, graph) -> str:
+    """The module of ``graph`` that an imported name refers to (``pkg.mod.symbol`` -> ``pkg.mod``)."""
+    while name and name not in graph:
+        name = name.rpartition(".")[0]
+    return name
+
+
+def reaches(start: str, graph) -> dict[str, str]:
+    """{module: the module that first imported it} over the transitive import closure of ``start``."""
+    via: dict[str, str] = {}
+    stack = [start]
+    while stack:
+        mod = stack.pop()
+        for _f, _l, name in graph.get(mod, []):
+            target = _owner(name, graph)
+            if target and target != start and target not in via:
+                via[target] = mod
+                stack.append(target)
+    return via
+
+
+def truth_paths(pkg: str, graph) -> list[str]:
+    """Every import chain from a module of ``pkg.navigator`` to a truth module, as ``a -> b -> c``."""
+    out = []
+    for start in sorted(m for m in graph if m.startswith(f"{pkg}.navigator")):
+        via = reaches(start, graph)
+        for bad in sorted(m for m in via if m.startswith(TRUTH_MODULES[pkg])):
+            chain = [bad]
+            while chain[-1] != start:
+                chain.append(via[chain[-1]])
+            out.append(" -> ".join(reversed(chain)))
+    return out
+
+
+@pytest.mark.parametrize("pkg", ["aircraft", "vehicle"])
+def test_navigator_never_reaches_the_world_transitively(pkg):
+    """Not through any chain of imports either: a navigator module that imports a flat module that
+    imports ``world/`` (or the flat truth trajectory) fails here."""
+    assert not truth_paths(pkg, GRAPH), "\n".join(truth_paths(pkg, GRAPH))
+
+
+def test_a_planted_transitive_violation_is_found():
+    """The transitive check can fail: a navigator module importing a helper that imports the world."""
+    graph = {k: list(v) for k, v in GRAPH.items()}
+    graph["aircraft.navigator.planted"] = [("p.py", 1, "aircraft.navigator.receiver")]
+    graph["aircraft.navigator.receiver"] = graph["aircraft.navigator.receiver"] + [("r.py", 2, "aircraft.helper")]
+    graph["aircraft.helper"] = [("h.py", 3, "aircraft.world.imu.ImuModel")]
+    assert "aircraft.navigator.planted -> aircraft.navigator.receiver -> aircraft.helper -> aircraft.world.imu" \
+        in truth_paths("aircraft", graph)
+    assert not truth_paths("aircraft", GRAPH)
+
+
 def test_the_parser_sees_local_and_relative_imports():
     """A checker that cannot fail is no check: function-local, relative and ``from . import`` imports
     of a module of ``net/`` are all resolved to what the direction test compares."""
