@@ -241,8 +241,15 @@ def attack_flood(args) -> dict:
     return {"attack": "flood", "as": me, "links": linked, "sent": sent, "seconds": dt, "rate_per_s": sent / dt}
 
 
+def attack_insider(args) -> list[dict]:
+    """An insider with ``--as``'s credentials (larns/adversary/insider.py)."""
+    from larns.adversary.insider import attack_insider as run_insider
+
+    return run_insider(args)
+
+
 ATTACKS = {"nocred": attack_nocred, "forge": attack_forge, "replay": attack_replay, "fuzz": attack_fuzz,
-           "flood": attack_flood}
+           "flood": attack_flood, "insider": attack_insider}
 
 
 def attack_all(args) -> list[dict]:
