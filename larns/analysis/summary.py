@@ -11,10 +11,55 @@ publish_time`` (receive time minus the sender's stamp) per kind.
 
 from __future__ import annotations
 
+import json
 import math
+import re
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Sequence
+
+#: topic groups of ``larns info``, in print order (:func:`topic_group`)
+TOPIC_GROUPS = ("stations", "aircraft", "vehicle", "other")
+
+
+def json_safe(x: Any) -> Any:
+    """``x`` with every value JSON can hold strictly: non-finite floats become None (``null``, not
+    ``NaN`` / ``Infinity``), numpy scalars and arrays plain numbers and lists, tuples lists, keys
+    that are not str/int/float/bool strings, anything else its ``str``."""
+    if x is None or isinstance(x, (bool, str)):
+        return x
+    if isinstance(x, dict):
+        return {(k if isinstance(k, (str, int, float, bool)) else str(k)): json_safe(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple, set, frozenset)):
+        return [json_safe(v) for v in x]
+    if hasattr(x, "tolist") and hasattr(x, "dtype"):  # numpy array or scalar
+        return json_safe(x.tolist())
+    if isinstance(x, int):
+        return int(x)
+    if isinstance(x, float):
+        return float(x) if math.isfinite(x) else None
+    return str(x)
+
+
+def dumps_strict(obj: Any, **kw) -> str:
+    """``json.dumps`` of :func:`json_safe` (``obj``) with ``allow_nan=False``: valid JSON (RFC 8259)
+    that a strict parser reads."""
+    return json.dumps(json_safe(obj), allow_nan=False, **kw)
+
+
+def natural_key(s: str) -> list:
+    """Sort key that orders the numbers inside a string by value: ``station/2`` before ``station/10``."""
+    return [(0, int(p), "") if p.isdigit() else (1, 0, p) for p in re.split(r"(\d+)", s) if p]
+
+
+def topic_group(topic: str) -> str:
+    """Which group of :data:`TOPIC_GROUPS` a key belongs to: ``larns/station/...``, ``larns/aircraft/...``,
+    ``larns/vehicle/...`` (wire traffic of a station, an aircraft, a ground vehicle); everything else
+    (the Foxglove view channels, trust, liveliness) is ``other``."""
+    parts = topic.split("/")
+    if len(parts) > 2 and parts[0] == "larns":
+        return {"station": "stations", "aircraft": "aircraft", "vehicle": "vehicle"}.get(parts[1], "other")
+    return "other"
 
 
 def summarize(paths: Sequence[str | Path], logs=None, rec=None, keystore=None) -> dict[str, Any]:
@@ -111,8 +156,9 @@ def _times(rec) -> dict[str, Any]:
 
 
 def _topics(topics: dict[str, dict]) -> dict[str, dict]:
+    """Per topic its count, rate and kinds, in natural order (``station/2`` before ``station/10``)."""
     out = {}
-    for name, t in sorted(topics.items()):
+    for name, t in sorted(topics.items(), key=lambda kv: natural_key(kv[0])):
         t = dict(t)
         span = (t["last_ns"] - t["first_ns"]) * 1e-9
         t["rate_hz"] = (t["count"] - 1) / span if span > 0 and t["count"] > 1 else 0.0
@@ -160,11 +206,13 @@ def station_table(rec) -> dict[int, dict]:
 
 def sync_summary(s: dict, clock, after_s: float = 60.0) -> None:
     """Clock sync error of one station (rows ``[t_s, error_ns, ...]`` of its estimate against the
-    truth of the same stamp, :meth:`StationSeries.clock`): the last (``sync_ns``), the RMS and the
-    largest magnitude after ``after_s`` fleet seconds, in ns."""
+    truth of the same stamp, :meth:`StationSeries.clock`): the last (``sync_ns``, at fleet time
+    ``sync_t_s``), the RMS and the largest magnitude after ``after_s`` fleet seconds, in ns (absent
+    when the station's clock series ends before then)."""
     if len(clock) == 0:
         return
     s["sync_ns"] = float(clock[-1][1])
+    s["sync_t_s"] = float(clock[-1][0])
     late = [float(e) for t, e in ((r[0], r[1]) for r in clock) if t >= after_s]
     if late:
         s["sync_max_ns_after_60s"] = max(abs(e) for e in late)

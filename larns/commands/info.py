@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from typing import Any
@@ -49,6 +48,66 @@ def vehicle_line(name: str, v: dict) -> str:
             f"journal {'yes' if v['journal'] else 'no'}")
 
 
+SYNC_AFTER_S = 60.0  # the window of the rms60 / max60 columns (larns.analysis.summary.sync_summary)
+
+
+def _num(v: Any, fmt: str, width: int) -> str:
+    """``v`` formatted, or ``-`` (right-aligned in ``width``) when it is missing or not finite."""
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return f"{'-':>{width}}"
+    return f"{v:>{width}{fmt}}"
+
+
+def station_lines(s: dict[str, Any]) -> list[str]:
+    """The station table: one row per station. The ``rms60`` / ``max60`` columns (clock error after
+    60 s fleet time) say ``run shorter than 60 s`` when the station's recorded clock series ends
+    before then (a 60 s run's last sample is at 59.x s)."""
+    st = s["stations"]
+    if not st:
+        return []
+    L = [f"Stations:          {len(st)}  ids {','.join(map(str, st))}",
+         f"  {'id':>5} {'state':>9} {'estimator':>9} {'updates':>7} {'sigma m':>8} {'error m':>8} "
+         f"{'journal':>7} {'dropped':>7} {'xchg %':>7} {'sync ns':>8} {'rms60 ns':>8} {'max60 ns':>8}"]
+    for sid, v in st.items():
+        if "sync_rms_ns_after_60s" in v:
+            late = f"{_num(v['sync_rms_ns_after_60s'], '.2f', 8)} {_num(v['sync_max_ns_after_60s'], '.2f', 8)}"
+        elif v.get("sync_t_s", SYNC_AFTER_S) < SYNC_AFTER_S:
+            late = "  run shorter than 60 s"
+        else:
+            late = f"{'-':>8} {'-':>8}"
+        L.append(f"  {sid:>5} {v.get('state', '-'):>9} {v.get('estimator', '-'):>9} {v.get('n_updates', 0):>7} "
+                 f"{_num(v.get('sigma_m'), '.2f', 8)} {_num(v.get('err_m'), '.2f', 8)} "
+                 f"{'yes' if v.get('journal') else 'no':>7} {v.get('dropped') if v.get('dropped') is not None else '-':>7} "
+                 f"{_num(v.get('exchanges_pct'), '.1f', 7)} {_num(v.get('sync_ns'), '.2f', 8)} {late}")
+    for sid, v in st.items():
+        if v.get("excluded_by"):
+            L.append(f"  integrity: station {sid} EXCLUDED by {','.join(map(str, v['excluded_by']))}")
+    return L
+
+
+def topic_lines(topics: dict[str, dict]) -> list[str]:
+    """The topics grouped (stations, aircraft, vehicle, other; :func:`larns.analysis.summary.topic_group`),
+    each group in natural order (1, 2, 10)."""
+    from larns.analysis.summary import TOPIC_GROUPS, natural_key, topic_group
+
+    if not topics:
+        return ["Topics:            none"]
+    groups: dict[str, list[str]] = {g: [] for g in TOPIC_GROUPS}
+    for k in topics:
+        groups[topic_group(k)].append(k)
+    w = max(len(k) for k in topics)
+    L = [f"Topics:            {len(topics)}  (" + ", ".join(f"{g} {len(v)}" for g, v in groups.items() if v) + ")"]
+    for g, keys in groups.items():
+        if not keys:
+            continue
+        L.append(f"  {g}:")
+        for k in sorted(keys, key=natural_key):
+            t = topics[k]
+            L.append(f"    {k:<{w}}  {t['count']:>7} msgs  {t['rate_hz']:>8.2f} Hz  {t['encoding']:<8} "
+                     + ",".join(t["kinds"]))
+    return L
+
+
 def format_info(s: dict[str, Any]) -> str:
     L = []
     for f in s["files"]:
@@ -66,28 +125,10 @@ def format_info(s: dict[str, Any]) -> str:
         L.append(f"Fleet time:        {s['fleet_start_s']:.2f} s .. {s['fleet_end_s']:.2f} s since the fleet epoch")
     L.append(f"Start:             {s['start']}")
     L.append(f"End:               {s['end']}")
-    st = s["stations"]
-    if st:
-        L.append(f"Stations:          {len(st)}  ids {','.join(map(str, st))}")
-        L.append(f"  {'id':>5} {'state':>9} {'estimator':>9} {'updates':>7} {'sigma m':>8} {'error m':>8} "
-                 f"{'journal':>7} {'dropped':>7} {'xchg %':>7} {'sync ns':>8} {'rms60 ns':>8} {'max60 ns':>8}")
-        for sid, v in st.items():
-            L.append(f"  {sid:>5} {v.get('state', '-'):>9} {v.get('estimator', '-'):>9} {v.get('n_updates', 0):>7} "
-                     f"{v.get('sigma_m', math.nan):>8.2f} {v.get('err_m', math.nan):>8.2f} "
-                     f"{'yes' if v.get('journal') else 'no':>7} {v.get('dropped') if v.get('dropped') is not None else '-':>7} "
-                     f"{v.get('exchanges_pct', math.nan):>7.1f} {v.get('sync_ns', math.nan):>8.2f} "
-                     f"{v.get('sync_rms_ns_after_60s', math.nan):>8.2f} "
-                     f"{v.get('sync_max_ns_after_60s', math.nan):>8.2f}")
-        for sid, v in st.items():
-            if v.get("excluded_by"):
-                L.append(f"  integrity: station {sid} EXCLUDED by {','.join(map(str, v['excluded_by']))}")
+    L += station_lines(s)
     L += aircraft_lines(s["aircraft"])
     L += [vehicle_line(name, v) for name, v in s.get("vehicles", {}).items()]
-    L.append("Topics:")
-    w = max(len(k) for k in s["topics"])
-    for k, t in s["topics"].items():
-        kinds = ",".join(t["kinds"])
-        L.append(f"  {k:<{w}}  {t['count']:>7} msgs  {t['rate_hz']:>8.2f} Hz  {t['encoding']:<8} {kinds}")
+    L += topic_lines(s["topics"])
     L.append("Loss (sequence gaps per sender and kind):")
     L.append(f"  {'kind':<12} {'senders':>7} {'received':>8} {'missing':>7} {'loss %':>7} {'dup':>5} "
              f"{'reorder':>7} {'leading':>7}")
@@ -121,7 +162,7 @@ def refused_lines(refused: list[dict], verified: bool) -> list[str]:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
-    from larns.analysis.summary import summarize
+    from larns.analysis.summary import dumps_strict, summarize
 
     ks = None
     if getattr(args, "keystore", None):
@@ -139,7 +180,7 @@ def cmd_info(args: argparse.Namespace) -> int:
         return 1
     try:
         if args.json:
-            print(json.dumps(s, default=str, indent=1))
+            print(dumps_strict(s, indent=1))
         else:
             print(format_info(s))
         sys.stdout.flush()
