@@ -568,8 +568,9 @@ class CvTracker:
         R, z = self._noise_and_z(stations_m, rho_m, station_cov_m2, sig, dt_s)
         h, jac = self.measurement_model(stations_m, dt_s, D)
         self._update_lag_direction(jac)
-        keys = ([("id", sid) for sid in bias_ids] if bias_ids is not None
-                else [("pos",) + tuple(np.round(sj, 1)) for sj in stations_m])
+        repeats_on = self.tuning.linearization_corr_s > 0  # else no station bookkeeping at all
+        keys = ([] if not repeats_on else [("id", sid) for sid in bias_ids] if bias_ids is not None
+                else [("pos", *row) for row in np.round(stations_m, 1).tolist()])
         k = self._repeats(keys)
         if self.kind == "ekf":
             x1, P1, nu, S = self._update_ekf(stations_m, dt_s, z, h, jac, R, k)
@@ -580,10 +581,11 @@ class CvTracker:
         if len(self._last_seen) > 64:  # positions as keys move as the survey does: forget old ones
             old = self.t_s - max(self.tuning.linearization_corr_s, 0.0)
             self._last_seen = {key: t for key, t in self._last_seen.items() if t >= old}
-        # the filter's memory in updates: prior variance over what one update removes (per run)
-        tr0 = np.einsum("...ii->...", self._P)
-        gain = tr0 - np.einsum("...ii->...", P1)
-        self._memory = tr0 / np.maximum(gain, 1e-9 * tr0)
+        if repeats_on:
+            # the filter's memory in updates: prior variance over what one update removes (per run)
+            tr0 = np.einsum("...ii->...", self._P)
+            gain = tr0 - np.einsum("...ii->...", P1)
+            self._memory = tr0 / np.maximum(gain, 1e-9 * tr0)
         self._x, self._P = x1, P1
         if self._ref is not None:
             self._switch()

@@ -56,7 +56,7 @@ def update(
 
 def kf_predict(x, P, F, Q):
     """Linear prediction ``F x``, ``F P F^T + Q``; F (..., n, n)."""
-    if F.ndim == 2 and np.ndim(x) == 1 and np.ndim(P) == 2:  # one state: matmul fast path
+    if F.ndim == 2 and getattr(x, "ndim", None) == 1 and getattr(P, "ndim", None) == 2:  # one state
         Pn = F @ P @ F.T + Q
         return F @ x, 0.5 * (Pn + Pn.T)
     x_new = np.einsum("...ij,...j->...i", F, x)
@@ -92,8 +92,8 @@ def ukf_predict(x, P, f: Callable, Q, params: SigmaParams):
 
 def ukf_update(x, P, z, h: Callable, R, params: SigmaParams):
     """Unscented update (seed 000 eqs. 10-13). Returns x, P, nu, S."""
-    if np.ndim(x) == 1 and np.ndim(P) == 2 and np.ndim(R) == 2:
-        return _ukf_update_one(x, P, z, h, R, params)
+    if getattr(x, "ndim", None) == 1 and getattr(P, "ndim", None) == 2 and getattr(R, "ndim", None) == 2:
+        return _ukf_update_one(x, P, z, h, R, params)  # one state: few, small numpy calls
     ut = unscented_transform(h, x, P, params)
     S = symmetrize(ut.cov + R)
     nu = z - ut.mean
