@@ -22,6 +22,15 @@ Format (see docs/scenarios.md for the full reference)::
     # [[stations]]
     # id = 1
     # pos_m = [0.0, 0.0, 0.0]     # physical coordinates; converted to the network frame
+    # ... or, with or without [site], on WGS84:
+    # lat_deg = 48.8566
+    # lon_deg = 2.3522
+    # h_m = 35.0                  # ellipsoidal height (default 0)
+
+    [site]                        # optional: the field on the Earth (nav/site.py)
+    origin = [48.8566, 2.3522, 35.0]  # lat deg, lon deg, h m of the physical frame's origin
+    azimuth_deg = 90.0            # direction of physical +X, clockwise from north (90: +X east)
+    # stations_geojson = "stations.geojson"  # Point features with an "id" property, instead of [[stations]]
 
     [tdma]
     cycle_s = 1.0
@@ -75,6 +84,7 @@ from typing import Any
 import numpy as np
 
 from nav.geometry import to_network_frame
+from nav.site import Site
 
 from .clock import PRESETS, ClockParams, clock_params
 
@@ -166,6 +176,7 @@ class Scenario:
     links: list["LinkOverride"] = field(default_factory=list)  # per-link / per-station channel
     faults: list["StationFault"] = field(default_factory=list)  # [[faults]]: faulty or lying stations
     source: str = ""  # the file it was loaded from ("" when built from a dict)
+    site: Site | None = None  # [site]: the physical frame on WGS84, tied to the network frame
 
     def index(self, station_id: int) -> int:
         return self.ids.index(station_id)
@@ -291,7 +302,7 @@ def load(name_or_path: str | Path, **overrides: Any) -> Scenario:
         else:
             raw[k] = v
     try:
-        scn = from_dict(raw)
+        scn = from_dict(raw, base_dir=path.parent)
     except ScenarioError as e:
         e.file = e.file or str(path)
         raise
@@ -313,7 +324,7 @@ def _explicit_stations(raw: dict[str, Any]) -> tuple[list[int], np.ndarray, list
     """``[[stations]]``: ids, physical positions, joiners, and where each one is written."""
     st = raw["stations"]
     ids = [int(s["id"]) for s in st]
-    phys = np.array([[float(v) for v in s["pos_m"]] for s in st])
+    phys = np.array([[float(v) for v in s["pos_m"]] for s in st])  # lat/lon ones: converted by _place_on_site
     join_ids = [int(s["id"]) for s in st if s.get("join", False)]
     return ids, phys, join_ids, [f"stations[{k}]" for k in range(len(st))]
 
@@ -394,10 +405,135 @@ def _check_geometry(ids: list[int], phys: np.ndarray, where: dict[int, str]) -> 
                             "network frame)")
 
 
-def from_dict(raw: dict[str, Any]) -> Scenario:
+# ---------------------------------------------------------------- [site]: the field on WGS84
+_GEO_KEYS = ("lat_deg", "lon_deg", "h_m")
+_SITE_KEYS = ("origin", "azimuth_deg", "stations_geojson")
+
+
+def _lat_lon_h(lat: Any, lon: Any, h: Any, where: tuple[str, str, str]) -> tuple[float, float, float]:
+    lat, lon, h = _num(lat, where[0]), _num(lon, where[1]), _num(h, where[2])
+    if not -90.0 <= lat <= 90.0:
+        raise ScenarioError(f"{where[0]}: got {lat!r} (expected a latitude in degrees, -90..90)")
+    if not -180.0 <= lon <= 180.0:
+        raise ScenarioError(f"{where[1]}: got {lon!r} (expected a longitude in degrees, -180..180)")
+    return lat, lon, h
+
+
+def _geodetic(e: dict, w: str) -> tuple[float, float, float]:
+    """A ``[[stations]]`` entry's ``lat_deg``, ``lon_deg``, ``h_m`` (default 0), checked."""
+    for k in ("lat_deg", "lon_deg"):
+        if k not in e:
+            raise ScenarioError(f"{w}.{k}: missing (expected lat_deg and lon_deg in degrees, h_m in metres, "
+                                "or pos_m)")
+    return _lat_lon_h(e["lat_deg"], e["lon_deg"], e.get("h_m", 0.0), (f"{w}.lat_deg", f"{w}.lon_deg", f"{w}.h_m"))
+
+
+def _validate_site(raw: dict) -> None:
+    site = _table(raw, "site")
+    _known(site, "[site]", _SITE_KEYS)
+    if "origin" in site:
+        o = site["origin"]
+        if not isinstance(o, list) or len(o) != 3:
+            raise ScenarioError(f"[site] origin: got {o!r} (expected [lat_deg, lon_deg, h_m])")
+        _lat_lon_h(*o, ("[site] origin[0]", "[site] origin[1]", "[site] origin[2]"))
+    if "azimuth_deg" in site:
+        _num(site["azimuth_deg"], "[site] azimuth_deg")
+    if "stations_geojson" in site:
+        f = site["stations_geojson"]
+        if not isinstance(f, str) or not f:
+            raise ScenarioError(f"[site] stations_geojson: got {f!r} (expected the path of a GeoJSON file)")
+        if "stations" in raw:
+            raise ScenarioError("[site] stations_geojson: both a GeoJSON file and [[stations]] (expected one of "
+                                "them)")
+
+
+def _geojson_stations(name: str, base_dir: Path | None) -> list[dict]:
+    """``[site] stations_geojson``: the stations of a GeoJSON FeatureCollection of Point features
+    (``[lon, lat]`` or ``[lon, lat, h]``, properties ``id`` and optionally ``join``) as
+    ``[[stations]]`` entries with ``lat_deg`` / ``lon_deg`` / ``h_m``."""
+    import json
+
+    path = Path(name) if base_dir is None or Path(name).is_absolute() else Path(base_dir) / name
+    w = "[site] stations_geojson"
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except OSError as e:
+        raise ScenarioError(f"{w}: cannot read {path}: {e.strerror or e} (expected a readable GeoJSON file, "
+                            "relative to the scenario file)") from None
+    except (UnicodeDecodeError, ValueError) as e:
+        raise ScenarioError(f"{w}: {path}: not JSON ({e}) (expected a GeoJSON FeatureCollection)") from None
+    if not isinstance(doc, dict) or doc.get("type") != "FeatureCollection" or not isinstance(doc.get("features"), list):
+        raise ScenarioError(f"{w}: {path}: not a FeatureCollection (expected a GeoJSON FeatureCollection of "
+                            "Point features)")
+    out = []
+    for i, f in enumerate(doc["features"]):
+        fw = f"{w}: {path}: features[{i}]"
+        geom = f.get("geometry") if isinstance(f, dict) else None
+        if not isinstance(geom, dict) or geom.get("type") != "Point":
+            raise ScenarioError(f"{fw}.geometry: got {geom!r:.60} (expected a Point)")
+        c = geom.get("coordinates")
+        if not isinstance(c, list) or len(c) not in (2, 3):
+            raise ScenarioError(f"{fw}.geometry.coordinates: got {c!r} (expected [lon, lat] or [lon, lat, h])")
+        props = f.get("properties") or {}
+        sid = props.get("id") if isinstance(props, dict) else None
+        if isinstance(sid, bool) or not isinstance(sid, int) or sid < 1:
+            raise ScenarioError(f"{fw}.properties.id: got {sid!r} (expected the station id, an integer >= 1)")
+        lat, lon, h = _lat_lon_h(c[1], c[0], c[2] if len(c) == 3 else 0.0,
+                                 (f"{fw}.coordinates[1]", f"{fw}.coordinates[0]", f"{fw}.coordinates[2]"))
+        e: dict[str, Any] = {"id": sid, "lat_deg": lat, "lon_deg": lon, "h_m": h}
+        if "join" in props:
+            if not isinstance(props["join"], bool):
+                raise ScenarioError(f"{fw}.properties.join: got {props['join']!r} (expected true or false)")
+            e["join"] = props["join"]
+        out.append(e)
+    if not out:
+        raise ScenarioError(f"{w}: {path}: no features (expected one Point feature per station)")
+    return out
+
+
+def _place_on_site(raw: dict, base_dir: Path | None) -> tuple[dict, Site | None]:
+    """``[site]`` and stations given on WGS84: the site (without its network tie yet) and the document
+    with every station in physical coordinates (``pos_m``, the site's field frame), so the rest of the
+    emulator reads one form. Without ``[site]`` origin, the lowest-id station's position is the origin."""
+    site_t = dict(raw.get("site", {}))
+    stations = raw.get("stations")
+    if "stations_geojson" in site_t:
+        stations = _geojson_stations(site_t.pop("stations_geojson"), base_dir)
+    geo = [e for e in stations or [] if "lat_deg" in e]
+    if not site_t and not geo:
+        return raw, None
+    if "origin" in site_t:
+        origin = tuple(float(v) for v in site_t["origin"])
+    elif geo and len(geo) < len(stations):
+        raise ScenarioError("[site] origin: missing (expected [lat_deg, lon_deg, h_m] when stations mix pos_m "
+                            "and lat_deg/lon_deg)")
+    elif geo:
+        first = min(geo, key=lambda e: int(e["id"]))
+        origin = (float(first["lat_deg"]), float(first["lon_deg"]), float(first.get("h_m", 0.0)))
+    else:
+        raise ScenarioError("[site] origin: missing (expected [lat_deg, lon_deg, h_m] of the field's origin)")
+    site = Site(*origin, azimuth_deg=float(site_t.get("azimuth_deg", 90.0)))
+    out = dict(raw)
+    out["site"] = {"origin": list(origin), "azimuth_deg": site.azimuth_deg}
+    if geo:
+        placed = []
+        for e in stations:
+            if "lat_deg" in e:
+                p = site.geodetic_to_frame(e["lat_deg"], e["lon_deg"], e.get("h_m", 0.0))
+                e = {**{k: v for k, v in e.items() if k not in _GEO_KEYS}, "pos_m": [float(v) for v in p]}
+            placed.append(e)
+        out["stations"] = placed
+    elif stations is not None:
+        out["stations"] = stations
+    return out, site
+
+
+def from_dict(raw: dict[str, Any], base_dir: str | Path | None = None) -> Scenario:
     """The scenario of a parsed TOML document; an invalid entry raises :class:`ScenarioError` naming
-    its key (e.g. ``[channel] sigma_d_m``, ``stations[2].pos_m``, ``faults[1].offset_m``)."""
+    its key (e.g. ``[channel] sigma_d_m``, ``stations[2].pos_m``, ``faults[1].offset_m``).
+    ``base_dir``: where ``[site] stations_geojson`` is looked up (the scenario file's folder)."""
     validate(raw)
+    raw, site = _place_on_site(raw, None if base_dir is None else Path(base_dir))
     seed = int(raw.get("seed", 0))
     frame = raw.get("frame", {})
     z_ref = int(frame.get("z_ref", 4))
@@ -412,7 +548,7 @@ def from_dict(raw: dict[str, Any]) -> Scenario:
         raise ScenarioError(f"[frame] z_ref: no station {z_ref} (expected one of the station ids "
                             f"{ids[0]}..{ids[-1]}; it fixes the sign of +Z)")
     zi = ids.index(z_ref) if z_ref in ids else 3
-    pos, _, _ = to_network_frame(phys, z_ref=zi)
+    pos, R, t = to_network_frame(phys, z_ref=zi)
     init = raw.get("init", {})
     survey = raw.get("survey", {})
     channel = ChannelParams(**raw.get("channel", {}))
@@ -435,6 +571,7 @@ def from_dict(raw: dict[str, Any]) -> Scenario:
         clock=_clock(raw, channel),
         links=parse_links(raw.get("links", []), ids),
         faults=parse_faults(raw.get("faults", []), ids),
+        site=None if site is None else site.with_network(R, t),
     )
 
 
@@ -604,7 +741,7 @@ _SURVEY_KEYS = ("estimator", "ranges_per_update")
 
 TOP_LEVEL_KEYS = ("name", "description", "seed")
 # sections: tables, and arrays of tables ([[stations]], [[links]], [[faults]])
-SECTIONS = ("frame", "layout", "stations", "tdma", "channel", "clock", "net", "init", "survey", "aircraft",
+SECTIONS = ("frame", "site", "layout", "stations", "tdma", "channel", "clock", "net", "init", "survey", "aircraft",
             "vehicle", "links", "faults")
 # the names stations/estimators.py (ESTIMATORS) and aircraft/ (models.ALGOS, ins-ekf, triad) accept; net
 # may not import them, tests/net/test_scenario_errors.py keeps the lists equal
@@ -709,22 +846,29 @@ def _validate_stations(raw: dict) -> None:
         w = f"stations[{i}]"
         if not isinstance(e, dict):
             raise ScenarioError(f"{w}: got {e!r} (expected a table)")
-        unknown = sorted(set(e) - {"id", "pos_m", "join"})
+        keys = ("id", "pos_m", "join") + _GEO_KEYS
+        unknown = sorted(set(e) - set(keys))
         if unknown:
-            raise ScenarioError(f"{w}.{unknown[0]}: unknown key (expected id, pos_m, join"
-                                f"{_did_you_mean(unknown[0], ('id', 'pos_m', 'join'))})")
+            raise ScenarioError(f"{w}.{unknown[0]}: unknown key (expected id, pos_m or lat_deg/lon_deg/h_m, join"
+                                f"{_did_you_mean(unknown[0], keys)})")
         if "id" not in e:
             raise ScenarioError(f"{w}.id: missing (expected the station id, an integer >= 1)")
         _int(e["id"], f"{w}.id", 1)
+        if not isinstance(e.get("join", False), bool):
+            raise ScenarioError(f"{w}.join: got {e['join']!r} (expected true or false)")
+        if any(k in e for k in _GEO_KEYS):
+            if "pos_m" in e:
+                raise ScenarioError(f"{w}.pos_m: both pos_m and lat_deg/lon_deg/h_m (expected one of them)")
+            _geodetic(e, w)
+            continue
         pos = e.get("pos_m")
         if pos is None:
-            raise ScenarioError(f"{w}.pos_m: missing (expected physical coordinates [x, y, z], m)")
+            raise ScenarioError(f"{w}.pos_m: missing (expected physical coordinates [x, y, z], m, or lat_deg, "
+                                "lon_deg, h_m)")
         if not isinstance(pos, list) or len(pos) != 3:
             raise ScenarioError(f"{w}.pos_m: got {pos!r} (expected 3 numbers [x, y, z] in metres)")
         for j, v in enumerate(pos):
             _num(v, f"{w}.pos_m[{j}]")
-        if not isinstance(e.get("join", False), bool):
-            raise ScenarioError(f"{w}.join: got {e['join']!r} (expected true or false)")
 
 
 def _validate_clock(raw: dict) -> None:
@@ -781,6 +925,7 @@ def validate(raw: dict[str, Any]) -> None:
     _validate_params(raw)
     _validate_layout(raw)
     _validate_stations(raw)
+    _validate_site(raw)
     frame = _table(raw, "frame")
     _known(frame, "[frame]", ("z_ref",))
     if "z_ref" in frame:

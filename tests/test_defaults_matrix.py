@@ -66,6 +66,7 @@ class Case:
 TCXO = dict(sync_ns=2.0, spread_ns=5.0)
 MATRIX: dict[str, Case] = {
     "seed000": Case(vehicle=True, **TCXO),
+    "seed000-geo": Case(**TCXO),  # seed000's stations given on WGS84 ([site]): the same field on the map
     "seed000-join": Case(joiners=(11,), **TCXO),
     "seed000-liar": Case(faulty=(6,)),
     "seed000-nlos5": Case(),

@@ -133,7 +133,7 @@ def test_a_missing_scenario_lists_the_packaged_ones():
     with pytest.raises(ScenarioNotFound) as ei:
         load("seed00")
     assert isinstance(ei.value, FileNotFoundError) and isinstance(ei.value, ScenarioError)
-    assert str(ei.value).startswith("seed00: ") and "seed000, seed000-join" in str(ei.value)
+    assert str(ei.value).startswith("seed00: ") and "seed000, seed000-geo, seed000-join" in str(ei.value)
 
 
 def test_the_name_lists_match_the_estimators_and_algorithms():
@@ -242,7 +242,7 @@ def test_fleet_and_crlb_refuse_a_broken_file_in_one_line(validated, tmp_path):
 
 def test_a_missing_file_lists_the_packaged_scenarios(tmp_path):
     line = _one_line(_larns("scenario", "validate", "no-such.toml", cwd=tmp_path))
-    assert line.startswith("no-such.toml: no such file") and "seed000, seed000-join" in line and "seed003" in line
+    assert line.startswith("no-such.toml: no such file") and "seed000, seed000-geo, seed000-join" in line and "seed003" in line
     line = _one_line(_larns("scenario", "show", "seed00", cwd=tmp_path))
     assert line.startswith("seed00: no such file") and "seed003-text-10" in line
 
@@ -266,6 +266,6 @@ def test_validate_reports_every_file_and_fails_if_one_is_bad(validated, tmp_path
     run = _larns("scenario", "validate", "seed000", str(bad), "seed001", cwd=tmp_path)
     assert run.returncode == 2
     assert [line.split(":")[0] for line in run.stdout.splitlines()] == ["seed000", "seed001"]
-    assert run.stderr.splitlines() == [f"{bad}: [layot]: unknown section (expected one of [frame], [layout], "
+    assert run.stderr.splitlines() == [f"{bad}: [layot]: unknown section (expected one of [frame], [site], [layout], "
                                        "[stations], [tdma], [channel], [clock], [net], [init], [survey], "
                                        "[aircraft], [vehicle], [links], [faults]; did you mean [layout]?)"]
