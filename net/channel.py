@@ -1,4 +1,5 @@
-"""Air-channel emulation (pure, seeded): clocks, time of flight, timing noise, NLOS, air loss.
+"""Air-channel emulation (pure, seeded): clocks, time of flight, timing noise, NLOS, air loss, and
+with a scenario ``[radio]`` the radio horizon and link budget (:mod:`net.radio`).
 
 The channel turns a transmission's physical part (true sender position, true transmit time)
 into the receiver's *local* reception timestamp. Two-way ranging then sees exactly what real
@@ -23,6 +24,7 @@ import numpy as np
 from nav.geometry import SPEED_OF_LIGHT_M_S, frame_free_mask
 
 from .clock import ClockParams, OscillatorClock
+from .radio import link
 from .scenario import ChannelParams
 
 
@@ -87,6 +89,9 @@ class AirChannel:
         self.rng = rng
         self.key = None if key is None else (int(key[0]), int(key[1]))
         self.sigma_t_s = np.sqrt(2.0) * params.sigma_d_m / SPEED_OF_LIGHT_M_S
+        # the scenario's [radio] (net/radio.py): links beyond the horizon or the link budget do not
+        # exist, and timing noise grows as the SNR falls; None: everyone hears everyone, noise sigma_t_s
+        self.radio = getattr(params, "radio", None)
 
     def draws(self, tx_id: int | None, t_tx_true_s: float) -> np.random.Generator:
         """The generator for one reception: keyed by (seed, receiver, sender, transmit time) when the
@@ -109,13 +114,19 @@ class AirChannel:
         tx_id : sender's id; with a keyed channel it selects the reception's own draws.
         """
         p = self.params
+        sigma_t_s = self.sigma_t_s
+        if self.radio is not None:
+            air = link(tx_pos_m, rx_pos_m, self.radio)
+            if not air.exists:
+                return None
+            sigma_t_s = float(np.hypot(sigma_t_s, air.sigma_crlb_s))
         rng = self.draws(tx_id, t_tx_true_s)
         if p.loss_prob > 0 and rng.random() < p.loss_prob:
             return None
         d = float(np.linalg.norm(np.asarray(rx_pos_m, float) - np.asarray(tx_pos_m, float)))
         t = t_tx_true_s + d / SPEED_OF_LIGHT_M_S
-        if self.sigma_t_s > 0:
-            t += float(rng.normal(0.0, self.sigma_t_s))
+        if sigma_t_s > 0:
+            t += float(rng.normal(0.0, sigma_t_s))
         if p.nlos_prob > 0 and rng.random() < p.nlos_prob:
             # an NLOS leg lengthens the two-way range by nlos_bias_m on average
             t += 2.0 * float(rng.exponential(p.nlos_bias_m)) / SPEED_OF_LIGHT_M_S
