@@ -36,9 +36,18 @@ def cmd_view(args: argparse.Namespace) -> int:
             print(f"[view] Foxglove WebSocket on ws://{args.host}:{port} (Foxglove: Open connection -> "
                   f"Foxglove WebSocket); Ctrl-C to stop", file=sys.stderr, flush=True)
 
+    site = None
+    if args.scenario:  # its [site]: estimates and truth also as LocationFix (Map panel)
+        from net.scenario import ScenarioError, load
+
+        try:
+            site = load(args.scenario).site
+        except ScenarioError as e:
+            print(e, file=sys.stderr)
+            return 2
     try:
         stats = serve_live(bus_kwargs(args), host=args.host, port=args.port, keyexpr=args.keyexpr,
-                           duration_s=args.duration, stop=stop, on_ready=ready)
+                           duration_s=args.duration, stop=stop, on_ready=ready, site=site)
     except KeystoreError as e:
         print(f"larns view: --secure: {e}", file=sys.stderr)
         return 2
@@ -86,6 +95,9 @@ def register(sub) -> None:
                    help="fleet epoch, Unix s (accepted like every fleet process; not needed: fleet time "
                         "comes from the messages)")
     p.add_argument("--speed", type=float, default=None, help="fleet speed factor (accepted, not needed)")
+    p.add_argument("--scenario", default=None, metavar="NAME|FILE",
+                   help="the fleet's scenario: with a [site], estimates and truth are also sent as "
+                        "foxglove.LocationFix for the Map panel (default: none)")
     p.add_argument("--json", action="store_true", help="print statistics as JSON at the end")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
     add_bus_args(p)
@@ -125,10 +137,12 @@ def cmd_replay_view(args: argparse.Namespace) -> int:
                   f"connection -> Foxglove WebSocket; the playback bar plays, pauses, seeks); Ctrl-C to stop",
                   file=sys.stderr, flush=True)
 
+    from larns.viz.foxglove import recording_site
+
     try:
         stats = serve_recording(msgs, Timebase.of(logs, msgs[0].log_time), host=args.view_host, port=args.view,
                                 speed=args.rate, start_paused=args.start_paused, stop=stop, on_ready=ready,
-                                duration_s=args.view_duration)
+                                duration_s=args.view_duration, site=recording_site(logs))
     except RuntimeError as e:
         print(f"larns replay --view: cannot serve on {args.view_host}:{args.view}: {e}", file=sys.stderr)
         return 2
@@ -157,7 +171,7 @@ def view_child(args: argparse.Namespace, plan):
 
     from larns.fleet.spawn import Child
 
-    cmd = [sys.executable, "-m", "larns", "view", "--port", str(args.view), "-q"]
+    cmd = [sys.executable, "-m", "larns", "view", "--port", str(args.view), "-q", "--scenario", args.scenario]
     cmd += bus_argv(["tcp/127.0.0.1:0"], plan.seeds, args.zenoh_config, plan.mode, plan.secure)
     print(f"[fleet] live Foxglove view on ws://127.0.0.1:{args.view}", file=sys.stderr)
     return Child("viewer", cmd, plan.logdir / "viewer.log" if plan.logdir else None)

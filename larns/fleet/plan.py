@@ -195,6 +195,7 @@ def _recorder_child(args: argparse.Namespace, p: FleetPlan, rec_ep: str) -> Chil
            "--epoch", repr(p.epoch), "--speed", repr(args.speed),
            "--meta", f"stations={','.join(map(str, scn.ids))}", "--meta", f"seed={scn.seed}",
            "--meta", f"duration_s={args.duration}"]
+    cmd += ["--meta", f"site={scn.site.to_json()}"] if scn.site is not None else []  # [site]: LocationFix, export
     cmd += bus_argv([rec_ep], p.seeds, args.zenoh_config, p.mode, p.secure)
     return Child("recorder", cmd, _log(p, "recorder.log"))
 

@@ -4,7 +4,9 @@ One MCAP channel per key expression, ``message_encoding`` "msgpack", the exact w
 (lossless, replayable). ``log_time`` is the receive time (ns since the Unix epoch);
 ``publish_time`` is the sender's stamp (``msg.stamp_s`` converted with the fleet epoch and speed:
 ``epoch + stamp_s / speed``), or the receive time when the payload has no readable stamp.
-The file's metadata record ``larns`` holds the scenario name, epoch and speed.
+The file's metadata record ``larns`` holds the scenario name, epoch and speed, and, when the scenario
+has a ``[site]``, the site (``site``: origin, azimuth and the network frame's tie, JSON; ``nav/site.py``):
+the Foxglove view then writes ``foxglove.LocationFix`` channels and ``larns export --geojson`` finds it.
 
 The file is flushed (chunk finished) every ``--flush`` seconds, so a SIGKILLed recording loses at
 most that much. SIGINT / SIGTERM finish the file cleanly (summary + index).
@@ -58,6 +60,9 @@ class McapSink:
         if epoch_unix_s is not None:
             md["epoch_unix_s"] = repr(float(epoch_unix_s))
         md.update({k: str(v) for k, v in (metadata or {}).items()})
+        site = _site_of(md)
+        if site is not None:
+            md["site"] = site.to_json()
         self.log = LogWriter(self.path, {"larns": md}, library="larns-record", chunk_size=256 * 1024)
         # Foxglove view (larns/viz/foxglove.py): JSON channels next to the wire channels
         self.fox = None
@@ -65,7 +70,7 @@ class McapSink:
         if foxglove:
             from ..viz.foxglove import FoxgloveView
 
-            self.fox = FoxgloveView()
+            self.fox = FoxgloveView(site)
 
     @property
     def finished(self) -> bool:
@@ -115,6 +120,22 @@ class McapSink:
 
     def finish(self) -> None:
         self.log.finish()
+
+
+def _site_of(md: dict[str, str]):
+    """The recording's site: the ``site`` metadata (JSON) if given, else the ``[site]`` of the scenario
+    ``scenario`` names (a packaged name or a path) when it loads; None otherwise."""
+    from nav.site import Site
+    from net.scenario import ScenarioError, load
+
+    try:
+        if md.get("site"):
+            return Site.from_json(md["site"])
+        if md.get("scenario"):
+            return load(md["scenario"]).site
+    except (ScenarioError, ValueError, KeyError, TypeError) as e:
+        log.warning("no site for the Foxglove view: %s", e)
+    return None
 
 
 _WIRE_CHANNEL = {"source": "zenoh"}

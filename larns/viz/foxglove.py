@@ -12,6 +12,8 @@ NaN or infinity anywhere):
 | ``larns/foxglove/station/<id>`` | ``larns.StationEstimate`` | plottable numbers: position, sigmas, 3-sigma bound, error vs truth, updates |
 | ``larns/foxglove/aircraft/<name>/<algo>`` | ``larns.AircraftEstimate`` | same for each aircraft algorithm |
 | ``larns/foxglove/vehicle/<name>/<algo>`` | ``larns.AircraftEstimate`` | same for a ground vehicle (``larns vehicle``) |
+| ``larns/foxglove/fix/station/<id>``, ``.../fix/aircraft/<name>/<algo>``, ``.../fix/vehicle/<name>/<algo>`` | ``foxglove.LocationFix`` | with a site (scenario ``[site]``): each estimate on WGS84, its covariance in ENU (``position_covariance_type`` 3, known), for the Map panel; ``frame_id`` the estimate's frame of the transforms above |
+| ``larns/foxglove/fix/station/<id>/truth``, ``.../fix/<role>/<name>/truth`` | ``foxglove.LocationFix`` | the truth on WGS84 (zero covariance, type 0) |
 
 The ``foxglove.*`` JSON Schemas are generated from the Foxglove SDK's typed schemas
 (:mod:`larns.viz.sdk_schema`), the same messages the live view (``larns view``) sends: one
@@ -44,7 +46,8 @@ MIN_DIAMETER_M = 0.5  # frame stations have zero covariance: keep them visible
 # same definitions the live view sends as typed messages (larns/viz/live.py). The larns.* ones are ours.
 _NUM = {"type": "number"}
 
-SCHEMAS: dict[str, dict] = {name: json_schema(name) for name in ("foxglove.FrameTransform", "foxglove.SceneUpdate")}
+SCHEMAS: dict[str, dict] = {name: json_schema(name) for name in ("foxglove.FrameTransform", "foxglove.SceneUpdate",
+                                                                  "foxglove.LocationFix")}
 _EST_PROPS = {"t_s": _NUM, "x_m": _NUM, "y_m": _NUM, "z_m": _NUM, "sigma_x_m": _NUM, "sigma_y_m": _NUM,
               "sigma_z_m": _NUM, "sigma_m": _NUM, "bound3_m": _NUM, "n_updates": {"type": "integer"},
               "err_m": _NUM, "err_x_m": _NUM, "err_y_m": _NUM, "err_z_m": _NUM,
@@ -69,6 +72,31 @@ SCHEMA_BYTES = {k: json.dumps(v, sort_keys=True).encode() for k, v in SCHEMAS.it
 
 COLORS = {"station": (0.15, 0.45, 0.95, 0.45), "frame": (0.95, 0.2, 0.2, 0.6), "truth": (0.1, 0.8, 0.2, 0.9),
           "aircraft": (1.0, 0.6, 0.0, 0.45), "ac_truth": (0.1, 0.8, 0.2, 0.9)}
+FIX_KNOWN, FIX_UNKNOWN = 3, 0  # foxglove.LocationFix position_covariance_type: KNOWN, UNKNOWN
+
+
+def fix_topic(role: str, name, leaf: str | None = None) -> str:
+    """The ``foxglove.LocationFix`` topic of a station (``role`` "station", ``name`` its id), an
+    aircraft or a vehicle (``leaf`` its algorithm), or of their truth (``leaf`` "truth")."""
+    return "/".join(["larns/foxglove/fix", role, str(name)] + ([leaf] if leaf else []))
+
+
+def location_fix(site, ns: int, frame_id: str, pos_n, cov_n=None, color=COLORS["station"]) -> dict[str, Any]:
+    """A ``foxglove.LocationFix`` (JSON layout) of a network-frame position (3,) and covariance (3, 3)
+    on the ``site`` (:class:`nav.site.Site`): latitude / longitude / ellipsoidal height and the
+    covariance in the ENU tangent plane at the point, row-major (type 3, known); no covariance:
+    zeros, type 0 (unknown)."""
+    lat, lon, h = site.net_to_geodetic(np.asarray(pos_n, float))
+    cov = [0.0] * 9
+    kind = FIX_UNKNOWN
+    if cov_n is not None:
+        C = np.asarray(cov_n, float)
+        if np.all(np.isfinite(C)):
+            cov = [_f(v) for v in site.net_cov_to_enu(C, lat, lon).ravel()]
+            kind = FIX_KNOWN
+    return {"timestamp": stamp(ns), "frame_id": frame_id, "latitude": _f(lat), "longitude": _f(lon),
+            "altitude": _f(h), "position_covariance": cov, "position_covariance_type": kind, "heading": 0.0,
+            "velocity": {"x": 0.0, "y": 0.0, "z": 0.0}, "color": _color(color), "metadata": []}
 
 
 # --------------------------------------------------------------------------- helpers
@@ -168,9 +196,12 @@ def _numbers(pos, cov, truth) -> dict[str, float]:
 class FoxgloveView:
     """Stateful converter: ``convert(key, msg, log_ns)`` -> [(topic, schema name, JSON dict)].
 
-    Keeps the latest truth per station / aircraft to compute errors. Pure (no I/O)."""
+    Keeps the latest truth per station / aircraft to compute errors. Pure (no I/O). With a ``site``
+    (:class:`nav.site.Site`, the scenario's ``[site]``) every estimate and truth is also a
+    ``foxglove.LocationFix`` on WGS84."""
 
-    def __init__(self) -> None:
+    def __init__(self, site=None) -> None:
+        self.site = site
         self.truth: dict[int, list[float]] = {}
         self.ac_truth: dict[tuple[str, str], tuple[float, list[float]]] = {}  # (role, name) -> (t_s, pos)
         self.count = 0
@@ -188,6 +219,10 @@ class FoxgloveView:
                                      "size": _vec([2.0, 2.0, 2.0]), "color": _color(COLORS["truth"])})
                 out.append((TF_TOPIC, "foxglove.FrameTransform", _tf(log_ns, f"station_{sid}_truth", msg["pos_m"])))
                 out.append((SCENE_TOPIC, "foxglove.SceneUpdate", {"deletions": [], "entities": [ent]}))
+                if self.site is not None:
+                    out.append((fix_topic("station", sid, "truth"), "foxglove.LocationFix",
+                                location_fix(self.site, log_ns, f"station_{sid}_truth", msg["pos_m"],
+                                             color=COLORS["truth"])))
         elif kind == "estimate":
             sid = msg["src"]
             size, q = ellipsoid(msg["cov_m2"])
@@ -204,6 +239,9 @@ class FoxgloveView:
             out.append((TF_TOPIC, "foxglove.FrameTransform", _tf(log_ns, f"station_{sid}", msg["pos_m"])))
             out.append((SCENE_TOPIC, "foxglove.SceneUpdate", {"deletions": [], "entities": [ent]}))
             out.append((f"larns/foxglove/station/{sid}", "larns.StationEstimate", rec))
+            if self.site is not None:
+                out.append((fix_topic("station", sid), "foxglove.LocationFix",
+                            location_fix(self.site, log_ns, f"station_{sid}", msg["pos_m"], msg["cov_m2"], col)))
         elif kind in ("ac_truth", "veh_truth"):
             out += self._mobile_truth(msg, log_ns, "aircraft" if kind == "ac_truth" else "vehicle")
         elif kind in ("ac_estimate", "veh_estimate"):
@@ -218,8 +256,12 @@ class FoxgloveView:
         ent = _empty_entity(log_ns, f"{role}/{name}/truth")
         ent["cubes"].append({"pose": {"position": _vec(msg["pos_m"]), "orientation": dict(IDENTITY)},
                              "size": _vec([5.0, 5.0, 5.0]), "color": _color(COLORS["ac_truth"])})
-        return [(TF_TOPIC, "foxglove.FrameTransform", _tf(log_ns, f"{name}_truth", msg["pos_m"])),
-                (SCENE_TOPIC, "foxglove.SceneUpdate", {"deletions": [], "entities": [ent]})]
+        out = [(TF_TOPIC, "foxglove.FrameTransform", _tf(log_ns, f"{name}_truth", msg["pos_m"])),
+               (SCENE_TOPIC, "foxglove.SceneUpdate", {"deletions": [], "entities": [ent]})]
+        if self.site is not None:
+            out.append((fix_topic(role, name, "truth"), "foxglove.LocationFix",
+                        location_fix(self.site, log_ns, f"{name}_truth", msg["pos_m"], color=COLORS["ac_truth"])))
+        return out
 
     def _mobile_estimate(self, msg: dict, log_ns: int, role: str) -> list[tuple[str, str, dict]]:
         """An aircraft's or a ground vehicle's estimate: ellipsoid, label, transform and the numbers
@@ -235,9 +277,14 @@ class FoxgloveView:
         rec = {"t_s": _f(msg["t_s"]), "name": name, "algo": algo, **_numbers(msg["pos_m"], msg["cov_m2"], truth)}
         if "n_updates" in msg:
             rec["n_updates"] = int(msg["n_updates"])
-        return [(TF_TOPIC, "foxglove.FrameTransform", _tf(log_ns, f"{name}_{algo}", msg["pos_m"])),
-                (SCENE_TOPIC, "foxglove.SceneUpdate", {"deletions": [], "entities": [ent]}),
-                (f"larns/foxglove/{role}/{name}/{algo}", "larns.AircraftEstimate", rec)]
+        out = [(TF_TOPIC, "foxglove.FrameTransform", _tf(log_ns, f"{name}_{algo}", msg["pos_m"])),
+               (SCENE_TOPIC, "foxglove.SceneUpdate", {"deletions": [], "entities": [ent]}),
+               (f"larns/foxglove/{role}/{name}/{algo}", "larns.AircraftEstimate", rec)]
+        if self.site is not None:
+            out.append((fix_topic(role, name, algo), "foxglove.LocationFix",
+                        location_fix(self.site, log_ns, f"{name}_{algo}", msg["pos_m"], msg["cov_m2"],
+                                     COLORS["aircraft"])))
+        return out
 
     def convert_bytes(self, key: str, data: bytes, log_ns: int) -> list[tuple[str, str, bytes]]:
         """Wire bytes -> [(topic, schema name, JSON bytes)]; anything undecodable yields nothing."""
@@ -269,11 +316,12 @@ def schema_for(name: str) -> tuple[str, bytes]:
     return name, SCHEMA_BYTES[name]
 
 
-def iter_json(msgs) -> Iterator[tuple[int, int, str, str, bytes]]:
-    """(log_time, publish_time, topic, schema name, JSON bytes) for recorded wire messages."""
+def iter_json(msgs, site=None) -> Iterator[tuple[int, int, str, str, bytes]]:
+    """(log_time, publish_time, topic, schema name, JSON bytes) for recorded wire messages (with
+    ``foxglove.LocationFix`` channels when a ``site`` is given)."""
     from ..log.series import decode_all
 
-    view = FoxgloveView()
+    view = FoxgloveView(site)
     for m, msg in decode_all(m for m in msgs if converts(m.topic)):
         if msg is not None:
             for t, s, d in view.convert(msg, m.log_time):
@@ -282,9 +330,34 @@ def iter_json(msgs) -> Iterator[tuple[int, int, str, str, bytes]]:
 
 # --------------------------------------------------------------------------- larns export
 
-def export(paths, output: str | Path) -> dict:
+def recording_site(logs, scenario: str | None = None):
+    """The site (:class:`nav.site.Site`) of a recording: ``scenario`` (a name or TOML path) when
+    given, else the ``site`` entry of its ``larns`` metadata (the recorder writes it), else the
+    ``[site]`` of the scenario its metadata names, if that loads; None when there is none.
+    A ``scenario`` that does not load raises :class:`net.scenario.ScenarioError`."""
+    from nav.site import Site
+    from net.scenario import ScenarioError, load
+
+    if scenario is not None:
+        return load(scenario).site
+    md = {k: v for lg in reversed(list(logs)) for k, v in lg.metadata.get("larns", {}).items()}
+    if md.get("site"):
+        try:
+            return Site.from_json(md["site"])
+        except (ValueError, KeyError, TypeError):
+            pass
+    if md.get("scenario"):
+        try:
+            return load(md["scenario"]).site
+        except ScenarioError:
+            return None
+    return None
+
+
+def export(paths, output: str | Path, site=None) -> dict:
     """Copy the recording(s) (wire channels untouched) and add the Foxglove JSON channels
-    (existing ``larns/foxglove/**`` channels are regenerated)."""
+    (existing ``larns/foxglove/**`` channels are regenerated); with a ``site``
+    (:func:`recording_site`) also the ``foxglove.LocationFix`` channels."""
     import heapq
 
     from ..log import LogWriter, Msg, merge, read_logs
@@ -293,7 +366,9 @@ def export(paths, output: str | Path) -> dict:
     msgs = [m for m in merge(logs) if not m.topic.startswith("larns/foxglove/")]
     md = {name: dict(v) for lg in reversed(logs) for name, v in lg.metadata.items()}
     md["larns_export"] = {"sources": ",".join(str(lg.path) for lg in logs), "foxglove": "json"}
-    extra = [Msg(t, lt, pt, 0, b, "json", s) for lt, pt, t, s, b in iter_json(msgs)]
+    if site is not None:
+        md.setdefault("larns", {})["site"] = site.to_json()
+    extra = [Msg(t, lt, pt, 0, b, "json", s) for lt, pt, t, s, b in iter_json(msgs, site)]
     n_json = 0
     with LogWriter(output, md, library="larns export") as w:
         for m in heapq.merge(msgs, extra, key=lambda m: m.log_time):

@@ -13,6 +13,7 @@ on ``larns/**`` to both.
 | ``larns/foxglove/station/<id>`` | ``larns.StationEstimate`` | position, sigmas, 3-sigma bound, error vs truth |
 | ``larns/foxglove/station/<id>/sync`` | ``larns.StationSync`` | the station's clock estimate against network time, its sigma, the true clock error and the sync error |
 | ``larns/foxglove/aircraft/<name>/<algo>``, ``larns/foxglove/vehicle/<name>/<algo>`` | ``larns.AircraftEstimate`` | as in recordings |
+| ``larns/foxglove/fix/...`` | ``foxglove.LocationFix`` | with a site (scenario ``[site]``): estimates and truth on WGS84 for the Map panel, as in recordings |
 | ``larns/foxglove/tdma`` | ``larns.Exchange`` | one record per range request: fleet time, cycle, slot, initiator, addressee (TDMA timeline) |
 | ``larns/foxglove/log`` | ``foxglove.Log`` | integrity decisions, processes appearing / leaving (liveliness), aircraft navigator states (``ac_status`` changes), malformed messages dropped (here, and the stations' own ``dropped`` counts) |
 
@@ -120,8 +121,8 @@ class LiveView:
     ``on_sample(key, data)`` and ``on_alive(key, alive)`` return :class:`Out` lists; ``t_ns`` is the
     latest fleet time seen (the server's time); ``dropped`` counts malformed samples by reason."""
 
-    def __init__(self, track_points: int = TRACK_POINTS) -> None:
-        self.fox = FoxgloveView()
+    def __init__(self, track_points: int = TRACK_POINTS, site=None) -> None:
+        self.fox = FoxgloveView(site)  # site (nav.site.Site): LocationFix channels too
         self.track_points = track_points
         self.t_ns = 0
         self.samples = 0
@@ -222,7 +223,7 @@ class LiveView:
         n = self._truths[sid] = self._truths.get(sid, 0) + 1
         if sent or n % TRUTH_EVERY:
             return []
-        fresh = FoxgloveView()
+        fresh = FoxgloveView(self.fox.site)
         return [Out(t, s, d, ns) for t, s, d in fresh.convert(msg, ns) if s != "larns.StationEstimate"]
 
     def _sync_from_estimate(self, msg: dict, ns: int) -> list[Out]:
@@ -331,6 +332,16 @@ def _sdk_entity(e: dict):
                        spheres=[_sdk_shape(SpherePrimitive, s) for s in e["spheres"]], lines=lines, texts=texts)
 
 
+def _sdk_fix(d: dict):
+    from foxglove.messages import Color, KeyValuePair, LocationFix, LocationFixPositionCovarianceType, Timestamp, Vector3
+
+    return LocationFix(timestamp=Timestamp(**d["timestamp"]), frame_id=d["frame_id"], latitude=d["latitude"],
+                       longitude=d["longitude"], altitude=d["altitude"], position_covariance=d["position_covariance"],
+                       position_covariance_type=_enum(LocationFixPositionCovarianceType, d["position_covariance_type"]),
+                       heading=d["heading"], velocity=Vector3(**d["velocity"]), color=Color(**d["color"]),
+                       metadata=[KeyValuePair(**kv) for kv in d["metadata"]])
+
+
 def to_sdk(schema: str, d: dict):
     """The Foxglove SDK's typed message for a ``foxglove.*`` dict of :class:`LiveView` /
     :class:`~larns.viz.foxglove.FoxgloveView` (same field names as the Foxglove schemas)."""
@@ -345,6 +356,8 @@ def to_sdk(schema: str, d: dict):
         dels = [SceneEntityDeletion(timestamp=Timestamp(**x["timestamp"]), type=_enum(SceneEntityDeletionType, x["type"]),
                                     id=x["id"]) for x in d["deletions"]]
         return SceneUpdate(deletions=dels, entities=[_sdk_entity(e) for e in d["entities"]])
+    if schema == "foxglove.LocationFix":
+        return _sdk_fix(d)
     if schema == "foxglove.Log":
         return Log(timestamp=Timestamp(**d["timestamp"]), level=_enum(LogLevel, d["level"]), message=d["message"],
                    name=d["name"], file=d["file"], line=d["line"])
@@ -402,10 +415,10 @@ class FoxgloveServer:
         ch = self.channels.get(topic)
         if ch is None:
             import foxglove
-            from foxglove.channels import FrameTransformChannel, LogChannel, SceneUpdateChannel
+            from foxglove.channels import FrameTransformChannel, LocationFixChannel, LogChannel, SceneUpdateChannel
 
             typed = {"foxglove.FrameTransform": FrameTransformChannel, "foxglove.SceneUpdate": SceneUpdateChannel,
-                     "foxglove.Log": LogChannel}
+                     "foxglove.Log": LogChannel, "foxglove.LocationFix": LocationFixChannel}
             if schema in typed:
                 ch = typed[schema](topic, context=self.ctx)
             else:
@@ -460,15 +473,16 @@ class FoxgloveServer:
 
 def serve_live(bus_kw: dict, host: str = "127.0.0.1", port: int = DEFAULT_PORT, keyexpr: str = "larns/**",
                duration_s: float | None = None, stop: threading.Event | None = None,
-               on_ready: Callable[[int], None] | None = None) -> dict:
-    """Subscribe to ``keyexpr`` on Zenoh and serve the live view until ``stop`` / ``duration_s``.
+               on_ready: Callable[[int], None] | None = None, site=None) -> dict:
+    """Subscribe to ``keyexpr`` on Zenoh and serve the live view until ``stop`` / ``duration_s``
+    (``site``: the scenario's :class:`nav.site.Site`, for the LocationFix channels).
     Returns statistics (samples, messages sent, dropped by reason)."""
     from net.bus import Bus
 
     stop = stop or threading.Event()
     q: queue.SimpleQueue = queue.SimpleQueue()
     bus = Bus(**bus_kw)
-    view = LiveView()
+    view = LiveView(site=site)
     try:
         srv = FoxgloveServer(host, port)
     except Exception:
@@ -555,7 +569,7 @@ def _status(p):
 def serve_recording(msgs, timebase, host: str = "127.0.0.1", port: int = DEFAULT_PORT, speed: float = 1.0,
                     start_paused: bool = False, duration_s: float | None = None,
                     stop: threading.Event | None = None, on_ready: Callable[[int], None] | None = None,
-                    tick_s: float = 0.02) -> dict:
+                    tick_s: float = 0.02, site=None) -> dict:
     """Serve recorded wire messages (``msgpack``, sorted by log time) through the live view on a
     Foxglove WebSocket with playback controls (play, pause, speed, seek) driving the player.
     Playback starts when the first client subscribes (unless ``start_paused``: then on the client's
@@ -575,9 +589,9 @@ def serve_recording(msgs, timebase, host: str = "127.0.0.1", port: int = DEFAULT
     listener = Listener(player, auto_start=not start_paused)
     srv = FoxgloveServer(host, port, name="larns replay", playback_range_ns=(player.start_ns, player.end_ns),
                          listener=listener)
-    view, seeks, delivered, status = LiveView(), 0, 0, None
+    view, seeks, delivered, status = LiveView(site=site), 0, 0, None
     try:
-        dry = LiveView()  # every channel advertised before playing: a client gets each first message
+        dry = LiveView(site=site)  # every channel advertised before playing: a client gets each first message
         for m, t in zip(msgs, times):
             for o in dry.on_sample(m.topic, m.data, log_ns=t):
                 srv.channel(o.topic, o.schema)
@@ -591,7 +605,7 @@ def serve_recording(msgs, timebase, host: str = "127.0.0.1", port: int = DEFAULT
             listener.start_if_subscribed()
             due, cur_ns = player.step(time.monotonic())
             if player.seeks != seeks:  # a seek: tracks and pending records start afresh
-                seeks, view = player.seeks, LiveView()
+                seeks, view = player.seeks, LiveView(site=site)
             for i in due:
                 srv.send(view.on_sample(msgs[i].topic, msgs[i].data, log_ns=times[i]))
                 delivered += 1
