@@ -69,7 +69,33 @@ def register(sub) -> None:
     p.add_argument("--iid-prior", action="store_true",
                    help="envelope: independent initial errors per run (default: each point's draws whitened "
                         "so that their second moment is exactly the prior the PCRB starts from)")
+    p.add_argument("--without", action="append", default=[], choices=sorted(RULES), metavar="RULE",
+                   help="switch one linearization rule of the radio filters off (repeatable), to show which "
+                        "cells it holds: " + ", ".join(f"{k} ({v[0]})" for k, v in sorted(RULES.items())))
     p.set_defaults(func=run)
+
+
+# the radio filters' linearization rules (aircraft/estimators.py Tuning) and the setting that switches
+# each off: `larns bench aircraft --envelope --without RULE` measures what each one holds
+RULES = {
+    "floor": ("height-floor truncation", {"floor_z_m": None}),
+    "iterate": ("iterated update", {"iterations": 1}),
+    "second-order": ("EKF second-order range terms", {"ekf_second_order": False}),
+    "repeats": ("linearization error counted as repeating", {"linearization_corr_s": 0.0}),
+    "inverse": ("inverse-range coordinates far out", {"coords": "cartesian"}),
+    "lag": ("lagged Jacobian near the array", {"height_jacobian_lag_s": 0.0}),
+    "weakest": ("lag along the weakest direction (else the height)", {"lag_direction": "height"}),
+}
+
+
+def without(tuning, rules) -> object:
+    """``tuning`` with each rule named in ``rules`` switched off (:data:`RULES`)."""
+    from dataclasses import replace
+
+    changes = {}
+    for rule in rules:
+        changes.update(RULES[rule][1])
+    return replace(tuning, **changes) if changes else tuning
 
 
 def _progress(msg: str) -> None:
@@ -285,6 +311,7 @@ def _height_sweep(ac, sweep_h, runs, duration, warmup, rng, fde: bool = True) ->
 
 def run(args) -> int:
     sc, ac = setup(args.scenario)
+    ac.tuning = without(ac.tuning, getattr(args, "without", []))
     if getattr(args, "envelope", False):
         from . import envelope as bench_aircraft_envelope
 
