@@ -193,3 +193,75 @@ def test_nmea_checksums():
     assert valid(s) and s.startswith("$GPGGA,000000.25,3330.00000,S,07015.00000,W,1,07,0.2,512.30,M,")
     r = rmc(1767225600.0, 48.5, 2.25, 10.0, 90.0)
     assert valid(r) and ",A,4830.00000,N,00215.00000,E,19.44,90.0,010126,,,A*" in r
+
+
+def test_location_fixes_over_the_foxglove_websocket(tmp_path):
+    """The live view's Foxglove WebSocket (the SDK's typed LocationFix channels, protobuf) serving a
+    recording of seed000-geo (``larns replay --view``'s path): a real client decodes every fix, and
+    each estimate's latitude / longitude / height is its network position on the site."""
+    import asyncio
+    import threading
+
+    from foxglove_ws import FoxgloveClient
+
+    from larns.log import Timebase, merge, read_logs
+    from larns.log.record import McapSink
+    from larns.viz.foxglove import recording_site
+    from larns.viz.live import serve_recording
+    from net import messages as M
+    from net.bus import free_tcp_ports
+
+    scn = load("seed000-geo")
+    sink = McapSink(tmp_path / "r.mcap", metadata={"scenario": "seed000-geo"}, foxglove=False)
+    cov = np.diag([0.04, 0.09, 1.0]).tolist()
+    for k in range(3):
+        for i, sid in enumerate(scn.ids):
+            t = 1.0 + k
+            pos = [float(v) + 0.1 * k for v in scn.pos_m[i]]
+            for m in ({"kind": "truth", "src": sid, "seq": k + 1, "stamp_s": t, "t_s": t,
+                       "pos_m": [float(v) for v in scn.pos_m[i]]},
+                      {"kind": "estimate", "src": sid, "seq": k + 1, "stamp_s": t, "t_s": t, "pos_m": pos,
+                       "cov_m2": cov, "state": "surveying", "n_updates": k + 1, "estimator": "dmap"}):
+                sink.write(M.key_for(m), M.encode(m), int(t * 1e9))
+    sink.finish()
+    logs = read_logs([tmp_path / "r.mcap"], encodings=["msgpack"])
+    msgs = merge(logs)
+    site = recording_site(logs)
+    (port,) = free_tcp_ports(1)
+    stop = threading.Event()
+    th = threading.Thread(target=serve_recording, args=(msgs, Timebase.of(logs, msgs[0].log_time)),
+                          kwargs=dict(port=port, speed=20.0, stop=stop, duration_s=30, site=site), daemon=True)
+    th.start()
+
+    async def watch():
+        for _ in range(100):
+            try:
+                c = FoxgloveClient(f"ws://127.0.0.1:{port}")
+                await c.__aenter__()
+                break
+            except OSError:
+                await asyncio.sleep(0.1)
+        try:
+            return await c.run(8.0, until=lambda g: len({t for t in g.topics() if "/fix/" in t}) >= 2 * len(scn.ids)
+                               and len(g.of("larns/foxglove/fix/station/10")) >= 3)
+        finally:
+            await c.__aexit__(None, None, None)
+
+    try:
+        got = asyncio.run(watch())
+    finally:
+        stop.set()
+        th.join(10)
+    assert got.undecodable == []
+    fix_channels = [c for c in got.channels.values() if c["topic"].startswith("larns/foxglove/fix/")]
+    assert fix_channels and all(c["schemaName"] == "foxglove.LocationFix" and c["encoding"] == "protobuf"
+                                for c in fix_channels)
+    for i, sid in enumerate(scn.ids):
+        est = got.of(f"larns/foxglove/fix/station/{sid}")
+        assert est, sid
+        last = est[-1]
+        k = len(est) - 1
+        p = site.geodetic_to_net(last["latitude"], last["longitude"], last["altitude"])
+        assert np.linalg.norm(p - (scn.pos_m[i] + 0.1 * k)) < 1e-3
+        assert last["frame_id"] == f"station_{sid}" and len(last["position_covariance"]) == 9
+        assert got.of(f"larns/foxglove/fix/station/{sid}/truth")
