@@ -20,7 +20,8 @@ One model for the simulator and the processes (``net/channel.py`` applies it to 
   floor.
 
 Distances are the straight-line distance of the emulated (flat) field frame; heights are each
-antenna's ``z`` in the physical frame plus the scenario's ``antenna_height_m``, clipped at a minimum
+antenna's physical height (its ``z`` in the scenario's physical frame, whatever frame the channel's
+positions are in: :meth:`RadioParams.in_frame`) plus the scenario's ``antenna_height_m``, clipped at a minimum
 of 0.1 m (an antenna on the ground still radiates). Defaults: a 1 W, 1 GHz ranging radio of 10 MHz
 bandwidth, 0 dBi antennas 10 m up, a 10 us correlator and a 12 dB detection threshold: links reach the
 26 km horizon, the timing CRLB adds 3.5 cm (one-way, 1 sigma) at 2 km, 0.4 m at 10 km and 2.6 m at
@@ -29,7 +30,7 @@ bandwidth, 0 dBi antennas 10 m up, a 10 us correlator and a 12 dB detection thre
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -54,6 +55,16 @@ class RadioParams:
     integration_s: float = 1.0e-5
     threshold_db: float = 12.0
     two_ray: bool = True
+    # not scenario keys: the physical up direction in the frame of the positions the channel gets (the
+    # network frame) and the physical height of that frame's origin (:meth:`in_frame`)
+    up: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    origin_height_m: float = 0.0
+
+    def in_frame(self, R, t_m) -> "RadioParams":
+        """These parameters for positions in the network frame ``p_net = R (p_phys - t)``
+        (:func:`nav.geometry.to_network_frame`): physical height ``z = R[:, 2] . p_net + t_z``."""
+        R, t_m = np.asarray(R, float), np.asarray(t_m, float)
+        return replace(self, up=tuple(float(v) for v in R[:, 2]), origin_height_m=float(t_m[2]))
 
     @property
     def wavelength_m(self) -> float:
@@ -69,8 +80,10 @@ class RadioParams:
         return 10.0 * np.log10(self.bandwidth_hz * self.integration_s)
 
 
-def _heights(z_m, params: RadioParams) -> np.ndarray:
-    return np.maximum(np.asarray(z_m, float) + params.antenna_height_m, MIN_HEIGHT_M)
+def _heights(pos_m, params: RadioParams) -> np.ndarray:
+    """Antenna heights (...) above the ground of positions (..., 3) in the parameters' frame."""
+    z = np.asarray(pos_m, float) @ np.asarray(params.up) + params.origin_height_m
+    return np.maximum(z + params.antenna_height_m, MIN_HEIGHT_M)
 
 
 def horizon_m(h1_m, h2_m, k_factor: float = 4.0 / 3.0) -> np.ndarray:
@@ -104,7 +117,7 @@ def link(tx_pos_m, rx_pos_m, params: RadioParams) -> Link:
     """The link between positions ``tx_pos_m`` (..., 3) and ``rx_pos_m`` (..., 3) of the physical frame."""
     tx, rx = np.asarray(tx_pos_m, float), np.asarray(rx_pos_m, float)
     d = np.linalg.norm(rx - tx, axis=-1)
-    h1, h2 = _heights(tx[..., 2], params), _heights(rx[..., 2], params)
+    h1, h2 = _heights(tx, params), _heights(rx, params)
     snr_db = (params.tx_power_dbm + 2.0 * params.antenna_gain_dbi - path_loss_db(d, h1, h2, params)
               - params.noise_dbm + params.processing_gain_db)
     exists = (d <= horizon_m(h1, h2, params.k_factor)) & (snr_db >= params.threshold_db)
@@ -142,7 +155,7 @@ def parse(table: dict, error) -> RadioParams | None:
         return None
     if not isinstance(table, dict):
         raise error("[radio]: expected a table")
-    known = {f.name: f for f in fields(RadioParams)}
+    known = {f.name: f for f in fields(RadioParams) if f.name not in ("up", "origin_height_m")}
     for key in table:
         if key not in known:
             raise error(f"[radio] {key}: unknown key (expected one of {', '.join(known)})")

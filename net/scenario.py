@@ -77,7 +77,7 @@ import difflib
 import importlib.resources
 import re
 import tomllib
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -87,6 +87,8 @@ from nav.geometry import to_network_frame
 from nav.site import Site
 
 from .clock import PRESETS, ClockParams, clock_params
+from .radio import RadioParams
+from .radio import parse as parse_radio
 
 
 class ScenarioError(ValueError):
@@ -133,6 +135,9 @@ class ChannelParams:
     clock_offset_s: float = 0.0
     clock_drift_ppm: float = 0.0
     turnaround_s: float = 0.001
+    # the [radio] section (net/radio.py), in the network frame; None: every station hears every other
+    # at any distance with the noise sigma_d_m
+    radio: RadioParams | None = None
 
 
 @dataclass(frozen=True)
@@ -552,6 +557,9 @@ def from_dict(raw: dict[str, Any], base_dir: str | Path | None = None) -> Scenar
     init = raw.get("init", {})
     survey = raw.get("survey", {})
     channel = ChannelParams(**raw.get("channel", {}))
+    if "radio" in raw:  # links and their timing noise from the radio (net/radio.py)
+        radio = parse_radio(raw["radio"], ScenarioError)
+        channel = replace(channel, radio=radio.in_frame(R, t))
     return Scenario(
         name=str(raw.get("name", "unnamed")),
         description=str(raw.get("description", "")),
@@ -741,7 +749,7 @@ _SURVEY_KEYS = ("estimator", "ranges_per_update")
 
 TOP_LEVEL_KEYS = ("name", "description", "seed")
 # sections: tables, and arrays of tables ([[stations]], [[links]], [[faults]])
-SECTIONS = ("frame", "site", "layout", "stations", "tdma", "channel", "clock", "net", "init", "survey", "aircraft",
+SECTIONS = ("frame", "site", "layout", "stations", "tdma", "channel", "radio", "clock", "net", "init", "survey", "aircraft",
             "vehicle", "links", "faults")
 # the names stations/estimators.py (ESTIMATORS) and aircraft/ (models.ALGOS, ins-ekf, triad) accept; net
 # may not import them, tests/net/test_scenario_errors.py keeps the lists equal
@@ -801,7 +809,7 @@ def _validate_top_level(raw: dict) -> None:
 def _validate_params(raw: dict) -> None:
     for key, (cls, rules) in _SECTION_RULES.items():
         tab = _table(raw, key)
-        _known(tab, f"[{key}]", [f.name for f in fields(cls)] if cls is not None else rules)
+        _known(tab, f"[{key}]", [f.name for f in fields(cls) if f.name != "radio"] if cls is not None else rules)
         for k, v in tab.items():
             if k in rules:
                 _check_rule(_num(v, f"[{key}] {k}"), f"[{key}] {k}", rules[k])
@@ -926,6 +934,8 @@ def validate(raw: dict[str, Any]) -> None:
     _validate_layout(raw)
     _validate_stations(raw)
     _validate_site(raw)
+    if "radio" in raw:
+        parse_radio(raw["radio"], ScenarioError)
     frame = _table(raw, "frame")
     _known(frame, "[frame]", ("z_ref",))
     if "z_ref" in frame:

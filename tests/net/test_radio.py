@@ -110,3 +110,25 @@ def test_parse_reads_the_table_and_names_bad_keys():
         parse({"freq_hz": 0}, err)
     with pytest.raises(ScenarioError, match=r"\[radio\] tx_power_dbm: 'x' is not a number"):
         parse({"tx_power_dbm": "x"}, err)
+
+
+def test_a_scenario_radio_sees_physical_heights_in_the_network_frame(tmp_path):
+    """The channel gets network-frame positions (tilted by the founders' geometry); the radio's heights
+    are the physical ones: a station 30 km out at ground level is beyond a 10 m antenna's horizon of
+    station 1 at ground level, and one on a 300 m mast is not."""
+    from net.radio import _heights
+    from net.scenario import load
+
+    phys = [[0, 0, 0], [1000, 0, 40], [0, 1000, 20], [600, 500, 300], [30_000, 0, 0], [0, 30_000, 600]]
+    text = "".join(f"[[stations]]\nid = {i + 1}\npos_m = {p}\n" for i, p in enumerate(phys))
+    path = tmp_path / "radio.toml"
+    path.write_text('name = "r"\nseed = 1\n[radio]\nantenna_height_m = 10.0\n' + text)
+    scn = load(path)
+    radio = scn.channel.radio
+    assert np.allclose(_heights(scn.pos_m, radio), np.array(phys)[:, 2] + 10.0, atol=1e-6)
+    assert not link(scn.pos_m[0], scn.pos_m[4], radio).exists
+    assert link(scn.pos_m[0], scn.pos_m[5], radio).exists
+    bad = tmp_path / "bad.toml"
+    bad.write_text('name = "r"\n[radio]\nbandwidth_hz = -1\n' + text)
+    with pytest.raises(ScenarioError, match=r"bad.toml: \[radio\] bandwidth_hz: -1 \(expected > 0\)"):
+        load(bad)

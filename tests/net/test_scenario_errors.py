@@ -267,5 +267,5 @@ def test_validate_reports_every_file_and_fails_if_one_is_bad(validated, tmp_path
     assert run.returncode == 2
     assert [line.split(":")[0] for line in run.stdout.splitlines()] == ["seed000", "seed001"]
     assert run.stderr.splitlines() == [f"{bad}: [layot]: unknown section (expected one of [frame], [site], [layout], "
-                                       "[stations], [tdma], [channel], [clock], [net], [init], [survey], "
+                                       "[stations], [tdma], [channel], [radio], [clock], [net], [init], [survey], "
                                        "[aircraft], [vehicle], [links], [faults]; did you mean [layout]?)"]
