@@ -437,6 +437,18 @@ TABLE: dict[str, Run | Skip] = {
     # --- docs/view.md
     "./dev larns fleet --scenario seed000 --duration 120 --speed 2 --aircraft --view": Skip(VIEW),
     "./dev larns fleet --scenario seed000 --duration 300 --aircraft --view": Skip(VIEW),
+    "./dev larns fleet --scenario seed000-geo --duration 120 --speed 2 --aircraft --view": Skip(VIEW),
+    "./dev larns view --scenario seed000-geo --connect tcp/127.0.0.1:7447": Skip(VIEW),
+    "./dev larns export runs/demo.mcap --scenario seed000-geo --geojson runs/demo.geojson --kml runs/demo.kml "
+    "--csv runs/demo.csv --nmea runs/demo.nmea":
+        Run(expect=(r"GeoJSON features -> runs/demo.geojson", r"\(CSV, with lat/lon/h\) -> runs/demo.csv",
+                    r"NMEA sentences \(ac1 ")),
+    "./dev larns export runs/demo.mcap --csv runs/stations.csv": Run(expect=r"10 stations \(CSV\) -> runs/stations.csv"),
+    "larns export -o": Skip(MENTION, concrete=False),
+    "larns view --scenario NAME|FILE": Skip(SYNOPSIS, concrete=False),
+    # --- docs/scenarios.md, Sites on the Earth
+    "larns export --geojson / --kml / --csv / --nmea": Skip(MENTION, concrete=False),
+    "larns bench survey --trials 1 --seed 1 --sigma-d 0.5 --estimator dmap seed-ukf --no-map": Skip(BENCH),
 }
 
 
