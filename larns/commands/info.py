@@ -33,9 +33,11 @@ def aircraft_line(name: str, algo: str, r: dict) -> str:
     st = " ".join(f"{k}={n}" for k, n in r.get("statuses", {}).items())
     if not r.get("n"):
         return f"  {name} {algo}: no estimate published  [{st}]"
+    late = ("max from 30 s -, NEES - (run shorter than 30 s)" if r.get("max_eh_window_m") is None else
+            f"max from 30 s {r['max_eh_window_m']:.2f} m, NEES {_num(r.get('nees_mean'), '.2f', 0)}")
     return (f"  {name} {algo}: {r['n']} estimates, first at {t(r.get('first_t_s'))}, <10 m from {t(r.get('t_10m_s'))}, "
             f"<3 m from {t(r.get('t_3m_s'))}, final horizontal {r['final_eh_m']:.2f} m (sigma {r['final_sigma_h_m']:.2f}), "
-            f"max from 30 s {r.get('max_eh_window_m', math.nan):.2f} m, NEES {r.get('nees_mean', math.nan):.2f}  [{st}]")
+            f"{late}  [{st}]")
 
 
 def vehicle_line(name: str, v: dict) -> str:

@@ -56,7 +56,23 @@ def extract(rec) -> dict[str, Any]:
             "reqs": rec.range_requests,
             "rsps": rec.range_replies, "init": rec.init_record, "latency_ms": rec.net.latency_ms,
             "truth": rec.truth_positions, "slots": {sid: st.slot for sid, st in rec.stations.items()},
-            "navs": rec.nav_truth}
+            "navs": rec.nav_truth, "inits": {sid: st.init for sid, st in rec.stations.items() if st.init},
+            "nav_msgs": {sid: [m for _, m in st.nav] for sid, st in rec.stations.items()},
+            "clock_err": {sid: _clock_errors(st) for sid, st in rec.stations.items()}}
+
+
+def _clock_errors(st) -> tuple[np.ndarray, np.ndarray]:
+    """A station's true clock error against network time at its own stamps: ``(stamp_s, error_s)``
+    sorted (from its truth topic; empty where not recorded)."""
+    rows = sorted((t["stamp_s"], t["clock_error_s"]) for t in st.truths if "clock_error_s" in t and "stamp_s" in t)
+    return np.array([r[0] for r in rows], float), np.array([r[1] for r in rows], float)
+
+
+def _network_time(d: dict, sid: int, stamp_s: float) -> float:
+    """A station's own stamp on network time: ``stamp - clock error`` (interpolated; the stamp itself
+    when the station's clock error is not recorded)."""
+    t, e = d.get("clock_err", {}).get(sid, (np.zeros(0), np.zeros(0)))
+    return float(stamp_s - np.interp(stamp_s, t, e)) if len(t) else float(stamp_s)
 
 
 # --------------------------------------------------------------------------- figures
@@ -83,61 +99,44 @@ def _save_log_plot(plt, fig, ax, ylabel: str, title: str, path: Path) -> None:
     plt.close(fig)
 
 
-def fig_station_errors(d: dict, path: Path) -> dict[int, dict]:
-    plt = _plt()
-    st = {k: v for k, v in d["stations"].items() if v["truth_m"] is not None}
-    out: dict[int, dict] = {}
-    for sid in [k for k, v in st.items() if v["state"] == "frame"]:  # the origin: zero error, zero covariance
-        s = st.pop(sid)
-        out[sid] = M.station_numbers(s, s["truth_m"], frame=True)
-    if not st:
-        return out
-    n = len(st)
-    cols = min(3, n)
-    rows = math.ceil(n / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 2.8 * rows), squeeze=False, sharex=True)
-    for ax, (sid, s) in zip(axes.flat, st.items()):
-        e, b = M.error_and_bound(s, s["truth_m"])
-        ax.semilogy(s["t_s"], np.maximum(e, 1e-3), lw=1.0, label="|error|")
-        ax.semilogy(s["t_s"], np.maximum(b, 1e-3), lw=1.0, ls="--", label="3 sigma")
-        ax.set_title(f"station {sid} ({s['state']})", fontsize=9)
-        ax.grid(True, which="both", alpha=0.3)
-        out[sid] = M.station_numbers(s, s["truth_m"])
-    for ax in axes.flat[n:]:
-        ax.axis("off")
-    axes.flat[0].legend(fontsize=8)
-    for ax in axes[-1]:
-        ax.set_xlabel("fleet time, s")
-    for ax in axes[:, 0]:
-        ax.set_ylabel("m")
-    fig.suptitle("Station position error and 3-sigma bound (network frame)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return out
-
-
 def _surveying(d: dict) -> dict[int, dict]:
     return {k: v for k, v in d["stations"].items() if v["truth_m"] is not None and v["state"] != "frame" and k != 1}
 
 
 def fig_convergence(d: dict, path: Path, n_grid: int = 200) -> dict[str, Any]:
+    """Mean, RMS and max horizontal error over the surveying stations with their mean own 1-sigma and
+    the centralized CRLB of the RMS horizontal error for the ranges measured so far
+    (:func:`larns.viz.report_nav.survey_bound`, the bound of ``larns bench survey``); the NEES figure
+    on the same grid (``station_nees.png`` beside ``path``)."""
+    from . import report_nav as RN
+    from ..analysis.consistency import rms_horizontal
+
     plt = _plt()
     st = _surveying(d)
     if not st:
         return {}
-    grid, mean_h, max_h, mean_s = M.survey_convergence(st, {k: v["truth_m"] for k, v in st.items()}, n_grid)
-    fig, ax = plt.subplots(figsize=(7, 4))
+    truths = {k: v["truth_m"] for k, v in st.items()}
+    grid, mean_h, max_h, mean_s = M.survey_convergence(st, truths, n_grid)
+    rms_h = rms_horizontal(st, truths, grid)
+    bound = RN.survey_bound(d, st, grid)
+    fig, ax = plt.subplots(figsize=(8, 4.4))
     ax.plot(grid, mean_h, label="mean horizontal error")
+    ax.plot(grid, rms_h, label="RMS horizontal error")
     ax.plot(grid, max_h, label="max horizontal error")
     ax.plot(grid, mean_s, ls="--", label="mean 1-sigma horizontal (own covariance)")
-    _save_log_plot(plt, fig, ax, "m", f"Survey convergence ({len(st)} surveying stations; seed 000 fig. 3 style)",
-                   path)
+    if bound is not None:
+        ax.plot(grid, bound, "k-.", lw=1.4, label="CRLB of the RMS horizontal error (centralized, ranges so far)")
+    _save_log_plot(plt, fig, ax, "horizontal error, m",
+                   f"Survey convergence ({len(st)} surveying stations; seed 000 fig. 3 style)", path)
     sigma_d = d["init"]["cfg"].get("sigma_d_m") if d["init"] else None
     # first time after which the mean error stays below sigma_d
     conv = M.first_time_staying_below(grid, mean_h, sigma_d) if sigma_d else None
-    return {"final_mean_horizontal_m": float(mean_h[-1]), "final_max_horizontal_m": float(max_h[-1]),
-            "sigma_d_m": sigma_d, "time_mean_below_sigma_d_s": conv}
+    out = {"final_mean_horizontal_m": float(mean_h[-1]), "final_max_horizontal_m": float(max_h[-1]),
+           "final_rms_horizontal_m": float(rms_h[-1]), "sigma_d_m": sigma_d, "time_mean_below_sigma_d_s": conv,
+           "final_crlb_horizontal_rms_m": None if bound is None else float(bound[-1]),
+           "final_rms_over_crlb": None if bound is None else float(rms_h[-1] / bound[-1])}
+    out["nees"] = RN.fig_nees(d, st, grid, path.with_name("station_nees.png"))
+    return out
 
 
 def fig_histograms(d: dict, path: Path) -> dict[str, Any]:
@@ -250,34 +249,32 @@ def _vehicle_markdown(vehicles: dict[str, dict]) -> list[str]:
     return L + [""]
 
 
-def fig_tdma(d: dict, path: Path, n_cycles: int = 4) -> dict[str, Any]:
-    plt = _plt()
-    reqs = sorted(d["reqs"])
-    if not reqs:
-        return {}
-    ids = sorted({r[1] for r in reqs} | {r[2] for r in reqs})
+def _tdma_plan(d: dict) -> tuple[float, float]:
+    """(cycle_s, slot_s) from the recorded init record (the TDMA plan's defaults without one)."""
+    if d["init"]:
+        return tuple(map(float, d["init"]["tdma"]))
+    from stations.tdma import TdmaPlan
+
+    plan = TdmaPlan()
+    return float(plan.cycle_s), float(plan.slot_s)
+
+
+def _busiest_cycle(reqs: list) -> int:
+    """The middle one of the cycles with the most range requests recorded."""
+    count: dict[int, int] = {}
+    for r in reqs:
+        count[r[4]] = count.get(r[4], 0) + 1
+    top = max(count.values())
+    best = sorted(c for c, n in count.items() if n == top)
+    return best[len(best) // 2]
+
+
+def _exchange_matrix(fig, b, reqs: list, rsps: set, ids: list[int]) -> None:
+    """Answered exchanges of the whole run per (initiator, addressee)."""
     idx = {s: i for i, s in enumerate(ids)}
-    cycles = sorted({r[4] for r in reqs})
-    # the first cycles in which (nearly) everybody is ranging
-    c0 = cycles[min(len(cycles) - 1, 1)]
-    show = [r for r in reqs if c0 <= r[4] < c0 + n_cycles]
-    fig, (a, b) = plt.subplots(1, 2, figsize=(12, 4.2), gridspec_kw={"width_ratios": [2.2, 1]})
-    answered = 0
-    for t, src, dst, seq, _c in show:
-        ok = (src, dst, seq) in d["rsps"]
-        answered += ok
-        col = "tab:green" if ok else "tab:red"
-        a.annotate("", xy=(t, dst), xytext=(t, src),
-                   arrowprops=dict(arrowstyle="->", color=col, lw=1.0, alpha=0.8))
-        a.plot([t], [src], "o", color=col, ms=3)
-    a.set_yticks(ids)
-    a.set_xlabel("initiator's time of the request, s")
-    a.set_ylabel("station (arrow: initiator -> addressee)")
-    a.set_title(f"TDMA timeline, cycles {c0}..{c0 + n_cycles - 1} (green: reply recorded)", fontsize=9)
-    a.grid(True, alpha=0.3)
     Mx = np.zeros((len(ids), len(ids)), int)
     for _t, src, dst, seq, _c in reqs:
-        if (src, dst, seq) in d["rsps"]:
+        if (src, dst, seq) in rsps:
             Mx[idx[src], idx[dst]] += 1
     im = b.imshow(Mx, cmap="viridis")
     b.set_xticks(range(len(ids)))
@@ -287,16 +284,74 @@ def fig_tdma(d: dict, path: Path, n_cycles: int = 4) -> dict[str, Any]:
     b.set_xlabel("addressee")
     b.set_ylabel("initiator")
     b.set_title("answered exchanges (whole run)", fontsize=9)
-    fig.colorbar(im, ax=b, shrink=0.8)
+    fig.colorbar(im, ax=b, shrink=0.8, label="exchanges")
+
+
+def fig_tdma(d: dict, path: Path) -> dict[str, Any]:
+    """One TDMA cycle at the scale of its slots: slot boundaries drawn and labelled with their owner,
+    each range request as an arrow initiator -> addressee at its time in the cycle (green: the reply
+    was recorded), each nav broadcast as a diamond; the free slots after the last used one are left
+    out (stated). Beside it the answered exchanges of the whole run per pair."""
+    plt = _plt()
+    reqs = sorted(d["reqs"])
+    if not reqs:
+        return {}
+    cycle_s, slot_s = _tdma_plan(d)
+    ids = sorted({r[1] for r in reqs} | {r[2] for r in reqs})
+    c0 = _busiest_cycle(reqs)
+    t0 = c0 * cycle_s
+    show = [r for r in reqs if r[4] == c0]
+    owners = {sl: sid for sid, sl in d["slots"].items() if sl is not None}
+    used = set(owners) | {int((_network_time(d, r[1], r[0]) - t0 + 1e-6) // slot_s) for r in show}  # (a slot's start)
+    n_show = max(used) + 1
+    n_slots = int(round(cycle_s / slot_s))
+    fig, (a, b) = plt.subplots(1, 2, figsize=(14, 4.8), gridspec_kw={"width_ratios": [2.4, 1]})
+    for k in range(n_show + 1):
+        a.axvline(k * slot_s * 1e3, color="0.6", lw=0.7)
+    for k in range(n_show):
+        if k % 2:
+            a.axvspan(k * slot_s * 1e3, (k + 1) * slot_s * 1e3, color="0.93", zorder=0)
+        a.text((k + 0.5) * slot_s * 1e3, 1.01, f"slot {k}" + (f"\nst. {owners[k]}" if k in owners else ""),
+               transform=a.get_xaxis_transform(), ha="center", va="bottom", fontsize=7)
+    answered = 0
+    for t, src, dst, seq, _c in show:
+        ok = (src, dst, seq) in d["rsps"]
+        answered += ok
+        col = "tab:green" if ok else "tab:red"
+        x = (_network_time(d, src, t) - t0) * 1e3
+        a.annotate("", xy=(x, dst), xytext=(x, src), arrowprops=dict(arrowstyle="->", color=col, lw=1.0))
+        a.plot([x], [src], "o", color=col, ms=3)
+    nav_x = [((_network_time(d, sid, m["t_tx_s"]) - t0) * 1e3, sid) for sid, msgs in d.get("nav_msgs", {}).items() for m in msgs
+             if m.get("cycle") == c0 and "t_tx_s" in m]
+    if nav_x:
+        a.plot([x for x, _ in nav_x], [s for _, s in nav_x], "D", color="tab:purple", ms=4, label="nav broadcast")
+    a.plot([], [], color="tab:green", label="range request -> addressee, reply recorded")
+    a.plot([], [], color="tab:red", label="range request, no reply recorded")
+    a.set_xlim(-0.2 * slot_s * 1e3, (n_show + 0.2) * slot_s * 1e3)
+    a.set_ylim(min(ids) - 0.7, max(ids) + 0.7)
+    a.set_yticks(ids)
+    a.set_xlabel(f"time in cycle {c0}, ms (slot {slot_s * 1e3:g} ms; network time: each stamp less its station's true clock error)")
+    a.set_ylabel("station")
+    free = f"; slots {n_show}..{n_slots - 1} free, not drawn" if n_show < n_slots else ""
+    a.set_title(f"One TDMA cycle ({cycle_s:g} s{free})", fontsize=9, pad=24)
+    a.legend(fontsize=7, loc="lower right")
+    a.grid(True, axis="y", alpha=0.3)
+    _exchange_matrix(fig, b, reqs, d["rsps"], ids)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
-    return M.tdma_numbers(reqs, d["rsps"])
+    return {**M.tdma_numbers(reqs, d["rsps"]), "cycle_shown": c0, "cycle_s": cycle_s, "slot_s": slot_s,
+            "slots_drawn": n_show}
 
 
-def fig_network(info: dict, d: dict, path: Path) -> None:
+def fig_network(info: dict, d: dict, path: Path) -> dict[str, Any]:
+    """Loss per kind and the latency distributions on a symmetric-log axis (linear within +-1 ms):
+    negative latencies are drawn, not clamped. ``publish_time`` is the sender's stamp on its own
+    emulated clock, so ``log_time - publish_time`` is the transport delay plus the sender's clock
+    error against the host's; a station whose oscillator runs ahead by more than the delay shows a
+    negative latency. Returns the count of negative samples per kind."""
     plt = _plt()
-    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 3.8))
+    fig, (a, b) = plt.subplots(1, 2, figsize=(12, 4.2))
     kinds = list(info.get("loss", {}))
     a.bar(kinds, [info["loss"][k]["loss_pct"] for k in kinds], color="tab:red")
     a.set_ylabel("lost, % (sequence gaps)")
@@ -304,20 +359,26 @@ def fig_network(info: dict, d: dict, path: Path) -> None:
     a.tick_params(axis="x", rotation=45, labelsize=8)
     a.grid(True, axis="y", alpha=0.3)
     lat = d["latency_ms"]
+    neg: dict[str, int] = {}
     for k in sorted(lat):
-        v = np.sort(np.asarray(lat[k]))
+        v = np.sort(np.asarray(lat[k], float))
         if v.size:
-            b.plot(np.maximum(v, 1e-3), np.arange(1, v.size + 1) / v.size, label=k)
-    b.set_xscale("log")
-    b.set_xlabel("latency log_time - publish_time, wall ms")
-    b.set_ylabel("fraction")
-    b.set_title("Latency distribution by kind", fontsize=9)
+            neg[k] = int(np.sum(v < 0))
+            b.plot(v, np.arange(1, v.size + 1) / v.size, label=k + (f" ({neg[k]} < 0)" if neg[k] else ""))
+    b.set_xscale("symlog", linthresh=1.0)
+    b.axvline(0.0, color="k", lw=0.8)
+    b.set_xlabel("latency log_time - publish_time, wall ms (linear within +-1 ms, log beyond)")
+    b.set_ylabel("fraction of messages <= latency")
+    n_neg = sum(neg.values())
+    b.set_title("Latency distribution by kind" + (f"; {n_neg} negative: the stamp is on the sender's emulated "
+                                                  "clock" if n_neg else ""), fontsize=9)
     b.grid(True, which="both", alpha=0.3)
     if lat:
         b.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+    return {"negative_latency": neg}
 
 
 # --------------------------------------------------------------------------- the report
@@ -348,9 +409,10 @@ def sync_series(rec) -> dict[int, np.ndarray]:
 
 
 def fig_sync(series: dict[int, np.ndarray], path: Path, after_s: float = 60.0) -> dict[str, Any]:
-    """Sync-error figure (survey-convergence style) and its numbers."""
+    """Sync-error figure (survey-convergence style) and its numbers (none with perfect clocks: every
+    error exactly 0, nothing to draw on a log axis)."""
     st = {k: v for k, v in series.items() if k != 1}
-    if not st:
+    if not st or not any(np.any(r[:, 1] != 0) for r in st.values()):
         return {}
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 4))
@@ -407,64 +469,89 @@ def _integrity_md(ig: dict | None) -> list[str]:
     return L + [""]
 
 
+def _station_figures(d: dict, rec, out: Path, res: dict, figs: list) -> None:
+    from . import report_nav as RN
+
+    res["station_map"] = RN.fig_station_map(d, out / "station_map.png")
+    if res["station_map"]:
+        figs.append(("Stations in plan with 2-sigma horizontal ellipses", "station_map.png"))
+    res["stations"] = RN.fig_station_errors(d, out / "station_errors.png")
+    if res["stations"]:
+        figs.append(("Station errors: horizontal and vertical against their own sigma", "station_errors.png"))
+    res["convergence"] = fig_convergence(d, out / "survey_convergence.png")
+    if res["convergence"]:
+        figs.append(("Survey convergence with the CRLB", "survey_convergence.png"))
+        if res["convergence"].get("nees"):
+            figs.append(("Station NEES with its chi-square band", "station_nees.png"))
+    res["histograms"] = fig_histograms(d, out / "survey_histograms.png")
+    if res["histograms"]:
+        figs.append(("Error histograms", "survey_histograms.png"))
+    res["sync"] = fig_sync(sync_series(rec), out / "sync_errors.png")
+    if res["sync"]:
+        figs.append(("Network time: clock errors", "sync_errors.png"))
+
+
+def _aircraft_figures(d: dict, logs, out: Path, res: dict, figs: list, scenario: str | None,
+                      sigma_m: float | None) -> None:
+    from . import report_nav as RN
+
+    acfg = _aircraft_config(logs, scenario)
+    sig = sigma_m if sigma_m is not None else (acfg.sigma_m if acfg is not None else None)
+    if sig is None and d["init"]:
+        sig = d["init"]["cfg"].get("sigma_d_m")
+    if acfg is not None:
+        tuning = acfg.tuning
+    else:
+        from dataclasses import replace
+
+        from aircraft.estimators import Tuning
+
+        tuning = replace(Tuning(), sigma_m=float(sig or 0.5))
+    res["aircraft"] = fig_aircraft(d, out / "aircraft_errors.png", sig, tuning)
+    figs.append(("Aircraft errors with the CRLB", "aircraft_errors.png"))
+    res["aircraft_sigma"] = RN.fig_aircraft_sigma(d, out / "aircraft_sigma.png")
+    if res["aircraft_sigma"]:
+        figs.append(("Aircraft errors against their own sigma, NEES", "aircraft_sigma.png"))
+    res["aircraft_track"] = RN.fig_aircraft_track(d, out / "aircraft_track.png")
+    if res["aircraft_track"]:
+        figs.append(("Aircraft tracks in plan and horizontal errors", "aircraft_track.png"))
+
+
 def make_report(paths: Sequence[str | Path], outdir: str | Path, scenario: str | None = None,
                 sigma_m: float | None = None) -> dict[str, Any]:
-    from ..analysis.summary import summarize
+    """Read the recording(s), write the figures, ``report.md`` and ``report.json`` (strict JSON:
+    ``null`` where a number is not finite) into ``outdir``; returns what ``report.json`` holds."""
+    from ..analysis.summary import dumps_strict, summarize
     from ..log.series import load
 
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
     rec = load(paths)  # every message decoded once, for the summary and the figures
-    logs = rec.logs
     info = summarize(paths, rec=rec)
     d = extract(rec)
     res: dict[str, Any] = {"files": [{"path": f["path"], "complete": f["complete"], "error": f["error"]}
                                      for f in info["files"]],
                            "messages": info["messages"], "duration_s": info.get("duration_s", 0.0),
                            "figures": []}
-    figs = []
+    figs: list[tuple[str, str]] = []
     if d["stations"]:
-        res["stations"] = fig_station_errors(d, out / "station_errors.png")
-        if res["stations"]:
-            figs.append(("Station errors and 3-sigma bounds", "station_errors.png"))
-        res["convergence"] = fig_convergence(d, out / "survey_convergence.png")
-        if res["convergence"]:
-            figs.append(("Survey convergence", "survey_convergence.png"))
-        res["histograms"] = fig_histograms(d, out / "survey_histograms.png")
-        if res["histograms"]:
-            figs.append(("Error histograms", "survey_histograms.png"))
-        res["sync"] = fig_sync(sync_series(rec), out / "sync_errors.png")
-        if res["sync"]:
-            figs.append(("Network time: clock errors", "sync_errors.png"))
+        _station_figures(d, rec, out, res, figs)
     if d["aircraft"]:
-        acfg = _aircraft_config(logs, scenario)
-        sig = sigma_m if sigma_m is not None else (acfg.sigma_m if acfg is not None else None)
-        if sig is None and d["init"]:
-            sig = d["init"]["cfg"].get("sigma_d_m")
-        if acfg is not None:
-            tuning = acfg.tuning
-        else:
-            from dataclasses import replace
-
-            from aircraft.estimators import Tuning
-
-            tuning = replace(Tuning(), sigma_m=float(sig or 0.5))
-        res["aircraft"] = fig_aircraft(d, out / "aircraft_errors.png", sig, tuning)
-        figs.append(("Aircraft errors with the CRLB", "aircraft_errors.png"))
+        _aircraft_figures(d, rec.logs, out, res, figs, scenario, sigma_m)
     if rec.vehicles:
         res["vehicles"] = fig_vehicles(rec, out / "vehicle_errors.png")
         figs.append(("Ground vehicle error and 3-sigma", "vehicle_errors.png"))
     res["integrity"] = integrity_numbers(d, info)
     res["tdma"] = fig_tdma(d, out / "tdma_timeline.png")
     if res["tdma"]:
-        figs.append(("TDMA timeline", "tdma_timeline.png"))
-    fig_network(info, d, out / "network.png")
+        figs.append(("One TDMA cycle", "tdma_timeline.png"))
+    res["network"] = fig_network(info, d, out / "network.png")
     figs.append(("Message loss and latency", "network.png"))
     res["loss"] = info.get("loss", {})
     res["loss_total"] = info.get("loss_total", {})
     res["latency_ms"] = info.get("latency_ms", {})
     res["figures"] = [f for _, f in figs]
-    (out / "report.json").write_text(json.dumps(res, indent=1, default=float))
+    (out / "report.json").write_text(dumps_strict(res, indent=1))
     (out / "report.md").write_text(markdown(res, info, figs))
     return res
 
@@ -477,6 +564,116 @@ def _fmt(x: Any, nd: int = 2) -> str:
     return str(x)
 
 
+def _aircraft_sigma_md(sig: dict, track: dict) -> list[str]:
+    """Per aircraft algorithm: shares inside its own 2 sigma, the horizontal error from 30 s, the NEES."""
+    if not sig:
+        return []
+    L = ["| aircraft | algorithm | inside 2 sigma_h | inside 2 sigma_z | horizontal RMS m (window) | inside 2-sigma "
+         "ellipse | NEES mean (3 dof) | 95 % band (n_eff) |", "|---|---|---:|---:|---:|---:|---:|---:|"]
+    for name, per in sig.items():
+        for algo, r in per.items():
+            tk = track.get(name, {}).get(algo, {})
+            band = r.get("nees_band")
+            L.append(f"| {name} | {algo} | {_fmt(100 * r['inside_2sigma_h'], 0)} % | {_fmt(100 * r['inside_2sigma_v'], 0)} % | "
+                     f"{_fmt(tk.get('rms_eh_m'))} (from {_fmt(tk.get('from_s'), 0)} s) | "
+                     f"{'-' if tk.get('inside_2sigma_ellipse') is None else _fmt(100 * tk['inside_2sigma_ellipse'], 0) + ' %'} | "
+                     f"{_fmt(r.get('nees_mean'))} | "
+                     + ("-" if not band else f"[{_fmt(band[0])}, {_fmt(band[1])}] ({_fmt(r.get('nees_n_eff'), 1)})") + " |")
+    return L + [""]
+
+
+def _stations_md(res: dict) -> list[str]:
+    """The station table: 3-D error with its 3-sigma, horizontal and vertical errors with their own sigma."""
+    if not res.get("stations"):
+        return []
+    L = ["## Stations", "", "| station | updates | final error m | final 3-sigma m | inside 3-sigma | horizontal m "
+         "| sigma_h m | inside 2 sigma_h | vertical m | sigma_z m | inside 2 sigma_z |",
+         "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for sid, s in res["stations"].items():
+        pct = (lambda k: "-" if s.get(k) is None or math.isnan(s[k]) else f"{_fmt(100 * s[k], 0)} %")
+        L.append(f"| {sid} | {s['n_updates']} | {_fmt(s['final_err_m'])} | {_fmt(s['final_bound3_m'])} | "
+                 f"{pct('inside_3sigma')} | {_fmt(s.get('final_eh_m'))} | {_fmt(s.get('final_sigma_h_m'))} | "
+                 f"{pct('inside_2sigma_h')} | {_fmt(s.get('final_ev_m'))} | {_fmt(s.get('final_sigma_v_m'))} | "
+                 f"{pct('inside_2sigma_v')} |")
+    m = res.get("station_map") or {}
+    if m:
+        out = [str(k) for k, v in m["stations"].items() if v["inside"] is False]
+        L += ["", f"Final horizontal errors inside their own {m['sigma']:g}-sigma ellipse ({100 * m['probability']:.1f} % "
+                  f"expected): {sum(v['inside'] is True for v in m['stations'].values())} of "
+                  f"{sum(v['inside'] is not None for v in m['stations'].values())}"
+                  + (f" (outside: {', '.join(out)})" if out else "") + "."]
+    return L + [""]
+
+
+def _survey_md(res: dict) -> list[str]:
+    """The survey's numbers: convergence with its CRLB, NEES, network time, the second half."""
+    L = []
+    c = res.get("convergence") or {}
+    if c:
+        L.append(f"Survey: final mean horizontal error {_fmt(c['final_mean_horizontal_m'])} m, RMS "
+                 f"{_fmt(c['final_rms_horizontal_m'])} m, max {_fmt(c['final_max_horizontal_m'])} m; mean error "
+                 f"below sigma_d = {_fmt(c['sigma_d_m'])} m from t = {_fmt(c['time_mean_below_sigma_d_s'], 1)} s on.")
+        if c.get("final_crlb_horizontal_rms_m") is not None:
+            L.append(f"CRLB of the RMS horizontal error for the ranges measured (centralized, `nav.crlb`): "
+                     f"{_fmt(c['final_crlb_horizontal_rms_m'], 3)} m at the end; RMS / CRLB "
+                     f"{_fmt(c['final_rms_over_crlb'])} (one run: below 1 is chance, not a better estimator).")
+        ne = c.get("nees") or {}
+        if ne:
+            L.append(f"NEES / dof of the surveying stations: {_fmt(ne['final'])} at the end, mean "
+                     f"{_fmt(ne['mean_second_half'])} over the second half; {100 * ne['probability']:g} % band for "
+                     f"dof {ne['dof']}: [{_fmt(ne['band'][0])}, {_fmt(ne['band'][1])}]; inside it "
+                     f"{_fmt(ne['inside_band_pct'], 0)} % of the time.")
+    sy = res.get("sync") or {}
+    if sy:
+        late = ("run shorter than 60 s" if sy["rms_ns_after_60s"] is None else
+                f"after 60 s RMS {_fmt(sy['rms_ns_after_60s'])} ns, largest {_fmt(sy['max_abs_ns_after_60s'])} ns")
+        L.append(f"Network time: final RMS clock error {_fmt(sy['final_rms_ns'])} ns over {sy['stations']} stations; "
+                 f"{late}.")
+    h = res.get("histograms") or {}
+    if h:
+        L.append(f"Second half of the run: horizontal RMS {_fmt(h['horizontal_rms_m'])} m, vertical RMS "
+                 f"{_fmt(h['vertical_rms_m'])} m ({h['samples']} samples).")
+    return L + [""]
+
+
+def _aircraft_md(res: dict) -> list[str]:
+    if not res.get("aircraft"):
+        return []
+    L = ["## Aircraft", "", "| aircraft | algorithm | estimates | final error m | RMS error m (after 10 %) |",
+         "|---|---|---:|---:|---:|"]
+    for name, per in res["aircraft"].items():
+        for algo, a in per.items():
+            if isinstance(a, dict):
+                L.append(f"| {name} | {algo} | {a['n']} | {_fmt(a['final_err_m'])} | {_fmt(a['rms_err_m'])} |")
+        if "pcrb_final_m" in per:
+            L.append(f"| {name} | PCRB (pseudorange filter model) | | {_fmt(per['pcrb_final_m'])} | |")
+        if "crlb_median_m" in per:
+            L.append(f"| {name} | one-cycle CRLB (median) | | {_fmt(per['crlb_median_m'])} | |")
+    L.append("")
+    return L + _aircraft_sigma_md(res.get("aircraft_sigma") or {}, res.get("aircraft_track") or {})
+
+
+def _network_md(res: dict) -> list[str]:
+    L = []
+    t = res.get("tdma") or {}
+    if t:
+        L.append(f"## TDMA\n\n{t['requests']} range requests recorded, {t['answered']} answered "
+                 f"({_fmt(t['answered_pct'], 1)} %).\n")
+    neg = (res.get("network") or {}).get("negative_latency", {})
+    L += ["## Network", "", "| kind | received | missing | loss % | p50 latency ms | p99 latency ms | latency < 0 |",
+          "|---|---:|---:|---:|---:|---:|---:|"]
+    for k, v in res.get("loss", {}).items():
+        la = res.get("latency_ms", {}).get(k, {})
+        L.append(f"| {k} | {v['received']} | {v['missing']} | {_fmt(v['loss_pct'])} | {_fmt(la.get('p50'))} | "
+                 f"{_fmt(la.get('p99'))} | {neg.get(k, '-')} |")
+    L.append("")
+    if any(neg.values()):
+        L += ["Latency is `log_time - publish_time`, and `publish_time` is the sender's stamp on its own emulated "
+              "clock: a station whose oscillator runs ahead of the host's clock by more than the transport delay "
+              "shows a negative latency (drawn, not clamped, in network.png).", ""]
+    return L
+
+
 def markdown(res: dict, info: dict, figs: list[tuple[str, str]]) -> str:
     L = ["# LARNS run report", ""]
     for f in res["files"]:
@@ -487,52 +684,12 @@ def markdown(res: dict, info: dict, figs: list[tuple[str, str]]) -> str:
     L.append(f"- {res['messages']} messages, {res['duration_s']:.1f} s wall"
              + (f" ({info['fleet_duration_s']:.1f} s fleet time)" if "fleet_duration_s" in info else ""))
     L.append("")
-    if res.get("stations"):
-        L += ["## Stations", "", "| station | updates | final error m | final 3-sigma m | inside 3-sigma |",
-              "|---:|---:|---:|---:|---:|"]
-        for sid, s in res["stations"].items():
-            L.append(f"| {sid} | {s['n_updates']} | {_fmt(s['final_err_m'])} | {_fmt(s['final_bound3_m'])} | "
-                     f"{_fmt(100 * s['inside_3sigma'], 0)} % |")
-        L.append("")
-    c = res.get("convergence") or {}
-    if c:
-        L.append(f"Survey: final mean horizontal error {_fmt(c['final_mean_horizontal_m'])} m, max "
-                 f"{_fmt(c['final_max_horizontal_m'])} m; mean error below sigma_d = {_fmt(c['sigma_d_m'])} m "
-                 f"from t = {_fmt(c['time_mean_below_sigma_d_s'], 1)} s on.")
-    sy = res.get("sync") or {}
-    if sy:
-        L.append(f"Network time: final RMS clock error {_fmt(sy['final_rms_ns'])} ns over {sy['stations']} stations; "
-                 f"after 60 s RMS {_fmt(sy['rms_ns_after_60s'])} ns, largest {_fmt(sy['max_abs_ns_after_60s'])} ns.")
-    h = res.get("histograms") or {}
-    if h:
-        L.append(f"Second half of the run: horizontal RMS {_fmt(h['horizontal_rms_m'])} m, vertical RMS "
-                 f"{_fmt(h['vertical_rms_m'])} m ({h['samples']} samples).")
-    L.append("")
-    if res.get("aircraft"):
-        L += ["## Aircraft", "", "| aircraft | algorithm | estimates | final error m | RMS error m (after 10 %) |",
-              "|---|---|---:|---:|---:|"]
-        for name, per in res["aircraft"].items():
-            for algo, a in per.items():
-                if isinstance(a, dict):
-                    L.append(f"| {name} | {algo} | {a['n']} | {_fmt(a['final_err_m'])} | {_fmt(a['rms_err_m'])} |")
-            if "pcrb_final_m" in per:
-                L.append(f"| {name} | PCRB (pseudorange filter model) | | {_fmt(per['pcrb_final_m'])} | |")
-            if "crlb_median_m" in per:
-                L.append(f"| {name} | one-cycle CRLB (median) | | {_fmt(per['crlb_median_m'])} | |")
-        L.append("")
+    L += _stations_md(res)
+    L += _survey_md(res)
+    L += _aircraft_md(res)
     L += _vehicle_markdown(res.get("vehicles", {}))
     L += _integrity_md(res.get("integrity"))
-    t = res.get("tdma") or {}
-    if t:
-        L.append(f"## TDMA\n\n{t['requests']} range requests recorded, {t['answered']} answered "
-                 f"({_fmt(t['answered_pct'], 1)} %).\n")
-    L += ["## Network", "", "| kind | received | missing | loss % | p50 latency ms | p99 latency ms |",
-          "|---|---:|---:|---:|---:|---:|"]
-    for k, v in res.get("loss", {}).items():
-        la = res.get("latency_ms", {}).get(k, {})
-        L.append(f"| {k} | {v['received']} | {v['missing']} | {_fmt(v['loss_pct'])} | {_fmt(la.get('p50'))} | "
-                 f"{_fmt(la.get('p99'))} |")
-    L.append("")
+    L += _network_md(res)
     L += ["## Figures", ""]
     for title, f in figs:
         L += [f"### {title}", "", f"![{title}]({f})", ""]
