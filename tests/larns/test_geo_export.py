@@ -265,3 +265,55 @@ def test_location_fixes_over_the_foxglove_websocket(tmp_path):
         assert np.linalg.norm(p - (scn.pos_m[i] + 0.1 * k)) < 1e-3
         assert last["frame_id"] == f"station_{sid}" and len(last["position_covariance"]) == 9
         assert got.of(f"larns/foxglove/fix/station/{sid}/truth")
+
+
+@pytest.mark.slow
+@pytest.mark.e2e
+def test_live_view_of_a_geo_fleet_sends_location_fixes(tmp_path):
+    """``larns fleet --scenario seed000-geo --aircraft --view PORT`` (real processes over Zenoh): a
+    Foxglove-protocol client decodes a LocationFix topic per station, its truth, and the aircraft's
+    (~35 s wall)."""
+    import asyncio
+    import time
+
+    from foxglove_ws import FoxgloveClient
+
+    from net.bus import free_tcp_ports
+
+    (port,) = free_tcp_ports(1)
+    p = subprocess.Popen([sys.executable, "-m", "larns", "fleet", "--scenario", "seed000-geo", "--duration", "30",
+                          "--speed", "2", "--aircraft", "--view", str(port), "--no-table"], cwd=tmp_path,
+                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+    async def watch():
+        t0 = time.monotonic()
+        while True:
+            try:
+                c = FoxgloveClient(f"ws://127.0.0.1:{port}")
+                await c.__aenter__()
+                break
+            except OSError:
+                if time.monotonic() - t0 > 60:
+                    raise
+                await asyncio.sleep(0.3)
+        try:
+            return await c.run(20.0)
+        finally:
+            await c.__aexit__(None, None, None)
+
+    try:
+        got = asyncio.run(watch())
+        log, _ = p.communicate(timeout=120)
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait(10)
+    assert p.returncode == 0, log[-3000:]
+    assert got.undecodable == []
+    fix = {t for t in got.topics() if t.startswith("larns/foxglove/fix/")}
+    ids = load("seed000-geo").ids
+    assert {f"larns/foxglove/fix/station/{i}" for i in ids} <= fix, sorted(fix)
+    assert {f"larns/foxglove/fix/station/{i}/truth" for i in ids} <= fix
+    assert {"larns/foxglove/fix/aircraft/ac1/ukf-pr", "larns/foxglove/fix/aircraft/ac1/truth"} <= fix
+    last = got.of("larns/foxglove/fix/station/5")[-1]
+    assert abs(last["latitude"] - 48.86) < 0.05 and last["position_covariance_type"] == 3
