@@ -470,30 +470,32 @@ def _geojson_stations(name: str, base_dir: Path | None) -> list[dict]:
     if not isinstance(doc, dict) or doc.get("type") != "FeatureCollection" or not isinstance(doc.get("features"), list):
         raise ScenarioError(f"{w}: {path}: not a FeatureCollection (expected a GeoJSON FeatureCollection of "
                             "Point features)")
-    out = []
-    for i, f in enumerate(doc["features"]):
-        fw = f"{w}: {path}: features[{i}]"
-        geom = f.get("geometry") if isinstance(f, dict) else None
-        if not isinstance(geom, dict) or geom.get("type") != "Point":
-            raise ScenarioError(f"{fw}.geometry: got {geom!r:.60} (expected a Point)")
-        c = geom.get("coordinates")
-        if not isinstance(c, list) or len(c) not in (2, 3):
-            raise ScenarioError(f"{fw}.geometry.coordinates: got {c!r} (expected [lon, lat] or [lon, lat, h])")
-        props = f.get("properties") or {}
-        sid = props.get("id") if isinstance(props, dict) else None
-        if isinstance(sid, bool) or not isinstance(sid, int) or sid < 1:
-            raise ScenarioError(f"{fw}.properties.id: got {sid!r} (expected the station id, an integer >= 1)")
-        lat, lon, h = _lat_lon_h(c[1], c[0], c[2] if len(c) == 3 else 0.0,
-                                 (f"{fw}.coordinates[1]", f"{fw}.coordinates[0]", f"{fw}.coordinates[2]"))
-        e: dict[str, Any] = {"id": sid, "lat_deg": lat, "lon_deg": lon, "h_m": h}
-        if "join" in props:
-            if not isinstance(props["join"], bool):
-                raise ScenarioError(f"{fw}.properties.join: got {props['join']!r} (expected true or false)")
-            e["join"] = props["join"]
-        out.append(e)
+    out = [_geojson_station(f, f"{w}: {path}: features[{i}]") for i, f in enumerate(doc["features"])]
     if not out:
         raise ScenarioError(f"{w}: {path}: no features (expected one Point feature per station)")
     return out
+
+
+def _geojson_station(f: Any, fw: str) -> dict[str, Any]:
+    """One GeoJSON Point feature as a ``[[stations]]`` entry; ``fw`` names it in errors."""
+    geom = f.get("geometry") if isinstance(f, dict) else None
+    if not isinstance(geom, dict) or geom.get("type") != "Point":
+        raise ScenarioError(f"{fw}.geometry: got {geom!r:.60} (expected a Point)")
+    c = geom.get("coordinates")
+    if not isinstance(c, list) or len(c) not in (2, 3):
+        raise ScenarioError(f"{fw}.geometry.coordinates: got {c!r} (expected [lon, lat] or [lon, lat, h])")
+    props = f.get("properties") or {}
+    sid = props.get("id") if isinstance(props, dict) else None
+    if isinstance(sid, bool) or not isinstance(sid, int) or sid < 1:
+        raise ScenarioError(f"{fw}.properties.id: got {sid!r} (expected the station id, an integer >= 1)")
+    lat, lon, h = _lat_lon_h(c[1], c[0], c[2] if len(c) == 3 else 0.0,
+                             (f"{fw}.coordinates[1]", f"{fw}.coordinates[0]", f"{fw}.coordinates[2]"))
+    e: dict[str, Any] = {"id": sid, "lat_deg": lat, "lon_deg": lon, "h_m": h}
+    if "join" in props:
+        if not isinstance(props["join"], bool):
+            raise ScenarioError(f"{fw}.properties.join: got {props['join']!r} (expected true or false)")
+        e["join"] = props["join"]
+    return e
 
 
 def _place_on_site(raw: dict, base_dir: Path | None) -> tuple[dict, Site | None]:
