@@ -149,6 +149,18 @@ class SenderTruth:
         self._clock_of = clock_of
         self._clocks: dict[int, object] = {}
 
+    #: a transmission the receiver takes in lies within this of its own time (true-time timeline): its
+    #: claimed time by the wire's delay, its stamp by the sender's clock error too (both far below);
+    #: beyond it the stamp is refused before the sender's clock is read there (an insider's stamp of
+    #: 1e12 s would have the emulated oscillator draw its random walk up to it: memory and CPU without end)
+    MAX_SKEW_S = 60.0
+
+    def plausible_time(self, claimed_t_true_s: float, t_tx_local_s: float | None, now_s: float) -> bool:
+        """Whether a transmission's claimed time and clock stamp are near ``now_s`` (:attr:`MAX_SKEW_S`)."""
+        if not abs(float(claimed_t_true_s) - now_s) <= self.MAX_SKEW_S:
+            return False
+        return t_tx_local_s is None or abs(float(t_tx_local_s) - now_s) <= self.MAX_SKEW_S
+
     def transmission(self, tx_id: int, claimed_t_true_s: float,
                      t_tx_local_s: float | None) -> tuple[np.ndarray, float] | None:
         pos = self.positions.get(tx_id)

@@ -273,6 +273,9 @@ class StationNode:
         if msg["kind"] in ("range_req", "range_rsp"):
             self._wire_delay_s.append((self.fleet_now() - phy["t_true_s"]) / self.speed)  # wall: tx -> here
         # the channel owns physics: the named sender's true position and clock, not its phy claims
+        if not self.senders.plausible_time(phy["t_true_s"], msg.get("t_tx_s"), self.fleet_now()):
+            self.drops.drop("time", f"{msg['kind']} from station {msg['src']}: stamped far from now")
+            return
         tx = self.senders.transmission(msg["src"], phy["t_true_s"], msg.get("t_tx_s"))
         if tx is None:
             self.drops.drop("sender_unknown", f"{msg['kind']} from station {msg['src']}, not in the scenario")
