@@ -37,8 +37,9 @@ def _plt():
     return plt
 
 
-def _save(plt, fig, path: Path) -> None:
-    fig.tight_layout()
+def _save(plt, fig, path: Path, tight: bool = True) -> None:
+    if tight:
+        fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
@@ -183,11 +184,15 @@ def fig_station_errors(d: dict, path: Path) -> dict[int, dict]:
         row[0].set_ylabel(f"station {sid}\nm", fontsize=8)
     axes[0, 0].set_title(f"horizontal |e_xy| and {K_SIGMA:g} sigma_h = {K_SIGMA:g} sqrt(Pxx + Pyy)", fontsize=9)
     axes[0, 1].set_title(f"vertical |e_z| and {K_SIGMA:g} sigma_z = {K_SIGMA:g} sqrt(Pzz)", fontsize=9)
-    axes[0, 0].legend(fontsize=7, loc="upper right")
+    for ax in (axes[0, 0], next((a for a in axes[:, 1] if a.lines), None)):
+        if ax is not None:
+            ax.legend(fontsize=7, loc="upper right")
     for ax in axes[-1]:
         ax.set_xlabel("fleet time, s")
     fig.suptitle("Station errors against their own sigma (network frame)", fontsize=10)
-    _save(plt, fig, path)
+    h = fig.get_figheight()  # fixed margins (tight_layout over 2 n panels takes seconds)
+    fig.subplots_adjust(left=0.09, right=0.98, top=1 - 0.75 / h, bottom=0.5 / h, hspace=0.25, wspace=0.15)
+    _save(plt, fig, path, tight=False)
     return out
 
 
