@@ -218,3 +218,26 @@ def test_survey_crlb_curve_matches_the_bench_bound():
     assert np.allclose(b[0], survey_crlb(X, np.zeros((5, 5)), 0.5, free, s0))  # the prior alone
     h = crlb_horizontal_rms(b, [1, 2, 3, 4])
     assert h[0] > h[1] > h[2] > 0
+
+
+def test_network_figure_keeps_negative_latencies(tmp_path):
+    """Latency stamps are on the sender's emulated clock: negative values are drawn and counted, not
+    clamped to a floor."""
+    from larns.viz.report import fig_network
+
+    info = {"loss": {"range_req": {"loss_pct": 0.0}, "nav": {"loss_pct": 1.0}}}
+    out = fig_network(info, {"latency_ms": {"range_req": [-1.2, -0.01, 0.5, 3.0], "nav": [2.0, 40.0]}},
+                      tmp_path / "network.png")
+    assert out == {"negative_latency": {"nav": 0, "range_req": 2}}
+    assert (tmp_path / "network.png").stat().st_size > 5000
+
+
+def test_aircraft_line_of_a_run_shorter_than_30_s():
+    from larns.commands.info import aircraft_line
+
+    r = {"n": 53, "first_t_s": 16.7, "t_10m_s": 18.5, "t_3m_s": None, "final_eh_m": 1.96, "final_sigma_h_m": 1.74,
+         "statuses": {"tracking": 14}}
+    line = aircraft_line("ac1", "ekf-tdoa", r)
+    assert "nan" not in line and "run shorter than 30 s" in line
+    line = aircraft_line("ac1", "ekf-tdoa", {**r, "max_eh_window_m": 1.5, "nees_mean": 2.25})
+    assert "max from 30 s 1.50 m, NEES 2.25" in line
