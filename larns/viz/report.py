@@ -5,29 +5,40 @@ estimates against the aircraft truth topic, the TDMA timeline from the recorded 
 replies, loss from sequence gaps and latency from ``log_time - publish_time``. A recording killed
 with SIGKILL works too (stream-read up to the damage).
 
-Figures (``DIR/*.png``):
+Figures (``DIR/*.png``; the stations' and the aircraft's against their own covariance are drawn by
+:mod:`larns.viz.report_nav` from :mod:`larns.analysis.consistency`):
 
-* ``station_errors.png`` - per station: error norm and the 3-sigma bound ``3 sqrt(trace P)`` vs time;
-* ``survey_convergence.png`` - mean and max horizontal error over the surveying stations vs time
-  (seed 000, fig. 3), with the mean 1-sigma horizontal bound;
+* ``station_map.png`` - the stations in plan, true and estimated, with 2-sigma horizontal error
+  ellipses (magnification stated), and the final errors whitened by their own covariance;
+* ``station_errors.png`` - per station: horizontal error against 2 sigma_h and vertical error against
+  2 sigma_z, in separate panels;
+* ``survey_convergence.png`` - mean, RMS and max horizontal error over the surveying stations vs time
+  (seed 000, fig. 3) with the mean 1-sigma and the centralized CRLB of the RMS horizontal error for
+  the ranges measured so far (``nav.crlb``, the bound of ``larns bench survey``);
+* ``station_nees.png`` - the stations' NEES / dof on their free coordinates with its 95 % chi-square
+  band (dof stated);
 * ``survey_histograms.png`` - histograms of horizontal and vertical errors over the second half of
   the run (seed 000, figs. 4 and 5);
 * ``aircraft_errors.png`` - aircraft error per algorithm vs time with the posterior CRLB of the
   pseudorange filters' model for the recorded sequence of broadcasts, and the one-cycle snapshot
   CRLB (seed 003 eq. 7, ``nav.pcrb``) along the true track (if aircraft topics are present);
+* ``aircraft_sigma.png`` / ``aircraft_track.png`` - each algorithm's horizontal and vertical error
+  against its own 2 sigma and its NEES; the tracks in plan and the horizontal error cloud;
 * ``vehicle_errors.png`` - each ground vehicle's position error and 3-sigma vs time (if present);
-* ``tdma_timeline.png`` - who ranged whom when (first cycles; green = answered, red = no reply
-  recorded) and the exchange count matrix over the whole run;
-* ``network.png`` - message loss per kind (sequence gaps) and latency distributions per kind;
+* ``tdma_timeline.png`` - one TDMA cycle on network time with its slots drawn (arrows initiator ->
+  addressee, green = answered, red = no reply recorded; nav broadcasts) and the exchange count
+  matrix over the whole run;
+* ``network.png`` - message loss per kind (sequence gaps) and latency distributions per kind
+  (negative latencies drawn: the stamps are on the senders' emulated clocks);
 * ``sync_errors.png`` - each station's clock error against network time (estimate minus truth of the
   same stamp, ns) vs time with the RMS over the stations and the mean 1-sigma bound (docs/sync.md).
 
-``DIR/report.md`` summarizes the numbers and embeds the figures; ``DIR/report.json`` holds them.
+``DIR/report.md`` summarizes the numbers and embeds the figures; ``DIR/report.json`` holds them
+(strict JSON: ``null`` where a number is not finite).
 """
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Any, Sequence
