@@ -125,6 +125,10 @@ class AircraftCore:
         if msg.get("state") not in USABLE_STATES:
             self.stats["nav_unusable_state"] += 1
             return []
+        from .navigator import plausible  # issue 32: an implausible nav never reaches the channel or a filter
+
+        if plausible.refuse(msg, float(phy["t_true_s"]), self.ac, self.stats):
+            return []
         t_rx, rho, p_true = self.measure(phy, msg)
         st_cov = np.asarray(msg["cov_m2"], float)
         cvar = self.clock_var_m2(msg)
