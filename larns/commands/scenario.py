@@ -18,7 +18,7 @@ from __future__ import annotations
 import argparse
 import re
 import sys
-from dataclasses import asdict
+from dataclasses import asdict, replace
 
 
 DESCRIPTION = """\
@@ -151,20 +151,31 @@ def format_scenario(sc) -> str:
         f"seed:        {sc.seed}",
         f"stations:    {len(sc.ids)} (ids {sc.ids[0]}..{sc.ids[-1]}{joiners}); [frame] z_ref {sc.z_ref}",
         f"[tdma]       {_fields(sc.tdma)} ({sc.tdma.slots_per_cycle} slots per cycle)",
-        f"[channel]    {_fields(sc.channel)}",
+        f"[channel]    {_fields(replace(sc.channel, radio=None)).removesuffix(', radio None')}",
         f"[clock]      {_fields(sc.clock)}",
         f"[net]        {_fields(sc.net)}",
         f"[init]       sigma0_m {sc.sigma0_m:g}",
         f"[survey]     estimator {sc.estimator}, ranges_per_update {sc.ranges_per_update}",
     ]
+    radio = getattr(sc.channel, "radio", None)
+    if radio is not None:
+        keep = {k: v for k, v in asdict(radio).items() if k not in ("up", "origin_height_m")}
+        lines.append("[radio]      " + ", ".join(f"{k} {v:g}" if isinstance(v, float) and not isinstance(v, bool)
+                                                 else f"{k} {v}" for k, v in keep.items()))
+    if sc.site is not None:
+        lines.append(f"[site]       origin {sc.site.lat_deg:.9f} deg, {sc.site.lon_deg:.9f} deg, "
+                     f"{sc.site.h_m:.3f} m (WGS84); azimuth of +X {sc.site.azimuth_deg:g} deg")
     lines += [f"[[links]]    {_link(lk)}" for lk in sc.links] + [f"[[faults]]   {_fault(f)}" for f in sc.faults]
     if sc.aircraft:
         lines.append(f"[aircraft]   {_kv({k: v for k, v in sc.aircraft.items() if not isinstance(v, dict)})}")
         lines += [f"[aircraft.{k}] {_kv(v)}" for k, v in sc.aircraft.items() if isinstance(v, dict)]
-    lines.append("stations in the network frame, m:")
-    lines.append(f"{'id':>5} {'x':>12} {'y':>12} {'z':>10}")
-    for sid, p in zip(sc.ids, sc.pos_m):
-        lines.append(f"{sid:>5} {p[0]:12.2f} {p[1]:12.2f} {p[2]:10.2f}" + ("  (joins later)" if sid in sc.join_ids else ""))
+    geo = sc.site.net_to_geodetic(sc.pos_m) if sc.site is not None else None
+    lines.append("stations in the network frame, m" + (" (and on WGS84)" if geo else "") + ":")
+    lines.append(f"{'id':>5} {'x':>12} {'y':>12} {'z':>10}" + (f" {'lat_deg':>15} {'lon_deg':>15} {'h_m':>9}" if geo else ""))
+    for k, (sid, p) in enumerate(zip(sc.ids, sc.pos_m)):
+        ll = f" {geo[0][k]:15.9f} {geo[1][k]:15.9f} {geo[2][k]:9.3f}" if geo else ""
+        lines.append(f"{sid:>5} {p[0]:12.2f} {p[1]:12.2f} {p[2]:10.2f}{ll}"
+                     + ("  (joins later)" if sid in sc.join_ids else ""))
     return "\n".join(lines)
 
 
