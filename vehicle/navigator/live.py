@@ -188,8 +188,15 @@ class VehicleNavigator:
 
     def measurement(self, tau: float, src: int, pos_n, cov_n, clock_var_m2: float, rho_m: float,
                     rate_m_s: float) -> list[dict]:
-        """Integrate to ``tau`` and apply one station's pseudorange and pseudorange rate."""
+        """Integrate to ``tau`` and apply one station's pseudorange and pseudorange rate. An unusable
+        input (vehicle/navigator/plausible.py) is counted (``implausible_<reason>``) and dropped."""
         out: list[dict] = []
+        from .plausible import bounds_of, measurement_reason
+
+        why = measurement_reason(pos_n, cov_n, clock_var_m2, rho_m, rate_m_s, bounds_of(self.rec))
+        if why is not None:
+            self.stats["implausible_" + why] += 1
+            return out
         if not self.accepts(tau):
             return out
         self._integrate(tau, True, out)
