@@ -206,6 +206,10 @@ class VehicleCore:
         if msg.get("state") not in ("frame", "surveying"):
             self.stats["nav_unusable_state"] += 1
             return self._take()
+        from .navigator import plausible  # issue 32: an implausible nav never reaches the channel or the filter
+
+        if plausible.refuse(msg, self.t0_s + self.nav.t, self.record, self.stats):  # (its filter time: its clock)
+            return self._take()
         pos_n = np.asarray(msg["pos_m"], float)
         cov_n = np.asarray(msg["cov_m2"], float)
         if not (np.all(np.isfinite(pos_n)) and np.all(np.isfinite(cov_n))):
