@@ -200,6 +200,10 @@ class InsAircraftCore:
         if msg.get("state") not in ("frame", "surveying"):
             self.stats["nav_unusable_state"] += 1
             return []
+        from .navigator import plausible  # issue 32: an implausible nav never reaches the channel or a filter
+
+        if plausible.refuse(msg, float(phy["t_true_s"]), self.ac, self.stats):
+            return []
         t_rx, rho = self.measure(phy, msg, noise=False)
         s = np.asarray(msg["pos_m"], dtype=float)
         t_nav = self.t0_s + self.imu_steps * self.tn.dt_s if self.ekf is None else self.ekf.t_s
