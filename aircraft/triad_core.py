@@ -260,6 +260,10 @@ class TriadAircraftCore:
         if msg.get("state") not in ("frame", "surveying"):
             self.stats["nav_unusable_state"] += 1
             return []
+        from .navigator import plausible  # issue 32: an implausible nav never reaches the channel or a filter
+
+        if plausible.refuse(msg, float(phy["t_true_s"]), self.ac, self.stats):
+            return []
         src = int(msg["src"])
         s_n = np.asarray(msg["pos_m"], dtype=float)
         cov_n = np.asarray(msg.get("cov_m2", np.zeros((3, 3))), dtype=float)
