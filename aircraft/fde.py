@@ -44,9 +44,14 @@ eigenvalue of the horizontal position covariance and ``K_H = sqrt(-2 ln I)`` (a 
 is not covered by them (the test's own false-alarm / detection figures are measured by
 ``larns bench integrity --aircraft``).
 
-Implementation: the masked measurements get a range sigma of ``sigma_out_m`` (1e5 m) in the update,
-which removes their information (for differences too: an inflated base variance leaves the others'
-differences); a gated epoch is re-run from the saved prior with the gated station masked.
+Implementation: an unbatched filter (the live aircraft) re-runs the update from the saved prior
+without its masked measurements - a gated or excluded measurement is *dropped*, however far off it
+is (issue 32). A batch of Monte Carlo runs, whose masks differ per run, gives the masked
+measurements a range sigma of ``sigma_out_m`` (1e5 m) instead, which removes their information (for
+differences too: an inflated base variance leaves the others' differences) up to ``nu / sigma_out``
+of an absurd value; a gated epoch is re-run from the saved prior with the gated station masked. The
+statistics (``nu``, ``S``, the window sums) are those of the update with every measurement, the
+masked ones at ``sigma_out_m``, in both cases.
 """
 
 from __future__ import annotations
@@ -134,6 +139,7 @@ class FilterFde:
         self.rwin: dict = {}  # station id -> deque of (w', tested) of its last ``window`` measurements
         self.g_thr = float(chi2_quantile(cfg.p_gate, 1))
         self.streak = np.zeros(self.shape, dtype=int)  # consecutive gated updates per run
+        self.dropped_updates = 0  # unbatched updates left out whole (every measurement masked)
 
     def restart(self) -> None:
         """A new filter (after a reset): empty window, unarmed; the exclusions stand."""
@@ -156,17 +162,46 @@ class FilterFde:
     def _sigma(self, tuning, masked: np.ndarray):
         return None if not masked.any() else np.where(masked, self.cfg.sigma_out_m, tuning.sigma_m)
 
+    def _apply(self, trk, masked, stations_m, rho_m, station_cov_m2, dt_s, bias_kw) -> None:
+        """The update that counts. An unbatched filter (the live aircraft) *drops* its masked
+        measurements: they are left out of the update, so a value however far off moves nothing
+        (issue 32: a 1e12 m position given ``sigma_out_m`` still moved the aircraft 581 m). A batch of
+        Monte Carlo runs (``shape``), whose masks differ per run, gives them ``sigma_out_m`` instead."""
+        if self.shape or not masked.any():
+            trk.update(stations_m, rho_m, station_cov_m2, dt_s, sigma_m=self._sigma(trk.tuning, masked), **bias_kw)
+            return
+        keep = np.flatnonzero(~masked)
+        if keep.size < (1 if trk.layout.kind == "pr" else 2):
+            self.dropped_updates += 1  # nothing usable left: the prior stands
+            return
+        m = masked.size
+        kw = dict(bias_kw)
+        if kw.get("bias_ids") is not None:
+            kw["bias_ids"] = [kw["bias_ids"][j] for j in keep]
+        if kw.get("bias_var_m2") is not None and np.ndim(kw["bias_var_m2"]):
+            kw["bias_var_m2"] = np.asarray(kw["bias_var_m2"])[keep]
+        sig = trk.tuning.sigma_m
+        sig = None if np.ndim(sig) == 0 else np.broadcast_to(np.asarray(sig, float), (m,))[keep]
+        trk.update(np.asarray(stations_m)[keep], np.asarray(rho_m)[..., keep],
+                   None if station_cov_m2 is None else np.asarray(station_cov_m2)[keep],
+                   None if dt_s is None else np.asarray(dt_s)[keep], sigma_m=sig, **kw)
+
     # -- the update
     def update(self, trk, stations_m, rho_m, ids, station_cov_m2=None, dt_s=None, **bias_kw):
-        """``trk.update`` with the gate, the window test and exclusion; returns its (nu, S)."""
+        """``trk.update`` with the gate, the window test and exclusion; returns its (nu, S) (about the
+        prior, every measurement of the batch, the masked ones with ``sigma_out_m``: the tests' view)."""
         ids = list(ids)
         masked = self.mask(ids)
         armed = self.n_updates >= self.cfg.arm_after
-        saved = trk.save() if armed else None
+        drop = not self.shape and bool(masked.any())  # unbatched: masked measurements are dropped
+        saved = trk.save() if armed or drop else None
         nu, S = trk.update(stations_m, rho_m, station_cov_m2, dt_s, sigma_m=self._sigma(trk.tuning, masked),
                            **bias_kw)
         self.n_updates += 1
         if not armed:
+            if drop:
+                trk.restore(saved)
+                self._apply(trk, masked, stations_m, rho_m, station_cov_m2, dt_s, bias_kw)
             return nu, S
         F = fault_vectors(trk.layout.kind, len(ids), trk.base)
         q, w = snooping(nu, S, F)
@@ -180,8 +215,11 @@ class FilterFde:
         if np.any(gate):
             trk.restore(saved)
             masked2 = masked | (gate[..., None] & (np.arange(len(ids)) == jmax[..., None]))
-            trk.update(stations_m, rho_m, station_cov_m2, dt_s, sigma_m=self._sigma(trk.tuning, masked2), **bias_kw)
+            self._apply(trk, masked2, stations_m, rho_m, station_cov_m2, dt_s, bias_kw)
             self.gated += gate
+        elif drop:
+            trk.restore(saved)
+            self._apply(trk, masked, stations_m, rho_m, station_cov_m2, dt_s, bias_kw)
         self._push(ids, q, d, w)
         self._test(trk.t_s)
         return nu, S
