@@ -39,6 +39,7 @@ from nav.rotations import euler_from_dcm
 from net.clock import broadcast_clock_var_m2
 from net.nettime import pseudorange_time_error_s
 
+from .journal import AcJournal
 from .navigator import receiver as rx
 from .navigator.ins_ekf import JAC_FORCE_TC_S, InsEkf, InsTuning
 from .navigator.ins_start import SideTest, StartConfig, enough, moved_on, radio_fix, start
@@ -75,24 +76,34 @@ class InsAircraftCore:
 
     def __init__(self, sc, ac, name: str, rng: np.random.Generator, imu: str = "adis16480",
                  height_m: float | None = None, seed: int | None = None, t0_s: float = 0.0, net_clock=None):
-        self.name = name
+        from .node import radio_record
+
+        # --- world: motion, field, IMU emulator, channel ---------------------------------------------
         self.net_clock = net_clock  # station 1's oscillator: network time (None: perfect clocks)
         self.ac = ac
-        self.t0_s = float(t0_s)  # fleet time of the aircraft's start (motion time 0, first IMU step)
         self.field = Field.from_scenario(sc)
         self.motion = motion_from_config(ac.trajectory, height_m if height_m is not None else ac.height_m)
-        self.preset = preset(imu)
         self.rng = rng
-        cm = wclock.ClockModel()
-        self.tn = InsTuning.from_preset(self.preset, sigma_range_m=ac.sigma_m, q_b=cm.q_b_m2_s, q_d=cm.q_d_m2_s3,
-                                        p0_clock_m=cm.b0_sigma_m, p0_drift_m_s=cm.d0_sigma_m_s,
-                                        jac_force_tc_s=JAC_FORCE_TC_S)
-        self.L = es.ErrorLayout()
-        self.start_cfg = StartConfig()
-        self.imu = ImuEmulator(self.preset, 1, rng)
+        self.imu = ImuEmulator(preset(imu), 1, rng)
         self._imu_seed = [int(sc.seed if seed is None else seed), 0x1B0, sum(map(ord, name))]
         self._block_id = -1
         self._block: tuple[np.ndarray, np.ndarray] | None = None
+        # --- navigator: what a receiver knows (its init record, aircraft/journal.py) -----------------
+        record = dict(radio_record(ac, ()), kind="ins", imu=imu, sigma_range_m=float(ac.sigma_m), t0_s=float(t0_s))
+        self._navigator(record, name)
+        self._inputs = None  # the replay's samples (from_record); None: the emulator above
+        self.journal = AcJournal(name, record)
+
+    def _navigator(self, record: dict, name: str) -> None:
+        self.name = name
+        self.t0_s = float(record["t0_s"])  # fleet time of the aircraft's start (motion time 0, first IMU step)
+        self.preset = preset(record["imu"])
+        cm = wclock.ClockModel()
+        self.tn = InsTuning.from_preset(self.preset, sigma_range_m=record["sigma_range_m"], q_b=cm.q_b_m2_s,
+                                        q_d=cm.q_d_m2_s3, p0_clock_m=cm.b0_sigma_m, p0_drift_m_s=cm.d0_sigma_m_s,
+                                        jac_force_tc_s=JAC_FORCE_TC_S)
+        self.L = es.ErrorLayout()
+        self.start_cfg = StartConfig()
         self.ekf: InsEkf | None = None  # created by the start (navigator/ins_start.py)
         n_w = int(round(self.start_cfg.window_s / self.tn.dt_s))
         self._imu_buf: deque = deque(maxlen=n_w + 30 * int(round(1.0 / self.tn.dt_s)))  # (step, g, a)
@@ -105,27 +116,49 @@ class InsAircraftCore:
         self.stats: Counter[str] = Counter()
         self._pacer = rx.StatusPacer()
 
+    @classmethod
+    def from_record(cls, record: dict, name: str, inputs) -> "InsAircraftCore":
+        """The navigator alone, fed the IMU samples of a journal (:class:`aircraft.journal.Inputs`)."""
+        core = cls.__new__(cls)
+        core._navigator(record, name)
+        core._inputs = inputs
+        core.journal = None
+        return core
+
+    def _imu_sample(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """IMU step ``k``: (gyro, accel) increments (1, 3) each, emulated in blocks (world; journaled)
+        or, in a replay, the journal's."""
+        if self._inputs is not None:
+            return self._inputs.sample(k)
+        b, i = divmod(k, self.BLOCK)
+        if b != self._block_id:
+            dt = self.tn.dt_s
+            dth, dv = self.motion.increments(b * self.BLOCK * dt, dt, self.BLOCK)
+            self.imu.rng = np.random.default_rng(self._imu_seed + [b])
+            self._block = self.imu.measure(dth, dv)
+            self._block_id = b
+        g, a = self._block
+        self.journal.imu(k, self.t0_s + (k + 1) * self.tn.dt_s, g[i], a[i])
+        return g[i], a[i]
+
     def advance_to(self, t_s: float) -> int:
         """Integrate every IMU step that ends at or before ``t_s``; returns how many were run."""
-        dt = self.tn.dt_s
-        n = int(np.floor((t_s - self.t0_s) / dt + 1e-9)) - self.imu_steps
+        n = int(np.floor((t_s - self.t0_s) / self.tn.dt_s + 1e-9)) - self.imu_steps
         if n <= 0:
             return 0
-        for _ in range(n):
-            b, i = divmod(self.imu_steps, self.BLOCK)
-            if b != self._block_id:
-                dth, dv = self.motion.increments(b * self.BLOCK * dt, dt, self.BLOCK)
-                self.imu.rng = np.random.default_rng(self._imu_seed + [b])
-                self._block = self.imu.measure(dth, dv)
-                self._block_id = b
-            g, a = self._block
+        self.step_to(self.imu_steps + n)
+        return n
+
+    def step_to(self, k_end: int) -> None:
+        """Navigator side: integrate IMU steps up to (excluding) ``k_end``."""
+        while self.imu_steps < k_end:
+            g, a = self._imu_sample(self.imu_steps)
             if self.ekf is None:
-                self._imu_buf.append((self.imu_steps, g[i], a[i]))
+                self._imu_buf.append((self.imu_steps, g, a))
             else:
-                self.ekf.imu(g[i], a[i])
+                self.ekf.imu(g, a)
                 self.ekf.maybe_propagate()
             self.imu_steps += 1
-        return n
 
     def _try_start(self, t_rx: float) -> bool:
         """Start the EKF at the last IMU grid time before ``t_rx`` if the window before it holds enough
@@ -196,7 +229,9 @@ class InsAircraftCore:
         return self.ac.sigma_m * float(self.rng.standard_normal())
 
     def on_nav(self, msg: dict, phy: dict) -> list[dict]:
-        """One nav broadcast -> the ``ac_estimate`` of ``ins-ekf`` (with attitude in ``extra``)."""
+        """One nav broadcast -> ``ac_truth`` + the ``ac_estimate`` of ``ins-ekf`` (with attitude in
+        ``extra``). World side: the channel layer; the navigator gets (and the journal records) only
+        the broadcasts it can still use (not late for its IMU time)."""
         if msg.get("state") not in ("frame", "surveying"):
             self.stats["nav_unusable_state"] += 1
             return []
@@ -211,24 +246,32 @@ class InsAircraftCore:
             self.stats["nav_bad_or_late"] += 1
             return []
         rho += self.noise_m()
-        cov = np.asarray(msg.get("cov_m2", np.zeros((3, 3))), dtype=float)
+        cov = msg.get("cov_m2", [[0.0] * 3] * 3)
+        cvar = broadcast_clock_var_m2(msg)
+        self.journal.m(t_rx, int(msg["src"]), msg["pos_m"], cov, cvar, rho)
+        return [self._truth_msg(t_rx)] + self.measurement(float(t_rx), int(msg["src"]), msg["pos_m"], cov, cvar,
+                                                           float(rho))
+
+    def measurement(self, t_rx: float, src: int, pos_m, cov_m2, cvar: float, rho: float) -> list[dict]:
+        """Navigator side: one measured broadcast (a journal ``m`` entry) -> ``ac_estimate`` / ``ac_status``."""
+        s = np.asarray(pos_m, dtype=float)
+        cov = np.asarray(cov_m2, dtype=float)
         if self.ekf is None and not self._try_start(t_rx):  # still listening: keep it for the start
-            self._win.append((t_rx, s, cov, rho, self.tn.sigma_range_m**2 + broadcast_clock_var_m2(msg),
-                              str(msg.get("src"))))
+            self._win.append((t_rx, s, cov, rho, self.tn.sigma_range_m**2 + cvar, str(src)))
             self.stats["start_buffered"] += 1
-            return [self._truth_msg(t_rx)] + self._status(t_rx, rx.WAITING, "starting: collecting broadcasts")
+            return self._status(t_rx, rx.WAITING, "starting: collecting broadcasts")
         self.advance_to(t_rx + self.tn.dt_s)  # the step that contains t_rx
         if self.ekf.t_s < t_rx:
             self.advance_to(self.ekf.t_s + self.tn.dt_s)
         d = self.ekf.position_at(t_rx)[0] - s
         u = d / np.linalg.norm(d)
-        var = self.tn.sigma_range_m**2 + float(u @ cov @ u) + broadcast_clock_var_m2(msg)
+        var = self.tn.sigma_range_m**2 + float(u @ cov @ u) + cvar
         self.ekf.pseudorange(t_rx, s, np.array([rho]), var)
         self.stats["measurements"] += 1
         est = self.estimate_msg()
         if not rx.publishable(est["pos_m"], est["cov_m2"], rx.ReceiverConfig()):
-            return [self._truth_msg(t_rx)] + self._status(t_rx, rx.NO_FIX)
-        return [self._truth_msg(t_rx), est] + self._status(t_rx, rx.TRACKING)
+            return self._status(t_rx, rx.NO_FIX)
+        return [est] + self._status(t_rx, rx.TRACKING)
 
     def _status(self, t_s: float, state: str, detail: str | None = None) -> list[dict]:
         """The navigator's ``ac_status`` when due (aircraft/navigator/receiver.py StatusPacer)."""

@@ -42,6 +42,7 @@ from net.nettime import network_time, pseudorange_time_error_s
 
 from net.queues import DropOldestQueue
 
+from .journal import AcJournal
 from .navigator import receiver as rx
 
 
@@ -75,28 +76,37 @@ class AircraftCore:
     def __init__(self, ac, algos, name: str, rng: np.random.Generator,
                  height_m: float | None = None, horizon_s: float = 7200.0, net_clock=None):
         from . import trajectory
-        from .estimators import AircraftEstimator, EstimatorConfig
 
         self.ac = ac
-        self.name = name
         self.rng = rng
         dt = 1.0 / max(ac.rate_hz, 10.0)
         t = np.arange(0.0, horizon_s + dt, dt)
         h = height_m if height_m is not None else ac.height_m
         self.track = trajectory.from_config(dict(ac.trajectories.get(ac.trajectory.get("kind"), {}), **ac.trajectory),
                                             t, ac.centre_m, h)
-        # the filters start from the broadcasts alone (aircraft/initializer.py), never from the truth
-        # or the scenario's station positions; init_sigma_m only widens the wide prior
-        from .initializer import InitConfig
-
-        init = InitConfig() if not ac.init_sigma_m else InitConfig(
-            wide_sigma_m=max(InitConfig.wide_sigma_m, float(ac.init_sigma_m)))
-        cfg = EstimatorConfig(tuning=ac.tuning, init=init)
-        self.estimators = {a: AircraftEstimator(a, cfg) for a in algos}
         self.net_clock = net_clock  # station 1's oscillator: network time (None: perfect clocks)
+        self._navigator(radio_record(ac, algos), name, tuple(algos))
+        # the navigator's journal (aircraft/journal.py); none when another core navigates (--imu, triad)
+        self.journal = AcJournal(name, radio_record(ac, algos)) if algos else None
+
+    def _navigator(self, record: dict, name: str, algos: tuple[str, ...]) -> None:
+        """The navigator side: the estimators of ``algos`` configured by the init record."""
+        from .estimators import AircraftEstimator
+
+        self.name = name
+        self.estimators = {a: AircraftEstimator(a, estimator_config(record)) for a in algos}
         self.seq: Counter[str] = Counter()
         self.stats: Counter[str] = Counter()
         self._pacer = rx.StatusPacer()
+
+    @classmethod
+    def from_record(cls, record: dict, name: str, algos: tuple[str, ...]) -> "AircraftCore":
+        """The navigator alone (no world, no journal) for a replay of ``ac_input`` entries
+        (:func:`aircraft.journal.replay`; :meth:`measurement`)."""
+        core = cls.__new__(cls)
+        core.journal = None
+        core._navigator(record, name, algos)
+        return core
 
     def measure(self, phy: dict, msg: dict | None = None) -> tuple[float, float, np.ndarray]:
         """Channel layer: (t_rx true, pseudorange, true aircraft position at reception).
@@ -137,9 +147,18 @@ class AircraftCore:
             return []
         self.stats["measurements"] += 1
         out = [self._msg("ac_truth", t_s=t_rx, pos_m=p_true.tolist(), vel_m_s=self.track.at(t_rx)[1].tolist())]
+        if self.journal is not None:
+            self.journal.m(t_rx, int(msg["src"]), msg["pos_m"], st_cov, cvar, rho)
+        return out + self.measurement(t_rx, int(msg["src"]), msg["pos_m"], st_cov, cvar, rho)
+
+    def measurement(self, t_rx: float, src: int, pos_m, st_cov, cvar: float, rho: float) -> list[dict]:
+        """Navigator side: one measured broadcast (a journal ``m`` entry) -> ``ac_estimate`` /
+        ``ac_status`` messages."""
+        out: list[dict] = []
+        st_cov = np.asarray(st_cov, float)
         for algo, est in self.estimators.items():
             n = est.n_updates
-            est.on_measurement(t_rx, int(msg["src"]), msg["pos_m"], st_cov, rho, clock_var_m2=cvar)
+            est.on_measurement(t_rx, src, pos_m, st_cov, rho, clock_var_m2=cvar)
             e = est.estimate() if est.n_updates != n and est.tracker_or_fix() else None
             state = est.status
             if e is not None and not rx.publishable(e["pos_m"], e["cov_m2"], est.cfg.receiver or rx.ReceiverConfig()):
@@ -165,6 +184,28 @@ class AircraftCore:
     def _msg(self, kind: str, **fields: Any) -> dict:
         self.seq[kind] += 1
         return {"kind": kind, "src": self.name, "seq": self.seq[kind], "stamp_s": float(fields["t_s"]), **fields}
+
+
+def radio_record(ac, algos) -> dict:
+    """The radio navigator's init record (``ac_init``): the algorithms, the scenario's filter tuning
+    and the start's wide prior. Every aircraft journal carries the tuning, so the radio filters can
+    re-run on any aircraft's measurements."""
+    from dataclasses import asdict
+
+    return {"kind": "radio", "algos": list(algos), "tuning": asdict(ac.tuning),
+            "init_sigma_m": None if not ac.init_sigma_m else float(ac.init_sigma_m)}
+
+
+def estimator_config(record: dict):
+    """The :class:`aircraft.estimators.EstimatorConfig` of an init record. The filters start from the
+    broadcasts alone (aircraft/initializer.py), never from the truth or the scenario's station
+    positions; ``init_sigma_m`` only widens the wide prior."""
+    from .estimators import EstimatorConfig, Tuning
+    from .initializer import InitConfig
+
+    s = record.get("init_sigma_m")
+    init = InitConfig() if not s else InitConfig(wide_sigma_m=max(InitConfig.wide_sigma_m, float(s)))
+    return EstimatorConfig(tuning=Tuning(**record["tuning"]), init=init)
 
 
 def integrity_fields(e: dict) -> dict:
@@ -258,9 +299,21 @@ class AircraftNode:
             except Exception as e:
                 log.exception("aircraft %s: ins-ekf failed on nav from %s", self.opts.name, msg.get("src"))
                 self.drops.drop("estimator", type(e).__name__)
+        self._publish(outs + self._journal_msgs())
+
+    def _journal_msgs(self, close: bool = False) -> list[dict]:
+        """The navigator's journal messages that are due (all of them at ``close``)."""
+        j = self.core.journal if self.ins is None else self.ins.journal
+        if j is None:
+            return []
+        return j.close() if close else j.take()
+
+    def _publish(self, outs: list[dict]) -> None:
+        M = self.M
         for m in outs:
             try:
-                self.bus.publish(M.key_for(m), M.encode(m))
+                # the journal waits for room (a hole would stop its offline re-flight there); the rest drops
+                self.bus.publish(M.key_for(m), M.encode(m), block=m["kind"] in ("ac_init", "ac_input"))
             except M.MessageError as e:
                 log.error("aircraft %s: refusing to send invalid %s: %s", self.opts.name, m["kind"], e)
 
@@ -311,6 +364,7 @@ class AircraftNode:
             try:
                 if self.ins is not None:  # integrate behind fleet time so delayed broadcasts still fit
                     self.ins.advance_to(t - self.ins.lag_s * self.opts.speed)
+                    self._publish(self._journal_msgs())
                 item = self._inbox.get(timeout=0.1 if self.ins is None else self.ins.tn.dt_s)
             except queue.Empty:
                 continue
@@ -321,6 +375,7 @@ class AircraftNode:
                 self._ingest(*item)
             except Exception as e:
                 self.drops.drop("core", type(e).__name__)
+        self._publish(self._journal_msgs(close=True))  # the last journal entries
         return self.report()
 
     def report(self) -> dict:

@@ -47,6 +47,7 @@ from .ins_core import motion_from_config
 from net.clock import broadcast_clock_var_m2
 from net.nettime import pseudorange_time_error_s
 
+from .journal import AcJournal
 from .navigator import receiver as rx
 from .navigator import field_tie as ft
 from .navigator.ins_ekf import InsTuning
@@ -75,48 +76,69 @@ class TriadAircraftCore:
                  height_m: float | None = None, seed: int | None = None, t0_s: float = 0.0, net_clock=None,
                  sigma_sat_m: float = 3.0, mask_deg: float = 10.0, baro: wbaro.BaroModel | None = None,
                  sigma_tie_m: tuple = (0.05, 0.05, 0.1)):
+        from .node import radio_record
+
         if n_sv < 0:
             raise ValueError("--satellites must be >= 0")
-        self.name, self.ac, self.net_clock = name, ac, net_clock
-        self.n_sv = int(n_sv)
-        self.t0_s = float(t0_s)
+        self.ac, self.net_clock = ac, net_clock
         self.seed = int(sc.seed if seed is None else seed)
         self._key = [self.seed, 0x7A1, sum(map(ord, name))]
         self.field = Field.from_scenario(sc)
         self.frame = TriadFrame(*ORIGIN)
         self.alm = gps_like()
         self.motion = motion_from_config(ac.trajectory, height_m if height_m is not None else ac.height_m)
-        self.imu_name = imu or DEFAULT_IMU
-        self.preset = preset(self.imu_name).with_(rate_hz=float(imu_rate_hz))
-        self.sigma_sat_m, self.mask_deg = float(sigma_sat_m), float(mask_deg)
         self.baro_model = baro or wbaro.BaroModel()
-        cm = wclock.ClockModel()
-        self.tn = InsTuning.from_preset(self.preset, sigma_range_m=ac.sigma_m, q_b=cm.q_b_m2_s, q_d=cm.q_d_m2_s3,
-                                        sigma_baro_m=self.baro_model.sigma_m,
-                                        sigma_baro_bias_m=self.baro_model.sigma_bias_m,
-                                        tc_baro_s=self.baro_model.tc_s, max_prop_s=1.0)
-        self.spe = int(round(self.EPOCH_S * self.preset.rate_hz))
-        self.n_init = int(round(self.INIT_WINDOW_S * self.preset.rate_hz))
-        self.imu = ImuEmulator(self.preset, 1, np.random.default_rng(self._key + [1]))
+        pre = preset(imu or DEFAULT_IMU).with_(rate_hz=float(imu_rate_hz))
+        self.imu = ImuEmulator(pre, 1, np.random.default_rng(self._key + [1]))
         self._block_id, self._block = -1, None
         # --- world: the sky at the start, the tie stations' geodetic survey, the baro bias --------
         p0 = self.motion.pva(np.array([0.0]))[0][0]
-        s0 = self.frame.from_ecef(self.alm.ecef(self.t0_s)[0])
+        s0 = self.frame.from_ecef(self.alm.ecef(float(t0_s))[0])
         el0 = satellite_elevation_deg(s0, p0[None, :])
-        vis = np.flatnonzero(el0 >= self.mask_deg)
-        self.visible = vis[np.argsort(-el0[vis])]  # the full sky of the start window, highest first
-        if self.n_sv > self.visible.size:
-            raise ValueError(f"--satellites {self.n_sv}: only {self.visible.size} above the mask at the start")
-        self.sat_ids = self.visible[: self.n_sv]
-        self.station_ids = [int(s["id"]) for s in sorted(sc.raw["stations"], key=lambda s: int(s["id"]))]
-        self.tie_ids = self.station_ids[:3]
+        vis = np.flatnonzero(el0 >= float(mask_deg))
+        visible = vis[np.argsort(-el0[vis])]  # the full sky of the start window, highest first
+        if int(n_sv) > visible.size:
+            raise ValueError(f"--satellites {n_sv}: only {visible.size} above the mask at the start")
+        station_ids = [int(s["id"]) for s in sorted(sc.raw["stations"], key=lambda s: int(s["id"]))]
         rng_s = np.random.default_rng(self._key + [2])
-        self.sigma_tie_m = np.asarray(sigma_tie_m, float)
         true_l = self.to_local(self.field.stations_n[:3])
-        self.tie_surveyed_m = true_l + self.sigma_tie_m * rng_s.standard_normal((3, 3))  # navigator's database
+        surveyed = true_l + np.asarray(sigma_tie_m, float) * rng_s.standard_normal((3, 3))  # navigator's database
         self._baro_b = float(np.random.default_rng(self._key + [3]).normal(0.0, self.baro_model.sigma_bias_m))
-        self._baro_t = self.t0_s
-        # --- navigator ---------------------------------------------------------------------------
+        self._baro_t = float(t0_s)
+        # --- navigator: what a receiver knows (its init record, aircraft/journal.py) ---------------
+        b = self.baro_model
+        record = dict(radio_record(ac, ()), kind="triad", n_sv=int(n_sv), imu=imu or DEFAULT_IMU,
+                      imu_rate_hz=float(imu_rate_hz), sigma_range_m=float(ac.sigma_m), t0_s=float(t0_s),
+                      sigma_sat_m=float(sigma_sat_m), mask_deg=float(mask_deg),
+                      baro=[float(b.sigma_m), float(b.sigma_bias_m), float(b.tc_s)],
+                      visible=[int(i) for i in visible], tie_ids=station_ids[:3],
+                      sigma_tie_m=[float(x) for x in sigma_tie_m], tie_surveyed_m=surveyed.tolist())
+        self._inputs = None  # the replay's samples and epochs (from_record); None: the world above
+        self.journal = AcJournal(name, record)
+        self._navigator(record, name)
+
+    def _navigator(self, record: dict, name: str) -> None:
+        self.name = name
+        self.n_sv = int(record["n_sv"])
+        self.t0_s = float(record["t0_s"])
+        if not hasattr(self, "frame"):
+            self.frame = TriadFrame(*ORIGIN)
+            self.alm = gps_like()
+        self.imu_name = record["imu"]
+        self.preset = preset(self.imu_name).with_(rate_hz=float(record["imu_rate_hz"]))
+        self.sigma_sat_m, self.mask_deg = float(record["sigma_sat_m"]), float(record["mask_deg"])
+        sb, sbb, tcb = record["baro"]
+        cm = wclock.ClockModel()
+        self.tn = InsTuning.from_preset(self.preset, sigma_range_m=record["sigma_range_m"], q_b=cm.q_b_m2_s,
+                                        q_d=cm.q_d_m2_s3, sigma_baro_m=sb, sigma_baro_bias_m=sbb, tc_baro_s=tcb,
+                                        max_prop_s=1.0)
+        self.spe = int(round(self.EPOCH_S * self.preset.rate_hz))
+        self.n_init = int(round(self.INIT_WINDOW_S * self.preset.rate_hz))
+        self.visible = np.asarray(record["visible"], dtype=int)
+        self.sat_ids = self.visible[: self.n_sv]
+        self.tie_ids = [int(i) for i in record["tie_ids"]]
+        self.sigma_tie_m = np.asarray(record["sigma_tie_m"], float)
+        self.tie_surveyed_m = np.asarray(record["tie_surveyed_m"], float)
         self.ekf: TriadEkf | None = None
         self._window: list[np.ndarray] = []  # (N_vis,) pseudoranges per start epoch
         self._window_t: list[float] = []
@@ -128,6 +150,15 @@ class TriadAircraftCore:
         self.stats: Counter[str] = Counter()
         self._pacer = rx.StatusPacer()
         self._epoch(0)
+
+    @classmethod
+    def from_record(cls, record: dict, name: str, inputs) -> "TriadAircraftCore":
+        """The navigator alone, fed the IMU samples and epochs of a journal (:class:`aircraft.journal.Inputs`)."""
+        core = cls.__new__(cls)
+        core._inputs = inputs
+        core.journal = None
+        core._navigator(record, name)
+        return core
 
     # ---------------------------------------------------------------------------- world
     def to_local(self, p_n: np.ndarray) -> np.ndarray:
@@ -183,17 +214,26 @@ class TriadAircraftCore:
         filter's satellite + baro update."""
         t = self.t0_s + k * self.EPOCH_S
         if self.ekf is None:
-            self._window.append(self._sky(k, self.visible))
+            self._window.append(self._epoch_data(k, self.visible, False)[0])
             self._window_t.append(t)
             if k * self.spe >= self.n_init:
                 self._start()
             return
-        z = self._sky(k, self.sat_ids)
+        z, baro = self._epoch_data(k, self.sat_ids, True)
         ok = np.isfinite(z)
-        baro = self._baro(k)
         s = self.ekf.epoch(Epoch(self.ekf.t_s, self.sat_ids[ok], z[None, ok], baro_m=np.array([baro])))
         self.stats["sat_used"] += s["sat_used"]
         self.stats["sat_masked"] += s["sat_masked"] + int(np.sum(~ok))
+
+    def _epoch_data(self, k: int, ids: np.ndarray, with_baro: bool) -> tuple[np.ndarray, float | None]:
+        """Epoch ``k``'s satellite pseudoranges of ``ids`` (NaN below the mask) and, after the start,
+        the baro height: from the world (journaled) or, in a replay, from the journal."""
+        if self._inputs is not None:
+            return self._inputs.epoch(k)
+        z = self._sky(k, ids)
+        baro = self._baro(k) if with_baro else None
+        self.journal.sv(k, self.t0_s + k * self.EPOCH_S, z, baro)
+        return z, baro
 
     def _start(self) -> None:
         rho = np.stack(self._window)[None]  # (1, K, N_vis)
@@ -219,30 +259,43 @@ class TriadAircraftCore:
         self.ekf = TriadEkf(self.tn, self.alm, self.frame, st.p, st.v, st.C, st.clk, st.P0, self.sigma_sat_m,
                             self.mask_deg, t_ref)
         self.init_sigma_m = float(np.sqrt(np.trace(cov[0, :3, :3])))
-        self._baro(int(round((t_ref - self.t0_s) / self.EPOCH_S)))  # the bias walks from the start
+        if self._inputs is None:  # world: the baro bias walks from the start
+            self._baro(int(round((t_ref - self.t0_s) / self.EPOCH_S)))
 
     def advance_to(self, t_s: float) -> int:
         """Integrate every IMU step that ends at or before ``t_s`` (with the epochs on whole seconds)."""
-        dt = self.tn.dt_s
-        n = int(np.floor((t_s - self.t0_s) / dt + 1e-9)) - self.imu_steps
-        for _ in range(max(n, 0)):
-            b, i = divmod(self.imu_steps, self.BLOCK)
-            if b != self._block_id:
-                dth, dv = self.motion.increments(b * self.BLOCK * dt, dt, self.BLOCK)
-                self.imu.rng = np.random.default_rng(self._key + [1, b])
-                self._block = self.imu.measure(dth, dv)
-                self._block_id = b
-            g, a = self._block
+        n = int(np.floor((t_s - self.t0_s) / self.tn.dt_s + 1e-9)) - self.imu_steps
+        self.step_to(self.imu_steps + max(n, 0))
+        return max(n, 0)
+
+    def _imu_sample(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """IMU step ``k`` (gyro, accel) (1, 3) each: emulated in blocks (world; journaled) or the journal's."""
+        if self._inputs is not None:
+            return self._inputs.sample(k)
+        b, i = divmod(k, self.BLOCK)
+        if b != self._block_id:
+            dt = self.tn.dt_s
+            dth, dv = self.motion.increments(b * self.BLOCK * dt, dt, self.BLOCK)
+            self.imu.rng = np.random.default_rng(self._key + [1, b])
+            self._block = self.imu.measure(dth, dv)
+            self._block_id = b
+        g, a = self._block
+        self.journal.imu(k, self.t0_s + (k + 1) * self.tn.dt_s, g[i], a[i])
+        return g[i], a[i]
+
+    def step_to(self, k_end: int) -> None:
+        """Navigator side: integrate IMU steps up to (excluding) ``k_end``, with the epochs."""
+        while self.imu_steps < k_end:
+            g, a = self._imu_sample(self.imu_steps)
             if self.ekf is None:
-                self._f_sum += a[i, 0]
-                self._w_sum += g[i, 0]
+                self._f_sum += a[0]
+                self._w_sum += g[0]
             else:
-                self.ekf.imu(g[i], a[i])
+                self.ekf.imu(g, a)
                 self.ekf.maybe_propagate()
             self.imu_steps += 1
             if self.imu_steps % self.spe == 0:
                 self._epoch(self.imu_steps // self.spe)
-        return max(n, 0)
 
     def _station_local(self, src: int) -> tuple[np.ndarray, np.ndarray] | None:
         """The broadcast station ``src`` in the Earth-tied frame and its covariance (3, 3), via the tie."""
@@ -266,41 +319,46 @@ class TriadAircraftCore:
             return []
         src = int(msg["src"])
         s_n = np.asarray(msg["pos_m"], dtype=float)
-        cov_n = np.asarray(msg.get("cov_m2", np.zeros((3, 3))), dtype=float)
-        if not (np.all(np.isfinite(s_n)) and np.all(np.isfinite(cov_n))):
+        cov_l = msg.get("cov_m2", [[0.0] * 3] * 3)
+        if not (np.all(np.isfinite(s_n)) and np.all(np.isfinite(np.asarray(cov_l, dtype=float)))):
             self.stats["nav_bad"] += 1
             return []
         t_rx, rho = self.measure(phy, msg)
         if not np.isfinite(t_rx) or t_rx < self.t0_s + self.imu_steps * self.tn.dt_s - self.tn.dt_s:
             self.stats["nav_bad_or_late"] += 1
             return []
-        # received: it enters the navigator's state (the tie's broadcast positions) whatever follows,
-        # so its ac_truth is published (the re-flight's sequence, larns/analysis/offline.py)
-        self._broadcast[src] = (s_n, cov_n)
+        # received: it enters the navigator's state (the tie's broadcast positions) whatever follows
+        cvar = broadcast_clock_var_m2(msg)
+        self.journal.m(t_rx, src, msg["pos_m"], cov_l, cvar, rho)
         pt, vt, _ = self.truth_n(t_rx)
         self.seq["ac_truth"] += 1
         out = [{"kind": "ac_truth", "src": self.name, "seq": self.seq["ac_truth"], "stamp_s": t_rx, "t_s": t_rx,
                 "pos_m": pt.tolist(), "vel_m_s": vt.tolist()}]
+        return out + self.measurement(float(t_rx), src, msg["pos_m"], cov_l, cvar, float(rho))
+
+    def measurement(self, t_rx: float, src: int, pos_m, cov_m2, cvar: float, rho: float) -> list[dict]:
+        """Navigator side: one measured broadcast (a journal ``m`` entry) -> ``ac_estimate`` / ``ac_status``."""
+        self._broadcast[src] = (np.asarray(pos_m, dtype=float), np.asarray(cov_m2, dtype=float))
         self.advance_to(t_rx + self.tn.dt_s)  # the step that contains t_rx
         if self.ekf is None:
             self.stats["nav_before_start"] += 1
-            return out + self._status(t_rx, rx.WAITING, "starting: window fix")
+            return self._status(t_rx, rx.WAITING, "starting: window fix")
         if self.ekf.t_s < t_rx:
             self.advance_to(self.ekf.t_s + self.tn.dt_s)
         loc = self._station_local(src)
         if loc is None:
             self.stats["nav_no_tie"] += 1
-            return out
+            return []
         s, cov = loc
         d = self.ekf.position_at(t_rx)[0] - s
         u = d / np.linalg.norm(d)
-        var = self.tn.sigma_range_m**2 + float(u @ cov @ u) + broadcast_clock_var_m2(msg)
+        var = self.tn.sigma_range_m**2 + float(u @ cov @ u) + cvar
         self.ekf.pseudorange(t_rx, s, np.array([rho]), var)
         self.stats["measurements"] += 1
         est = self.estimate_msg()
         if not rx.publishable(est["pos_m"], est["cov_m2"], rx.ReceiverConfig()):
-            return out + self._status(t_rx, rx.NO_FIX)
-        return out + [est] + self._status(t_rx, rx.TRACKING)
+            return self._status(t_rx, rx.NO_FIX)
+        return [est] + self._status(t_rx, rx.TRACKING)
 
     def _status(self, t_s: float, state: str, detail: str | None = None) -> list[dict]:
         """The navigator's ``ac_status`` when due (aircraft/navigator/receiver.py StatusPacer)."""

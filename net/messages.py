@@ -285,6 +285,68 @@ def _veh_journal(v: Any, name: str) -> list[list[Any]]:
     return out
 
 
+# aircraft journal (docs/replay.md "Aircraft journal"): the navigator's init record and inputs
+AC_RECORD_MAX = 64  # entries of the init record
+
+
+def _ac_value(v: Any, name: str, depth: int = 0) -> Any:
+    """A value of the aircraft init record: None, bool, a finite number, a short string, or a list
+    (<= MAX_LIST) / map (<= AC_RECORD_MAX) of them, nested at most 3 deep."""
+    if v is None or isinstance(v, bool):
+        return v
+    if type(v) is int:
+        if not -MAX_SEQ <= v <= MAX_SEQ:
+            raise MessageError("range", f"{name} out of range")
+        return v
+    if type(v) is float:
+        return _num(v, name)
+    if isinstance(v, str):
+        return _text(v, name)
+    if depth >= 3:
+        raise MessageError("shape", f"{name} nested too deep")
+    if isinstance(v, (list, tuple)) and len(v) <= MAX_LIST:
+        return [_ac_value(x, name, depth + 1) for x in v]
+    if isinstance(v, dict) and len(v) <= AC_RECORD_MAX:
+        return {_text(k, name): _ac_value(x, f"{name}.{k}", depth + 1) for k, x in v.items()}
+    raise MessageError("shape", f"{name}: unsupported value {type(v).__name__}")
+
+
+def _ac_record(v: Any, name: str) -> dict[str, Any]:
+    """The aircraft navigator's init record (aircraft/journal.py): ``kind`` radio / ins / triad and
+    the navigator's settings."""
+    if not isinstance(v, dict) or v.get("kind") not in ("radio", "ins", "triad"):
+        raise MessageError("shape", f"{name} must be a map with kind radio, ins or triad")
+    return _ac_value(v, name)
+
+
+def _opt_num(v: Any, name: str) -> float | None:
+    return None if v is None else _num(v, name)
+
+
+def _ac_journal(v: Any, name: str) -> list[list[Any]]:
+    """``[["m", t_rx, src, pos, cov, clock_var, rho] | ["imu", k0, gyro (n, 3), accel (n, 3)] |
+    ["sv", k, ranges (n,) or None each, baro or None], ...]``."""
+    if not isinstance(v, (list, tuple)) or len(v) > MAX_LIST:
+        raise MessageError("shape", f"{name} must be a list of <= {MAX_LIST} entries")
+    out: list[list[Any]] = []
+    for e in v:
+        if isinstance(e, (list, tuple)) and len(e) == 7 and e[0] == "m":
+            out.append(["m", _num(e[1], name), _station_id(e[2], name), _vec3(e[3], name), _cov33(e[4], name),
+                        _nonneg(e[5], name), _num(e[6], name)])
+        elif isinstance(e, (list, tuple)) and len(e) == 4 and e[0] == "imu":
+            g, a = _vec3_list(MAX_LIST)(e[2], name), _vec3_list(MAX_LIST)(e[3], name)
+            if len(g) != len(a):
+                raise MessageError("shape", f"{name}: imu entry with unequal gyro / accel lengths")
+            out.append(["imu", _count(e[1], name), g, a])
+        elif isinstance(e, (list, tuple)) and len(e) == 4 and e[0] == "sv" and isinstance(e[2], (list, tuple)) \
+                and len(e[2]) <= MAX_LIST:
+            out.append(["sv", _count(e[1], name), [_opt_num(x, name) for x in e[2]], _opt_num(e[3], name)])
+        else:
+            raise MessageError("shape", f"{name} entries must be ['m', t, src, pos, cov, clock_var, rho], "
+                                        "['imu', k0, gyro, accel] or ['sv', k, ranges, baro]")
+    return out
+
+
 # kind -> (required fields, optional fields); common fields added below
 _COMMON_STATION = {"src": _station_id, "seq": _count, "stamp_s": _num}
 _COMMON_AIRCRAFT = {"src": _name, "seq": _count, "stamp_s": _num}
@@ -321,6 +383,8 @@ SCHEMAS: dict[str, tuple[dict[str, Callable], dict[str, Callable]]] = {
     "veh_truth": ({**_COMMON_AIRCRAFT, "t_s": _num, "pos_m": _vec3, "vel_m_s": _vec3}, {"extra": _extra}),
     "veh_init": ({**_COMMON_AIRCRAFT, "record": _veh_record}, {}),
     "veh_input": ({**_COMMON_AIRCRAFT, "entries": _veh_journal}, {}),
+    "ac_init": ({**_COMMON_AIRCRAFT, "record": _ac_record}, {}),
+    "ac_input": ({**_COMMON_AIRCRAFT, "entries": _ac_journal}, {}),
 }
 DECISIONS = ("exclude", "readmit")
 
@@ -525,6 +589,8 @@ def key_for(msg: dict[str, Any]) -> str:
         return aircraft_key(src, "truth")
     if kind == "ac_status":
         return aircraft_key(src, "status", msg["algo"])
+    if kind in ("ac_init", "ac_input"):
+        return aircraft_key(src, kind[3:])
     if kind.startswith("veh_"):
         return vehicle_key(src, {"veh_estimate": "estimate", "veh_truth": "truth", "veh_init": "init",
                                  "veh_input": "input"}[kind])

@@ -27,8 +27,10 @@ from typing import Any, Sequence
 from ..log import LogFile, LogWriter, Msg, merge, read_logs
 from ..log.series import Journal, collect_journals, decode, decoded
 
-JOURNAL_TOPICS = ["larns/station/*/init", "larns/station/*/input", "larns/station/*/estimate",
-                  "larns/vehicle/*/init", "larns/vehicle/*/input", "larns/vehicle/*/estimate", "larns/vehicle/*/truth"]
+JOURNAL_TOPICS = ["larns/station/*/init", "larns/station/*/input", "larns/station/*/estimate", "larns/station/*/truth",
+                  "larns/vehicle/*/init", "larns/vehicle/*/input", "larns/vehicle/*/estimate", "larns/vehicle/*/truth",
+                  "larns/aircraft/*/init", "larns/aircraft/*/input", "larns/aircraft/*/estimate/*",
+                  "larns/aircraft/*/truth"]
 VEHICLE_FIELDS = ("t_s", "pos_m", "cov_m2", "vel_m_s", "vel_cov", "algo", "n_updates", "extra", "seq", "stamp_s")
 ESTIMATE_FIELDS = ("t_s", "pos_m", "cov_m2", "n_updates", "estimator", "state", "seq", "stamp_s")
 
@@ -45,10 +47,18 @@ class StationResult:
     compared: int = 0
     equal: int = 0
     first_mismatch: dict | None = None
+    recorded_estimator: str | None = None  # the estimator of the recorded estimates
+    rerun: dict = field(default_factory=dict)     # accuracy of the re-run estimates (:func:`accuracy`)
+    recorded_accuracy: dict = field(default_factory=dict)  # ... of the recorded ones
 
     @property
     def bit_exact(self) -> bool:
         return self.compared > 0 and self.equal == self.compared
+
+    @property
+    def same_estimator(self) -> bool:
+        """Whether the re-run ran the recorded estimator (then it must reproduce it bit for bit)."""
+        return self.recorded_estimator is None or self.recorded_estimator == self.estimator
 
 
 def same_estimate(a: dict, b: dict) -> bool:
@@ -81,6 +91,7 @@ def reestimate_station(j: Journal, estimator: str | None = None, epoch_unix_s: f
         res.error = f"cannot rebuild core: {type(e).__name__}: {e}"
         return res
     res.estimator = core.est.name
+    res.recorded_estimator = next((m["estimator"] for _r, m in j.estimates.values()), None)
     policy = PublishPolicy(j.id)
     for m, entries in inputs:
         res.n_inputs += 1
@@ -114,6 +125,23 @@ def reestimate_station(j: Journal, estimator: str | None = None, epoch_unix_s: f
     return res
 
 
+def station_accuracy(results: dict[int, StationResult], journals: dict[int, Journal], msgs: Sequence[Msg]) -> None:
+    """Each re-estimated station's accuracy against its recorded truth (``truth`` topic: the last true
+    position), for the re-run and for the recorded estimates (:func:`accuracy`)."""
+    truth: dict[int, list] = {}
+    mine = (m for m in msgs if m.encoding == "msgpack" and m.topic.startswith("larns/station/")
+            and m.topic.endswith("/truth"))
+    for _m, msg, _phy in decoded(mine):
+        if msg["kind"] == "truth":
+            truth[msg["src"]] = msg["pos_m"]
+    for sid, r in results.items():
+        p = truth.get(sid)
+        at = (lambda t, p=p: p) if p is not None else (lambda t: None)
+        r.rerun = accuracy([o for _lt, _pt, o in r.estimates], at)
+        r.recorded_accuracy = accuracy([msg for _m, msg in sorted(journals[sid].estimates.values(),
+                                                                   key=lambda x: x[1]["seq"])], at)
+
+
 @dataclass
 class OfflineResult:
     stations: dict[int, StationResult]
@@ -138,9 +166,11 @@ class OfflineResult:
                 "cpu_s": self.cpu_s, "speedup": self.speedup, "speedup_cpu": self.speedup_cpu, "output": self.output,
                 "stations": {sid: {"estimator": r.estimator, "inputs": r.n_inputs, "entries": r.n_entries,
                                    "estimates": len(r.estimates), "compared": r.compared, "equal": r.equal,
-                                   "bit_exact": r.bit_exact, "missing_from": r.missing_from, "error": r.error}
+                                   "bit_exact": r.bit_exact, "missing_from": r.missing_from, "error": r.error,
+                                   "same_estimator": r.same_estimator, "rerun": r.rerun,
+                                   "recorded_accuracy": r.recorded_accuracy}
                              for sid, r in self.stations.items()},
-                "aircraft": {k: {a: {kk: vv for kk, vv in v.items() if kk not in ("estimates", "truth")}
+                "aircraft": {k: {a: {kk: vv for kk, vv in v.items() if kk not in ("estimates", "first_mismatch")}
                                  for a, v in d.items()} for k, d in self.aircraft.items()},
                 "vehicles": {k: {kk: vv for kk, vv in v.items() if kk != "estimates"} for k, v in self.vehicles.items()}}
 
@@ -154,18 +184,22 @@ def fleet_span_s(logs: Sequence[LogFile], msgs: Sequence[Msg]) -> float:
 
 def run_offline(paths: Sequence[str | Path], output: str | Path | None = None, estimator: str | None = None,
                 stations: Sequence[int] | None = None, strict: bool = True, logs: Sequence[LogFile] | None = None,
-                progress: bool = False, algos: Sequence[str] | None = None,
-                scenario: str | None = None) -> OfflineResult:
-    """Re-estimate every station with a journal; optionally write ``output`` (all recorded messages
-    with the station estimates replaced by the re-estimated ones)."""
+                progress: bool = False, algos: Sequence[str] | None = None) -> OfflineResult:
+    """Re-estimate every station, aircraft and vehicle with a journal (``algos``: other aircraft
+    algorithms on the same inputs); optionally write ``output`` (all recorded messages with the
+    estimates replaced by the re-estimated ones)."""
     import time
 
+    from aircraft.models import ALGOS
+
+    bad = [a for a in (algos or ()) if a not in ALGOS + ("ins-ekf", "triad")]
+    if bad:
+        raise ValueError(f"unknown aircraft algorithm {bad[0]!r}; choose from {', '.join(ALGOS + ('ins-ekf', 'triad'))}")
     t0 = time.perf_counter()
     c0 = time.process_time()
     if logs is None:
-        # without an output file or the aircraft, only the journal and estimate channels are needed
-        sel = None if (output is not None or algos) else JOURNAL_TOPICS
-        logs = read_logs(paths, topics=sel)
+        # without an output file, only the journal, estimate and truth channels are needed
+        logs = read_logs(paths, topics=None if output is not None else JOURNAL_TOPICS)
     logs = list(logs)
     msgs = merge(logs)
     journals = collect_journals(msgs, strict=strict)
@@ -184,9 +218,9 @@ def run_offline(paths: Sequence[str | Path], output: str | Path | None = None, e
             bar.update(1)
     if bar:
         bar.close()
+    station_accuracy(results, journals, msgs)
     res = OfflineResult(results, len(msgs), fleet_span_s(logs, msgs))
-    if algos:
-        res.aircraft = reestimate_aircraft(logs, msgs, algos, scenario)
+    res.aircraft = reestimate_aircraft(msgs, algos, ep, speed)
     res.vehicles = reestimate_vehicles(msgs, ep, speed)
     if output is not None:
         write_output(output, logs, msgs, results, estimator, res.aircraft, res.vehicles)
@@ -216,12 +250,9 @@ def write_output(output: str | Path, logs: Sequence[LogFile], msgs: Sequence[Msg
             new.append(Msg(M.key_for(o), lt, pt, o["seq"], M.encode(o)))
     for name, per_algo in (aircraft or {}).items():
         for algo, d in per_algo.items():
-            key = f"larns/aircraft/{name}/estimate/{algo}"
-            replaced.add(key)
-            new += d.get("estimates", [])
-        replaced.add(f"larns/aircraft/{name}/truth")
-        first = next(iter(per_algo.values()), {})
-        new += first.get("truth", [])
+            if d.get("error") is None:
+                replaced.add(f"larns/aircraft/{name}/estimate/{algo}")
+                new += d.get("estimates", [])
     for name, d in (vehicles or {}).items():
         if d.get("estimates"):
             replaced.add(f"larns/vehicle/{name}/estimate")
@@ -240,223 +271,218 @@ def write_output(output: str | Path, logs: Sequence[LogFile], msgs: Sequence[Msg
                 w.write(topic, data, lt, pt, "json", schema_for(sname))
 
 
-def aircraft_nav_sequence(msgs: Sequence[Msg], name: str) -> tuple[list[tuple[Msg, dict, dict]], str]:
-    """The nav broadcasts the aircraft measured, in its order, and how that order was obtained.
+# --------------------------------------------------------------------------- aircraft
 
-    The aircraft publishes an ``ac_truth`` (``t_s`` = true reception time) for every broadcast it
-    measured, so its truth topic identifies them: the broadcast whose true transmit time lies within
-    a millisecond (the time of flight) before each reception. If that topic is complete (seq 1..n,
-    every reception matched), its sequence is used ("aircraft"); otherwise every recorded usable nav
-    in recorded order ("recorder")."""
+@dataclass
+class AircraftJournal:
+    """What a recording holds of one aircraft: its navigator's init record and journal inputs by seq
+    (``ac_init``, ``ac_input``: aircraft/journal.py), its estimates per algorithm and its truth."""
+
+    name: str
+    init: dict | None = None
+    inputs: dict[int, tuple[int, list]] = field(default_factory=dict)  # seq -> (log_time, entries)
+    estimates: dict[str, list[tuple[int, dict]]] = field(default_factory=dict)  # algo -> [(log_time, msg)]
+    truth: list[tuple[float, list, list]] = field(default_factory=list)  # (t_s, pos_m, vel_m_s)
+
+    def contiguous(self) -> tuple[list[list], int | None, int]:
+        """The journal's entries from input 1 up to the first hole, that hole's seq (None: none) and
+        the number of inputs used."""
+        out: list[list] = []
+        k = 1
+        while k in self.inputs:
+            out += self.inputs[k][1]
+            k += 1
+        return out, (k if self.inputs and k <= max(self.inputs) else None), k - 1
+
+
+def collect_aircraft(msgs: Sequence[Msg]) -> dict[str, AircraftJournal]:
+    """Every aircraft of a recording (validated payloads, attributed by key)."""
+    out: dict[str, AircraftJournal] = {}
+    mine = (m for m in msgs if m.encoding == "msgpack" and m.topic.startswith("larns/aircraft/"))
+    for m, msg, _phy in decoded(mine):
+        a = out.setdefault(msg["src"], AircraftJournal(msg["src"]))
+        k = msg["kind"]
+        if k == "ac_init" and a.init is None:
+            a.init = msg["record"]
+        elif k == "ac_input":
+            a.inputs.setdefault(int(msg["seq"]), (m.log_time, msg["entries"]))
+        elif k == "ac_estimate":
+            a.estimates.setdefault(msg["algo"], []).append((m.log_time, msg))
+        elif k == "ac_truth":
+            a.truth.append((float(msg["t_s"]), msg["pos_m"], msg.get("vel_m_s") or [0.0, 0.0, 0.0]))
+    for a in out.values():
+        a.truth.sort(key=lambda r: r[0])
+    return out
+
+
+def accuracy(ests: Sequence[dict], truth_at) -> dict[str, float]:
+    """RMS position error against the recording's truth and mean sigma ``sqrt(trace P)`` over the
+    second half of ``ests`` (past the start-up), and how many estimates that is."""
+    import numpy as np
+
+    rows = [(truth_at(e["t_s"]), e) for e in ests]
+    rows = [(p, e) for p, e in rows if p is not None]
+    half = rows[len(rows) // 2:]
+    if not half:
+        return {"rms_err_m": math.nan, "mean_sigma_m": math.nan, "samples": 0}
+    err = np.array([np.linalg.norm(np.subtract(e["pos_m"], p)) for p, e in half])
+    sig = np.array([math.sqrt(max(float(np.trace(np.asarray(e["cov_m2"], float))), 0.0)) for _p, e in half])
+    return {"rms_err_m": float(np.sqrt(np.mean(err**2))), "mean_sigma_m": float(sig.mean()), "samples": len(half)}
+
+
+def _truth_at(truth: Sequence[tuple[float, list, list]]):
+    """The aircraft's true position at ``t`` from its ``ac_truth`` samples: the nearest one moved on by
+    its velocity (within 1 s; None beyond)."""
     import bisect
 
+    import numpy as np
 
-    navs: list[tuple[float, Msg, dict, dict]] = []
-    rx: dict[int, float] = {}
-    truth_key = f"larns/aircraft/{name}/truth"
-    mine = (m for m in msgs if m.encoding == "msgpack" and (m.topic.endswith("/nav") or m.topic == truth_key))
-    for m, msg, phy in decoded(mine):
-        if m.topic == truth_key:
-            rx.setdefault(msg["seq"], msg["t_s"])
-        elif msg["kind"] == "nav" and phy is not None:
-            navs.append((phy["t_true_s"], m, msg, phy))
-    recorder = [(m, msg, phy) for _t, m, msg, phy in navs]
-    if not rx or 1 not in rx:
-        return recorder, "recorder"
-    by_t = sorted(navs, key=lambda x: x[0])
-    ts = [x[0] for x in by_t]
-    seq: list[tuple[Msg, dict, dict]] = []
-    k = 1
-    while k in rx:
-        t = rx[k]
-        i = bisect.bisect_right(ts, t) - 1
-        if i < 0 or t - ts[i] > 1e-3:
-            break
-        seq.append(by_t[i][1:])
-        k += 1
-    if k > max(rx):
-        return seq, "aircraft"
-    # a truth sample is missing: the aircraft's sequence up to there, then the recorder's
-    t_last = rx[k - 1] if k > 1 else -math.inf
-    rest = [x[1:] for x in navs if x[0] > t_last]
-    return seq + rest, f"aircraft up to measurement {k - 1}, then recorder"
+    ts = [r[0] for r in truth]
+
+    def at(t: float):
+        i = bisect.bisect_left(ts, t)
+        cand = [j for j in (i - 1, i) if 0 <= j < len(ts)]
+        if not cand:
+            return None
+        j = min(cand, key=lambda j: abs(ts[j] - t))
+        if abs(ts[j] - t) > 1.0:
+            return None
+        return np.asarray(truth[j][1], float) + np.asarray(truth[j][2], float) * (t - ts[j])
+    return at
 
 
-def _aircraft_world(logs, scenario, name, seed):
-    """(recording metadata, scenario, [aircraft] config, aircraft name, world seed) for a re-flight."""
-    from aircraft.config import from_scenario
-    from net.scenario import load
-
-    md = logs[0].larns_meta if logs else {}
-    scn_name = scenario or md.get("scenario")
-    if not scn_name:
-        raise ValueError("aircraft re-estimation needs the scenario: pass --scenario")
-    scn = load(scn_name)
-    ac = from_scenario(scn)
-    return md, scn, ac, name or ac.name, scn.seed if seed is None else seed
-
-
-def _refly(core, navs, ep: float | None, speed: float) -> tuple[list[Msg], list[tuple[dict, Msg]]]:
-    """Feed the nav broadcasts to an aircraft core: its ``ac_truth`` records and (estimate, record)
-    pairs, stamped like the live process would have published them."""
+def _valid(outs: Sequence[dict]) -> tuple[list[dict], int]:
+    """The replayed ``ac_estimate`` messages as the live process published them (validated and
+    normalized; the ones it refused to send are counted, not kept)."""
     from net import messages as M
 
-    truth: list[Msg] = []
-    flown: list[tuple[dict, Msg]] = []
-    for m, msg, phy in navs:
-        for o in core.on_nav(msg, phy):
-            pub = m.log_time if ep is None else int(round((ep + o["stamp_s"] / speed) * 1e9))
-            rec = Msg(M.key_for(o), m.log_time, pub, o["seq"], M.encode(o))
-            if o["kind"] == "ac_truth":
-                truth.append(rec)
-            else:
-                flown.append((o, rec))
-    return truth, flown
-
-
-def _compare(new: list[dict], recorded: list[dict], keys: Sequence[str]) -> tuple[list[bool], int]:
-    """Re-flown vs recorded estimates matched by the per-algorithm update count (robust to recorded
-    estimates lost on the way): (equal flags, length of the equal prefix)."""
-    rec_by_n = {y.get("n_updates"): y for y in recorded}
-    same = [all(x.get(k) == rec_by_n[x.get("n_updates")].get(k) for k in keys)
-            for x in new if x.get("n_updates") in rec_by_n]
-    return same, (same.index(False) if False in same else len(same))
-
-
-def _algo_result(err: Sequence[float], recorded: list[dict], new: list[dict], keys: Sequence[str], order: str,
-                 est: list[Msg], truth: list[Msg]) -> dict:
-    """One algorithm's re-flight: error statistics (RMS after the first 10 %: filter start-up) and the
-    comparison with the recorded estimates."""
-    import numpy as np
-
-    e = np.asarray(err)
-    tail = e[len(e) // 10:] if e.size else e
-    same, prefix = _compare(new, recorded, keys)
-    return {"n": int(e.size), "final_err_m": float(e[-1]) if e.size else math.nan,
-            "rms_err_m": float(np.sqrt(np.mean(tail**2))) if tail.size else math.nan,
-            "recorded": len(recorded), "compared": len(same), "equal": int(sum(same)),
-            "equal_prefix": prefix, "sequence": order, "estimates": est, "truth": truth}
-
-
-def _refly_inertial(core, logs: Sequence[LogFile], msgs: Sequence[Msg], name: str, algo: str,
-                    recorded: list[dict]) -> dict[str, dict]:
-    """Re-fly an inertial core (INS, triad) over the broadcasts it measured; bit for bit."""
-    import numpy as np
-
-    ep = logs[0].epoch_unix_s if logs else None
-    speed = logs[0].speed if logs else 1.0
-    navs, order = aircraft_nav_sequence(msgs, name)
-    truth, flown = _refly(core, navs, ep, speed)
-    flown = [(o, rec) for o, rec in flown if o["kind"] == "ac_estimate"]  # not ac_status
-    est = [rec for _o, rec in flown]
-    err = [float(np.linalg.norm(np.asarray(o["pos_m"]) - core.truth_n(o["t_s"])[0])) for o, _rec in flown]
-    new = [decode(x.data)[0] for x in est]
-    keys = ("t_s", "pos_m", "cov_m2", "vel_m_s", "n_updates", "extra")
-    return {name: {algo: _algo_result(err, recorded, new, keys, order, est, truth)}}
-
-
-def _recorded_estimates(msgs: Sequence[Msg], name: str, algo: str) -> list[dict]:
-    key = f"larns/aircraft/{name}/estimate/{algo}"
-    return [msg for _m, msg, _phy in decoded(m for m in msgs if m.encoding == "msgpack" and m.topic == key)]
-
-
-def reestimate_aircraft(logs: Sequence[LogFile], msgs: Sequence[Msg], algos: Sequence[str],
-                        scenario: str | None = None, name: str | None = None, seed: int | None = None,
-                        height_m: float | None = None) -> dict[str, dict]:
-    """Re-fly the aircraft over the recorded station nav broadcasts with other algorithms.
-
-    The aircraft process does not record its measurement inputs (pseudoranges), so they are
-    regenerated: the aircraft core (``aircraft.node.AircraftCore``: trajectory, receiver clock,
-    channel noise from the world seed) is rebuilt from the scenario and fed the recorded nav
-    messages (with their ``phy`` part) in recorded order. Deterministic for a given log, but not
-    bit-identical to the live aircraft's estimates (its Zenoh link may have delivered the navs in
-    another order or lost some). Returns ``{name: {algo: {"n", "final_err_m", "rms_err_m",
-    "estimates": [Msg], "truth": [Msg]}}}``.
-    """
-    import numpy as np
-
-    from aircraft.node import AircraftCore
-
-    if "ins-ekf" in algos:
-        return reestimate_ins(logs, msgs, scenario, name, seed, height_m)
-    if "triad" in algos:
-        return reestimate_triad(logs, msgs, scenario, name, seed, height_m)
-    md, scn, ac, name, seed = _aircraft_world(logs, scenario, name, seed)
-    horizon = float(md.get("duration_s", 7200.0)) + 10.0
-    rng = np.random.default_rng([int(seed), 0xA1C, sum(map(ord, name))])  # as aircraft.node.AircraftNode
-    from net.nettime import network_time
-
-    net_clock = network_time(scn, seed)
-    core = AircraftCore(ac, tuple(algos), name, rng, height_m, horizon_s=horizon, net_clock=net_clock)
-    ep = logs[0].epoch_unix_s if logs else None
-    speed = logs[0].speed if logs else 1.0
-    out: dict[str, dict] = {a: {"estimates": [], "truth": [], "err": []} for a in algos}
-    navs, order = aircraft_nav_sequence(msgs, name)
-    truth, flown = _refly(core, navs, ep, speed)
-    for o, rec in flown:
-        if o["kind"] != "ac_estimate":  # ac_status (waiting / restarting / no fix) has no position
+    ok, bad = [], 0
+    for o in outs:
+        if o["kind"] != "ac_estimate":
             continue
-        d = out[o["algo"]]
-        d["estimates"].append(rec)
-        p_true, _ = core.track.at(o["t_s"])
-        d["err"].append(float(np.linalg.norm(np.asarray(o["pos_m"]) - p_true)))
-    # the recorded estimates of the same algorithms, in order (the aircraft core is deterministic given
-    # the world seed and the sequence of broadcasts it measured)
-    recorded: dict[str, list[dict]] = {a: [] for a in algos}
-    mine = (m for m in msgs if m.encoding == "msgpack" and m.topic.startswith(f"larns/aircraft/{name}/estimate/"))
-    for _m, msg, _phy in decoded(mine):
-        if msg["kind"] == "ac_estimate" and msg["algo"] in recorded:
-            recorded[msg["algo"]].append(msg)
-    keys = ("t_s", "pos_m", "cov_m2", "n_updates")
-    return {name: {a: _algo_result(d["err"], recorded[a], [decode(x.data)[0] for x in d["estimates"]] if recorded[a] else [],
-                                   keys, order, d["estimates"], truth) for a, d in out.items()}}
+        try:
+            ok.append(M.validate_msg(M.to_plain(o)))
+        except M.MessageError:
+            bad += 1
+    return ok, bad
 
 
-def reestimate_ins(logs: Sequence[LogFile], msgs: Sequence[Msg], scenario: str | None = None,
-                   name: str | None = None, seed: int | None = None, height_m: float | None = None,
-                   imu: str | None = None) -> dict[str, dict]:
-    """Re-fly the inertial aircraft (``ins-ekf``, aircraft/ins_core.py) over the recorded broadcasts.
+def reestimate_aircraft(msgs: Sequence[Msg], algos: Sequence[str] | None = None, epoch_unix_s: float | None = None,
+                        speed: float = 1.0) -> dict[str, dict]:
+    """Re-fly every recorded aircraft's navigator from its journal (aircraft/journal.py), no scenario,
+    no world: the recorded algorithm(s) and, with ``algos``, others on the same inputs (radio filters
+    on any aircraft's measurements; ``ins-ekf`` / ``triad`` on their own kind's journal).
 
-    The core is rebuilt with the live node's seeds and fed the nav broadcasts it measured, in its
-    order (:func:`aircraft_nav_sequence`); its IMU samples do not depend on the live loop's timing,
-    so the estimates are reproduced bit for bit (``equal == compared``). Same result layout as
-    :func:`reestimate_aircraft`.
-    """
-    import numpy as np
-
-    from aircraft.ins_core import InsAircraftCore
-
-    md, scn, ac, name, seed = _aircraft_world(logs, scenario, name, seed)
-    rng = np.random.default_rng([int(seed), 0x1A5, sum(map(ord, name))])  # as aircraft.node.AircraftNode
-    recorded = _recorded_estimates(msgs, name, "ins-ekf")
-    t0 = float(recorded[0].get("extra", {}).get("t0_s", 0.0)) if recorded else 0.0  # the aircraft's start
-    from net.nettime import network_time
-
-    net_clock = network_time(scn, seed)
-    core = InsAircraftCore(scn, ac, name, rng, imu=imu or ac.imu or "adis16480", height_m=height_m, seed=int(seed),
-                           t0_s=t0, net_clock=net_clock)
-    return _refly_inertial(core, logs, msgs, name, "ins-ekf", recorded)
+    A recorded algorithm's re-flown ``ac_estimate`` messages are compared, every field, with the
+    recorded ones of the same seq (``equal == compared``: bit for bit); a hole in the journal stops
+    the re-flight there (``missing_from``, ``stopped_at_s``). Each algorithm's accuracy (RMS error
+    against the recorded truth, mean sigma) is given for what was re-run and for what was recorded.
+    Returns ``{name: {algo: {...}}}`` (``estimates``: the re-flown messages as :class:`Msg`)."""
+    return {name: reestimate_one_aircraft(a, algos, epoch_unix_s, speed)
+            for name, a in sorted(collect_aircraft(msgs).items())}
 
 
-def reestimate_triad(logs: Sequence[LogFile], msgs: Sequence[Msg], scenario: str | None = None,
-                     name: str | None = None, seed: int | None = None, height_m: float | None = None) -> dict[str, dict]:
-    """Re-fly the triad aircraft (``triad``, aircraft/triad_core.py) over the recorded broadcasts, as
-    :func:`reestimate_ins` (bit for bit: ``equal == compared``). The number of satellites, the IMU
-    preset and rate and the start time come from the recorded estimates' ``extra``."""
+def reestimate_one_aircraft(a: AircraftJournal, algos: Sequence[str] | None, epoch_unix_s: float | None,
+                            speed: float) -> dict[str, dict]:
+    """One aircraft of :func:`reestimate_aircraft`: the recorded algorithms re-flown together (their
+    estimates carry the live process's seq numbers), each other algorithm on its own."""
+    from aircraft.journal import algos_of, can_run
 
-    from aircraft.triad_core import DEFAULT_IMU, TriadAircraftCore
-    from aircraft.world.imu import PRESETS
+    truth_at = _truth_at(a.truth)
+    recorded_algos = list(algos_of(a.init)) if a.init is not None else sorted(a.estimates)
+    wanted = list(dict.fromkeys(recorded_algos + list(algos or ())))
+    res = {x: _aircraft_result([msg for _lt, msg in a.estimates.get(x, [])], truth_at) for x in wanted}
+    entries, hole, n_inputs = a.contiguous()
+    why = ("no ac_init record: no aircraft journal in this recording" if a.init is None else
+           "no ac_input records" if not a.inputs else
+           f"journal starts at input {min(a.inputs)} (inputs from 1 not recorded)" if not entries else None)
+    if why:
+        for d in res.values():
+            d["error"] = why
+        return res
+    extra = [x for x in wanted if x not in recorded_algos]
+    for x in extra:
+        if not can_run(a.init, x):
+            res[x]["error"] = f"the journal of a {a.init['kind']} aircraft holds no inputs for {x}"
+    runs = [tuple(x for x in wanted if x in recorded_algos)] + [(x,) for x in extra if can_run(a.init, x)]
+    for run in filter(None, runs):
+        _refly(a, entries, run, res, recorded_algos, truth_at, epoch_unix_s, speed)
+        for x in run:
+            res[x].update(inputs=n_inputs, missing_from=hole)
+            if not (hole or res[x]["stopped"]):
+                res[x]["stopped_at_s"] = None
+    return res
 
-    md, scn, ac, name, seed = _aircraft_world(logs, scenario, name, seed)
-    recorded = _recorded_estimates(msgs, name, "triad")
-    x = recorded[0].get("extra", {}) if recorded else {}
-    from net.nettime import network_time
 
-    net_clock = network_time(scn, seed)
-    imu = list(PRESETS)[int(x["imu_preset"])] if "imu_preset" in x else DEFAULT_IMU
-    core = TriadAircraftCore(scn, ac, name, n_sv=int(x.get("n_sv", 4)), imu=imu, imu_rate_hz=float(x.get("imu_rate_hz", 10.0)),
-                             height_m=height_m, seed=int(seed), t0_s=float(x.get("t0_s", 0.0)), net_clock=net_clock)
-    return _refly_inertial(core, logs, msgs, name, "triad", recorded)
+def _aircraft_result(recorded: list[dict], truth_at) -> dict:
+    return {"n": 0, "recorded": len(recorded), "compared": 0, "equal": 0, "bit_exact": False, "equal_prefix": 0,
+            "first_mismatch": None, "missing_from": None, "stopped": None, "stopped_at_s": None, "error": None,
+            "invalid": 0, "inputs": 0, "rerun": {}, "recorded_accuracy": accuracy(recorded, truth_at), "estimates": []}
+
+
+def _refly(a: AircraftJournal, entries: list[list], run: tuple[str, ...], res: dict[str, dict],
+           recorded_algos: Sequence[str], truth_at, epoch_unix_s: float | None, speed: float) -> None:
+    """Re-fly the algorithms ``run`` together over ``entries``; fills their results in ``res``."""
+    from aircraft.journal import replay
+
+    try:
+        outs, stopped, t_last = replay(a.init, a.name, entries, run)
+    except Exception as e:  # a bad journal must not kill the whole run
+        for x in run:
+            res[x]["error"] = f"replay failed: {type(e).__name__}: {e}"
+        return
+    new, bad = _valid(outs)
+    for x in run:
+        d = res[x]
+        mine = [o for o in new if o["algo"] == x]
+        d.update(n=len(mine), invalid=bad, stopped=stopped, rerun=accuracy(mine, truth_at), stopped_at_s=t_last)
+        if x in recorded_algos:
+            _compare_recorded(d, mine, a.estimates.get(x, []), epoch_unix_s, speed)
+        else:
+            d["estimates"] = [_as_msg(o, None, epoch_unix_s, speed) for o in mine]
+
+
+def _as_msg(o: dict, log_time: int | None, epoch_unix_s: float | None, speed: float) -> Msg:
+    from net import messages as M
+
+    pub = int(round((epoch_unix_s + o["stamp_s"] / speed) * 1e9)) if epoch_unix_s is not None else 0
+    return Msg(M.key_for(o), log_time if log_time is not None else pub, pub, o["seq"], M.encode(o))
+
+
+def _compare_recorded(d: dict, mine: list[dict], recorded: list[tuple[int, dict]], epoch_unix_s: float | None,
+                      speed: float) -> None:
+    """Replayed against recorded estimates of the same seq, every field (floats exactly)."""
+    by_seq = {msg["seq"]: (lt, msg) for lt, msg in recorded}
+    same = []
+    for o in mine:
+        r = by_seq.get(o["seq"])
+        if r is not None:
+            same.append(o == r[1])
+            if not same[-1] and d["first_mismatch"] is None:
+                d["first_mismatch"] = {"seq": o["seq"], "recorded": r[1], "replayed": o}
+        d["estimates"].append(_as_msg(o, r[0] if r else None, epoch_unix_s, speed))
+    d.update(compared=len(same), equal=int(sum(same)), equal_prefix=same.index(False) if False in same else len(same),
+             bit_exact=bool(same) and all(same))
+
+
+def _aircraft_lines(res: "OfflineResult") -> list[str]:
+    lines = []
+    for name, per in res.aircraft.items():
+        for a, d in per.items():
+            if d.get("error"):
+                lines.append(f"aircraft {name} {a}: not re-flown: {d['error']}")
+                continue
+            cmp = ""
+            if d["recorded"] and d["compared"]:
+                cmp = f"; vs the {d['recorded']} recorded: {d['equal']}/{d['compared']} identical" + (
+                    "" if d["equal"] == d["compared"] else f" (first mismatch at seq {d['first_mismatch']['seq']})")
+            hole = ""
+            if d["missing_from"] is not None or d["stopped"]:
+                where = f"journal hole at input {d['missing_from']}" if d["missing_from"] is not None else d["stopped"]
+                hole = f"; {where}: stopped there (t = {d['stopped_at_s']:.2f} s)"
+            lines.append(f"aircraft {name} {a}: {d['n']} estimates re-flown from {d['inputs']} journal inputs{cmp}{hole}; "
+                         f"accuracy (second half) re-run {_acc(d['rerun'])}, recorded {_acc(d['recorded_accuracy'])} (RMS/sigma m)")
+    return lines
 
 
 def reestimate_vehicles(msgs: Sequence[Msg], epoch_unix_s: float | None = None, speed: float = 1.0) -> dict[str, dict]:
@@ -524,6 +550,9 @@ def rerun_vehicle(v, rec_log: dict[tuple[str, int], int], epoch_unix_s: float | 
         pub = int(round((epoch_unix_s + o["stamp_s"] / speed) * 1e9)) if epoch_unix_s is not None else lt
         d["estimates"].append(Msg(M.key_for(o), lt if lt is not None else (pub or 0), pub or 0, o["seq"], M.encode(o)))
     e_arr = np.asarray(errs)
+    truth_at = lambda t: (v.truths[t]["pos_m"] if t in v.truths else None)  # noqa: E731
+    d["rerun"] = accuracy([M.decode(x.data)[0] for x in d["estimates"]], truth_at)
+    d["recorded_accuracy"] = accuracy(v.estimates, truth_at)
     d.update(n=len(ests), bit_exact=d["compared"] > 0 and d["equal"] == d["compared"],
              rms_err_m=float(np.sqrt(np.mean(e_arr**2))) if e_arr.size else math.nan,
              max_err_m=float(e_arr.max()) if e_arr.size else math.nan,
@@ -531,32 +560,35 @@ def rerun_vehicle(v, rec_log: dict[tuple[str, int], int], epoch_unix_s: float | 
     return d
 
 
+def _acc(x: dict) -> str:
+    return "-" if not x or not x.get("samples") else f"{x['rms_err_m']:.3f}/{x['mean_sigma_m']:.3f}"
+
+
 def format_result(res: OfflineResult, compare: bool = True) -> str:
+    """The table of ``larns reestimate``: per station whether the re-run reproduces the recorded
+    estimates and the accuracy of both (RMS error against the recorded truth / mean sigma, m, over
+    the second half of the estimates); then each aircraft algorithm and vehicle."""
     lines = [f"{'station':>7} {'estimator':>9} {'inputs':>6} {'entries':>7} {'estimates':>9} "
-             f"{'compared':>8} {'bit-exact':>9}  notes"]
+             f"{'compared':>8} {'bit-exact':>9} {'re-run rms/sigma m':>18} {'recorded rms/sigma m':>20}  notes"]
     for sid, r in sorted(res.stations.items()):
         notes = []
         if r.error:
             notes.append(r.error)
         if r.missing_from is not None:
             notes.append(f"journal hole at input {r.missing_from}: stopped there")
-        if r.first_mismatch is not None:
+        same = compare and r.same_estimator
+        if r.first_mismatch is not None and same:
             notes.append(f"first mismatch at estimate seq {r.first_mismatch['seq']}")
-        exact = "-" if r.compared == 0 else ("yes" if r.bit_exact else f"{r.equal}/{r.compared}")
+        if not r.same_estimator:
+            notes.append(f"recorded: {r.recorded_estimator}")
+        exact = "-" if r.compared == 0 or not same else ("yes" if r.bit_exact else f"{r.equal}/{r.compared}")
         lines.append(f"{sid:>7} {r.estimator:>9} {r.n_inputs:>6} {r.n_entries:>7} {len(r.estimates):>9} "
-                     f"{r.compared:>8} {exact:>9}  {'; '.join(notes)}")
+                     f"{r.compared if same else '-':>8} {exact:>9} {_acc(r.rerun):>18} {_acc(r.recorded_accuracy):>20}"
+                     f"  {'; '.join(notes)}")
     lines.append(f"{res.messages_in} messages, {res.fleet_span_s:.1f} s of fleet time re-estimated in "
                  f"{res.wall_s:.2f} s wall ({res.speedup:.0f}x real time; CPU {res.cpu_s:.2f} s, "
                  f"{res.speedup_cpu:.0f}x)")
-    for name, per in res.aircraft.items():
-        for a, d in per.items():
-            cmp = ""
-            if d.get("recorded"):
-                cmp = (f"; vs the {d['recorded']} recorded: {d['equal']}/{d['compared']} identical"
-                       + ("" if d["equal"] == d["compared"] else f" (first {d['equal_prefix']} in a row)"))
-            lines.append(f"aircraft {name} {a}: {d['n']} estimates, final error {d['final_err_m']:.2f} m, "
-                         f"RMS error (after the first 10 %) {d['rms_err_m']:.2f} m{cmp} "
-                         f"[broadcast sequence: {d.get('sequence', '-')}'s]")
+    lines += _aircraft_lines(res)
     for name, d in res.vehicles.items():
         if d.get("error"):
             lines.append(f"vehicle {name}: not re-estimated: {d['error']}")
@@ -564,5 +596,6 @@ def format_result(res: OfflineResult, compare: bool = True) -> str:
         hole = "" if d["missing_from"] is None else f"; journal hole at input {d['missing_from']}: stopped there"
         lines.append(f"vehicle {name} cdekf-map: {d['n']} estimates re-run from its journal; vs the {d['recorded']} "
                      f"recorded: {d['equal']}/{d['compared']} identical{hole}; error RMS {d['rms_err_m']:.2f} m, "
-                     f"max {d['max_err_m']:.2f} m, final {d['final_err_m']:.2f} m")
+                     f"max {d['max_err_m']:.2f} m, final {d['final_err_m']:.2f} m; accuracy (second half) re-run "
+                     f"{_acc(d.get('rerun'))}, recorded {_acc(d.get('recorded_accuracy'))} (RMS/sigma m)")
     return "\n".join(lines)

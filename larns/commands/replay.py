@@ -20,11 +20,12 @@ Several input files are merged by log time. A live ``larns aircraft`` can fly ag
 log of station broadcasts: its channel layer takes the sender's true position and transmit time
 from the recorded ``phy`` part.
 
-Offline (``--offline``, no Zenoh, no sleeping): every station with a recorded core journal is
-rebuilt and re-run (``larns/analysis/offline.py``); re-running the recorded estimator reproduces the
-recorded estimates bit for bit (checked and reported), ``--estimator`` runs another survey
-estimator on the same inputs, ``--algo`` re-runs the aircraft estimators on the recorded nav
-broadcasts. ``-o out.mcap`` writes the recording with the estimates replaced.
+Offline (``--offline``, no Zenoh, no sleeping): every station, aircraft and vehicle with a recorded
+journal is rebuilt and re-run (``larns/analysis/offline.py``); re-running the recorded estimator or
+algorithm reproduces the recorded estimates bit for bit (checked and reported; ``--check`` exits 3
+otherwise), ``--estimator`` runs another survey estimator on the same inputs, ``--algo`` other
+aircraft algorithms on the aircraft's journal; each prints its accuracy against the recorded truth
+beside the recorded one's. ``-o out.mcap`` writes the recording with the estimates replaced.
 """
 
 from __future__ import annotations
@@ -115,12 +116,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def cmd_offline(args: argparse.Namespace) -> int:
-    from ..analysis.offline import format_result, run_offline
+    from ..analysis.offline import JOURNAL_TOPICS, format_result, run_offline
 
-    from ..analysis.offline import JOURNAL_TOPICS
-
-    try:  # only the journal and estimate channels unless the whole recording is rewritten
-        logs = read_logs(args.files, topics=None if (args.output or args.algo) else JOURNAL_TOPICS)
+    try:  # only the journal, estimate and truth channels unless the whole recording is rewritten
+        logs = read_logs(args.files, topics=None if args.output else JOURNAL_TOPICS)
     except (OSError, ValueError) as e:
         print(f"larns replay --offline: {e}", file=sys.stderr)
         return 1
@@ -134,25 +133,42 @@ def cmd_offline(args: argparse.Namespace) -> int:
             return 2
     try:
         res = run_offline(args.files, output=args.output, estimator=args.estimator, logs=logs,
-                          strict=not args.fast, progress=not args.quiet, algos=args.algo,
-                          scenario=args.scenario, stations=args.stations)
-    except (OSError, ValueError) as e:  # unknown algorithm, scenario not found, ...
+                          strict=not args.fast, progress=not args.quiet, algos=args.algo, stations=args.stations)
+    except (OSError, ValueError) as e:  # unknown algorithm, unwritable output, ...
         print(f"larns replay --offline: {e}", file=sys.stderr)
         return 2
     if not args.quiet:
         print(format_result(res))
     if args.json:
         print(json.dumps(res.as_dict()))
-    if args.check and not args.estimator:
-        bad = [s for s, r in res.stations.items() if r.compared and not r.bit_exact]
-        if bad or not any(r.bit_exact for r in res.stations.values()):
-            print(f"[offline] --check failed: stations not reproduced bit for bit: {bad}", file=sys.stderr)
+    if args.check:
+        bad = check_failures(res)
+        if bad:
+            print(f"[offline] --check failed: {'; '.join(bad)}", file=sys.stderr)
             return 3
-    bad_v = [n for n, d in res.vehicles.items() if not d.get("bit_exact")]
-    if args.check and bad_v:
-        print(f"[offline] --check failed: vehicles not reproduced bit for bit: {bad_v}", file=sys.stderr)
-        return 3
     return 0
+
+
+def check_failures(res) -> list[str]:
+    """What ``--check`` fails on: a station re-run with its recorded estimator, a recorded aircraft
+    algorithm or a vehicle whose re-run differs from a recorded estimate, or whose journal could not
+    be replayed; and a recording with no station reproduced at all."""
+    bad = [f"station {s}: {r.equal}/{r.compared} identical" for s, r in res.stations.items()
+           if r.same_estimator and r.compared and not r.bit_exact]
+    if res.stations and not any(r.bit_exact for r in res.stations.values() if r.same_estimator) \
+            and any(r.same_estimator for r in res.stations.values()):
+        bad.append("no station reproduced its recorded estimates")
+    for name, per in res.aircraft.items():
+        for algo, d in per.items():
+            if d["compared"] and d["equal"] != d["compared"]:
+                bad.append(f"aircraft {name} {algo}: {d['equal']}/{d['compared']} identical")
+            elif d["recorded"] and not d["compared"] and not d.get("error", "").startswith("no ac_init"):
+                bad.append(f"aircraft {name} {algo}: none of its {d['recorded']} recorded estimates re-flown"
+                           + (f" ({d['error']})" if d.get("error") else ""))
+    for name, d in res.vehicles.items():
+        if d.get("error") or not d.get("bit_exact"):
+            bad.append(f"vehicle {name}: " + (d["error"] or f"{d['equal']}/{d['compared']} identical"))
+    return bad
 
 
 def register(sub) -> None:
@@ -166,6 +182,7 @@ def register(sub) -> None:
         epilog=examples(
             "larns replay runs/demo.mcap --rate 2",
             "larns replay --offline runs/demo.mcap --estimator seed-ukf",
+            "larns replay --offline runs/demo.mcap --algo ekf-pr --check",
         ))
     p.add_argument("files", nargs="+", help="MCAP file(s), merged by log time")
     p.add_argument("-r", "--rate", type=float, default=1.0, help="playback rate factor (default 1)")
@@ -199,10 +216,14 @@ def add_offline_args(g) -> None:
     g.add_argument("--estimator", default=None, help="survey estimator for the stations (dmap, seed-ukf); "
                                                      "default: the recorded one")
     g.add_argument("--algo", action="append", default=None,
-                   help="aircraft algorithm to re-run on the recorded nav broadcasts (repeatable)")
+                   help="another aircraft algorithm to re-fly on the recorded aircraft journal (repeatable; "
+                        "radio filters on any aircraft's measurements, ins-ekf / triad on their own kind's); "
+                        "the recorded algorithms are always re-flown and compared")
     g.add_argument("--scenario", default=None,
-                   help="scenario for aircraft re-estimation (default: the recording's metadata)")
+                   help="not needed any more: the aircraft journal carries its navigator's settings (accepted "
+                        "for older command lines, unused)")
     g.add_argument("--stations", type=int, nargs="+", default=None, help="only these station ids")
     g.add_argument("--fast", action="store_true", help="skip strict validation of the journal payloads")
     g.add_argument("--check", action="store_true",
-                   help="exit 3 unless every re-estimated station reproduces its recorded estimates bit for bit")
+                   help="exit 3 unless every re-run station (recorded estimator), aircraft (recorded algorithms) "
+                        "and vehicle reproduces its recorded estimates bit for bit")

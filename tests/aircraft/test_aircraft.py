@@ -347,7 +347,7 @@ def test_aircraft_node_shell_drops_garbage_and_publishes_valid_messages():
         def __init__(self):
             self.sent = []
 
-        def publish(self, key, data):
+        def publish(self, key, data, block=False):
             self.sent.append((key, data))
 
     scn = load("seed003", clock={"model": "perfect"})  # hand-made navs stamped on true time

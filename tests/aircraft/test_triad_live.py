@@ -1,5 +1,5 @@
 """The live triad core (aircraft/triad_core.py): messages in, estimates out, no Zenoh; its offline
-re-flight (larns/analysis/offline.py ``reestimate_triad``) reproduces them bit for bit."""
+re-flight from its journal (larns/analysis/offline.py ``reestimate_aircraft``) reproduces them bit for bit."""
 
 from __future__ import annotations
 
@@ -35,7 +35,7 @@ def _fly(n_sv: int, seconds: float, loop_step_s: float, seed: int = 5):
         phy = {"pos_m": sc.pos_m[j].tolist(), "t_true_s": t}
         ns = int(t * 1e9)
         msgs.append(Msg(M.key_for(msg), ns, ns, k, M.encode(msg, phy)))
-        for o in core.on_nav(msg, phy):
+        for o in core.on_nav(msg, phy) + core.journal.take():
             M.validate_msg(o)
             msgs.append(Msg(M.key_for(o), ns, ns, o["seq"], M.encode(o)))
             if o["kind"] == "ac_estimate":
@@ -44,7 +44,9 @@ def _fly(n_sv: int, seconds: float, loop_step_s: float, seed: int = 5):
 
 
 def test_triad_core_flies_and_refly_is_bit_exact():
-    from larns.analysis.offline import reestimate_triad
+    from larns.log import Msg
+    from net import messages as M
+    from larns.analysis.offline import reestimate_aircraft
 
     core, msgs, est = _fly(4, 30.0, 0.37)
     assert core.stats["nav_before_start"] > 0  # the start window (full-sky fix) drops the first broadcasts
@@ -55,10 +57,11 @@ def test_triad_core_flies_and_refly_is_bit_exact():
     e = est[-1]
     d = np.asarray(e["pos_m"]) - core.truth_n(e["t_s"])[0]
     assert d @ np.linalg.solve(np.asarray(e["cov_m2"]), d) < 3.0**2 * 3
-    res = reestimate_triad([], msgs, scenario="seed003-text", name="ac1", seed=5)["ac1"]["triad"]
-    assert res["sequence"] == "aircraft"
+    msgs += [Msg(M.key_for(o), msgs[-1].log_time, msgs[-1].log_time, o["seq"], M.encode(o)) for o in core.journal.close()]
+    res = reestimate_aircraft(msgs)["ac1"]["triad"]
+    assert res["missing_from"] is None and res["stopped"] is None
     assert res["n"] == res["recorded"] == res["compared"] == res["equal"] == len(est)
-    assert res["rms_err_m"] < 5.0
+    assert res["rerun"]["rms_err_m"] < 5.0
 
 
 def test_triad_fewer_satellites_and_bad_options():
@@ -83,7 +86,7 @@ def test_triad_live_fleet_recorded_and_reflown(tmp_path):
     import sys
     from pathlib import Path
 
-    from larns.analysis.offline import reestimate_triad
+    from larns.analysis.offline import reestimate_aircraft
     from larns.log import read_logs
 
     text = (Path(__file__).parents[2] / "net" / "scenarios" / "seed003-text.toml").read_text()
@@ -97,7 +100,7 @@ def test_triad_live_fleet_recorded_and_reflown(tmp_path):
     assert r.returncode == 0, r.stderr[-3000:]
     logs = read_logs([rec])
     msgs = [m for lf in logs for m in lf.messages]
-    res = reestimate_triad(logs, msgs, scenario=str(scn))["ac1"]["triad"]
+    res = reestimate_aircraft(msgs)["ac1"]["triad"]
     assert res["recorded"] > 50
     assert res["equal"] == res["compared"] == res["recorded"]
-    assert res["rms_err_m"] < 10.0
+    assert res["rerun"]["rms_err_m"] < 10.0

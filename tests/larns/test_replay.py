@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import signal
 import subprocess
 import sys
@@ -154,71 +155,131 @@ def test_offline_reestimation_is_bit_exact(run, tmp_path):
     assert view and all(v["estimator"] == "seed-ukf" for v in view)
 
 
-def test_offline_aircraft_other_algorithm(run, tmp_path):
-    scn, rec, _ = run
-    from larns.analysis.offline import run_offline
-
-    res = run_offline([rec], output=tmp_path / "ac.mcap", algos=["ekf-pr", "lsq-pr"], scenario=str(scn))
-    ac = res.aircraft["ac1"]
-    assert set(ac) == {"ekf-pr", "lsq-pr"}
-    for algo, d in ac.items():
-        assert d["n"] > 20 and math.isfinite(d["rms_err_m"]) and d["rms_err_m"] < 100.0, (algo, d)
-    # deterministic: a second run gives the very same numbers
-    res2 = run_offline([rec], algos=["ekf-pr"], scenario=str(scn))
-    assert res2.aircraft["ac1"]["ekf-pr"]["rms_err_m"] == ac["ekf-pr"]["rms_err_m"]
-    est = _ac_topics(tmp_path / "ac.mcap")
-    assert {"larns/aircraft/ac1/estimate/ekf-pr", "larns/aircraft/ac1/estimate/lsq-pr"} <= est
-    # the recorded algorithm, re-flown over the broadcasts the aircraft measured (identified by its
-    # truth topic), reproduces the live aircraft's estimates exactly (same world seed, same sequence)
-    r = larns("replay", str(rec), "--offline", "--algo", "ukf-pr", "--scenario", str(scn), "--json", "-q")
-    d = json.loads(r.stdout.strip().splitlines()[-1])["aircraft"]["ac1"]["ukf-pr"]
-    assert d["recorded"] > 20 and d["compared"] >= 0.9 * d["recorded"], d
-    if d["sequence"] == "aircraft":
-        assert d["equal"] == d["compared"], d
-    else:  # an aircraft truth sample was lost on the recorder's link: exact up to there, less
-        # the navs the start used (a batch per station set, up to 1 + defer_batches of them)
-        from aircraft.initializer import InitConfig
-
-        k = int(d["sequence"].split()[4].rstrip(","))
-        assert d["equal_prefix"] >= 0.9 * k - 5 * (1 + InitConfig().defer_batches), d
+def _offline_json(*args: str, check: bool = True) -> tuple[dict, subprocess.CompletedProcess]:
+    r = larns("reestimate", *args, "--json", "-q", check=check)
+    return json.loads(r.stdout.strip().splitlines()[-1]), r
 
 
-@pytest.mark.xfail(strict=False, reason=(
-    "known defect (2026-11-26, slower 2-core machine, keyed air draws): with truth sample 60 removed the "
-    "offline re-flight left the live aircraft's estimates after 25 of them, before the hole, while the "
-    "complete recording stayed equal for 93; the live/offline divergence before any hole is not explained"))
-def test_offline_aircraft_sequence_up_to_a_deliberate_hole(run, tmp_path):
-    scn, rec, _ = run
-    from larns.analysis.offline import run_offline
+def test_offline_aircraft_reflown_bit_for_bit_and_other_algorithms(run, tmp_path):
+    """The aircraft's journal re-flies every recorded estimate of every recorded algorithm bit for bit
+    (no scenario, no seeds); another algorithm runs on the same measurements and both accuracies are
+    printed; ``--check`` covers the aircraft and the vehicle."""
+    _, rec, _ = run
+    out = tmp_path / "ac.mcap"
+    res, r = _offline_json(str(rec), "--check", "--algo", "ekf-pr", "--algo", "ukf-tdoa", "-o", str(out))
+    ac = res["aircraft"]["ac1"]
+    assert set(ac) == set(ALGOS) | {"ekf-pr", "ukf-tdoa"}
+    recorded = _ac_estimates(rec)
+    for algo in ALGOS:
+        d = ac[algo]
+        assert d["error"] is None and d["missing_from"] is None and d["stopped"] is None, d
+        # 100 %: every recorded estimate re-flown, every field identical
+        assert d["recorded"] == len(recorded[algo]) > 0 and d["compared"] == d["recorded"], d
+        assert d["equal"] == d["compared"] and d["bit_exact"], d
+        # the same estimates (the re-flight may hold a last one the recorder missed) and their accuracy
+        assert d["rerun"]["samples"] >= d["recorded_accuracy"]["samples"] > 0, d
+        assert math.isfinite(d["rerun"]["rms_err_m"]) and math.isfinite(d["recorded_accuracy"]["rms_err_m"]), d
+    assert sum(ac[a]["compared"] for a in ALGOS) > 50
+    for algo in ("ekf-pr", "ukf-tdoa"):  # not recorded: accuracy only, beside the recorded filters'
+        d = ac[algo]
+        assert d["error"] is None and d["recorded"] == 0 and d["compared"] == 0 and d["n"] > 0, d
+        assert d["rerun"]["samples"] > 0 and math.isfinite(d["rerun"]["rms_err_m"]), d
+        assert 0.0 < d["rerun"]["mean_sigma_m"] < 1e4 and d["invalid"] == 0, d
+    assert res["vehicles"]["veh1"]["bit_exact"], res["vehicles"]
+    txt = larns("reestimate", str(rec), "--algo", "ekf-pr").stdout
+    assert re.search(r"aircraft ac1 ukf-pr: \d+ estimates re-flown from \d+ journal inputs; vs the (\d+) recorded: "
+                     r"\1/\1 identical; accuracy \(second half\) re-run [\d.]+/[\d.]+, recorded [\d.]+/[\d.]+", txt), txt
+    assert re.search(r"aircraft ac1 ekf-pr: \d+ estimates re-flown .*re-run [\d.]+/[\d.]+, recorded -", txt), txt
+    # the written recording holds the re-flown estimates: the recorded ones identical, the others new
+    est = _ac_estimates(out)
+    for algo in ALGOS:
+        by_seq = {m["seq"]: m for m in est[algo]}
+        assert len(by_seq) == ac[algo]["n"] and all(by_seq[m["seq"]] == m for m in recorded[algo]), algo
+    assert len(est["ekf-pr"]) == ac["ekf-pr"]["n"] and len(est["ukf-tdoa"]) == ac["ukf-tdoa"]["n"]
+    # a station survey estimator other than the recorded one: accuracy beside the recorded, no mismatch
+    res2, r2 = _offline_json(str(rec), "--estimator", "seed-ukf", "--check")
+    for sid, st in res2["stations"].items():
+        assert not st["same_estimator"] and st["rerun"]["samples"] > 3 and st["recorded_accuracy"]["samples"] > 3, st
+    txt2 = larns("reestimate", str(rec), "--estimator", "seed-ukf").stdout
+    assert "first mismatch" not in txt2 and "recorded: dmap" in txt2, txt2
 
-    # a truth sample removed on purpose: the aircraft's sequence up to the hole
+
+def test_offline_aircraft_up_to_a_deliberate_hole_and_check_fails_on_a_mismatch(run, tmp_path):
+    """One aircraft journal message removed: the re-flight is exact up to it and says where it
+    stopped; one recorded estimate altered: ``--check`` exits 3 and names it."""
+    _, rec, _ = run
     from larns.log import LogWriter, read_log
 
     lg = read_log(rec)
+    inputs = [m for m in lg.messages if m.topic == "larns/aircraft/ac1/input"]
+    assert len(inputs) >= 3
+    hole = len(inputs) // 2
     gap = tmp_path / "gap.mcap"
     with LogWriter(gap, lg.metadata) as w:
         for m in lg.messages:
-            if m.topic == "larns/aircraft/ac1/truth" and M.decode(m.data)[0]["seq"] == 60:
+            if m.topic == "larns/aircraft/ac1/input" and M.decode(m.data)[0]["seq"] == hole:
                 continue
             w.write(m.topic, m.data, m.log_time, m.publish_time)
-    g = run_offline([gap], algos=["ukf-pr"], scenario=str(scn)).aircraft["ac1"]["ukf-pr"]
-    # the sequence breaks at the first hole: ours at 60, or an earlier truth sample the recorder's link
-    # lost (seen once on a fresh-clone CI run: seq 9, in the first seconds while six processes start)
-    seqs = {M.decode(m.data)[0]["seq"] for m in lg.messages if m.topic == "larns/aircraft/ac1/truth"}
-    hole = min(min(s for s in range(1, 61) if s not in seqs or s == 60), 60)
-    assert g["sequence"] == f"aircraft up to measurement {hole - 1}, then recorder", (g["sequence"], hole)
-    info = {k: v for k, v in g.items() if k not in ("estimates", "truth")}
-    if hole == 60:
-        assert g["equal_prefix"] >= min(40, 0.9 * (hole - 1) - 5), info
-    else:  # the recorder's link lost data in the first seconds (seen on a slower 2-core machine: truth
-        # sample 27 lost, equal prefix 6 of 26): past a loss the re-flight need not be exact
-        assert g["equal_prefix"] >= 1, info
+    res, _ = _offline_json(str(gap), "--check")  # exact as far as it went: --check passes
+    t_hole = M.decode(inputs[hole - 1].data)[0]["stamp_s"]
+    for algo in ALGOS:
+        d = res["aircraft"]["ac1"][algo]
+        assert d["missing_from"] == hole and d["inputs"] == hole - 1, d
+        assert d["compared"] <= d["recorded"] and d["equal"] == d["compared"], d
+        assert d["stopped_at_s"] is not None and d["stopped_at_s"] <= t_hole, (d, t_hole)
+    per = res["aircraft"]["ac1"]
+    assert 0 < sum(per[a]["compared"] for a in ALGOS) < sum(per[a]["recorded"] for a in ALGOS), per
+    txt = larns("reestimate", str(gap)).stdout
+    assert f"journal hole at input {hole}: stopped there (t = " in txt, txt
+    # one recorded estimate altered by a millimetre: not bit for bit, --check fails and says which
+    bad = tmp_path / "bad.mcap"
+    altered = None
+    with LogWriter(bad, lg.metadata) as w:
+        for m in lg.messages:
+            data = m.data
+            if altered is None and m.topic == f"larns/aircraft/ac1/estimate/{ALGOS[0]}":
+                msg = M.decode(data)[0]
+                if msg["seq"] > 10:
+                    msg["pos_m"] = [msg["pos_m"][0] + 1e-3] + msg["pos_m"][1:]
+                    data, altered = M.encode(msg), msg["seq"]
+            w.write(m.topic, data, m.log_time, m.publish_time)
+    res3, r3 = _offline_json(str(bad), "--check", check=False)
+    assert r3.returncode == 3, r3.stderr[-2000:]
+    d = res3["aircraft"]["ac1"][ALGOS[0]]
+    assert d["equal"] == d["compared"] - 1, d
+    assert f"aircraft ac1 {ALGOS[0]}: {d['equal']}/{d['compared']} identical" in r3.stderr
 
 
-def _ac_topics(path: Path) -> set[str]:
+@pytest.mark.slow
+@pytest.mark.parametrize("algo", ["ins-ekf", "triad"])
+def test_inertial_aircraft_live_run_reflown_bit_for_bit(algo, tmp_path):
+    """A short live fleet (seed003-text over Zenoh, the recorder) with the inertial or the triad
+    aircraft: ``larns reestimate --check`` re-flies 100 % of its recorded estimates bit for bit
+    (~30-60 s each)."""
+    src = (Path(__file__).parents[2] / "net" / "scenarios" / "seed003-text.toml").read_text()
+    if algo == "triad":
+        src = re.sub(r'^algos = \["ins-ekf"\].*$', 'algos = ["triad"]\nsatellites = 2', src, flags=re.M)
+        src = re.sub(r"^imu = .*\n", "", src, flags=re.M)
+    scn = tmp_path / f"{algo}.toml"
+    scn.write_text(src)
+    rec = tmp_path / "run.mcap"
+    r = larns("fleet", "--scenario", str(scn), "--duration", "25", "--aircraft", "--record", str(rec), "--no-table",
+              timeout=240)
+    res, _ = _offline_json(str(rec), "--check")
+    d = res["aircraft"]["ac1"][algo]
+    assert d["error"] is None and d["missing_from"] is None and d["stopped"] is None, d
+    assert d["recorded"] == d["compared"] == d["equal"] > 20, (d, r.stderr[-2000:])
+
+
+def _ac_estimates(path: Path) -> dict[str, list[dict]]:
     from larns.log import read_log
 
-    return {m.topic for m in read_log(path).messages if m.topic.startswith("larns/aircraft/")}
+    out: dict[str, list[dict]] = {}
+    for m in read_log(path).messages:
+        if m.encoding == "msgpack" and m.topic.startswith("larns/aircraft/ac1/estimate/"):
+            msg = M.decode(m.data)[0]
+            out.setdefault(msg["algo"], []).append(msg)
+    return {a: sorted(v, key=lambda x: x["seq"]) for a, v in out.items()}
 
 
 # --------------------------------------------------------------------------- live replay
