@@ -52,18 +52,31 @@ def hv_errors(track: dict, truth_m) -> dict[str, np.ndarray]:
             "ev_m": np.abs(e[:, 2]), "sigma_v_m": np.sqrt(np.maximum(P[:, 2, 2], 0.0))}
 
 
-def nees_free(track: dict, truth_m, free: np.ndarray) -> np.ndarray:
-    """(K,) NEES ``e_f^T P_f^-1 e_f`` on the free coordinates ``free`` (3,) bool (Cholesky solve; NaN
-    where ``P_f`` is not positive definite)."""
-    e = (np.asarray(track["pos_m"], float) - np.asarray(truth_m, float))[:, free]
-    P = np.asarray(track["cov_m2"], float)[:, free][:, :, free]
+def free_axes(cov_m2: np.ndarray) -> np.ndarray:
+    """(..., 3) bool: the coordinates an estimate carries, those with a positive variance. A station
+    reports exact zeros on the coordinates the founders' frame fixes (station 1: all, 2: y and z,
+    3: z) and positive variances on all three once the field carries the datum."""
+    c = np.asarray(cov_m2, float)
+    return np.diagonal(c[..., :3, :3], axis1=-2, axis2=-1) > 0
+
+
+def nees_free(track: dict, truth_m, free: np.ndarray | None = None) -> np.ndarray:
+    """(K,) NEES ``e_f^T P_f^-1 e_f`` on the free coordinates ``free``: (3,) or (K, 3) bool, default
+    each estimate's own (:func:`free_axes`); Cholesky solve; NaN where ``P_f`` is not positive
+    definite or nothing is free."""
+    e = np.asarray(track["pos_m"], float) - np.asarray(truth_m, float)
+    P = np.asarray(track["cov_m2"], float)
+    F = free_axes(P) if free is None else np.broadcast_to(np.asarray(free, bool), e.shape)
     out = np.full(e.shape[0], np.nan)
     for k in range(e.shape[0]):
+        f = F[k]
+        if not f.any():
+            continue
         try:
-            L = np.linalg.cholesky(P[k])
+            L = np.linalg.cholesky(P[k][np.ix_(f, f)])
         except np.linalg.LinAlgError:
             continue
-        z = np.linalg.solve(L, e[k])
+        z = np.linalg.solve(L, e[k][f])
         out[k] = float(z @ z)
     return out
 
@@ -79,25 +92,27 @@ def nees_band(dof: np.ndarray | float, p: float = 0.95) -> tuple[np.ndarray, np.
         return chi2.ppf(0.5 * (1 - p), dd) / dd, chi2.ppf(0.5 * (1 + p), dd) / dd
 
 
-def nees_curve(tracks: dict[int, dict], truths: dict[int, Any], free: dict[int, np.ndarray],
-               grid: np.ndarray, p: float = 0.95) -> dict[str, Any]:
-    """The stations' NEES on a time grid (each station's last estimate at or before each grid time):
-    ``per_station`` {id: (G,) NEES / dof}, ``normalized`` (G,) = sum of NEES / sum of dof over the
-    stations with an estimate, ``dof`` (G,) that sum, and the band ``lo`` / ``hi`` (G,) of
-    :func:`nees_band` - exact if the stations' errors were independent (they share the frame's modes,
-    so the band is the reference a consistent filter is held to, not a strict test)."""
+def nees_curve(tracks: dict[int, dict], truths: dict[int, Any], grid: np.ndarray, p: float = 0.95) -> dict[str, Any]:
+    """The stations' NEES on their free coordinates (each estimate's own, :func:`free_axes`) on a time
+    grid (each station's last estimate at or before each grid time): ``per_station`` {id: (G,) NEES /
+    dof}, ``normalized`` (G,) = sum of NEES / sum of dof over the stations with an estimate, ``dof``
+    (G,) that sum, and the band ``lo`` / ``hi`` (G,) of :func:`nees_band` - exact if the stations'
+    errors were independent (they share the frame's modes, so the band is the reference a consistent
+    filter is held to, not a strict test)."""
     S = np.zeros(grid.size)
     D = np.zeros(grid.size)
     per = {}
     for sid, tr in tracks.items():
-        f = np.asarray(free[sid], bool)
-        if not f.any():
+        t = np.asarray(tr["t_s"], float)
+        q = hold(t, nees_free(tr, truths[sid]), grid)
+        n = hold(t, free_axes(tr["cov_m2"]).sum(axis=-1).astype(float), grid)
+        ok = np.isfinite(q) & (n > 0)
+        if not ok.any():
             continue
-        q = hold(np.asarray(tr["t_s"], float), nees_free(tr, truths[sid], f), grid)
-        per[sid] = q / f.sum()
-        ok = np.isfinite(q)
+        with np.errstate(all="ignore"):
+            per[sid] = np.where(ok, q / n, np.nan)
         S[ok] += q[ok]
-        D[ok] += f.sum()
+        D[ok] += n[ok]
     with np.errstate(all="ignore"):
         norm = np.where(D > 0, S / D, np.nan)
     lo, hi = nees_band(D, p)

@@ -45,8 +45,10 @@ def _save(plt, fig, path: Path, tight: bool = True) -> None:
 
 
 def free_of(d: dict, sid: int) -> np.ndarray:
-    """(3,) bool: the coordinates station ``sid`` estimates (a founder 1-3 fewer; a station that
-    joined a running field - ``join`` in its init record - all three)."""
+    """(3,) bool: the coordinates station ``sid`` has in the founders' frame (a founder 1-3 fewer; a
+    station that joined a running field - ``join`` in its init record - all three): the unknowns of
+    the survey's CRLB. (What an estimate carries at a given time is its covariance's business,
+    :func:`larns.analysis.consistency.free_axes`.)"""
     from stations.estimators import free_mask
 
     init = d.get("inits", {}).get(sid)
@@ -101,7 +103,7 @@ def fig_station_map(d: dict, path: Path) -> dict[str, Any]:
         if axes[k, 0] > 0:
             a.add_patch(_ellipse_patch(Em[k], mag * axes[k], ang[k], color="tab:red", lw=1.0))
         a.annotate(f"{sid}", T[k, :2], textcoords="offset points", xytext=(6, 6), fontsize=9)
-        w = _whiten(err[k], P2[k], free_of(d, sid)[:2])
+        w = _whiten(err[k], P2[k], C.free_axes(st[sid]["cov_m2"][-1])[:2])
         out["stations"][sid] = {"eh_m": float(np.hypot(*err[k])), "semi_major_m": float(axes[k, 0]),
                                 "semi_minor_m": float(axes[k, 1]), "angle_deg": float(math.degrees(ang[k])),
                                 "inside": None if w is None else bool(np.hypot(*w) <= K_SIGMA)}
@@ -150,7 +152,7 @@ def _whitened_panel(b, W) -> None:
     b.set_aspect("equal")
     b.set_xlabel("whitened horizontal error, sigma units")
     b.set_ylabel("sigma units")
-    b.set_title("Final horizontal errors in their own covariance\n(station 2: x only; station 1: fixed)", fontsize=9)
+    b.set_title("Final horizontal errors in their own covariance\n(on the axes each station estimates)", fontsize=9)
     b.grid(True, alpha=0.3)
     b.legend(fontsize=8, loc="upper right")
 
@@ -172,13 +174,13 @@ def fig_station_errors(d: dict, path: Path) -> dict[int, dict]:
     fig, axes = plt.subplots(n, 2, figsize=(10, 1.7 * n + 1.0), squeeze=False, sharex=True)
     for row, (sid, s) in zip(axes, sorted(st.items())):
         hv = C.hv_errors(s, s["truth_m"])
-        free = free_of(d, sid)
+        free = C.free_axes(s["cov_m2"][-1])
         out[sid] = {**M.station_numbers(s, s["truth_m"]), **_hv_numbers(hv, free)}
         _hv_panel(row[0], hv["t_s"], hv["eh_m"], hv["sigma_h_m"], "horizontal")
         if free[2]:
             _hv_panel(row[1], hv["t_s"], hv["ev_m"], hv["sigma_v_m"], "vertical")
         else:
-            row[1].text(0.5, 0.5, "z fixed by the frame (no vertical error)", ha="center", va="center",
+            row[1].text(0.5, 0.5, "z fixed by the founders' frame (no vertical error)", ha="center", va="center",
                         transform=row[1].transAxes, fontsize=8, color="0.4")
             row[1].set_yticks([])
         row[0].set_ylabel(f"station {sid}\nm", fontsize=8)
@@ -215,7 +217,7 @@ def _hv_numbers(hv: dict, free: np.ndarray) -> dict[str, Any]:
 def fig_nees(d: dict, st: dict[int, dict], grid: np.ndarray, path: Path, p: float = 0.95) -> dict[str, Any]:
     """NEES of the surveying stations ``st`` over ``grid`` (:func:`larns.analysis.consistency.nees_curve`)
     with its band; returns :func:`~larns.analysis.consistency.nees_numbers`."""
-    c = C.nees_curve(st, {k: v["truth_m"] for k, v in st.items()}, {k: free_of(d, k) for k in st}, grid, p)
+    c = C.nees_curve(st, {k: v["truth_m"] for k, v in st.items()}, grid, p)
     num = C.nees_numbers(c)
     if not num:
         return {}
@@ -230,8 +232,8 @@ def fig_nees(d: dict, st: dict[int, dict], grid: np.ndarray, path: Path, p: floa
     ax.set_yscale("log")
     ax.set_xlabel("fleet time, s")
     ax.set_ylabel("NEES / dof (1 = consistent)")
-    ax.set_title(f"Station NEES on the free coordinates (thin: each station / its dof; dof {num['dof']} = free "
-                 f"coordinates of {len(c['per_station'])} stations;\nband exact for independent station errors)",
+    ax.set_title(f"Station NEES on the coordinates each estimates (thin: each station / its dof; at the end dof "
+                 f"{num['dof']} over {len(c['per_station'])} stations;\nband exact for independent station errors)",
                  fontsize=9)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
@@ -289,7 +291,7 @@ def fig_aircraft_sigma(d: dict, path: Path) -> dict[str, Any]:
         eh, ev = np.hypot(e[:, 0], e[:, 1]), np.abs(e[:, 2])
         _hv_panel(ax[0], tr["t_s"], eh, sh, "horizontal")
         _hv_panel(ax[1], tr["t_s"], ev, sv, "vertical")
-        q = C.nees_free({"t_s": tr["t_s"], "pos_m": e, "cov_m2": P}, np.zeros(3), np.ones(3, bool)) / 3
+        q = C.nees_free({"t_s": tr["t_s"], "pos_m": e, "cov_m2": P}, np.zeros(3), np.ones(3, bool)) / 3  # all 3 free
         ax[2].semilogy(tr["t_s"], q, lw=0.7, color="k", label="NEES / 3")
         ax[2].axhspan(lo, hi, color="tab:green", alpha=0.2, label="95 % band of one sample (chi-square, 3 dof)")
         ax[2].grid(True, which="both", alpha=0.3)

@@ -132,23 +132,32 @@ def test_report_writes_every_figure(report):
     assert all(f"]({f})" in md for f in FIGURES)
 
 
-def test_report_numbers_hold_together(report):
+def test_report_numbers_hold_together(rec, report):
+    from larns.log.series import load
+
     res = strict_loads((report / "report.json").read_text())
     c = res["convergence"]
     # the centralized CRLB for the ranges the navs list: positive and of the errors' order
     assert c["final_crlb_horizontal_rms_m"] > 0
     assert 0.2 < c["final_rms_over_crlb"] < 10, c
-    # NEES on the free coordinates: station 2 has x, 3 has x y, 4 and 5 all three -> 9 dof
+    # NEES on the coordinates each estimate carries (positive variance; in the founders' frame
+    # station 2 has x, 3 has x y, 4 and 5 all three: 9 dof), summed over the surveying stations 2-5
+    final_cov = {sid: np.asarray(s.track()["cov_m2"][-1]) for sid, s in load([rec]).stations.items()}
+    carried = {sid: np.diag(P) > 0 for sid, P in final_cov.items()}
     ne = c["nees"]
-    assert ne["dof"] == 9 and ne["probability"] == 0.95 and ne["band"][0] < 1 < ne["band"][1]
-    # horizontal and vertical against their own sigma; stations 2 and 3 have no vertical
+    assert ne["dof"] == sum(int(carried[k].sum()) for k in (2, 3, 4, 5)) >= 9
+    assert ne["probability"] == 0.95 and ne["band"][0] < 1 < ne["band"][1]
+    # horizontal and vertical against their own sigma; no vertical where z is not carried
     st = res["stations"]
-    assert "final_ev_m" not in st["2"] and "final_ev_m" not in st["3"]
-    for k in ("4", "5"):
-        assert st[k]["final_sigma_v_m"] > 0 and st[k]["final_sigma_h_m"] > 0
+    for k in (2, 3, 4, 5):
+        assert ("final_ev_m" in st[str(k)]) == bool(carried[k][2]), k
+        assert st[str(k)]["final_sigma_h_m"] > 0
+    for k in (4, 5):
+        assert st[str(k)]["final_sigma_v_m"] > 0
     m = res["station_map"]
     assert m["sigma"] == 2 and abs(m["probability"] - 0.8647) < 1e-3 and m["magnification"] >= 1
-    assert m["stations"]["1"]["inside"] is None and m["stations"]["4"]["semi_major_m"] > 0
+    assert (m["stations"]["1"]["inside"] is None) == (not carried[1][:2].any())
+    assert m["stations"]["4"]["semi_major_m"] > 0
     # every aircraft algorithm of the run
     assert set(res["aircraft_sigma"]["ac1"]) == {"ukf-pr", "ekf-tdoa", "lsq-pr"}
     assert set(res["aircraft_track"]["ac1"]) == {"ukf-pr", "ekf-tdoa", "lsq-pr"}
@@ -189,6 +198,8 @@ def test_ellipse_and_nees_of_known_covariances():
     assert q[0] == pytest.approx(3.0) and math.isnan(q[1])  # a singular P: NaN
     q2 = nees_free(tr, np.zeros(3), np.array([True, False, False]))
     assert q2 == pytest.approx([1.0, 0.0])
+    q3 = nees_free(tr, np.zeros(3))  # each estimate's own axes: the second carries x and z
+    assert q3 == pytest.approx([3.0, 0.0])
     lo, hi = nees_band(np.array([3.0, 0.0]))
     assert lo[0] < 1 < hi[0] and math.isnan(lo[1])
 
