@@ -50,8 +50,9 @@ is (issue 32). A batch of Monte Carlo runs, whose masks differ per run, gives th
 measurements a range sigma of ``sigma_out_m`` (1e5 m) instead, which removes their information (for
 differences too: an inflated base variance leaves the others' differences) up to ``nu / sigma_out``
 of an absurd value; a gated epoch is re-run from the saved prior with the gated station masked. The
-statistics (``nu``, ``S``, the window sums) are those of the update with every measurement, the
-masked ones at ``sigma_out_m``, in both cases.
+statistics of the tests (the NIS and the ``w_i`` of the gate and the window) are those of the measurements
+in use: for pseudoranges the masked ones are taken out of ``nu`` and ``S`` (:func:`kept_part`); the
+re-admission test sees them all.
 """
 
 from __future__ import annotations
@@ -119,6 +120,19 @@ def snooping(nu: np.ndarray, S: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, 
     Sinu = chol_solve(S, nu[..., None])[..., 0]
     q = np.einsum("...d,...d->...", nu, Sinu)
     return q, g**2 / np.maximum(den, 1e-300)
+
+
+def kept_part(nu: np.ndarray, S: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pseudorange innovations ``nu`` (..., m) and covariance ``S`` (..., m, m) reduced to the measurements
+    ``keep`` (..., m) bool: the others' innovation set to 0 and their rows and columns to those of the
+    identity, so that ``nu^T S^-1 nu`` and every ``w_i`` are those of the kept measurements alone (the
+    marginal of a Gaussian). A masked measurement's innovation - with ``sigma_out_m`` an absurd value
+    still adds ``nu^2 / sigma_out^2``, 29 for 540 km - never reaches the window test (issue 32: the
+    insider's copies of station 2's navs, once 2 was excluded, had the test exclude station 1 too)."""
+    k = keep.astype(float)
+    m = nu.shape[-1]
+    Sk = S * (k[..., :, None] * k[..., None, :]) + np.eye(m) * (1.0 - k)[..., None, :]
+    return nu * k, Sk
 
 
 class FilterFde:
@@ -204,7 +218,10 @@ class FilterFde:
                 self._apply(trk, masked, stations_m, rho_m, station_cov_m2, dt_s, bias_kw)
             return nu, S
         F = fault_vectors(trk.layout.kind, len(ids), trk.base)
-        q, w = snooping(nu, S, F)
+        if trk.layout.kind == "pr" and masked.any():
+            q, w = snooping(*kept_part(nu, S, ~masked), F)  # the tests see only what is in use
+        else:
+            q, w = snooping(nu, S, F)
         w = np.where(masked, 0.0, w)
         if masked.any():
             self._readmission(trk, ids, nu, S, F, masked)

@@ -205,3 +205,30 @@ def test_a_gated_measurement_is_dropped_not_down_weighted(algo):
             f.on_measurement(t, 1, STATIONS[0], np.eye(3) * 0.01, r)
         a, b = est.estimate(), twin.estimate()
         assert np.max(np.abs(np.subtract(a["pos_m"], b["pos_m"]))) < 1e-6, (err, a["pos_m"], b["pos_m"])
+
+
+def test_an_excluded_stations_absurd_measurements_do_not_reach_the_window_test():
+    """Issue 32: once station 3 is excluded, an insider keeps sending its pseudoranges 540 km off (a
+    copy of its nav stamped 1.8 ms from its clock). Masked, each still added nu^2 / sigma_out^2 = 29 to
+    the window's NIS, the test alarmed on the others and (4 stations: at min_stations) re-admitted 3;
+    now the tests see only the measurements in use: 3 stays excluded alone, no alarm is raised by it."""
+    truth = np.array([1500.0, -800.0, 1200.0])
+    rng = np.random.default_rng(5)
+    clock = mdl.ReceiverClock()
+    est = AircraftEstimator("ukf-pr", EstimatorConfig(tuning=TUNING))
+
+    def rho(j, t):
+        return float(np.linalg.norm(truth - STATIONS[j]) + clock.bias_m(t) + TUNING.sigma_m * rng.standard_normal())
+
+    for k in range(4 * 40):
+        t = 0.1 * k
+        est.on_measurement(t, k % 4 + 1, STATIONS[k % 4], np.eye(3) * 0.01, rho(k % 4, t))
+    alarms = int(est.fde.alarms)
+    for k in range(4 * 40, 4 * 100):
+        t = 0.1 * k
+        j = k % 4
+        est.on_measurement(t, j + 1, STATIONS[j], np.eye(3) * 0.01, rho(j, t) + (5.4e5 if j == 2 else 0.0))
+    assert est.fde.excluded() == [3] and not est.fde.readmitted
+    assert int(est.fde.alarms) - alarms == 1  # the one that excluded it
+    e = est.estimate()
+    assert np.linalg.norm(np.subtract(e["pos_m"], truth)) < 10.0
