@@ -16,7 +16,6 @@ Run once (`-m matrix`); the figures are printed and quoted in docs/security.md.
 from __future__ import annotations
 
 import json
-import math
 import os
 import subprocess
 import sys
