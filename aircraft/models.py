@@ -1,6 +1,7 @@
 """Aircraft measurement and motion models (pure, vectorized over leading axes).
 
-State layouts (all in the network frame, metres and seconds):
+State layouts (all in the network frame, metres and seconds; :class:`StateLayout`, defined in
+:mod:`aircraft.navigator.radio.state`):
 
 * ``pr``   : ``[x y z vx vy vz b]`` with ``b = c * dtau`` the receiver clock offset in metres
   (seed 001 eq. 11 extended by velocity, the paper's Theta_rho for the filters);
@@ -27,27 +28,9 @@ import numpy as np
 
 from nav.geometry import SPEED_OF_LIGHT_M_S
 
+from .navigator.radio.state import StateLayout  # noqa: F401  (the layout with named blocks lives there)
+
 ALGOS = ("lsq-pr", "lsq-tdoa", "ekf-pr", "ekf-tdoa", "ukf-pr", "ukf-tdoa")
-
-
-@dataclass(frozen=True)
-class StateLayout:
-    """Which measurement model and which clock states a filter carries."""
-
-    kind: str  # "pr" or "tdoa"
-    drift: bool = False  # pr only: carry the clock rate state
-
-    @property
-    def n(self) -> int:
-        if self.kind == "tdoa":
-            return 6
-        return 8 if self.drift else 7
-
-    def __post_init__(self) -> None:
-        if self.kind not in ("pr", "tdoa"):
-            raise ValueError(f"unknown measurement model {self.kind!r} (pr or tdoa)")
-        if self.kind == "tdoa" and self.drift:
-            raise ValueError("the TDOA state has no clock")
 
 
 def g_matrix(m: int, base: int) -> np.ndarray:

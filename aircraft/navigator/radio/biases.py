@@ -1,0 +1,82 @@
+"""The stations' residual clock errors as filter states (``Tuning.clock_bias == "states"``).
+
+After the broadcast clock correction each station's range keeps a slowly varying sync error
+(docs/sync.md). Each station heard gets one first-order Gauss-Markov range bias, stationary variance
+= its broadcast clock variance ``c^2 P_theta``, correlation time ``clock_bias_tau_s``; added as the
+station is first heard, dropped (marginalized) after ``clock_bias_drop_s`` without a measurement.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from nav.pcrb import gauss_markov_block
+
+
+class ClockBiases:
+    """``ids``: station ids of the bias states, in state order after the ``n_base`` base states;
+    ``var`` their stationary variances (latest broadcast), m^2; ``t`` when each was last measured."""
+
+    def __init__(self, n_base: int, tau_s: float, drop_s: float):
+        self.n_base = n_base
+        self.tau_s = tau_s
+        self.drop_s = drop_s
+        self.ids: list = []
+        self.var = np.zeros(0)
+        self.t = np.zeros(0)
+
+    def process(self, F: np.ndarray, Q: np.ndarray, dt: float):
+        """``(F, Q)`` of the base states extended by the independent Gauss-Markov bias states."""
+        nb, n = len(self.ids), F.shape[-1]
+        if not nb:
+            return F, Q
+        A, Qb = gauss_markov_block(nb, self.var, self.tau_s, dt)
+        F = np.block([[F, np.zeros((n, nb))], [np.zeros((nb, n)), A]])
+        Q = np.block([[Q, np.zeros((n, nb))], [np.zeros((nb, n)), Qb]])
+        return F, Q
+
+    def use(self, x: np.ndarray, P: np.ndarray, ids, var_m2, t_s: float):
+        """Bias states for the stations ``ids`` (m,) with broadcast variances ``var_m2`` (m,) at ``t_s``:
+        adds a state ``N(0, var)`` (independent of the rest) for a station heard for the first time,
+        keeps the latest broadcast variance as its stationary variance, drops the states of stations
+        unheard for ``drop_s``. A station id ``None`` or a variance <= 0 (no clock correction
+        broadcast): no bias for that measurement (row of zeros).
+
+        Returns ``(x, P, D, changed)``: the filter's state with the bias states added/dropped, ``D``
+        (m, nb) (measurement j sees bias ``D[j] @ beta``), and whether the process model changed."""
+        changed = False
+        var_all = np.broadcast_to(np.asarray(var_m2, dtype=float), (len(ids),))
+        rows = [j for j, (sid, v) in enumerate(zip(ids, var_all)) if sid is not None and v > 0]
+        m_all = len(var_all)
+        ids = [ids[j] for j in rows]
+        var = var_all[rows]
+        stale = [k for k, sid in enumerate(self.ids) if sid not in ids and t_s - self.t[k] > self.drop_s]
+        if stale:
+            keep = np.setdiff1d(np.arange(x.shape[-1]), self.n_base + np.array(stale))
+            x = x[..., keep]
+            P = P[..., keep[:, None], keep]
+            self.ids = [sid for k, sid in enumerate(self.ids) if k not in stale]
+            kb = np.setdiff1d(np.arange(len(self.var)), stale)
+            self.var, self.t = self.var[kb], self.t[kb]
+            changed = True
+        new = [(sid, v) for sid, v in zip(ids, var) if sid not in self.ids]
+        if new:
+            k, n = len(new), x.shape[-1]
+            vn = np.array([v for _, v in new])
+            x = np.concatenate([x, np.zeros(x.shape[:-1] + (k,))], axis=-1)
+            P1 = np.zeros(P.shape[:-2] + (n + k, n + k))
+            P1[..., :n, :n] = P
+            P1[..., n:, n:] = np.diag(vn)
+            P = P1
+            self.ids += [sid for sid, _ in new]
+            self.var = np.concatenate([self.var, vn])
+            self.t = np.concatenate([self.t, np.full(k, t_s)])
+            changed = True
+        idx = np.array([self.ids.index(sid) for sid in ids], dtype=int)
+        if not np.array_equal(self.var[idx], var):
+            self.var[idx] = var
+            changed = True
+        self.t[idx] = t_s
+        D = np.zeros((m_all, len(self.ids)))
+        D[rows, idx] = 1.0
+        return x, P, D, changed

@@ -1,0 +1,337 @@
+"""The radio aircraft's message-level API: :class:`AircraftEstimator`, one algorithm (LSQ / EKF / UKF x
+pseudorange / TDOA) for one aircraft, shared by the aircraft node, the bench and a replay:
+``on_measurement`` (one TDMA slot), ``on_epoch`` (synchronous epoch), ``estimate()``.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ... import coords as crd
+from ... import models as mdl
+from ...fde import FdeConfig, FilterFde, fault_vectors, protection_levels, snooping
+from .. import receiver as rx
+from .lsq import lsq_cov, lsq_pr, lsq_tdoa
+from .start import consistent_start
+from .state import StateLayout
+from .tracker import CvTracker
+from .tuning import Tuning
+
+if TYPE_CHECKING:  # aircraft.initializer imports aircraft.estimators: annotation only, no import cycle
+    from ...initializer import InitConfig
+
+ALGOS = mdl.ALGOS
+
+
+# --------------------------------------------------------------------------- message-level API
+def _init_config():
+    from ...initializer import InitConfig  # the initializer imports this module
+
+    return InitConfig()
+
+
+@dataclass
+class EstimatorConfig:
+    """Configuration of one :class:`AircraftEstimator` (defaults = the bench's shared tuning)."""
+
+    tuning: Tuning = field(default_factory=Tuning)
+    min_stations: int = 4
+    # coarse external fix (like a station's init.sigma0_m): if set, filters start from the guess with
+    # this position sigma instead of a snapshot LSQ fix (needed in the far field of a small-base system,
+    # where one epoch's fix is off by kilometres)
+    guess_sigma_m: float | None = None
+    max_batch_age_s: float = 5.0  # TDMA: measurements older than this are dropped from a batch
+    # start from the broadcasts alone (aircraft/initializer.py): snapshot fix or wide prior
+    init: InitConfig | None = None
+    # filters: innovation gate, windowed residual test, exclusion, HPL/VPL (aircraft/fde.py); None = off
+    fde: FdeConfig | None = field(default_factory=FdeConfig)
+    # the receiver rules (aircraft/navigator/receiver.py): usable broadcasts, consistent start,
+    # divergence restart, publishable estimates; None = off (the benches feed synthetic epochs)
+    receiver: rx.ReceiverConfig | None = field(default_factory=rx.ReceiverConfig)
+
+
+class AircraftEstimator:
+    """One algorithm for one aircraft, fed by messages; no I/O, no clocks, no truth.
+
+    ``on_measurement(t_s, station_id, station_pos_m, station_cov_m2, rho_m, clock_var_m2)`` takes one
+    TDMA slot; ``on_epoch(t_s, station_pos_m, station_cov_m2, rho_m, station_ids, clock_var_m2)`` a
+    synchronous epoch. ``clock_var_m2``: the broadcast clock variance ``c^2 P_theta`` of the station
+    (:func:`net.clock.broadcast_clock_var_m2`): the filters carry each station's residual clock
+    error as ``tuning.clock_bias`` says (a Gauss-Markov bias state per station by default); snapshot
+    LSQ and the filter start add it to the range variance (one epoch sees each residual once).
+    Filters start from a snapshot LSQ fix of the first complete batch. ``estimate()`` returns a dict
+    or None.
+    """
+
+    def __init__(self, algo: str, config: EstimatorConfig | None = None, x0_guess_m: np.ndarray | None = None):
+        if algo not in ALGOS:
+            raise ValueError(f"unknown algorithm {algo!r}; choose from {', '.join(ALGOS)}")
+        self.algo = algo
+        self.method, self.model = algo.split("-")
+        self.cfg = config or EstimatorConfig()
+        self.tracker: CvTracker | None = None
+        self.fix: np.ndarray | None = None  # LSQ state (4,) or (3,)
+        self.t_s: float | None = None
+        self.guess = np.array([0.0, 0.0, 1000.0]) if x0_guess_m is None else np.asarray(x0_guess_m, float)
+        self._pending: dict[int, tuple[float, np.ndarray, np.ndarray, float, float]] = {}
+        self._last_geom: tuple[np.ndarray, np.ndarray | None] | None = None  # LSQ covariance
+        self.n_updates = 0
+        self.n_dropped = 0
+        self.n_resets = 0
+        self.n_deferred = 0  # batches set aside in a row at the start (InitConfig.defer_batches)
+        self.init = None  # the InitResult of the latest start (broadcast initializer)
+        self.fde = None if self.cfg.fde is None else FilterFde(self.cfg.fde)
+        rcfg = self.cfg.receiver
+        self.monitor = None if rcfg is None else rx.DivergenceMonitor(rcfg)
+        self.stats: Counter[str] = Counter()  # broadcasts not used, refused starts, restarts (by reason)
+        self.status = rx.WAITING
+
+    # -- input
+    def on_epoch(self, t_s: float, station_pos_m, station_cov_m2, rho_m, station_ids=None,
+                 clock_var_m2=None) -> None:
+        pos = np.asarray(station_pos_m, float)
+        cov = None if station_cov_m2 is None else np.asarray(station_cov_m2, float)
+        rho = np.asarray(rho_m, float)
+        if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(rho))) or pos.shape[0] != rho.shape[0]:
+            self.n_dropped += 1
+            return
+        m = len(rho)
+        ids = list(range(m)) if station_ids is None else list(station_ids)
+        cvar = np.zeros(m) if clock_var_m2 is None else np.broadcast_to(np.asarray(clock_var_m2, float), (m,))
+        if not np.all(np.isfinite(cvar)) or len(ids) != m:
+            self.n_dropped += 1
+            return
+        self._batch(t_s, pos, cov, rho, np.zeros(m), ids, cvar)
+
+    def on_measurement(self, t_s: float, station_id: int, station_pos_m, station_cov_m2, rho_m: float,
+                       clock_var_m2: float = 0.0) -> None:
+        pos = np.asarray(station_pos_m, float).reshape(3)
+        cov = np.zeros((3, 3)) if station_cov_m2 is None else np.asarray(station_cov_m2, float).reshape(3, 3)
+        cvar = float(clock_var_m2 or 0.0)
+        if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(cov)) and np.isfinite(rho_m)
+                and np.isfinite(cvar) and cvar >= 0):
+            self.n_dropped += 1
+            return
+        why = None if self.cfg.receiver is None else rx.unusable_reason(cvar, cov, self.cfg.receiver)
+        if why is not None:  # not yet synchronized / surveyed to a usable level: not used at all
+            self.stats[why] += 1
+            return
+        if self.tracker is not None and self.model == "pr":
+            # sequential scalar update at the slot's own time
+            try:
+                self.tracker.predict_to(t_s)
+                self._update(pos[None], np.array([rho_m]), cov[None], None, [station_id],
+                             bias_ids=[station_id], bias_var_m2=np.array([cvar]))
+            except np.linalg.LinAlgError:
+                self._reset()
+                return
+            if self.tracker is None:  # the divergence monitor restarted it
+                return
+            self.t_s = t_s
+            self.n_updates += 1
+            return
+        # batch: LSQ, TDOA, and filter initialisation collect one cycle (a station repeats -> flush)
+        if station_id in self._pending:
+            self._flush(t_s)
+        self._pending[station_id] = (t_s, pos, cov, float(rho_m), cvar)
+        self._pending = {k: v for k, v in self._pending.items() if t_s - v[0] <= self.cfg.max_batch_age_s}
+
+    def _flush(self, t_now: float) -> None:
+        items = sorted(self._pending.items(), key=lambda kv: kv[1][0])
+        self._pending.clear()
+        if len(items) < self.cfg.min_stations:
+            return
+        t_last = items[-1][1][0]
+        pos = np.array([v[1] for _, v in items])
+        cov = np.array([v[2] for _, v in items])
+        rho = np.array([v[3] for _, v in items])
+        cvar = np.array([v[4] for _, v in items])
+        dt = np.array([v[0] for _, v in items]) - t_last
+        self._batch(t_last, pos, cov, rho, dt, [k for k, _ in items], cvar)
+
+    def _batch(self, t_s, pos, cov, rho, dt, ids=None, cvar=None) -> None:
+        m = len(rho)
+        bias_kw, cov_trk = {}, cov
+        if cvar is not None and np.any(cvar > 0):
+            bias_kw = {"bias_ids": list(ids), "bias_var_m2": cvar}
+            # snapshot uses (LSQ, the filter start): each residual seen once, as range variance
+            # (an isotropic term on the station covariance: u^T (P + s I) u = u^T P u + s)
+            cov = (np.zeros((m, 3, 3)) if cov is None else cov) + cvar[:, None, None] * np.eye(3)
+        if self.method == "lsq" and self.cfg.receiver is not None and dt is not None and np.any(dt):
+            # a snapshot of a TDMA batch: the aircraft's unknown motion over each member's dt is noise
+            # to it (the start's velocity prior), in its weights and in the covariance it reports
+            v_sig = (self.cfg.init or _init_config()).vel_sigma_m_s
+            cov = (np.zeros((m, 3, 3)) if cov is None else cov) + ((v_sig * np.asarray(dt, float)) ** 2)[:, None, None] * np.eye(3)
+        self._last_geom = (pos, cov)
+        if m < self.cfg.min_stations:
+            self.n_dropped += 1
+            return
+        if self.tracker is None:
+            self._start(t_s, pos, cov, rho, dt)
+            return
+        try:
+            self.tracker.predict_to(t_s)
+            if self.cfg.tuning.sequential and self.model == "pr" and not np.any(dt):
+                self._watch(*self.tracker.update_sequential(pos, rho, cov_trk, **bias_kw), ids)
+            else:
+                self._update(pos, rho, cov_trk, dt if np.any(dt) else None, ids, **bias_kw)
+        except np.linalg.LinAlgError:
+            self._reset()
+            return
+        if self.tracker is None:  # the divergence monitor restarted it
+            return
+        if not np.all(np.isfinite(self.tracker.x)):
+            self._reset()
+            return
+        self.t_s = t_s
+        self.n_updates += 1
+
+    def _update(self, pos, rho, cov, dt, ids, **bias_kw) -> None:
+        """One filter update, through the integrity monitor when there is one; the divergence monitor
+        sees its innovation."""
+        if self.fde is None:
+            nu, S = self.tracker.update(pos, rho, cov, dt, **bias_kw)
+        else:
+            nu, S = self.fde.update(self.tracker, pos, rho, list(range(len(rho))) if ids is None else ids, cov,
+                                    dt, **bias_kw)
+        self._watch(nu, S, ids)
+
+    def _watch(self, nu, S, ids) -> None:
+        """Feed one update's innovation ``nu`` (d,) and covariance ``S`` (d, d), or its diagonal (d,) for
+        sequential scalar updates, to the divergence monitor with each station's normalized innovation
+        (aircraft/fde.py ``snooping``); a lost filter restarts."""
+        if self.monitor is None:
+            return
+        nu = np.atleast_1d(np.asarray(nu, dtype=float))
+        S = np.asarray(S, dtype=float)
+        S = np.diag(S) if S.ndim == 1 else np.atleast_2d(S)
+        ids = list(range(nu.size + (self.model != "pr"))) if ids is None else list(ids)
+        try:
+            q, w = snooping(nu, S, fault_vectors(self.model, len(ids), self.tracker.base))
+        except np.linalg.LinAlgError:
+            q, w = np.inf, np.zeros(len(ids))
+        if self.monitor.push(float(q), nu.size, dict(zip(ids, np.atleast_1d(w).tolist()))):
+            self.stats["diverged"] += 1
+            self._reset()
+            self.status = rx.RESTARTING
+
+    def _start(self, t_s, pos, cov, rho, dt=None) -> None:
+        """No filter yet: a snapshot fix from the batch (LSQ), or the filter's start."""
+        if self.cfg.guess_sigma_m is None and (self.fix is None or self.method != "lsq"):
+            self._start_from_broadcasts(t_s, pos, cov, rho, dt)
+            return
+        tu = self.cfg.tuning
+        var = tu.sigma_m**2
+        first = self.fix is None
+        if first:
+            self.fix = np.append(self.guess, 0.0) if self.model == "pr" else self.guess.copy()
+        # the first fix may start far away: more iterations and a wide trust region
+        kw = dict(floor_z_m=tu.floor_z_m, iters=50 if first else 10, max_step_m=5000.0 if first else 200.0)
+        if self.model == "pr":
+            x0 = self.fix if self.fix.size == 4 else np.append(self.fix, 0.0)
+            self.fix = lsq_pr(rho[None], pos, x0[None], var, cov, **kw)[0]
+        else:
+            self.fix = lsq_tdoa(rho[None], pos, self.fix[:3][None], var, cov, **kw)[0]
+        self.t_s = t_s
+        self.n_updates += 1
+        if self.method == "lsq":
+            return
+        self._start_from_guess(t_s, pos, rho)
+
+    def _start_from_broadcasts(self, t_s, pos, cov, rho, dt=None) -> None:
+        """Start from the broadcasts alone: multi-start snapshot fix (or a wide prior), from a batch that
+        passes the start test when the receiver rules are on."""
+        from ...initializer import InitConfig, initial_state
+
+        tu = self.cfg.tuning
+        init = initial_state(self.model, tu, pos, cov, rho, self.cfg.init)
+        if self.cfg.receiver is not None:
+            init = consistent_start(self.model, self.cfg, self.stats, init, pos, cov, rho, dt)
+            if init is None:
+                return
+        if not init.snapshot and len(rho) <= 4 and self.n_deferred < (self.cfg.init or InitConfig()).defer_batches:
+            self.n_deferred += 1  # no redundancy, no snapshot: wait for a batch with more stations
+            return
+        self.n_deferred = 0
+        self.fix = init.fix.copy()
+        self.init = init
+        self.t_s = t_s
+        self.n_updates += 1
+        self.status = rx.TRACKING
+        if self.method != "lsq":
+            self.tracker = CvTracker(self.method, self.model, init.x0, tu, t0_s=t_s, P0=init.P0,
+                                     ref_m=crd.reference_point(pos),
+                                     ref_radius_m=crd.array_radius(pos))
+
+    def _start_from_guess(self, t_s, pos, rho) -> None:
+        """External coarse fix (``guess_sigma_m``): the filter starts from the guess with that sigma; the
+        clock from the ranges to the guessed position."""
+        tu = self.cfg.tuning
+        gs = self.cfg.guess_sigma_m
+        self.fix[:3] = self.guess
+        C = np.diag([gs**2] * 3 + ([(tu.p0_clock_m + gs) ** 2] if self.model == "pr" else []))
+        if self.model == "pr":
+            self.fix[3] = float(np.mean(rho - np.linalg.norm(self.guess - pos, axis=1)))
+        x0 = np.concatenate([self.fix[:3], np.zeros(3)])
+        if self.model == "pr":
+            x0 = np.append(x0, self.fix[3])
+            if tu.drift_state:
+                x0 = np.append(x0, 0.0)
+        layout = self.tracker_layout()
+        P0 = tu.p0(layout)
+        idx = layout.pos_clock
+        P0[np.ix_(idx, idx)] = C
+        self.tracker = CvTracker(self.method, self.model, x0, tu, t0_s=t_s, P0=P0, ref_m=crd.reference_point(pos),
+                                 ref_radius_m=crd.array_radius(pos))
+
+    def tracker_layout(self) -> StateLayout:
+        return StateLayout(self.model, drift=self.cfg.tuning.drift_state and self.model == "pr")
+
+    def _reset(self) -> None:
+        """A filter whose covariance lost positive definiteness restarts from the next batch's fix."""
+        if self.tracker is not None:
+            self.guess = np.asarray(self.tracker.x[:3], dtype=float).copy()
+        self.tracker = None
+        self.fix = None
+        self.n_resets += 1
+        self._pending.clear()
+        if self.monitor is not None:
+            self.monitor.reset()
+        if self.fde is not None:  # exclusions stand; the new filter's transient passes before the gate
+            self.fde.restart()
+
+    def tracker_or_fix(self) -> bool:
+        """Whether there is anything to estimate from (a running filter, or an LSQ fix)."""
+        return self.tracker is not None or (self.method == "lsq" and self.fix is not None)
+
+    # -- output
+    def estimate(self) -> dict | None:
+        """Latest estimate: ``t_s``, ``pos_m`` [3], ``cov_m2`` [3][3] (LSQ: its ``(H^T W H)^-1``), ``vel_m_s``,
+        ``clock_m``, ``n_updates``; filters with integrity monitoring (``config.fde``) add ``hpl_m``,
+        ``vpl_m`` (aircraft/fde.py) and ``excluded`` (station ids)."""
+        if self.t_s is None:
+            return None
+        if self.tracker is None:
+            if self.method != "lsq" or self.fix is None:
+                return None
+            C = None
+            if self._last_geom is not None:
+                try:
+                    C = lsq_cov(self.fix[None], self._last_geom[0], self.cfg.tuning.sigma_m**2, self.model,
+                                self._last_geom[1])[0, :3, :3].tolist()
+                except np.linalg.LinAlgError:
+                    C = None
+            return {"t_s": self.t_s, "pos_m": self.fix[:3].tolist(), "cov_m2": C, "vel_m_s": None,
+                    "clock_m": float(self.fix[3]) if self.fix.size == 4 else None, "n_updates": self.n_updates}
+        x, P = self.tracker.x, self.tracker.P
+        out = {"t_s": self.tracker.t_s, "pos_m": x[:3].tolist(), "cov_m2": P[:3, :3].tolist(),
+               "vel_m_s": x[3:6].tolist(), "clock_m": float(x[6]) if x.size > 6 else None,
+               "n_updates": self.n_updates}
+        if self.fde is not None:
+            hpl, vpl = protection_levels(P[:3, :3], self.fde.cfg.integrity_risk)
+            out.update(hpl_m=float(hpl), vpl_m=float(vpl), excluded=self.fde.excluded())
+        return out

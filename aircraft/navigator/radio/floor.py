@@ -1,0 +1,87 @@
+"""The height floor: the aircraft is above the station plane, one named constraint on the filter.
+
+The filter carries the *untruncated* Gaussian and the floor as a constraint on it: its density is
+``N(x; m, P) 1[z >= floor]``, a family closed under linear(ized) measurement updates (the likelihood
+multiplies the Gaussian part, the truncation stays), so the floor counts once. The measurements are
+linearized (EKF Jacobian, UKF sigma points) over the truncated moments, where the density is; the
+filter's ``x``/``P`` report them. Near a plane of (nearly) coplanar transmitters the range is
+symmetric in ``z``: linearized at a mean on the plane a filter sees no gradient (EKF) or symmetric
+sigma points (UKF); the truncated moments put it on the physical side. Replacing the Gaussian by the
+truncated moments after every update (Simon & Simon's truncated filter) would count the floor once
+per update and shrink the height variance around a wrong height (docs/aircraft.md, "the floor
+counted once").
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.special import erfcx
+
+from ... import coords as crd
+
+
+def truncated_normal(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and variance (k,) of a standard normal truncated to ``[a, inf)``: ``lambda`` and
+    ``1 + a lambda - lambda^2`` with ``lambda = phi(a) / (1 - Phi(a))`` (the inverse Mills ratio, by
+    ``erfcx``: no underflow far in the tail); beyond ``a = 50`` the variance by its asymptotic series
+    ``1/a^2 - 6/a^4 + 50/a^6 - 518/a^8`` (the closed form loses ~a^4 eps there). The variance is kept >= 1e-8."""
+    lam = np.sqrt(2.0 / np.pi) / erfcx(a / np.sqrt(2.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ia2 = 1.0 / a**2
+        tail = ia2 * (1.0 - ia2 * (6.0 - ia2 * (50.0 - 518.0 * ia2)))
+    var = np.where(a > 50.0, tail, 1.0 + a * lam - lam**2)
+    return lam, np.maximum(var, 1e-8)
+
+
+class HeightFloor:
+    """The constraint ``z >= floor_z_m`` (None: no floor) and the truncated moments of a Gaussian.
+
+    ``trunc_sigma``: runs whose mass below the floor is beyond this many sigma (< 1e-9 at 6) are left
+    as they are. :meth:`moments` of the filter's own ``(x, P)`` are cached by identity.
+    """
+
+    def __init__(self, floor_z_m: float | None, trunc_sigma: float):
+        self.floor_z_m = floor_z_m
+        self.trunc_sigma = trunc_sigma
+        self._cache: tuple | None = None  # (x, P, truncated x, truncated P)
+
+    def cached(self, x: np.ndarray, P: np.ndarray, inv: np.ndarray, ref: np.ndarray | None):
+        """:meth:`moments` of the filter's own ``(x, P)``, computed once per pair of arrays."""
+        c = self._cache
+        if c is not None and c[0] is x and c[1] is P:
+            return c[2], c[3]
+        out = self.moments(x, P, inv, ref)
+        self._cache = (x, P) + out
+        return out
+
+    def moments(self, x: np.ndarray, P: np.ndarray, inv: np.ndarray, ref: np.ndarray | None):
+        """The moments ``(x, P)`` (internal coordinates, (..., n), (..., n, n)) of ``N(x, P)`` truncated to
+        above the floor; where no run has mass below it within ``trunc_sigma`` the inputs come back
+        unchanged (the same objects). ``inv`` (...,): runs in inverse-range coordinates about ``ref``
+        (the floor is then ``q_z >= (floor - c_z) |q|^2 / L^2``, linear if the reference point lies on
+        the floor; the right side is taken at the mean)."""
+        out = x, P
+        fz = self.floor_z_m
+        if fz is None:
+            return out
+        n = x.shape[-1]
+        xf, Pf = x.reshape(-1, n), P.reshape(-1, n, n)
+        s2 = Pf[:, 2, 2]
+        with np.errstate(invalid="ignore"):  # a broken filter (P not PD) is reset by its owner
+            s = np.sqrt(s2)
+        a = (fz - xf[:, 2]) / s
+        if inv.any():
+            ai = ((fz - ref[2]) * np.einsum("ki,ki->k", xf[:, :3], xf[:, :3]) / crd.SCALE_M**2
+                  - xf[:, 2]) / s
+            a = np.where(inv.reshape(-1), ai, a)
+        act = a > -self.trunc_sigma
+        if np.any(act):
+            a, s2 = a[act], s2[act]
+            dmu, var_t = truncated_normal(a)  # in units of sigma, sigma^2
+            pc = Pf[act, :, 2]  # (k, n)
+            xf, Pf = xf.copy(), Pf.copy()
+            xf[act] = xf[act] + pc * (dmu / np.sqrt(s2))[:, None]
+            Pa = Pf[act] + pc[:, :, None] * pc[:, None, :] * ((var_t - 1.0) / s2)[:, None, None]
+            Pf[act] = 0.5 * (Pa + np.swapaxes(Pa, -1, -2))
+            out = xf.reshape(x.shape), Pf.reshape(P.shape)
+        return out
