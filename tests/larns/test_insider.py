@@ -240,6 +240,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.mark.e2e
+@pytest.mark.slow  # (~55 s: four secure stations for 36 s)
 @pytest.mark.timeout(180)
 def test_insider_modes_against_secure_stations(tmp_path):
     """Secure stations 1, 2, 3, 5 (real processes, real Zenoh, TLS) and `larns attack --as station-2
