@@ -26,6 +26,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .navigator.radio.state import CLOCK, POS
+
 SCALE_M = 1000.0  # L: q = L^2 (p - c) / |p - c|^2 has |q| = L^2 / r (20 km at 50 m, 333 m at 3 km)
 
 
@@ -51,45 +53,45 @@ def _householder(a: np.ndarray) -> np.ndarray:
 
 def to_inverse(x: np.ndarray, ref_m: np.ndarray, clock: bool) -> np.ndarray:
     """Cartesian state (..., n) -> inverse-range state (..., n)."""
-    d = x[..., :3] - ref_m
+    d = x[..., POS] - ref_m
     r2 = np.einsum("...i,...i->...", d, d)
     s = np.array(x, dtype=float, copy=True)
-    s[..., :3] = d * (SCALE_M**2 / r2)[..., None]
+    s[..., POS] = d * (SCALE_M**2 / r2)[..., None]
     if clock:
-        s[..., 6] = x[..., 6] + np.sqrt(r2)
+        s[..., CLOCK] = x[..., CLOCK] + np.sqrt(r2)
     return s
 
 
 def to_cartesian(s: np.ndarray, ref_m: np.ndarray, clock: bool) -> np.ndarray:
     """Inverse-range state (..., n) -> Cartesian state (..., n)."""
-    q = s[..., :3]
+    q = s[..., POS]
     w2 = np.einsum("...i,...i->...", q, q)
     x = np.array(s, dtype=float, copy=True)
-    x[..., :3] = ref_m + q * (SCALE_M**2 / w2)[..., None]
+    x[..., POS] = ref_m + q * (SCALE_M**2 / w2)[..., None]
     if clock:
-        x[..., 6] = s[..., 6] - SCALE_M**2 / np.sqrt(w2)
+        x[..., CLOCK] = s[..., CLOCK] - SCALE_M**2 / np.sqrt(w2)
     return x
 
 
 def jac_to_cartesian(s: np.ndarray, clock: bool) -> np.ndarray:
     """``T = dx/ds`` (..., n, n): ``dp/dq = L^2 (I - 2 q q^T / |q|^2) / |q|^2``, ``db/dq = L^2 q / |q|^3``."""
     n = s.shape[-1]
-    q = s[..., :3]
+    q = s[..., POS]
     w2 = np.einsum("...i,...i->...", q, q)
     T = np.broadcast_to(np.eye(n), s.shape[:-1] + (n, n)).copy()
-    T[..., :3, :3] = _householder(q) * (SCALE_M**2 / w2)[..., None, None]
+    T[..., POS, POS] = _householder(q) * (SCALE_M**2 / w2)[..., None, None]
     if clock:
-        T[..., 6, :3] = q * (SCALE_M**2 / (w2 * np.sqrt(w2)))[..., None]
+        T[..., CLOCK, POS] = q * (SCALE_M**2 / (w2 * np.sqrt(w2)))[..., None]
     return T
 
 
 def jac_to_inverse(x: np.ndarray, ref_m: np.ndarray, clock: bool) -> np.ndarray:
     """``G = ds/dx`` (..., n, n): ``dq/dp = L^2 (I - 2 d d^T / r^2) / r^2``, ``dbeta/dp = d / r``."""
     n = x.shape[-1]
-    d = x[..., :3] - ref_m
+    d = x[..., POS] - ref_m
     r2 = np.einsum("...i,...i->...", d, d)
     G = np.broadcast_to(np.eye(n), x.shape[:-1] + (n, n)).copy()
-    G[..., :3, :3] = _householder(d) * (SCALE_M**2 / r2)[..., None, None]
+    G[..., POS, POS] = _householder(d) * (SCALE_M**2 / r2)[..., None, None]
     if clock:
-        G[..., 6, :3] = d / np.sqrt(r2)[..., None]
+        G[..., CLOCK, POS] = d / np.sqrt(r2)[..., None]
     return G

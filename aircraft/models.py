@@ -28,6 +28,7 @@ import numpy as np
 
 from nav.geometry import SPEED_OF_LIGHT_M_S
 
+from .navigator.radio.state import CLOCK, CLOCK_RATE, POS, VEL
 from .navigator.radio.state import StateLayout  # noqa: F401  (the layout with named blocks lives there)
 
 ALGOS = ("lsq-pr", "lsq-tdoa", "ekf-pr", "ekf-tdoa", "ukf-pr", "ukf-tdoa")
@@ -44,10 +45,10 @@ def g_matrix(m: int, base: int) -> np.ndarray:
 
 def _positions(X: np.ndarray, dt: np.ndarray | None) -> np.ndarray:
     """Aircraft positions at the measurement times: (..., m, 3) (or (..., 1, 3) if dt is None)."""
-    p = X[..., None, 0:3]
+    p = X[..., None, POS]
     if dt is None:
         return p
-    return p + X[..., None, 3:6] * np.asarray(dt, dtype=float)[:, None]
+    return p + X[..., None, VEL] * np.asarray(dt, dtype=float)[:, None]
 
 
 def los(X: np.ndarray, stations_m: np.ndarray, dt: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -66,9 +67,9 @@ def _ranges(X: np.ndarray, stations_m: np.ndarray, dt: np.ndarray | None = None)
 def h_pr(X: np.ndarray, stations_m: np.ndarray, dt: np.ndarray | None = None) -> np.ndarray:
     """Pseudoranges (..., m) for states X (..., n>=7) (seed 001 eq. 13)."""
     r = _ranges(X, stations_m, dt)
-    b = X[..., 6:7]
-    if X.shape[-1] > 7 and dt is not None:
-        b = b + X[..., 7:8] * np.asarray(dt, dtype=float)
+    b = X[..., CLOCK : CLOCK + 1]
+    if X.shape[-1] > CLOCK_RATE and dt is not None:
+        b = b + X[..., CLOCK_RATE : CLOCK_RATE + 1] * np.asarray(dt, dtype=float)
     return r + b
 
 
@@ -83,12 +84,12 @@ def jac_pr(X: np.ndarray, stations_m: np.ndarray, dt: np.ndarray | None = None) 
     _, u = los(X, stations_m, dt)
     m = stations_m.shape[0]
     H = np.zeros(X.shape[:-1] + (m, X.shape[-1]))
-    H[..., 0:3] = u
+    H[..., POS] = u
     if dt is not None:
-        H[..., 3:6] = u * np.asarray(dt, dtype=float)[:, None]
-    H[..., 6] = 1.0
-    if X.shape[-1] > 7 and dt is not None:
-        H[..., 7] = dt
+        H[..., VEL] = u * np.asarray(dt, dtype=float)[:, None]
+    H[..., CLOCK] = 1.0
+    if X.shape[-1] > CLOCK_RATE and dt is not None:
+        H[..., CLOCK_RATE] = dt
     return H
 
 
@@ -97,9 +98,9 @@ def jac_tdoa(X: np.ndarray, stations_m: np.ndarray, base: int, dt: np.ndarray | 
     _, u = los(X, stations_m, dt)
     m = stations_m.shape[0]
     Hr = np.zeros(X.shape[:-1] + (m, 6))
-    Hr[..., 0:3] = u
+    Hr[..., POS] = u
     if dt is not None:
-        Hr[..., 3:6] = u * np.asarray(dt, dtype=float)[:, None]
+        Hr[..., VEL] = u * np.asarray(dt, dtype=float)[:, None]
     return np.delete(Hr, base, axis=-2) - Hr[..., base : base + 1, :]
 
 
@@ -134,9 +135,9 @@ def r_tdoa(var: np.ndarray, base: int) -> np.ndarray:
 def cv_transition(n: int, dt_s: float) -> np.ndarray:
     """Constant-velocity transition (n, n) (seed 001 F_rho / F_drho); clock ``b += bdot dt`` if n == 8."""
     F = np.eye(n)
-    F[0:3, 3:6] = dt_s * np.eye(3)
+    F[POS, VEL] = dt_s * np.eye(3)
     if n == 8:
-        F[6, 7] = dt_s
+        F[CLOCK, CLOCK_RATE] = dt_s
     return F
 
 
@@ -155,11 +156,11 @@ def cv_noise(n: int, dt_s: float, q_acc: float, q_clock: float, q_drift: float,
         q = q_acc if (i < 2 or q_acc_z is None) else q_acc_z
         Q[np.ix_([i, i + 3], [i, i + 3])] = q * base
     if n >= 7:
-        Q[6, 6] = q_clock * dt_s
+        Q[CLOCK, CLOCK] = q_clock * dt_s
     if n == 8:
-        Q[6, 6] += q_drift * dt_s**3 / 3.0
-        Q[6, 7] = Q[7, 6] = q_drift * dt_s**2 / 2.0
-        Q[7, 7] = q_drift * dt_s
+        Q[CLOCK, CLOCK] += q_drift * dt_s**3 / 3.0
+        Q[CLOCK, CLOCK_RATE] = Q[CLOCK_RATE, CLOCK] = q_drift * dt_s**2 / 2.0
+        Q[CLOCK_RATE, CLOCK_RATE] = q_drift * dt_s
     return Q
 
 

@@ -13,6 +13,7 @@ import numpy as np
 from nav.kalman import symmetrize
 
 from ... import coords as crd
+from .state import POS
 
 
 class InverseChart:
@@ -89,9 +90,9 @@ class InverseChart:
         P = P_all.reshape(-1, n, n)
         inv = self.inv.reshape(-1)
         k = max_rel
-        d = np.where(inv[:, None], x[:, :3], x[:, :3] - self.ref)
+        d = np.where(inv[:, None], x[:, POS], x[:, POS] - self.ref)
         with np.errstate(all="ignore"):
-            rel = np.sqrt(np.einsum("kii->k", P[:, :3, :3]) / np.einsum("ki,ki->k", d, d))
+            rel = np.sqrt(np.einsum("kii->k", P[:, POS, POS]) / np.einsum("ki,ki->k", d, d))
         with np.errstate(all="ignore"):
             r = np.sqrt(np.einsum("ki,ki->k", d, d))
             r = np.where(inv, crd.SCALE_M**2 / r, r)

@@ -17,7 +17,7 @@ from ...fde import FdeConfig, FilterFde, fault_vectors, protection_levels, snoop
 from .. import receiver as rx
 from .lsq import lsq_cov, lsq_pr, lsq_tdoa
 from .start import consistent_start
-from .state import StateLayout
+from .state import CLOCK, POS, VEL, StateLayout
 from .tracker import CvTracker
 from .tuning import Tuning
 
@@ -294,7 +294,7 @@ class AircraftEstimator:
     def _reset(self) -> None:
         """A filter whose covariance lost positive definiteness restarts from the next batch's fix."""
         if self.tracker is not None:
-            self.guess = np.asarray(self.tracker.x[:3], dtype=float).copy()
+            self.guess = np.asarray(self.tracker.x[POS], dtype=float).copy()
         self.tracker = None
         self.fix = None
         self.n_resets += 1
@@ -328,10 +328,10 @@ class AircraftEstimator:
             return {"t_s": self.t_s, "pos_m": self.fix[:3].tolist(), "cov_m2": C, "vel_m_s": None,
                     "clock_m": float(self.fix[3]) if self.fix.size == 4 else None, "n_updates": self.n_updates}
         x, P = self.tracker.x, self.tracker.P
-        out = {"t_s": self.tracker.t_s, "pos_m": x[:3].tolist(), "cov_m2": P[:3, :3].tolist(),
-               "vel_m_s": x[3:6].tolist(), "clock_m": float(x[6]) if x.size > 6 else None,
+        out = {"t_s": self.tracker.t_s, "pos_m": x[POS].tolist(), "cov_m2": P[POS, POS].tolist(),
+               "vel_m_s": x[VEL].tolist(), "clock_m": float(x[CLOCK]) if x.size > CLOCK else None,
                "n_updates": self.n_updates}
         if self.fde is not None:
-            hpl, vpl = protection_levels(P[:3, :3], self.fde.cfg.integrity_risk)
+            hpl, vpl = protection_levels(P[POS, POS], self.fde.cfg.integrity_risk)
             out.update(hpl_m=float(hpl), vpl_m=float(vpl), excluded=self.fde.excluded())
         return out

@@ -18,6 +18,7 @@ import numpy as np
 from scipy.special import erfcx
 
 from ... import coords as crd
+from .state import POS, Z
 
 
 def truncated_normal(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -66,19 +67,19 @@ class HeightFloor:
             return out
         n = x.shape[-1]
         xf, Pf = x.reshape(-1, n), P.reshape(-1, n, n)
-        s2 = Pf[:, 2, 2]
+        s2 = Pf[:, Z, Z]
         with np.errstate(invalid="ignore"):  # a broken filter (P not PD) is reset by its owner
             s = np.sqrt(s2)
-        a = (fz - xf[:, 2]) / s
+        a = (fz - xf[:, Z]) / s
         if inv.any():
-            ai = ((fz - ref[2]) * np.einsum("ki,ki->k", xf[:, :3], xf[:, :3]) / crd.SCALE_M**2
-                  - xf[:, 2]) / s
+            ai = ((fz - ref[Z]) * np.einsum("ki,ki->k", xf[:, POS], xf[:, POS]) / crd.SCALE_M**2
+                  - xf[:, Z]) / s
             a = np.where(inv.reshape(-1), ai, a)
         act = a > -self.trunc_sigma
         if np.any(act):
             a, s2 = a[act], s2[act]
             dmu, var_t = truncated_normal(a)  # in units of sigma, sigma^2
-            pc = Pf[act, :, 2]  # (k, n)
+            pc = Pf[act, :, Z]  # (k, n)
             xf, Pf = xf.copy(), Pf.copy()
             xf[act] = xf[act] + pc * (dmu / np.sqrt(s2))[:, None]
             Pa = Pf[act] + pc[:, :, None] * pc[:, None, :] * ((var_t - 1.0) / s2)[:, None, None]

@@ -18,6 +18,8 @@ import numpy as np
 
 from nav.kalman import nees
 
+from .state import POS, Z
+
 
 def complement(n: np.ndarray) -> np.ndarray:
     """An orthonormal basis (..., 3, 2) of the plane orthogonal to the unit vectors ``n`` (..., 3)."""
@@ -64,12 +66,12 @@ class LaggedJacobian:
         if self.direction == "height" or self.dir is None:  # (weakest: not yet computed)
             Xl[..., :2] = self.pos[..., :2]
             Dp = np.zeros(J.shape[:-1] + (3,))
-            Dp[..., 2] = jac(Xl)[..., 2] - J[..., 2]
+            Dp[..., Z] = jac(Xl)[..., Z] - J[..., Z]
         else:
             n = self.dir
-            p = X[..., :3]
-            Xl[..., :3] = self.pos + n * np.einsum("...i,...i->...", n, p - self.pos)[..., None]
-            dJn = np.einsum("...ri,...i->...r", jac(Xl)[..., :3] - J[..., :3], n)
+            p = X[..., POS]
+            Xl[..., POS] = self.pos + n * np.einsum("...i,...i->...", n, p - self.pos)[..., None]
+            dJn = np.einsum("...ri,...i->...r", jac(Xl)[..., POS] - J[..., POS], n)
             Dp = dJn[..., None] * n[..., None, :]
         near = ~inv
         return Dp, near.reshape(near.shape + (1,) * (Dp.ndim - near.ndim))
@@ -83,7 +85,7 @@ class LaggedJacobian:
         def jac_l(X):
             J = jac(X)
             Dp, m = self.correction(jac, X, J, inv)
-            J[..., :3] = np.where(m, J[..., :3] + Dp, J[..., :3])
+            J[..., POS] = np.where(m, J[..., POS] + Dp, J[..., POS])
             return J
 
         return jac_l
@@ -96,7 +98,7 @@ class LaggedJacobian:
         if self.direction != "weakest" or self.pos is None or self.lag_s <= 0:
             return
         X = cart_moments().copy()  # Cartesian: the model's own Jacobian
-        X[..., :3] = np.where(inv[..., None], X[..., :3], self.pos)
+        X[..., POS] = np.where(inv[..., None], X[..., POS], self.pos)
         A = jac(X)[..., cols]
         F = np.swapaxes(A, -1, -2) @ A
         a = min(1.0, step_s / self.lag_s) if step_s > 0 else 1.0
@@ -125,7 +127,7 @@ class LaggedJacobian:
             return
         d = p - self.pos
         T = T_of(xc)  # the position block only: the position depends on the position states only
-        Ph = Pc[..., :k, :k] if T is None else T[..., :k, :3] @ Pc[..., :3, :3] @ np.swapaxes(T[..., :k, :3], -1, -2)
+        Ph = Pc[..., :k, :k] if T is None else T[..., :k, POS] @ Pc[..., POS, POS] @ np.swapaxes(T[..., :k, POS], -1, -2)
         if not weakest:
             m2 = mahalanobis2(d, Ph)
         elif self.dir is None:  # no direction yet (first update): nothing to test across

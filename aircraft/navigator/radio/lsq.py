@@ -11,7 +11,7 @@ import numpy as np
 from nav.kalman import chol_solve, symmetrize
 
 from ... import models as mdl
-from .state import StateLayout
+from .state import POS, StateLayout
 
 _PR_COLS = StateLayout("pr").pos_clock  # the snapshot pseudorange unknowns [x y z b] of the filter state
 
@@ -34,7 +34,7 @@ def _solve_normal(H: np.ndarray, Rinv_H: np.ndarray, Rinv_dz: np.ndarray) -> np.
 
 def _limit(dx: np.ndarray, max_step_m: float) -> np.ndarray:
     """Scale Gauss-Newton steps so the position part moves at most ``max_step_m`` (trust region)."""
-    nrm = np.linalg.norm(dx[..., :3], axis=-1, keepdims=True)
+    nrm = np.linalg.norm(dx[..., POS], axis=-1, keepdims=True)
     return dx * np.minimum(1.0, max_step_m / np.maximum(nrm, 1e-300))
 
 
@@ -75,7 +75,7 @@ def lsq_pr(
     x = np.array(x0, dtype=float)
     sigma = np.sqrt(np.broadcast_to(var_m2, (stations_m.shape[0],)))
     for _ in range(iters):
-        X = np.concatenate([x[..., :3], np.zeros(x.shape[:-1] + (3,)), x[..., 3:4]], axis=-1)
+        X = np.concatenate([x[..., POS], np.zeros(x.shape[:-1] + (3,)), x[..., 3:4]], axis=-1)
         H = mdl.jac_pr(X, stations_m)[..., _PR_COLS]
         var = mdl.range_var(X, stations_m, station_cov_m2, sigma)
         dz = rho_m - mdl.h_pr(X, stations_m)
@@ -103,7 +103,7 @@ def lsq_tdoa(
     sigma = np.sqrt(np.broadcast_to(var_m2, (m,)))
     for _ in range(iters):
         X = np.concatenate([x, np.zeros(x.shape[:-1] + (3,))], axis=-1)
-        H = mdl.jac_tdoa(X, stations_m, base)[..., :3]
+        H = mdl.jac_tdoa(X, stations_m, base)[..., POS]
         S = mdl.r_tdoa(mdl.range_var(X, stations_m, station_cov_m2, sigma), base)
         dz = z - mdl.h_tdoa(X, stations_m, base)
         SiH = chol_solve(S, H)
@@ -123,13 +123,13 @@ def lsq_cov(
     """Covariance ``(H^T W H)^-1`` of a snapshot LSQ solution ``x`` (M, 4) pr / (M, 3) tdoa."""
     m = stations_m.shape[0]
     sigma = np.sqrt(np.broadcast_to(var_m2, (m,)))
-    X = np.concatenate([x[..., :3], np.zeros(x.shape[:-1] + (3,)), x[..., 3:]], axis=-1)
+    X = np.concatenate([x[..., POS], np.zeros(x.shape[:-1] + (3,)), x[..., 3:]], axis=-1)
     var = mdl.range_var(X, stations_m, station_cov_m2, sigma)
     if model == "pr":
         H = mdl.jac_pr(X, stations_m)[..., _PR_COLS]
         N = np.swapaxes(H, -1, -2) @ (H / var[..., None])
     else:
-        H = mdl.jac_tdoa(X, stations_m, base)[..., :3]
+        H = mdl.jac_tdoa(X, stations_m, base)[..., POS]
         N = np.swapaxes(H, -1, -2) @ chol_solve(mdl.r_tdoa(var, base), H)
     k = N.shape[-1]
     return symmetrize(chol_solve(symmetrize(N), np.broadcast_to(np.eye(k), N.shape).copy()))

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ... import models as mdl
+from .state import POS, VEL
 
 
 class PseudorangeModel:
@@ -104,13 +105,13 @@ def second_order(stations_m: np.ndarray, dt_s: np.ndarray | None, X: np.ndarray,
     transmitter the range's curvature biases a first-order EKF."""
     r, u = mdl.los(X, stations_m, dt_s)  # (..., m), (..., m, 3)
     Mh = (np.eye(3) - u[..., :, None] * u[..., None, :]) / r[..., None, None]  # (..., m, 3, 3)
-    Ppp = P[..., None, None, 0:3, 0:3]
+    Ppp = P[..., None, None, POS, POS]
     if dt_s is None:
         C = np.broadcast_to(Ppp, Mh.shape[:-3] + (Mh.shape[-3],) * 2 + (3, 3))
     else:
         d = np.asarray(dt_s, dtype=float)
-        Ppv = P[..., None, None, 0:3, 3:6]
-        Pvv = P[..., None, None, 3:6, 3:6]
+        Ppv = P[..., None, None, POS, VEL]
+        Pvv = P[..., None, None, VEL, VEL]
         di, dj = d[:, None, None, None], d[None, :, None, None]
         C = Ppp + Ppv * dj + np.swapaxes(Ppv, -1, -2) * di + Pvv * (di * dj)
     MC = Mh[..., :, None, :, :] @ C  # M_i C_ij: (..., m, m, 3, 3)

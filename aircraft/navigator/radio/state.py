@@ -9,6 +9,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+# the named blocks of the base state (every layout starts with position and velocity)
+POS = slice(0, 3)  # position, m
+VEL = slice(3, 6)  # velocity, m/s
+Z = 2  # the height coordinate of the position (the floor's constraint)
+CLOCK = 6  # clock offset b, m (pr)
+CLOCK_RATE = 7  # clock rate bdot, m/s (pr with drift)
+
 
 @dataclass(frozen=True)
 class StateLayout:
@@ -31,8 +38,8 @@ class StateLayout:
             raise ValueError("the TDOA state has no clock")
 
     # -- named blocks
-    pos = slice(0, 3)  # position, m
-    vel = slice(3, 6)  # velocity, m/s
+    pos = POS
+    vel = VEL
 
     @property
     def has_clock(self) -> bool:
@@ -41,17 +48,17 @@ class StateLayout:
     @property
     def clock(self) -> int | None:
         """Index of the clock offset ``b`` (m); None without a clock (TDOA)."""
-        return 6 if self.kind == "pr" else None
+        return CLOCK if self.kind == "pr" else None
 
     @property
     def clock_rate(self) -> int | None:
         """Index of the clock rate ``bdot`` (m/s); None without it."""
-        return 7 if self.drift else None
+        return CLOCK_RATE if self.drift else None
 
     @property
     def pos_clock(self) -> list[int]:
         """Columns of the position and the clock offset: the snapshot (LSQ) unknowns ``[x y z (b)]``."""
-        return [0, 1, 2] + ([6] if self.kind == "pr" else [])
+        return [0, 1, 2] + ([CLOCK] if self.kind == "pr" else [])
 
     def biases(self, nb: int) -> slice:
         """Columns of ``nb`` station clock-bias states after the base states."""

@@ -21,6 +21,7 @@ from nav.kalman import chol_solve, ekf_update, kf_update, symmetrize, ukf_update
 from nav.ut import unscented_transform
 
 from .repeats import scaled
+from .state import POS
 
 
 def linearized_update(x, P, xi, H, hxi, z, R):
@@ -149,7 +150,7 @@ class UkfUpdate:
             J = jac(xl)
             Dp, m = trk.lag.correction(jac, xl, J, trk.chart.inv)
             dA = np.zeros_like(J)
-            dA[..., :3] = np.where(m, Dp, 0.0)
+            dA[..., POS] = np.where(m, Dp, 0.0)
         if xl is trk._x and dA is None:  # nothing truncated, no lag: the plain UKF
             x1, P1, nu, S = ukf_update(trk._x, trk._P, z, h, R, trk.params)
         else:  # statistical linearization over the truncated moments, applied to the filter's Gaussian
