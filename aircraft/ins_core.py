@@ -12,17 +12,18 @@ The IMU runs on its own fixed grid ``k / rate``: :meth:`advance_to` integrates e
 time), so no step is skipped whatever the message timing; ``imu_steps`` counts them.
 
 Start (honest, :mod:`aircraft.navigator.ins_start`): until it has a window's worth of broadcasts and
-IMU samples, the core buffers both (publishing ``ac_truth`` for every broadcast it measured, so that
-the offline re-flight feeds the same ones) and publishes no estimate; the start is tried at each
+IMU samples, the core buffers both and publishes no estimate (an ``ac_truth`` for every broadcast it
+measured); the start is tried at each
 measured broadcast (window ending at the last IMU grid time before it), so it depends only on the
 sequence of measured broadcasts, not on the node's loop timing. Then the EKF runs from the window's
 end over the buffered IMU samples that follow it.
 
-Determinism (exact offline re-flight, ``larns replay --offline --algo ins-ekf``): the IMU samples are
-emulated in fixed blocks of ``BLOCK`` steps, block ``b`` from its own generator
-``(seed, "imu", aircraft, b)``, so sample ``k`` does not depend on how the node's loop chunked time; the
-channel noise comes from another stream, one draw per measurement. Given the same sequence of nav
-broadcasts (the aircraft's ``ac_truth`` topic identifies it), the estimates are reproduced bit for bit.
+Journal (exact offline re-flight, ``larns reestimate``; aircraft/journal.py): the world hands the
+navigator each IMU step's increments and each broadcast it can still use (not late for its IMU time),
+and the core journals both in the order the navigator consumed them; :meth:`from_record` rebuilds the
+navigator without a world and :meth:`step_to` / :meth:`measurement` re-run it bit for bit. The IMU
+samples are emulated in fixed blocks of ``BLOCK`` steps, block ``b`` from its own generator
+``(seed, "imu", aircraft, b)``, so sample ``k`` does not depend on how the node's loop chunked time.
 """
 
 from __future__ import annotations

@@ -14,8 +14,10 @@ measures pseudoranges in its own channel layer and runs the estimators (one per 
   variance; docs/sync.md). The estimator sees the broadcast's *estimated* station position
   and covariance (``msg.pos_m``, ``msg.cov_m2``), never ``phy``.
 * **publish**: ``larns/aircraft/<name>/estimate/<algo>`` (``ac_estimate``) after every update and
-  ``larns/aircraft/<name>/truth`` (``ac_truth``) with every measurement; liveliness token
-  ``larns/alive/aircraft/<name>``.
+  ``larns/aircraft/<name>/truth`` (``ac_truth``) with every measurement; the navigator's journal
+  ``larns/aircraft/<name>/init`` + ``.../input`` (``ac_init``, ``ac_input``: everything it consumed,
+  aircraft/journal.py; ``larns reestimate`` re-flies it bit for bit; congestion control BLOCK, the last
+  entries at exit); liveliness token ``larns/alive/aircraft/<name>``.
 
 SIGINT / SIGTERM: clean exit.
 """

@@ -23,12 +23,15 @@ positions of the tie stations and their geodetic survey (:func:`aircraft.navigat
 recomputed per broadcast); the tie's covariance along the line of sight is added to the range
 variance (the white treatment). Broadcasts before the three tie stations have been heard are
 counted (``nav_no_tie``) and give no estimate. Every broadcast received in time (its positions feed the
-tie) is published as ``ac_truth``, so the re-flight sees the same ones. Estimates and ``ac_truth`` are in the Earth-tied frame.
+tie) is published as ``ac_truth``. Estimates and ``ac_truth`` are in the Earth-tied frame.
 
-Determinism (exact re-flight, ``larns reestimate --algo triad``): the IMU blocks, each satellite epoch
-and each station measurement draw from their own generators keyed by the world seed and the block,
-epoch or (station, broadcast seq), so the estimates depend only on the sequence of broadcasts the
-aircraft measured, not on the loop's timing or on what it dropped.
+Journal (exact re-flight, ``larns reestimate``; aircraft/journal.py): the navigator's init record
+holds what a receiver knows (satellites in view at the start, the tie stations' geodetic survey, the
+IMU preset and rate, the baro model); the world hands it the IMU increments, each epoch's satellite
+pseudoranges and baro height and each broadcast received in time, journaled in the order consumed;
+:meth:`from_record` rebuilds the navigator without a world. The IMU blocks, each satellite epoch and
+each station measurement draw from their own generators keyed by the world seed and the block, epoch
+or (station, broadcast seq).
 """
 
 from __future__ import annotations

@@ -12,6 +12,13 @@ Re-estimation is *open loop*: a station's inputs contain its peers' broadcast es
 were recorded, so re-running station A with another estimator does not change what A heard from
 B. That is exactly "another estimator on the same measurements".
 
+The aircraft and the ground vehicle journal their navigators' inputs the same way
+(``larns/aircraft/<name>/init`` + ``input``: aircraft/journal.py; ``larns/vehicle/<name>/init`` +
+``input``): every recorded one is re-flown from its journal alone (no scenario, no seeds) and
+compared field by field with its recorded estimates; other aircraft algorithms run on the same
+journal. Every re-run reports its accuracy against the recording's truth beside the recorded
+estimates' (:func:`accuracy`).
+
 A journal needs every ``core_input`` from seq 1 on: a station whose first inputs were not recorded
 (recorder started late) cannot be rebuilt; a hole in the sequence (a sample lost under load) stops
 that station's re-estimation at the hole. Both are reported, never silently papered over.
@@ -25,7 +32,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from ..log import LogFile, LogWriter, Msg, merge, read_logs
-from ..log.series import Journal, collect_journals, decode, decoded
+from ..log.series import Journal, collect_journals, decoded
 
 JOURNAL_TOPICS = ["larns/station/*/init", "larns/station/*/input", "larns/station/*/estimate", "larns/station/*/truth",
                   "larns/vehicle/*/init", "larns/vehicle/*/input", "larns/vehicle/*/estimate", "larns/vehicle/*/truth",
@@ -137,9 +144,10 @@ def station_accuracy(results: dict[int, StationResult], journals: dict[int, Jour
     for sid, r in results.items():
         p = truth.get(sid)
         at = (lambda t, p=p: p) if p is not None else (lambda t: None)
-        r.rerun = accuracy([o for _lt, _pt, o in r.estimates], at)
-        r.recorded_accuracy = accuracy([msg for _m, msg in sorted(journals[sid].estimates.values(),
-                                                                   key=lambda x: x[1]["seq"])], at)
+        new = [o for _lt, _pt, o in r.estimates]
+        rec = [msg for _m, msg in journals[sid].estimates.values()]
+        t_from = half_time(new, rec)
+        r.rerun, r.recorded_accuracy = accuracy(new, at, t_from), accuracy(rec, at, t_from)
 
 
 @dataclass
@@ -284,6 +292,12 @@ class AircraftJournal:
     estimates: dict[str, list[tuple[int, dict]]] = field(default_factory=dict)  # algo -> [(log_time, msg)]
     truth: list[tuple[float, list, list]] = field(default_factory=list)  # (t_s, pos_m, vel_m_s)
 
+    def half_time(self) -> float:
+        """The middle of the flight (of its truth samples, else of its estimates)."""
+        if self.truth:
+            return half_time([{"t_s": r[0]} for r in self.truth])
+        return half_time(*[[m for _lt, m in v] for v in self.estimates.values()])
+
     def contiguous(self) -> tuple[list[list], int | None, int]:
         """The journal's entries from input 1 up to the first hole, that hole's seq (None: none) and
         the number of inputs used."""
@@ -315,19 +329,25 @@ def collect_aircraft(msgs: Sequence[Msg]) -> dict[str, AircraftJournal]:
     return out
 
 
-def accuracy(ests: Sequence[dict], truth_at) -> dict[str, float]:
-    """RMS position error against the recording's truth and mean sigma ``sqrt(trace P)`` over the
-    second half of ``ests`` (past the start-up), and how many estimates that is."""
+def accuracy(ests: Sequence[dict], truth_at, t_from_s: float) -> dict[str, float]:
+    """RMS position error against the recording's truth and mean sigma ``sqrt(trace P)`` of the
+    estimates from ``t_from_s`` on (the second half of the run: past the start-up; the same window for
+    a re-run and the recorded estimates), and how many estimates that is."""
     import numpy as np
 
-    rows = [(truth_at(e["t_s"]), e) for e in ests]
+    rows = [(truth_at(e["t_s"]), e) for e in ests if e["t_s"] >= t_from_s]
     rows = [(p, e) for p, e in rows if p is not None]
-    half = rows[len(rows) // 2:]
-    if not half:
+    if not rows:
         return {"rms_err_m": math.nan, "mean_sigma_m": math.nan, "samples": 0}
-    err = np.array([np.linalg.norm(np.subtract(e["pos_m"], p)) for p, e in half])
-    sig = np.array([math.sqrt(max(float(np.trace(np.asarray(e["cov_m2"], float))), 0.0)) for _p, e in half])
-    return {"rms_err_m": float(np.sqrt(np.mean(err**2))), "mean_sigma_m": float(sig.mean()), "samples": len(half)}
+    err = np.array([np.linalg.norm(np.subtract(e["pos_m"], p)) for p, e in rows])
+    sig = np.array([math.sqrt(max(float(np.trace(np.asarray(e["cov_m2"], float))), 0.0)) for _p, e in rows])
+    return {"rms_err_m": float(np.sqrt(np.mean(err**2))), "mean_sigma_m": float(sig.mean()), "samples": len(rows)}
+
+
+def half_time(*lists: Sequence[dict]) -> float:
+    """The middle of the time span of the estimates in ``lists`` (``t_s``)."""
+    ts = [e["t_s"] for x in lists for e in x]
+    return 0.5 * (min(ts) + max(ts)) if ts else math.inf
 
 
 def _truth_at(truth: Sequence[tuple[float, list, list]]):
@@ -389,9 +409,10 @@ def reestimate_one_aircraft(a: AircraftJournal, algos: Sequence[str] | None, epo
     from aircraft.journal import algos_of, can_run
 
     truth_at = _truth_at(a.truth)
+    t_from = a.half_time()  # one window for every algorithm, re-run or recorded
     recorded_algos = list(algos_of(a.init)) if a.init is not None else sorted(a.estimates)
     wanted = list(dict.fromkeys(recorded_algos + list(algos or ())))
-    res = {x: _aircraft_result([msg for _lt, msg in a.estimates.get(x, [])], truth_at) for x in wanted}
+    res = {x: _aircraft_result([msg for _lt, msg in a.estimates.get(x, [])], truth_at, t_from) for x in wanted}
     entries, hole, n_inputs = a.contiguous()
     why = ("no ac_init record: no aircraft journal in this recording" if a.init is None else
            "no ac_input records" if not a.inputs else
@@ -406,7 +427,7 @@ def reestimate_one_aircraft(a: AircraftJournal, algos: Sequence[str] | None, epo
             res[x]["error"] = f"the journal of a {a.init['kind']} aircraft holds no inputs for {x}"
     runs = [tuple(x for x in wanted if x in recorded_algos)] + [(x,) for x in extra if can_run(a.init, x)]
     for run in filter(None, runs):
-        _refly(a, entries, run, res, recorded_algos, truth_at, epoch_unix_s, speed)
+        _refly(a, entries, run, res, recorded_algos, truth_at, t_from, epoch_unix_s, speed)
         for x in run:
             res[x].update(inputs=n_inputs, missing_from=hole)
             if not (hole or res[x]["stopped"]):
@@ -414,14 +435,16 @@ def reestimate_one_aircraft(a: AircraftJournal, algos: Sequence[str] | None, epo
     return res
 
 
-def _aircraft_result(recorded: list[dict], truth_at) -> dict:
+def _aircraft_result(recorded: list[dict], truth_at, t_from_s: float) -> dict:
     return {"n": 0, "recorded": len(recorded), "compared": 0, "equal": 0, "bit_exact": False, "equal_prefix": 0,
             "first_mismatch": None, "missing_from": None, "stopped": None, "stopped_at_s": None, "error": None,
-            "invalid": 0, "inputs": 0, "rerun": {}, "recorded_accuracy": accuracy(recorded, truth_at), "estimates": []}
+            "invalid": 0, "inputs": 0, "rerun": {}, "recorded_accuracy": accuracy(recorded, truth_at, t_from_s), "estimates": [],
+            "t_from_s": t_from_s}
 
 
 def _refly(a: AircraftJournal, entries: list[list], run: tuple[str, ...], res: dict[str, dict],
-           recorded_algos: Sequence[str], truth_at, epoch_unix_s: float | None, speed: float) -> None:
+           recorded_algos: Sequence[str], truth_at, t_from_s: float, epoch_unix_s: float | None,
+           speed: float) -> None:
     """Re-fly the algorithms ``run`` together over ``entries``; fills their results in ``res``."""
     from aircraft.journal import replay
 
@@ -435,7 +458,8 @@ def _refly(a: AircraftJournal, entries: list[list], run: tuple[str, ...], res: d
     for x in run:
         d = res[x]
         mine = [o for o in new if o["algo"] == x]
-        d.update(n=len(mine), invalid=bad, stopped=stopped, rerun=accuracy(mine, truth_at), stopped_at_s=t_last)
+        d.update(n=len(mine), invalid=bad, stopped=stopped, rerun=accuracy(mine, truth_at, t_from_s),
+                 stopped_at_s=t_last)
         if x in recorded_algos:
             _compare_recorded(d, mine, a.estimates.get(x, []), epoch_unix_s, speed)
         else:
@@ -551,8 +575,9 @@ def rerun_vehicle(v, rec_log: dict[tuple[str, int], int], epoch_unix_s: float | 
         d["estimates"].append(Msg(M.key_for(o), lt if lt is not None else (pub or 0), pub or 0, o["seq"], M.encode(o)))
     e_arr = np.asarray(errs)
     truth_at = lambda t: (v.truths[t]["pos_m"] if t in v.truths else None)  # noqa: E731
-    d["rerun"] = accuracy([M.decode(x.data)[0] for x in d["estimates"]], truth_at)
-    d["recorded_accuracy"] = accuracy(v.estimates, truth_at)
+    new = [M.decode(x.data)[0] for x in d["estimates"]]
+    t_from = half_time(new, v.estimates)
+    d["rerun"], d["recorded_accuracy"] = accuracy(new, truth_at, t_from), accuracy(v.estimates, truth_at, t_from)
     d.update(n=len(ests), bit_exact=d["compared"] > 0 and d["equal"] == d["compared"],
              rms_err_m=float(np.sqrt(np.mean(e_arr**2))) if e_arr.size else math.nan,
              max_err_m=float(e_arr.max()) if e_arr.size else math.nan,
@@ -567,7 +592,7 @@ def _acc(x: dict) -> str:
 def format_result(res: OfflineResult, compare: bool = True) -> str:
     """The table of ``larns reestimate``: per station whether the re-run reproduces the recorded
     estimates and the accuracy of both (RMS error against the recorded truth / mean sigma, m, over
-    the second half of the estimates); then each aircraft algorithm and vehicle."""
+    the second half of the run: :func:`accuracy`); then each aircraft algorithm and vehicle."""
     lines = [f"{'station':>7} {'estimator':>9} {'inputs':>6} {'entries':>7} {'estimates':>9} "
              f"{'compared':>8} {'bit-exact':>9} {'re-run rms/sigma m':>18} {'recorded rms/sigma m':>20}  notes"]
     for sid, r in sorted(res.stations.items()):
