@@ -501,7 +501,8 @@ def larns_argv(cmd: str) -> list[str] | None:
     if tok[:2] == ["./dev", "bench"]:
         return ["bench", *tok[2:]]
     if tok[:2] == ["./dev", "demo"]:
-        return ["fleet", "--scenario", "seed000", "--duration", "60", "--record", "runs/demo.mcap", *tok[2:]]
+        return ["fleet", "--scenario", "seed000", "--duration", "60", "--aircraft", "--record", "runs/demo.mcap",
+                *tok[2:]]  # ./dev's demo line
     return None
 
 
