@@ -152,23 +152,30 @@ def cmd_offline(args: argparse.Namespace) -> int:
 def check_failures(res) -> list[str]:
     """What ``--check`` fails on: a station re-run with its recorded estimator, a recorded aircraft
     algorithm or a vehicle whose re-run differs from a recorded estimate, or whose journal could not
-    be replayed; and a recording with no station reproduced at all."""
+    be replayed (an aircraft without any journal, from before it existed, and a journal hole are
+    reported, not failed: what was re-run up to the hole is checked); and a recording with no
+    station reproduced at all."""
     bad = [f"station {s}: {r.equal}/{r.compared} identical" for s, r in res.stations.items()
            if r.same_estimator and r.compared and not r.bit_exact]
     if res.stations and not any(r.bit_exact for r in res.stations.values() if r.same_estimator) \
             and any(r.same_estimator for r in res.stations.values()):
         bad.append("no station reproduced its recorded estimates")
-    for name, per in res.aircraft.items():
-        for algo, d in per.items():
-            if d["compared"] and d["equal"] != d["compared"]:
-                bad.append(f"aircraft {name} {algo}: {d['equal']}/{d['compared']} identical")
-            elif d["recorded"] and not d["compared"] and not d.get("error", "").startswith("no ac_init"):
-                bad.append(f"aircraft {name} {algo}: none of its {d['recorded']} recorded estimates re-flown"
-                           + (f" ({d['error']})" if d.get("error") else ""))
+    bad += [f"aircraft {name} {algo}: {why}" for name, per in res.aircraft.items() for algo, d in per.items()
+            for why in [_aircraft_failure(d)] if why]
     for name, d in res.vehicles.items():
         if d.get("error") or not d.get("bit_exact"):
             bad.append(f"vehicle {name}: " + (d["error"] or f"{d['equal']}/{d['compared']} identical"))
     return bad
+
+
+def _aircraft_failure(d: dict) -> str | None:
+    """Why one aircraft algorithm's re-flight fails ``--check`` (None: it passes)."""
+    if d["compared"] and d["equal"] != d["compared"]:
+        return f"{d['equal']}/{d['compared']} identical"
+    if d["recorded"] and not d["compared"] and d["missing_from"] is None and not d["stopped"] \
+            and not (d.get("error") or "").startswith("no ac_init"):
+        return f"none of its {d['recorded']} recorded estimates re-flown" + (f" ({d['error']})" if d.get("error") else "")
+    return None
 
 
 def register(sub) -> None:
