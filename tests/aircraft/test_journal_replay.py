@@ -135,3 +135,25 @@ def test_other_algorithms_on_the_same_journal():
     assert res["ins-ekf"]["equal"] == res["ins-ekf"]["compared"] > 30
     assert res["ekf-pr"]["error"] is None and res["ekf-pr"]["n"] > 30 and res["ekf-pr"]["compared"] == 0
     assert res["triad"]["error"] == "the journal of a ins aircraft holds no inputs for triad"
+
+
+@pytest.mark.parametrize("entries", [
+    3,
+    [["x", 1.0]],
+    [["m", 1.0, 2, [0.0, 0.0, 0.0], np.eye(3).tolist(), 0.0, float("nan")]],   # pseudorange not finite
+    [["m", 1.0, 0, [0.0, 0.0, 0.0], np.eye(3).tolist(), 0.0, 1.0]],            # station id 0
+    [["m", 1.0, 2, [0.0, 0.0, 0.0], np.eye(3).tolist(), -1.0, 1.0]],           # negative clock variance
+    [["imu", 0, [[0.0, 0.0, 0.0]], []]],                                        # unequal gyro / accel
+    [["imu", -1, [[0.0, 0.0, 0.0]], [[0.0, 0.0, 0.0]]]],                        # negative step
+    [["sv", 3, ["far"], None]],
+    [["t", 1.0]] * 2,
+])
+def test_the_wire_schema_rejects_malformed_journals(entries):
+    good = {"kind": "ac_input", "src": "ac1", "seq": 1, "stamp_s": 1.0,
+            "entries": [["m", 1.0, 2, [0.0, 0.0, 0.0], np.eye(3).tolist(), 0.0, 1.0],
+                        ["imu", 0, [[0.0, 0.0, 0.0]], [[0.0, 0.0, 0.0]]], ["sv", 3, [1.0, None], None]]}
+    assert M.decode(M.encode(good))[0]["entries"] == good["entries"]
+    with pytest.raises(M.MessageError):
+        M.encode(dict(good, entries=entries))
+    with pytest.raises(M.MessageError):  # an init record of no known navigator kind
+        M.encode({"kind": "ac_init", "src": "ac1", "seq": 1, "stamp_s": 0.0, "record": {"kind": "sonar"}})
