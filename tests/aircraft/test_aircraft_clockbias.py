@@ -235,6 +235,8 @@ def test_message_api_carries_one_bias_per_station_heard_on_tdma_slots(algo):
     p, _ = tr.at(est["t_s"])
     d = np.array(est["pos_m"]) - p
     assert d @ np.linalg.solve(np.array(est["cov_m2"]), d) < stats.chi2.ppf(0.999, 3)
+    # the receiver clock is a state of the pseudorange filter only (a TDOA state's 7th entry is a bias)
+    assert (est["clock_m"] is None) == algo.endswith("tdoa")
 
 
 def test_live_aircraft_core_models_each_station_clock_from_its_broadcast():

@@ -329,7 +329,7 @@ class AircraftEstimator:
                     "clock_m": float(self.fix[3]) if self.fix.size == 4 else None, "n_updates": self.n_updates}
         x, P = self.tracker.x, self.tracker.P
         out = {"t_s": self.tracker.t_s, "pos_m": x[POS].tolist(), "cov_m2": P[POS, POS].tolist(),
-               "vel_m_s": x[VEL].tolist(), "clock_m": float(x[CLOCK]) if x.size > CLOCK else None,
+               "vel_m_s": x[VEL].tolist(), "clock_m": float(x[CLOCK]) if self.tracker.layout.has_clock else None,
                "n_updates": self.n_updates}
         if self.fde is not None:
             hpl, vpl = protection_levels(P[POS, POS], self.fde.cfg.integrity_risk)
