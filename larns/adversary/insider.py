@@ -140,10 +140,9 @@ def absurd_phy(rng: np.random.Generator, t_s: float, pos_m) -> dict:
 class FieldClock:
     """The field's time read off the navs it hears (an insider need not know the fleet's epoch):
     ``t = wall * speed - offset``, the offset the smallest ``wall * speed - stamp`` seen (the
-    fastest delivery) over the last ``window`` navs."""
+    fastest delivery) over the last 200 navs; before any, ``fallback(wall)`` if given."""
 
     speed: float = 1.0
-    window: int = 200
     _offsets: deque = field(default_factory=lambda: deque(maxlen=200))
     fallback: Callable[[float], float] | None = None
 
