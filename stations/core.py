@@ -69,6 +69,16 @@ class StationConfig:
     field_radius_m: float = 0.0
     field_margin_m: float = 1000.0
     max_peers: int = 0
+    # the frame datum carried by the field (docs/architecture.md, "The frame datum"): a station is
+    # converged when its horizontal sigma is at most datum_converged_m (0: sigma_d / 2) after at least
+    # datum_min_updates own navs (45: 45 cycles, after the survey's 40 s bar); a founder
+    # hands the frame to the field once it hears datum_quorum converged stations free in x, y, z;
+    # datum_damping_m: sigma of the damping term of the datum mode; datum_converged_m < 0: never
+    datum_converged_m: float = 0.0
+    datum_min_updates: int = 45
+    datum_quorum: int = 4
+    datum_convention: bool = False  # keep the founders' convention while they are all heard (docs)
+    datum_damping_m: float = 1.0
 
 
 class StationCore:
@@ -89,11 +99,19 @@ class StationCore:
         }
         self.id = cfg.id
         self.plan = cfg.tdma
+        # a station 1-3 started with the field holds the frame until the field carries it; one that
+        # joins a running field (a restarted founder included) is an ordinary station
         self.est: SurveyEstimator = make_estimator(cfg.estimator, cfg.id, init_pos_m, init_cov_m2,
-                                                   cfg.sigma_d_m, cfg.ranges_per_update)
+                                                   cfg.sigma_d_m, cfg.ranges_per_update, founder=not cfg.join)
         self.clk = ClockEstimator(cfg.id, ClockModel(cfg.clock_q_wf_s, cfg.clock_q_rw_per_s, cfg.clock_offset_sigma_s,
                                                      cfg.clock_freq_sigma), start_s, cfg.sigma_d_m)
         self.peers: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # peer -> its latest broadcast (pos_m, cov_m2)
+        # the frame datum (docs/architecture.md): each carrier's reference position (its broadcast
+        # position in its first nav as a carrier), ours included; the last datum correction (3,)
+        self.datum_ref: dict[int, np.ndarray] = {}
+        self.datum_shift_m = np.zeros(3)
+        self.frame_released = False  # no member broadcasts a frame constraint any more
+        self.field_datum = False  # a founder was missed since: the references are frozen
         self.integrity = StationIntegrity(cfg.id, cfg.sigma_d_m)  # peer consistency tests (issue 14)
         self.known: dict[int, float] = {p: start_s for p in cfg.known_ids if p != cfg.id}
         self.seq = {"range_req": 0, "range_rsp": 0, "nav": 0, "estimate": 0}
@@ -218,6 +236,8 @@ class StationCore:
             self._nav_s = float("inf")
             out += self._integrity(t_s)
             self.est.refresh()
+            self._datum(t_s)
+            self._hold_frame(t_s)
             self._refresh_state()
             out.append(self._nav_msg(t_s))
             out.append(self.estimate_msg(t_s))
@@ -419,12 +439,148 @@ class StationCore:
                 self.est._dirty = self.est.nf > 0
         return out
 
+    def _converged_sigma_m(self) -> float:
+        c = self.cfg.datum_converged_m
+        return 0.5 * self.cfg.sigma_d_m if c == 0.0 else c
+
+    @staticmethod
+    def _horizontal_sigma_m(cov_m2: np.ndarray) -> float:
+        return math.sqrt(max(float(cov_m2[0, 0] + cov_m2[1, 1]), 0.0))
+
+    def carries_datum(self, cov_m2: np.ndarray) -> bool:
+        """A broadcast covariance (3, 3) of a station that carries the datum: free in x, y and z
+        (a founder still holding the frame broadcasts zero variance on its constrained coordinates)
+        and converged (horizontal sigma at most the convergence threshold)."""
+        thr = self._converged_sigma_m()
+        return bool(thr >= 0.0 and np.all(np.diag(cov_m2) > 0.0) and self._horizontal_sigma_m(cov_m2) <= thr)
+
+    def _datum(self, t_s: float) -> None:
+        """The frame datum passes from the founders to the field (docs/architecture.md, "The frame
+        datum"). A station that is converged enters the datum mode (:meth:`DistributedMap.hold_datum`);
+        a founder still holding the frame does so only once it hears ``datum_quorum`` member stations
+        that carry the datum, so the frame is never held by fewer stations than fix a position."""
+        est = self.est
+        thr = self._converged_sigma_m()
+        if (thr < 0.0 or not hasattr(est, "hold_datum") or est.datum_sigma_m is not None or not est.initialized
+                or est.n_updates == 0 and est.nf > 0):
+            return
+        if self._horizontal_sigma_m(est.cov_m2) > thr or self.seq["nav"] < self.cfg.datum_min_updates:
+            return
+        if est.nf < 3:
+            mem = set(self.members(t_s))
+            carriers = sum(1 for p, (_, cov) in self.peers.items() if p in mem and self.carries_datum(cov))
+            if carriers < self.cfg.datum_quorum:
+                return
+        est.hold_datum(self.cfg.datum_damping_m)
+        est.refresh()  # the nav that follows carries the estimate free in x, y, z
+        if self.state == "frame":
+            self.state = "surveying"
+
+    def _hold_frame(self, t_s: float) -> None:
+        """Keep our estimate in the field's datum (docs/architecture.md, "The frame datum"), once no
+        member broadcasts a frame constraint any more (every station in the datum mode):
+
+        * while the three founders are all heard, the datum is still theirs, now as a convention on
+          their estimates: our estimate is moved by the rigid motion that puts the founders' current
+          estimates at station 1 = origin, 2 on +X, 3 in the XY plane (:func:`founders_frame`);
+        * from the first time a founder is not heard (``field_datum``), the carriers' references are
+          frozen at their estimates of that moment and our estimate is moved by the inverse of the
+          carriers' weighted rigid motion against them (:func:`rigid_motion`): no net translation or
+          rotation of the field, whoever leaves.
+
+        Every station computes the same motion from the same broadcasts and references, so the
+        corrections move the field rigidly."""
+        est = self.est
+        if getattr(est, "datum_sigma_m", None) is None:
+            return
+        own = self.carries_datum(est.cov_m2)
+        if not own:
+            self.datum_ref.pop(self.id, None)
+            return
+        mem = set(self.members(t_s))
+        if not self.frame_released:
+            if any(not np.all(np.diag(self.peers[p][1]) > 0.0) for p in mem if p in self.peers):
+                self.datum_ref[self.id] = est.pos_m.copy()
+                return  # a founder still holds the frame
+            self.frame_released = True
+        if not self.field_datum and self.cfg.datum_convention:
+            fpos = {p: (est.pos_m if p == self.id else self.peers[p][0]) for p in FOUNDERS
+                    if p == self.id or (p in mem and p in self.peers)}
+            if len(fpos) == len(FOUNDERS):
+                R, o = founders_frame(fpos[1], fpos[2], fpos[3])
+                new = R @ (est.pos_m - o)
+                self.datum_shift_m = est.pos_m - new
+                est.shift(new - est.pos_m)
+                self.datum_ref[self.id] = est.pos_m.copy()
+                return
+        self.field_datum = True  # (with the convention: a founder is gone) the references freeze here
+        if self.id not in self.datum_ref:
+            self.datum_ref[self.id] = est.pos_m.copy()
+        sets = [(est.pos_m, est.cov_m2, self.datum_ref[self.id])]
+        for p in sorted(mem):
+            if p in self.datum_ref and p in self.peers:
+                sets.append((*self.peers[p], self.datum_ref[p]))
+        if len(sets) < self.cfg.datum_quorum:
+            return
+        t_m, w_rad = rigid_motion(*(np.stack(a) for a in zip(*sets)))
+        shift = t_m + np.cross(w_rad, est.pos_m)
+        est.shift(-shift)
+        self.datum_shift_m = shift
+
     def _refresh_state(self) -> None:
         if self.state == "joining" and self.slot is not None and self.est.initialized:
             self.state = "surveying"
 
     def _update_peer(self, src: int, msg: dict) -> tuple[np.ndarray, np.ndarray]:
         """The peer's latest broadcast position and covariance (for the integrity tests), returned as
-        arrays (read-only by convention: the estimators copy what they keep)."""
+        arrays (read-only by convention: the estimators copy what they keep). A carrier's reference
+        position is its latest broadcast while the founders hold the frame, then (from the first
+        time a founder is not heard) its first broadcast as a carrier; one that stops carrying the datum (a restart) loses it until it converges again."""
         pc = self.peers[src] = (np.asarray(msg["pos_m"], float), np.asarray(msg["cov_m2"], float))
+        if self.carries_datum(pc[1]):
+            if src not in self.datum_ref or not self.field_datum:
+                self.datum_ref[src] = pc[0].copy()
+        else:
+            self.datum_ref.pop(src, None)
         return pc
+
+
+FOUNDERS = (1, 2, 3)  # the stations whose estimates define the frame until one of them is gone
+
+
+def founders_frame(p1_m: np.ndarray, p2_m: np.ndarray, p3_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The seed 000 frame convention on three estimates (3,) each, already close to it: ``x' = R (x - o)``
+    puts ``p1`` at the origin, ``p2`` on +X and ``p3`` in the XY plane, keeping the side of +Z.
+    Returns ``R`` (3, 3), ``o`` (3,)."""
+    ex = p2_m - p1_m
+    ex = ex / np.linalg.norm(ex)
+    ez = np.cross(ex, p3_m - p1_m)
+    ez = ez / np.linalg.norm(ez) * (1.0 if ez[2] >= 0.0 else -1.0)  # +Z kept (toward the z_ref station)
+    return np.stack([ex, np.cross(ez, ex), ez]), np.asarray(p1_m, float).copy()
+
+
+def rigid_motion(pos_m: np.ndarray, cov_m2: np.ndarray, ref_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted small-angle rigid motion of a set of points against their reference positions.
+
+    Minimizes ``sum_i r_i^T C_i^-1 r_i``, ``r_i = pos_i - ref_i - (t + w x ref_i)`` (linearized
+    Helmert transform without scale).
+
+    Parameters
+    ----------
+    pos_m : (k, 3) current positions. cov_m2 : (k, 3, 3) their covariances. ref_m : (k, 3) references.
+
+    Returns
+    -------
+    (t_m (3,), w_rad (3,)): translation and rotation vector.
+    """
+    k = len(pos_m)
+    skew = np.zeros((k, 3, 3))  # w x ref = -[ref]x w
+    skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = ref_m[:, 2], -ref_m[:, 1], ref_m[:, 0]
+    skew[:, 1, 0], skew[:, 2, 0], skew[:, 2, 1] = -ref_m[:, 2], ref_m[:, 1], -ref_m[:, 0]
+    A = np.concatenate([np.broadcast_to(np.eye(3), (k, 3, 3)), skew], axis=2)  # (k, 3, 6)
+    W = np.linalg.inv(cov_m2)
+    N = np.einsum("kia,kij,kjb->ab", A, W, A)
+    b = np.einsum("kia,kij,kj->a", A, W, pos_m - ref_m)
+    L = np.linalg.cholesky(N)  # positive definite for three or more points not on one line
+    x = np.linalg.solve(L.T, np.linalg.solve(L, b))
+    return x[:3], x[3:]

@@ -23,7 +23,11 @@ Two estimators share one interface:
               neither pull the solution nor make the covariance overconfident.
               Own covariance: ``(P0^-1 + J^T W J)^-1`` over the free coordinates.
 
-Coordinates constrained by the frame (station 1 all, station 2 y/z, station 3 z) are not state.
+Coordinates constrained by the frame (station 1 all, station 2 y/z, station 3 z) are not state
+while the founders hold the frame; ``DistributedMap.hold_datum`` ends that (docs/architecture.md,
+"The frame datum"): the station becomes free in x, y, z and its prior becomes a damping term
+centred on its own latest estimate, so the field's configuration, not any one station, carries the
+datum. A founder that (re)joins a running field is built free (``founder=False``).
 """
 
 from __future__ import annotations
@@ -37,9 +41,10 @@ from nav.kalman import symmetrize, update
 from nav.ut import SigmaParams, unscented_transform
 
 
-def free_mask(station_id: int) -> np.ndarray:
-    """(3,) bool: which of x, y, z station ``station_id`` estimates."""
-    return frame_free_mask(4)[station_id - 1].copy() if station_id <= 3 else np.ones(3, bool)
+def free_mask(station_id: int, founder: bool = True) -> np.ndarray:
+    """(3,) bool: which of x, y, z station ``station_id`` estimates (``founder=False``: a station
+    1-3 that joined a running field, an ordinary station free in all three)."""
+    return frame_free_mask(4)[station_id - 1].copy() if station_id <= 3 and founder else np.ones(3, bool)
 
 
 def _clean_cov(P: np.ndarray, free: np.ndarray, floor_m2: float = 1e-8) -> np.ndarray:
@@ -219,9 +224,12 @@ class DistributedMap:
                  confirm_n: int = 3, weak_below: int = 3, confirmed_loss: str | None = "huber",
                  restart_from_prior: bool = True, restart_iter: int = 6,
                  weak_below_nlos: int | None = None, nlos_min_outliers: int = 2, nlos_min_frac: float = 0.02,
-                 clean_after_n: int = 0):
+                 clean_after_n: int = 0, founder: bool = True, peer_corr_datum: float = 0.5):
         self.id = station_id
-        self.free = free_mask(station_id)
+        self.free = free_mask(station_id, founder)
+        # None while the prior is the coarse fix (or the founders' frame); else the damping sigma of
+        # the datum mode (:meth:`hold_datum`)
+        self.datum_sigma_m: float | None = None
         self.nf = int(self.free.sum())
         self.sigma_d_m = float(sigma_d_m)
         self.max_iter = max_iter
@@ -231,6 +239,10 @@ class DistributedMap:
         self.extrinsic = extrinsic
         self.peer_corr = peer_corr
         self.peer_corr_est = peer_corr_est
+        # consider factor of the reported covariance in the datum mode: with no frame station every
+        # peer's covariance holds its neighbours' (ours among them), and the factor 2 that accounts
+        # for the frame modes under the founders' frame made that loop grow (docs/architecture.md)
+        self.peer_corr_datum = peer_corr_datum
         self.extrinsic_est = extrinsic_est
         if robust not in (None, "tukey"):
             raise ValueError(f"unknown robust loss {robust!r}; choose 'tukey' or None")
@@ -372,6 +384,32 @@ class DistributedMap:
         self._nr = len(self._rv)
         self._rver += 1
         self._lver[k] += 1
+
+    def hold_datum(self, damping_sigma_m: float) -> None:
+        """From now on the field carries the datum (docs/architecture.md, "The frame datum").
+
+        A founder's frame constraints end: all of x, y, z become free (the constrained coordinates keep
+        their value as the starting point, with a small variance until the next solve). The prior (the
+        coarse fix) is replaced by a damping term ``|c - c_last|^2 / damping_sigma_m^2`` centred on the
+        station's own latest estimate at every solve: the estimate is then a fixed point of the ranges
+        to its peers alone, with no pull toward any external point, so a field whose estimates agree
+        with its ranges stays where it is whoever leaves.
+        """
+        if self.datum_sigma_m is not None:
+            return
+        self.datum_sigma_m = float(damping_sigma_m)
+        if self.nf < 3:
+            self.free = np.ones(3, bool)
+            self.nf = 3
+            cov = self.cov_m2.copy()
+            cov[np.diag_indices(3)] = np.maximum(np.diag(cov), 1e-6)
+            self.cov_m2 = _clean_cov(cov, self.free)
+        self.initialized = True
+        self._dirty = True
+
+    def shift(self, delta_m: np.ndarray) -> None:
+        """Move the estimate by ``delta_m`` (3,) (the datum correction of the core, datum mode only)."""
+        self.pos_m = self.pos_m + np.asarray(delta_m, float) * self.free
 
     def refresh(self) -> bool:
         """Re-solve if new ranges arrived since the last solve (the core calls this before its nav)."""
@@ -588,6 +626,9 @@ class DistributedMap:
             return False
         iters = self.max_iter
         robust = self.initialized
+        if self.datum_sigma_m is not None:  # datum mode: damping centred on the latest estimate
+            self.prior_mean = self.pos_m[self.free].copy()
+            self.prior_info = np.eye(self.nf) / self.datum_sigma_m**2
         if not self.initialized:
             arr = self._arrays(np.ones(self._nr))
             if arr is None or len(arr[0]) < self.min_peers_to_init:
@@ -603,7 +644,8 @@ class DistributedMap:
         x = self._irls(self.pos_m.copy(), iters, robust)
         if x is None:
             return False
-        if robust and self.robust is not None and self.restart_from_prior and self.prior_mean is not None:
+        if (robust and self.robust is not None and self.restart_from_prior and self.prior_mean is not None
+                and self.datum_sigma_m is None):  # (in datum mode the prior is the start itself)
             # second start from the coarse fix: IRLS with a redescending loss only finds a local
             # minimum, and early NLOS ranges (not yet separable from a 10 m fix error) can drag the
             # weakly observed height into a wrong basin that later clean ranges keep consistent.
@@ -619,7 +661,8 @@ class DistributedMap:
             return False
         n, dbar, Pj, Cj = arr
         Cx = self._extrinsic(x, n, Pj, Cj) if self.extrinsic and self.initialized else Cj
-        A = self._normal(x, n, dbar, Pj, Cx, self.peer_corr)[0]
+        gamma = self.peer_corr if self.datum_sigma_m is None else self.peer_corr_datum
+        A = self._normal(x, n, dbar, Pj, Cx, gamma)[0]
         self.range_weight = w
         self.pos_m = x
         cov = np.zeros((3, 3))
@@ -635,21 +678,23 @@ ESTIMATORS = {"dmap": DistributedMap, "dmap-nlos": DistributedMap, "dmap-ls": Di
 
 
 def make_estimator(name: str, station_id: int, pos0_m, cov0_m2, sigma_d_m: float,
-                   ranges_per_update: int = 3) -> SurveyEstimator:
+                   ranges_per_update: int = 3, founder: bool = True) -> SurveyEstimator:
     """``dmap`` (robust, default: a link weak while no two of its ranges agree, or until 3 agree while
     the station's own ranges show NLOS, :meth:`DistributedMap._adapt_weakness`), ``dmap-nlos`` (the
     same, always weak until 3 agree: slower clean convergence, docs/survey.md), ``dmap-ls`` (the same
-    without the robust weights) or ``seed-ukf``."""
+    without the robust weights) or ``seed-ukf``. ``founder=False``: stations 1-3 free in x, y, z
+    (a founder that joins a running field; ``seed-ukf`` keeps the paper's frame)."""
     if name == "seed-ukf":
         if pos0_m is None:
             raise ValueError("seed-ukf needs an initial fix (scenario init.sigma0_m > 0)")
         return SeedUkf(station_id, pos0_m, cov0_m2, sigma_d_m, ranges_per_update)
     if name == "dmap":
-        return DistributedMap(station_id, pos0_m, cov0_m2, sigma_d_m, weak_below=2, weak_below_nlos=3, clean_after_n=20)
+        return DistributedMap(station_id, pos0_m, cov0_m2, sigma_d_m, weak_below=2, weak_below_nlos=3, clean_after_n=20,
+                              founder=founder)
     if name == "dmap-nlos":
-        dm = DistributedMap(station_id, pos0_m, cov0_m2, sigma_d_m, weak_below=3)
+        dm = DistributedMap(station_id, pos0_m, cov0_m2, sigma_d_m, weak_below=3, founder=founder)
         dm.name = "dmap-nlos"
         return dm
     if name == "dmap-ls":
-        return DistributedMap(station_id, pos0_m, cov0_m2, sigma_d_m, robust=None)
+        return DistributedMap(station_id, pos0_m, cov0_m2, sigma_d_m, robust=None, founder=founder)
     raise ValueError(f"unknown estimator {name!r}; choose from {sorted(ESTIMATORS)}")

@@ -65,8 +65,11 @@ def make_core(scn: Scenario, station_id: int, *, estimator: str | None = None, j
     seed = scn.seed if seed is None else seed
     clock = station_clock(scn, station_id, seed) if clock is None else clock
     if scn.sigma0_m > 0:
-        pos0, cov0 = coarse_fix(scn.true_pos(station_id), station_id, scn.sigma0_m, station_rng(seed, station_id, 1))
-    elif station_id == 1:
+        # a founder joining a running field (a restart) is an ordinary station: its coarse fix is
+        # off in all three coordinates (station id 4 stands for "no frame constraint")
+        pos0, cov0 = coarse_fix(scn.true_pos(station_id), station_id if not join else max(station_id, 4),
+                                scn.sigma0_m, station_rng(seed, station_id, 1))
+    elif station_id == 1 and not join:
         pos0, cov0 = np.zeros(3), np.zeros((3, 3))
     else:
         pos0, cov0 = None, None
@@ -102,6 +105,8 @@ class Simulator:
     start_s : {station id: true start time}; stations in ``scn.join_ids`` default to joining.
     stop_s : {station id: true time the station dies (SIGKILL-like: silent from then on)}; the scenario's
         ``[[faults]]`` of kind ``leave`` / ``kill`` add theirs (``at_s``) unless given here.
+    restart_s : {station id: true time a stopped station powers on again}: a fresh core (no memory, the
+        same oscillator and coarse fix), joining the running field like ``larns fleet --restart``.
     core_factory : builds a station's ``(core, clock)``; same signature as :func:`make_core` (the
         default). The injection point for tests and tools that change how a core is built.
     journal : the stations' shells publish their core journal (``core_init``, ``core_input``).
@@ -113,7 +118,7 @@ class Simulator:
 
     def __init__(self, scn: Scenario, *, estimator: str | None = None, seed: int | None = None,
                  start_s: dict[int, float] | None = None, stop_s: dict[int, float] | None = None,
-                 core_factory: Callable[..., tuple[StationCore, Clock]] | None = None, journal: bool = False,
+                 restart_s: dict[int, float] | None = None, core_factory: Callable[..., tuple[StationCore, Clock]] | None = None, journal: bool = False,
                  publish: Callable[[float, int, dict, dict | None], Any] | None = None):
         self.scn = scn
         self.core_factory = make_core if core_factory is None else core_factory
@@ -124,6 +129,10 @@ class Simulator:
         self.start_s = dict(start_s or {})
         self.stop_s = {f.station: f.at_s for f in scn.faults if f.kind in DEPARTURE_KINDS}
         self.stop_s.update(stop_s or {})
+        self.restart_s = dict(restart_s or {})
+        for sid, t in self.restart_s.items():
+            if not t > self.stop_s.get(sid, np.inf):
+                raise ValueError(f"station {sid}: restart_s {t} must follow its stop ({self.stop_s.get(sid)})")
         for j in scn.join_ids:
             self.start_s.setdefault(j, 20.0)
         n = len(scn.ids)
@@ -143,6 +152,8 @@ class Simulator:
         for k, sid in enumerate(scn.ids):
             t0 = self.start_s.get(sid, 0.0)
             self._push(t0, ("start", k))
+            if sid in self.restart_s:
+                self._push(self.restart_s[sid], ("restart", k))
 
     # ------------------------------------------------------------------ event plumbing
     def _push(self, t: float, ev: tuple) -> None:
@@ -150,7 +161,8 @@ class Simulator:
         heapq.heappush(self._heap, (t, self._order, ev))
 
     def _alive(self, k: int, t: float) -> bool:
-        return self.cores[k] is not None and t < self.stop_s.get(self.scn.ids[k], np.inf)
+        sid = self.scn.ids[k]
+        return self.cores[k] is not None and (t < self.stop_s.get(sid, np.inf) or t >= self.restart_s.get(sid, np.inf))
 
     def _arm(self, k: int) -> None:
         core = self.cores[k]
@@ -211,8 +223,8 @@ class Simulator:
     def _handle(self, t: float, ev: tuple) -> None:
         what, k = ev[0], ev[1]
         sid = self.scn.ids[k]
-        if what == "start":
-            join = sid in self.scn.join_ids or self.start_s.get(sid, 0.0) > 0.0
+        if what in ("start", "restart"):
+            join = what == "restart" or sid in self.scn.join_ids or self.start_s.get(sid, 0.0) > 0.0
             core, clock = self.core_factory(self.scn, sid, estimator=self.estimator, join=join, start_s=t,
                                             seed=self.seed)
             self.cores[k], self.clocks[k] = core, clock

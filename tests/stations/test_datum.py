@@ -1,0 +1,62 @@
+"""The frame datum carried by the field (issue 30 item 2; docs/architecture.md, "The frame datum").
+
+A near noise-free world (sigma_d = 1 mm, perfect clocks) in the real simulator: once the survey
+converged the founders hand the frame to the field, any station can leave without moving the
+others, and a restarted founder is an ordinary station that re-surveys to its true position."""
+
+import numpy as np
+import pytest
+
+from net.scenario import load
+from stations.core import rigid_motion
+from stations.sim import Simulator
+
+SIGMA_D_M = 1e-3
+MOVE_TOL_M = 5 * SIGMA_D_M  # survivors against the same world without the departure
+
+
+@pytest.fixture(scope="module")
+def world():
+    scn = load("seed000", seed=5, channel={"sigma_d_m": SIGMA_D_M}, clock={"model": "perfect"})
+    sim = Simulator(scn)
+    base = sim.run(100.0, [60.0, 100.0])
+    return scn, sim, base
+
+
+def test_founders_hand_the_frame_to_the_field(world):
+    scn, sim, base = world
+    for core in sim.cores:
+        assert core.est.datum_sigma_m is not None, core.id  # every station in the datum mode
+        assert core.est.free.all() and np.all(np.diag(core.est.cov_m2) > 0)  # founders free in x, y, z
+        assert core.state == "surveying"
+    assert np.abs(base.pos_m[0] - base.truth_m).max() < 10 * SIGMA_D_M  # converged at 60 s
+
+
+@pytest.mark.parametrize("gone", [1, pytest.param(2, marks=pytest.mark.slow), pytest.param(3, marks=pytest.mark.slow),
+                                  pytest.param(7, marks=pytest.mark.slow)])
+def test_removing_any_station_moves_no_one(world, gone):
+    scn, _, base = world
+    r = Simulator(scn, stop_s={gone: 60.0}).run(100.0, [100.0])
+    keep = np.array([i != gone for i in scn.ids])
+    move = np.abs(r.pos_m[0, keep] - base.pos_m[1, keep]).max()
+    assert move < MOVE_TOL_M, move
+    assert np.isnan(r.pos_m[0, ~keep]).all()  # it did leave
+
+
+def test_restarted_founder_resurveys_to_its_true_position(world):
+    scn, _, base = world
+    r = Simulator(scn, stop_s={1: 60.0}, restart_s={1: 70.0}).run(100.0, [71.0, 100.0])
+    err = np.linalg.norm(r.pos_m[:, 0] - r.truth_m[0], axis=1)
+    assert err[0] > 1.0  # it starts from its coarse fix (10 m per coordinate), not the origin
+    assert err[1] < MOVE_TOL_M, err
+    assert np.abs(r.pos_m[1, 1:] - base.pos_m[1, 1:]).max() < MOVE_TOL_M  # and moved no one
+
+
+def test_rigid_motion_recovers_a_small_rotation_and_translation():
+    rng = np.random.default_rng(0)
+    ref = rng.uniform(-1000, 1000, (8, 3))
+    t, w = np.array([0.3, -0.2, 0.1]), np.array([1e-5, -2e-5, 3e-5])
+    pos = ref + t + np.cross(w, ref)
+    cov = np.broadcast_to(np.diag([0.01, 0.01, 1.0]), (8, 3, 3))
+    t_est, w_est = rigid_motion(pos, cov, ref)
+    assert np.allclose(t_est, t, atol=1e-9) and np.allclose(w_est, w, atol=1e-12)
