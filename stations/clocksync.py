@@ -65,6 +65,10 @@ STEER_GATE_S = 2e-9  # a peer's correction and our estimate of its clock both kn
 UNAGREED_SD_S = 1e-6  # a definition not yet compared with any peer's: broadcast offsets carry 1 us more
 SCALE_LOG_MAX = 4096  # definitions kept for the world side (the recent ones; about an hour of steering)
 LEAVE_S = 5.0  # a member not heard in any exchange for 5 s of network time leaves the ensemble
+# a station that powers on while station 1 (the filter's coordinate clock) is silent anchors its filter
+# on its peers' broadcast corrections: their offsets against the ensemble stand for their offsets
+# against that coordinate clock, within ANCHOR_SD_S (the field keeps both continuous: ns apart)
+ANCHOR_SD_S = 1e-6
 
 
 @dataclass(frozen=True)
@@ -169,6 +173,9 @@ class ClockEstimator:
         # the last measured disagreement
         self._scale_var_s2 = UNAGREED_SD_S**2
         self._tick_T = math.floor(self.T_s)
+        self._t0_local = float(t0_s)
+        self._ref_heard_local = -math.inf  # local time of the last nav heard from station 1
+        self.n_anchor = 0  # navs used as absolute anchors (station 1 silent, own clock unknown)
         if not self.ref:
             self._add(station_id)
 
@@ -436,7 +443,14 @@ class ClockEstimator:
         old = self.scale.w
         alive = {s for s in old if s == self.id or T - heard.get(s, -math.inf) <= LEAVE_S}
         if not alive:
-            return  # nobody left to define time: keep the scale (extrapolated)
+            # none of our definition's clocks is heard (a station powered on after station 1 left, its
+            # definition still station 1's clock): define it over the clocks we do hear, known against
+            # each other, ours included; the first steering then adopts the field's definition
+            me = self.index[self.id]  # (O(n): each heard clock against ours)
+            alive = {self.id} | {s for s in self.index if s != self.id and T - heard.get(s, -math.inf) <= 1.5
+                                 and self._var([me, self.index[s]], [1.0, -1.0], 0.0) <= ENTER_SD_S**2}
+            if len(alive) < 2:
+                return  # nobody to define time with yet: keep the scale (extrapolated)
         w_alive = {s: 1.0 / len(alive) for s in alive}
         new = set(alive)
         for sid in [self.id, *self.index]:
@@ -585,9 +599,12 @@ class ClockEstimator:
         correction) while ``theta_me - theta_src`` is unknown to more than the gate; True if used."""
         if self.exact or corr is None or src == self.id:
             return False
+        if src == 1:
+            self._ref_heard_local = max(self._ref_heard_local, t_rx_s)
         T = self.network_time(t_rx_s)
         if self._coarse_var_at(T, src) <= self.coarse_gate_s**2:  # the common case once synced
             return False  # (the filter stays where it is: the next input predicts it)
+        self._anchor(src, t_tx_src_s, corr, t_rx_s)
         self.predict(T)
         ks, signs, dt_h = self._terms(T, [(self.id, 1.0), (src, -1.0)])
         if self._var(ks, signs, dt_h) <= self.coarse_gate_s**2:
@@ -597,6 +614,26 @@ class ClockEstimator:
         self.n_coarse += 1
         self._retry()
         return True
+
+    def _anchor(self, src: int, t_tx_src_s: float, corr, t_rx_s: float) -> None:
+        """Station 1 silent (not heard for ``LEAVE_S``, nor since we started ``LEAVE_S`` ago) and our
+        clock unknown: nothing measures the filter's coordinate clock any more, so only offset
+        differences are observable and a station powering on could never know the field's time. The
+        peer's broadcast offset against the ensemble, ``theta_src = corr`` (the field keeps the
+        ensemble continuous with the coordinate clock it was started from), is then used as an
+        absolute measurement of that clock, with variance ``var(corr) + ANCHOR_SD_S^2``; the coarse
+        timing of the same nav then gives ours."""
+        if (src == 1 or t_rx_s - max(self._ref_heard_local, self._t0_local) <= LEAVE_S
+                or self._own()[2] <= self.coarse_gate_s**2):
+            return
+        th, var = predict_correction(corr, t_tx_src_s, self.model)
+        T = t_tx_src_s - th  # the nav's transmit time in network time, by the sender's own correction
+        self.predict(T)
+        ks, signs, dt_h = self._terms(T, [(src, 1.0)])
+        if self._var(ks, signs, dt_h) <= var + ANCHOR_SD_S**2:
+            return  # that clock is already known as well as the anchor would tell
+        self._update(ks, signs, dt_h, th, var + ANCHOR_SD_S**2)
+        self.n_anchor += 1
 
     def _coarse_var_at(self, T_s: float, src: int) -> float:
         """Variance of ``theta_me - theta_src`` predicted to network time ``T_s`` without moving the

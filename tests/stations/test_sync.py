@@ -389,3 +389,17 @@ def test_aircraft_pseudorange_error_equals_the_station_sync_error_times_c():
         # c x the residual sync error; network time runs at station 1's rate (r x its ppm-level drift)
         assert err == pytest.approx(C * sync_err, abs=r * 1e-5 + 1e-6)
         assert core.clock_var_m2(msg) == pytest.approx(C**2 * (4e-18 + 2 * 0.3 * 1e-19 + 0.09 * 1e-20))
+
+
+def test_a_station_powering_on_after_station_1_left_gets_network_time_from_the_others():
+    """Station 1 (the filter's coordinate clock) silent from 20 s; station 10 powers on at 30 s: it
+    anchors on the peers' broadcast corrections, redefines its time scale over the clocks it hears,
+    adopts the field's, and ranges in its slot (issue 30)."""
+    scn = load("seed000", seed=2)
+    sim = Simulator(scn, stop_s={1: 20.0}, start_s={10: 30.0})
+    r = sim.run(50.0, [40.0, 45.0, 50.0])
+    core = sim.cores[-1]
+    assert core.clk.n_anchor >= 1 and 1 not in core.clk.scale.w
+    assert np.all(np.abs(r.clock_err_s[:, -1]) < 2e-9), r.clock_err_s[:, -1]
+    assert np.all(np.abs(r.clock_err_s[:, 1:-1]) < 2e-9)  # the survivors too
+    assert core.counters["responses"] >= 15 and core.counters["lost"] <= 1
