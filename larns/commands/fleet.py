@@ -6,7 +6,9 @@ Spawns one ``python -m stations`` process per station of the scenario (each its 
 listening on its own loopback port, seeded with the endpoints of stations 1 and 2 - gossip links
 everyone to everyone; or, with ``--topology router``, one ``larns router`` process and every other
 process a Zenoh client of it), the recorder (``larns record``) when ``--record`` is given, and optional
-hot-joining stations (``--join ID@T``). All processes share one epoch chosen a few seconds in the
+hot-joining stations (``--join ID@T``). ``--kill ID@T`` SIGKILLs a station's process at fleet time
+T, ``--restart ID@T`` starts a fresh process with the same id at T (it joins the running field);
+the scenario's ``[[faults]]`` leave (SIGTERM) and kill events are acted on the same way. All processes share one epoch chosen a few seconds in the
 future, so they compute the same TDMA slot boundaries without a clock master.
 
 While the fleet runs, a live table shows every station's slot, number of updates, estimated
@@ -32,6 +34,7 @@ def register(sub) -> None:
                            "larns fleet --scenario seed000 --duration 60 --record runs/demo.mcap   # fleet file: runs/fleet.json",
                            "larns fleet --scenario seed000 --duration 60 --join 11@20 --speed 2        # station 11 hot-joins at 20 s",
                            "larns fleet --duration 0 --topology router --aircraft                   # until Ctrl-C",
+                           "larns fleet --duration 400 --kill 1@60 --kill 2@120 --restart 1@300 --record runs/f.mcap  # founders fail",
                        ))
     p.add_argument("--scenario", default="seed000", help="scenario name or TOML path (default seed000)")
     p.add_argument("--duration", type=float, default=60.0,
@@ -40,6 +43,12 @@ def register(sub) -> None:
     p.add_argument("--record", default=None, metavar="FILE.mcap", help="record everything to this MCAP file")
     p.add_argument("--join", action="append", metavar="ID@T",
                    help="hot-join station ID at fleet time T seconds (repeatable), e.g. --join 11@20")
+    p.add_argument("--kill", action="append", metavar="ID@T",
+                   help="SIGKILL station ID's process at fleet time T seconds (repeatable), e.g. --kill 1@60; "
+                        "the scenario's [[faults]] leave (SIGTERM) / kill events are acted on too")
+    p.add_argument("--restart", action="append", metavar="ID@T",
+                   help="start a fresh process for station ID at fleet time T (after its --kill or leave; "
+                        "repeatable): it joins the running field as an ordinary station, e.g. --restart 1@300")
     p.add_argument("--join-time", type=float, default=20.0,
                    help="fleet time at which the scenario's join stations join (default 20)")
     p.add_argument("--n-stations", type=int, default=None, help="override the station count of a random layout")

@@ -30,6 +30,7 @@ class FleetPlan:
     monitor_ep: str
     secure: str | None = None
     children: list[Child] = field(default_factory=list)
+    events: list["FleetEvent"] = field(default_factory=list)  # kills, leaves, restarts in fleet-time order
     endpoints: dict[str, str] = field(default_factory=dict)  # process name -> its listening endpoint
 
 
@@ -50,6 +51,56 @@ def parse_joins(args: argparse.Namespace, scn) -> list[tuple[int, float]]:
             print(f"larns fleet: --join {sid}: expected a station id in 1..65535", file=sys.stderr)
             raise SystemExit(2)
     return joins
+
+
+@dataclass
+class FleetEvent:
+    """A station fault acted on by the launcher at fleet time ``t_s``: ``kill`` (SIGKILL), ``leave``
+    (SIGTERM: the station stops cleanly) or ``restart`` (a fresh process with the same id that joins
+    the running field, ``--join --start-at t_s``)."""
+
+    kind: str
+    sid: int
+    t_s: float
+    done: bool = False
+
+
+def _id_at(flag: str, spec: str, ids: list[int]) -> tuple[int, float]:
+    sid, at, t = spec.partition("@")
+    try:
+        out = int(sid), float(t)
+    except ValueError:
+        out = None
+    if out is None or not at or out[1] < 0:
+        print(f"larns fleet: {flag} {spec}: expected ID@T (station id @ fleet seconds), e.g. {flag} 1@60",
+              file=sys.stderr)
+        raise SystemExit(2)
+    if out[0] not in ids:
+        print(f"larns fleet: {flag} {spec}: station {out[0]} is not in the fleet ({', '.join(map(str, ids))})",
+              file=sys.stderr)
+        raise SystemExit(2)
+    return out
+
+
+def parse_events(args: argparse.Namespace, scn) -> list[FleetEvent]:
+    """``--kill ID@T``, ``--restart ID@T`` and the scenario's ``[[faults]]`` of kind ``leave`` /
+    ``kill`` (a ``--kill`` or ``--restart`` of the same station overrides nothing: all are acted on),
+    in fleet-time order; a restart must follow a kill or leave of the same station."""
+    from net.scenario import DEPARTURE_KINDS
+
+    ev = [FleetEvent(f.kind, f.station, float(f.at_s)) for f in scn.faults if f.kind in DEPARTURE_KINDS]
+    for flag, kind in (("--kill", "kill"), ("--restart", "restart")):
+        for spec in getattr(args, kind, None) or []:
+            ev.append(FleetEvent(kind, *_id_at(flag, spec, list(scn.ids))))
+    ev.sort(key=lambda e: (e.t_s, e.kind != "restart"))
+    down: dict[int, bool] = {}
+    for e in ev:
+        if e.kind == "restart" and not down.get(e.sid):
+            print(f"larns fleet: --restart {e.sid}@{e.t_s:g}: station {e.sid} is not down then "
+                  f"(give --kill {e.sid}@T with T < {e.t_s:g}, or a [[faults]] leave / kill)", file=sys.stderr)
+            raise SystemExit(2)
+        down[e.sid] = e.kind != "restart"
+    return [e for e in ev if not args.duration or e.t_s < args.duration]
 
 
 def with_outside_joiners(scn, joins: list[tuple[int, float]]):
@@ -130,6 +181,7 @@ def plan_fleet(args: argparse.Namespace) -> FleetPlan:
     for sid in scn.ids:
         p.children.append(_station_child(args, p, sid, station_ep[sid], common))
     p.children.sort(key=lambda c: (c.name != "router", c.name != "recorder"))
+    p.events = parse_events(args, scn)
     if args.aircraft:
         if not aircraft_available():
             print("[fleet] --aircraft: no aircraft process in this build (python -m aircraft); skipped",
@@ -216,6 +268,26 @@ def _station_child(args: argparse.Namespace, p: FleetPlan, sid: int, ep: str, co
         start_wall = max(0.0, p.epoch + joins[sid] / args.speed - p.margin)
     cmd += bus_argv([ep], [s for s in p.seeds if s != ep], args.zenoh_config, p.mode, p.secure)
     return Child(f"station {sid}", cmd, _log(p, f"station_{sid}.log"), start_wall=start_wall)
+
+
+def restart_child(args: argparse.Namespace, p: FleetPlan, sid: int, t_s: float, n: int) -> Child:
+    """A fresh process for station ``sid`` at fleet time ``t_s`` (its ``n``-th life): the station's
+    own command, joining at ``t_s``, connecting to every other station (the seeds may be gone)."""
+    from net.bus import bus_argv
+
+    first = next(c for c in p.children if c.name == f"station {sid}")
+    i = first.cmd.index("--id")
+    cmd = first.cmd[:i + 2] + common_argv(args, p.epoch) + ["--status-every", "10"]
+    if args.nice:
+        cmd += ["--nice", str(args.nice)]
+    if args.duration:
+        cmd += ["--until", repr(args.duration)]
+    cmd += ["--join", "--start-at", repr(t_s)]
+    ep = p.endpoints.get(f"station {sid}")
+    others = [e for k, e in p.endpoints.items() if k.startswith("station ") and e != ep] if p.mode == "peer" else p.seeds
+    # a fresh port: the old one may linger; it connects to everyone, nobody needs to connect to it
+    cmd += bus_argv(["tcp/127.0.0.1:0"], others, args.zenoh_config, p.mode, p.secure)
+    return Child(f"station {sid}#{n}", cmd, _log(p, f"station_{sid}.{n}.log"))
 
 
 def _aircraft_child(args: argparse.Namespace, p: FleetPlan, common: list[str]) -> Child:

@@ -21,6 +21,7 @@ def _announce(args: argparse.Namespace, p: FleetPlan) -> None:
     joins = p.joins
     print(f"[fleet] scenario {p.scn.name}: {len(p.initial)} stations"
           + (f" + {len(joins)} joining ({', '.join(f'{s}@{t:g}s' for s, t in joins)})" if joins else "")
+          + (f", events {', '.join(f'{e.kind} {e.sid}@{e.t_s:g}s' for e in p.events)}" if p.events else "")
           + (f", recorder -> {args.record}" if args.record else "")
           + f", speed {args.speed:g}, epoch in {p.margin:.1f} s"
           + (f", logs in {p.logdir}/" if p.logdir else ""), file=sys.stderr, flush=True)
@@ -63,7 +64,8 @@ def _final(args: argparse.Namespace, p: FleetPlan, monitor: Monitor, final: list
     t_f = (time.time() - p.epoch) * args.speed
     print("\n".join([format_table(final, t_f), *monitor.aircraft_lines(), *monitor.vehicle_lines()]))
     rc = {c.name: (c.proc.returncode if c.proc else None) for c in p.children}
-    bad = {k: v for k, v in rc.items() if v not in (0, None)}
+    expected = {c.name for c in p.children if c.expected_exit}  # --kill, [[faults]] leave / kill
+    bad = {k: v for k, v in rc.items() if v not in (0, None) and k not in expected}
     if bad:
         print(f"[fleet] non-zero exit codes: {bad}", file=sys.stderr)
     if args.record:

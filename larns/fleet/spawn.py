@@ -16,6 +16,7 @@ class Child:
     proc: subprocess.Popen | None = None
     start_wall: float = 0.0  # when to spawn (wall clock)
     log_file: Any = None
+    expected_exit: bool = False  # killed or stopped on purpose (--kill, [[faults]] leave / kill)
 
 
 def spawn(c: Child) -> None:

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import threading
 import time
 
 from .monitor import Monitor, format_table
-from .plan import FleetPlan
+from .plan import FleetPlan, restart_child
 from .spawn import spawn
 
 
@@ -53,8 +54,42 @@ def print_table(args: argparse.Namespace, p: FleetPlan, monitor: Monitor, now: f
     sys.stdout.flush()
 
 
+RESTART_LEAD_S = 3.0  # wall seconds a restarted station is spawned ahead of its fleet time (imports, bus)
+
+
+def station_events(args: argparse.Namespace, p: FleetPlan, now: float) -> None:
+    """Act on the fleet's station events that are due (``--kill``, ``--restart``, scenario
+    ``[[faults]]`` leave / kill): SIGKILL or SIGTERM to the station's live process; a restart spawns
+    a fresh process with the same id ``RESTART_LEAD_S`` ahead (after the station is down), which
+    sleeps until its fleet time and joins the running field."""
+    for e in p.events:
+        if e.done:
+            continue
+        due = p.epoch + e.t_s / args.speed
+        live = [c for c in p.children if c.name.split("#")[0] == f"station {e.sid}" and c.proc is not None
+                and c.proc.poll() is None]
+        if e.kind == "restart":
+            if now < due - RESTART_LEAD_S or live:
+                continue
+            n = 1 + sum(1 for c in p.children if c.name.split("#")[0] == f"station {e.sid}")
+            c = restart_child(args, p, e.sid, e.t_s, n)
+            p.children.append(c)
+            spawn(c)
+            print(f"[fleet] t={e.t_s:g} s: station {e.sid} restarted (a fresh process, joining)", file=sys.stderr,
+                  flush=True)
+        elif now >= due:
+            for c in live:
+                c.proc.send_signal(signal.SIGKILL if e.kind == "kill" else signal.SIGTERM)
+                c.expected_exit = True
+            print(f"[fleet] t={e.t_s:g} s: station {e.sid} {'killed (SIGKILL)' if e.kind == 'kill' else 'leaves (SIGTERM)'}",
+                  file=sys.stderr, flush=True)
+        else:
+            continue
+        e.done = True
+
+
 def watch(args: argparse.Namespace, p: FleetPlan, monitor: Monitor, stop: threading.Event) -> None:
-    """Until the end of the run or ``stop``: late spawns and the live table."""
+    """Until the end of the run or ``stop``: late spawns, station events and the live table."""
     next_print = p.epoch
     tty = sys.stdout.isatty() and not args.no_table
     period = args.refresh if tty else max(args.refresh, 10.0)
@@ -63,6 +98,7 @@ def watch(args: argparse.Namespace, p: FleetPlan, monitor: Monitor, stop: thread
         for c in p.children:
             if c.proc is None and c.start_wall and now >= c.start_wall:
                 spawn(c)
+        station_events(args, p, now)
         if finished(args, p, now):
             break
         if now >= next_print and not args.no_table:
