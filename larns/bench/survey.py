@@ -48,6 +48,10 @@ def register(sub) -> None:
     p.add_argument("--json", metavar="FILE", help="write the results as JSON")
     p.add_argument("--png-dir", metavar="DIR", default="bench-out/survey",
                    help="where to write PNG figures (default bench-out/survey; '' to skip)")
+    p.add_argument("--founders-leave", action="store_true",
+                   help="the founders leave (station 1 at 60 s, 2 at 120 s, 3 at 180 s; 300 s run, dmap): each "
+                        "trial also runs its twin without departures; reports the survivors' horizontal "
+                        "deviation from the twin after each departure and at the end, in metres and in sigma")
     p.set_defaults(func=main)
 
 
@@ -238,8 +242,115 @@ def plot(all_res: list[dict], png_dir: Path) -> list[Path]:
     return files
 
 
+FOUNDERS_LEAVE_S = {1: 60.0, 2: 120.0, 3: 180.0}  # --founders-leave: station -> time it falls silent
+LEAVE_AFTER_S = 30.0  # each departure is scored this long after it
+LEAVE_BAR_M = 0.03  # the issue's bar at the end: within 1 sigma and 3 cm of the twin
+
+
+def _leave_trial(job: tuple) -> dict:
+    """One ``--founders-leave`` trial: the same world with and without the departures. Returns, per
+    scoring time, the survivors' horizontal deviation from the twin (m) and their horizontal sigma
+    (root of P_xx + P_yy of the run with departures), NaN for stations not alive."""
+    from net.scenario import load
+    from stations.core import rigid_motion
+    from stations.sim import Simulator
+
+    scenario, sigma_d, n, seed, duration, clock = job
+    scn = load(scenario, seed=seed, channel={"sigma_d_m": sigma_d}, layout={"n": n},
+               **({"clock": {"model": clock}} if clock else {}))
+    stop = {sid: t for sid, t in FOUNDERS_LEAVE_S.items() if t < duration}
+    times = sorted({min(t + LEAVE_AFTER_S, duration) for t in stop.values()} | {duration}
+                   | {t - 1.0 for t in stop.values()})
+    t0 = time.perf_counter()
+    twin = Simulator(scn, estimator="dmap").run(duration, times)
+    gone = Simulator(scn, estimator="dmap", stop_s=stop).run(duration, times)
+    d = gone.pos_m - twin.pos_m
+    dev = np.hypot(d[..., 0], d[..., 1])  # (K, n)
+    sig = np.sqrt(gone.cov_m2[..., 0, 0] + gone.cov_m2[..., 1, 1])
+    e = gone.pos_m - gone.truth_m
+    # the same deviation once the rigid motion between the two runs is removed (survivors, weighted by
+    # their covariances): what the departures did to the shape, not to the datum
+    shape = np.full_like(dev, np.nan)
+    for k in range(len(times)):
+        ok = np.isfinite(gone.pos_m[k, :, 0])
+        if ok.sum() >= 3:
+            tr, w = rigid_motion(gone.pos_m[k, ok], gone.cov_m2[k, ok], twin.pos_m[k, ok])
+            r = d[k, ok] - tr - np.cross(w, twin.pos_m[k, ok])
+            shape[k, ok] = np.hypot(r[:, 0], r[:, 1])
+    return {"times": times, "dev_m": dev, "shape_m": shape, "sigma_m": sig,
+            "err_h_m": np.hypot(e[..., 0], e[..., 1]), "wall_s": time.perf_counter() - t0}
+
+
+def leave_summary(results: list[dict], sigma_d: float) -> dict:
+    """Per scoring time (just before and 30 s after each departure, the end): the survivors'
+    horizontal deviation from the twin over trials and stations (median, 95th percentile, max, in m)
+    and in units of their sigma; at the end, the share of trials whose every survivor is within
+    1 sigma and 3 cm of its twin (the issue's bar)."""
+    times = results[0]["times"]
+    dev = np.stack([r["dev_m"] for r in results])  # (T, K, n)
+    sig = np.stack([r["sigma_m"] for r in results])
+    err = np.stack([r["err_h_m"] for r in results])
+    shp = np.stack([r["shape_m"] for r in results])
+    rows = []
+    for k, t in enumerate(times):
+        dv, rt = dev[:, k].ravel(), (dev[:, k] / sig[:, k]).ravel()
+        ok = np.isfinite(dv)
+        dv, rt, eh, sh = dv[ok], rt[ok], err[:, k].ravel()[ok], shp[:, k].ravel()[ok]
+        rows.append({"t_s": float(t), "survivors": int(ok.sum() // max(len(results), 1)),
+                     "dev_median_m": float(np.median(dv)), "dev_p95_m": float(np.percentile(dv, 95)),
+                     "dev_max_m": float(dv.max()), "dev_sigma_p95": float(np.percentile(rt, 95)),
+                     "dev_sigma_max": float(rt.max()), "sigma_h_median_m": float(np.median(sig[:, k].ravel()[ok])),
+                     "err_h_rms_m": float(np.sqrt(np.mean(eh**2))),
+                     "shape_p95_m": float(np.percentile(sh, 95)) if np.isfinite(sh).all() else None})
+    end = dev[:, -1]
+    within = np.all((end <= sig[:, -1]) & (end <= LEAVE_BAR_M) | ~np.isfinite(end), axis=1)
+    return {"sigma_d_m": sigma_d, "trials": len(results), "founders_leave_s": {str(k): v for k, v in FOUNDERS_LEAVE_S.items()},
+            "scored_after_s": LEAVE_AFTER_S, "rows": rows, "end_within_1sigma_and_3cm_frac": float(within.mean()),
+            "trial_wall_s_mean": float(np.mean([r["wall_s"] for r in results]))}
+
+
+def print_leave(res: dict) -> None:
+    print(f"\nfounders leave (1 @ 60 s, 2 @ 120 s, 3 @ 180 s), dmap, sigma_d={res['sigma_d_m']} m, "
+          f"trials={res['trials']}: survivors' horizontal deviation from the same trial without departures")
+    hdr = ("t_s", "alive", "med_m", "p95_m", "max_m", "p95_sig", "max_sig", "shape_p95", "sigma_h", "err_rms")
+    print("  ".join(f"{h:>9}" for h in hdr))
+    for r in res["rows"]:
+        print("  ".join(f"{x:9.3f}" if isinstance(x, float) else f"{x!s:>9}" for x in
+                        (r["t_s"], r["survivors"], r["dev_median_m"], r["dev_p95_m"], r["dev_max_m"],
+                         r["dev_sigma_p95"], r["dev_sigma_max"], r["shape_p95_m"], r["sigma_h_median_m"],
+                         r["err_h_rms_m"])))
+    print("  (med/p95/max: horizontal deviation from the twin over trials x survivors, m; _sig: in units of the "
+          "survivor's horizontal sigma; shape_p95: after removing the rigid motion between the runs; err_rms: "
+          "horizontal error against the truth)")
+    print(f"  bar end_within_1sigma_and_3cm (every survivor of a trial): {res['end_within_1sigma_and_3cm_frac']:.0%} "
+          f"of trials;  mean wall per trial {res['trial_wall_s_mean']:.1f} s (twin included)")
+
+
+def leave_main(args) -> int:
+    from .progress import progress
+
+    duration = args.duration if args.duration > 60.0 else 300.0
+    out = []
+    with mp.get_context("fork").Pool(max(1, args.jobs)) as pool:
+        for sd in args.sigma_d:
+            jobs = [(args.scenario, sd, args.stations, args.seed + k, duration, getattr(args, "clock", None))
+                    for k in range(args.trials)]
+            res = leave_summary(list(progress(pool.imap(_leave_trial, jobs), f"founders-leave sigma_d={sd}",
+                                              total=len(jobs))), sd)
+            print_leave(res)
+            out.append(res)
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(out[0] if len(out) == 1 else {"runs": out}, indent=1))
+        print(f"wrote {args.json}")
+    return 0
+
+
 def main(args) -> int:
     from .progress import progress
+
+    if getattr(args, "founders_leave", False):
+        return leave_main(args)
 
     table_times = [t for t in TABLE_TIMES_S if t <= args.duration]
     times = np.arange(1.0, args.duration + 1e-9, 1.0)
