@@ -191,3 +191,31 @@ def test_fuzz_absurd_navs_through_every_navigator(name):
 @pytest.mark.parametrize("name", sorted(NAVIGATORS))
 def test_fuzz_20000_absurd_navs_through_every_navigator(name):
     _check(_fuzz(NAVIGATORS[name](), 20_000), 20_000)
+
+
+def test_the_aircraft_node_drops_a_nav_whose_phy_claims_a_time_far_from_now():
+    """A compromised host's ``phy`` claiming 1e12 s had the aircraft's channel read network time's
+    oscillators there (drawing their random walk up to it: it never returned). The node refuses a
+    claim more than 60 fleet seconds from its own time (``time``) before the core."""
+    import time
+
+    from aircraft.node import AircraftNode, AircraftOptions
+    from fake_bus import FakeBus
+
+    class Bus(FakeBus):
+        def publish(self, key, data, block=False):
+            super().publish(key, data)
+
+    scn = load("seed000")
+    node = AircraftNode(scn, AircraftOptions(name="ac1", quiet=True, epoch_unix_s=time.time() - 20.0), Bus())
+    p = scn.true_pos(2).tolist()
+    for k, t in enumerate((1e12, -1e12, node.fleet_now() + 120.0)):
+        m = dict(_honest_nav(2, k + 1, t, p), cycle=1)
+        t0 = time.process_time()
+        node._ingest(M.key_for(m), M.encode(m, {"pos_m": p, "t_true_s": t}))
+        assert time.process_time() - t0 < 1.0
+    assert node.drops.by_reason["time"] == 3
+    t = node.fleet_now()
+    m = _honest_nav(2, 9, t, p)
+    node._ingest(M.key_for(m), M.encode(m, {"pos_m": p, "t_true_s": t}))
+    assert node.drops.by_reason["time"] == 3 and node.core.stats["measurements"] == 1
