@@ -289,8 +289,9 @@ class AircraftNode:
         if got is None:
             return
         msg, phy = got
-        if not abs(phy["t_true_s"] - self.fleet_now()) <= 60.0 * self.opts.speed:
-            # the channel would read the true clocks (network time) there: a claim of 1e12 s hung it
+        if not 0.0 <= phy["t_true_s"] <= self.fleet_now() + 60.0 * self.opts.speed:
+            # nothing is sent before the epoch; the channel would draw the true clocks (network time) up
+            # to a time ahead of now: a claim of 1e12 s hung it
             self.drops.drop("time", f"nav from {msg['src']} at t = {phy['t_true_s']:.3g} s")
             return
         try:

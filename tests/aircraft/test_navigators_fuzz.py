@@ -196,7 +196,8 @@ def test_fuzz_20000_absurd_navs_through_every_navigator(name):
 def test_the_aircraft_node_drops_a_nav_whose_phy_claims_a_time_far_from_now():
     """A compromised host's ``phy`` claiming 1e12 s had the aircraft's channel read network time's
     oscillators there (drawing their random walk up to it: it never returned). The node refuses a
-    claim more than 60 fleet seconds from its own time (``time``) before the core."""
+    claim more than 60 fleet seconds ahead of its own time or before the epoch (``time``) before the
+    core."""
     import time
 
     from aircraft.node import AircraftNode, AircraftOptions
@@ -209,13 +210,13 @@ def test_the_aircraft_node_drops_a_nav_whose_phy_claims_a_time_far_from_now():
     scn = load("seed000")
     node = AircraftNode(scn, AircraftOptions(name="ac1", quiet=True, epoch_unix_s=time.time() - 20.0), Bus())
     p = scn.true_pos(2).tolist()
-    for k, t in enumerate((1e12, -1e12, node.fleet_now() + 120.0)):
+    for k, t in enumerate((1e12, node.fleet_now() + 120.0, -1e12, -1.0)):  # (nothing is sent before the epoch)
         m = dict(_honest_nav(2, k + 1, t, p), cycle=1)
         t0 = time.process_time()
         node._ingest(M.key_for(m), M.encode(m, {"pos_m": p, "t_true_s": t}))
         assert time.process_time() - t0 < 1.0
-    assert node.drops.by_reason["time"] == 3
+    assert node.drops.by_reason["time"] == 4
     t = node.fleet_now()
     m = _honest_nav(2, 9, t, p)
     node._ingest(M.key_for(m), M.encode(m, {"pos_m": p, "t_true_s": t}))
-    assert node.drops.by_reason["time"] == 3 and node.core.stats["measurements"] == 1
+    assert node.drops.by_reason["time"] == 4 and node.core.stats["measurements"] == 1
