@@ -12,7 +12,7 @@ import math
 import msgpack
 import pytest
 
-from larns.mcaputil import Msg
+from larns.log import Msg
 from larns.analysis.offline import reestimate_station
 from larns.log.series import collect_journals, decode_input
 from net import messages as M
