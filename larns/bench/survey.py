@@ -274,7 +274,8 @@ def _leave_trial(job: tuple) -> dict:
     for k in range(len(times)):
         ok = np.isfinite(gone.pos_m[k, :, 0])
         if ok.sum() >= 3:
-            tr, w = rigid_motion(gone.pos_m[k, ok], gone.cov_m2[k, ok], twin.pos_m[k, ok])
+            # (a founder still holding the frame has zero variance on its constrained coordinates)
+            tr, w = rigid_motion(gone.pos_m[k, ok], gone.cov_m2[k, ok] + 1e-6 * np.eye(3), twin.pos_m[k, ok])
             r = d[k, ok] - tr - np.cross(w, twin.pos_m[k, ok])
             shape[k, ok] = np.hypot(r[:, 0], r[:, 1])
     return {"times": times, "dev_m": dev, "shape_m": shape, "sigma_m": sig,
