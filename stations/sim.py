@@ -90,6 +90,8 @@ def make_core(scn: Scenario, station_id: int, *, estimator: str | None = None, j
         clock_q_wf_s=scn.clock.q_wf_s,
         clock_q_rw_per_s=scn.clock.q_rw_per_s,
         field_radius_m=field_radius(scn.pos_m, scn.ids),
+        # the frame datum: the founders' throughout, or handed to the converged field ([survey] datum)
+        datum_converged_m=0.0 if scn.datum == "field" else -1.0,
     )
     return StationCore(cfg, pos0, cov0, start_s=clock.to_local(start_s)), clock
 

@@ -22,7 +22,8 @@ SPEED = 5.0
 
 def _scenario(tmp_path, leave: str = "") -> str:
     p = tmp_path / "faults.toml"
-    p.write_text(random_world("faults", 7) + leave)
+    text = random_world("faults", 7).replace("ranges_per_update = 3\n", 'ranges_per_update = 3\ndatum = "field"\n')
+    p.write_text(text + leave)  # the field carries the datum: the founders may go
     return str(p)
 
 

@@ -43,6 +43,7 @@ CASES = [
     ({"layout": {"joiners": -1}}, "[layout] joiners"),
     ({"frame": {"z_ref": 0}}, "[frame] z_ref"),
     ({"survey": {"ranges_per_update": 0}}, "[survey] ranges_per_update"),
+    ({"survey": {"datum": "everyone"}}, "[survey] datum"),
     ({"survey": {"estimator": 3}}, "[survey] estimator"),
     ({"survey": {"estimater": "dmap"}}, "[survey] estimater"),
     ({"clock": {"model": "atomic"}}, "[clock] model"),

@@ -17,7 +17,8 @@ MOVE_TOL_M = 5 * SIGMA_D_M  # survivors against the same world without the depar
 
 @pytest.fixture(scope="module")
 def world():
-    scn = load("seed000", seed=5, channel={"sigma_d_m": SIGMA_D_M}, clock={"model": "perfect"})
+    scn = load("seed000", seed=5, channel={"sigma_d_m": SIGMA_D_M}, clock={"model": "perfect"},
+               survey={"datum": "field"})
     sim = Simulator(scn)
     base = sim.run(100.0, [60.0, 100.0])
     return scn, sim, base
