@@ -46,7 +46,7 @@ from .navigator.ins_ekf import JAC_FORCE_TC_S, InsEkf, InsTuning
 from .navigator.ins_start import SideTest, StartConfig, enough, moved_on, radio_fix, start
 from .world import clock as wclock
 from .world.field import Field
-from .world.imu import ImuEmulator, preset
+from .world.imu import ImuBlocks, ImuEmulator, preset
 from .world.motion import Ellipse, Hover, Motion
 
 def motion_from_config(cfg: dict, height_m: float | None = None) -> Motion:
@@ -86,9 +86,8 @@ class InsAircraftCore:
         self.motion = motion_from_config(ac.trajectory, height_m if height_m is not None else ac.height_m)
         self.rng = rng
         self.imu = ImuEmulator(preset(imu), 1, rng)
-        self._imu_seed = [int(sc.seed if seed is None else seed), 0x1B0, sum(map(ord, name))]
-        self._block_id = -1
-        self._block: tuple[np.ndarray, np.ndarray] | None = None
+        self._imu_blocks = ImuBlocks(self.imu, self.motion, [int(sc.seed if seed is None else seed), 0x1B0,
+                                                             sum(map(ord, name))], self.BLOCK)
         # --- navigator: what a receiver knows (its init record, aircraft/journal.py) -----------------
         record = dict(radio_record(ac, ()), kind="ins", imu=imu, sigma_range_m=float(ac.sigma_m), t0_s=float(t0_s))
         self._navigator(record, name)
@@ -131,16 +130,9 @@ class InsAircraftCore:
         or, in a replay, the journal's."""
         if self._inputs is not None:
             return self._inputs.sample(k)
-        b, i = divmod(k, self.BLOCK)
-        if b != self._block_id:
-            dt = self.tn.dt_s
-            dth, dv = self.motion.increments(b * self.BLOCK * dt, dt, self.BLOCK)
-            self.imu.rng = np.random.default_rng(self._imu_seed + [b])
-            self._block = self.imu.measure(dth, dv)
-            self._block_id = b
-        g, a = self._block
-        self.journal.imu(k, self.t0_s + (k + 1) * self.tn.dt_s, g[i], a[i])
-        return g[i], a[i]
+        g, a = self._imu_blocks.sample(k, self.tn.dt_s)
+        self.journal.imu(k, self.t0_s + (k + 1) * self.tn.dt_s, g, a)
+        return g, a
 
     def advance_to(self, t_s: float) -> int:
         """Integrate every IMU step that ends at or before ``t_s``; returns how many were run."""

@@ -59,7 +59,7 @@ from .navigator.triad_ekf import (TRIAD_LAYOUT, Epoch, TriadEkf, TriadFrame, ini
 from .world import baro as wbaro
 from .world import clock as wclock
 from .world.field import Field
-from .world.imu import PRESETS, ImuEmulator, preset
+from .world.imu import PRESETS, ImuBlocks, ImuEmulator, preset
 
 ORIGIN = (55.75, 37.62, 0.0)  # geodetic origin of the physical frame (deg, deg, m): the triad bench's
 DEFAULT_IMU = "navigation"
@@ -93,7 +93,7 @@ class TriadAircraftCore:
         self.baro_model = baro or wbaro.BaroModel()
         pre = preset(imu or DEFAULT_IMU).with_(rate_hz=float(imu_rate_hz))
         self.imu = ImuEmulator(pre, 1, np.random.default_rng(self._key + [1]))
-        self._block_id, self._block = -1, None
+        self._imu_blocks = ImuBlocks(self.imu, self.motion, self._key + [1], self.BLOCK)
         # --- world: the sky at the start, the tie stations' geodetic survey, the baro bias --------
         p0 = self.motion.pva(np.array([0.0]))[0][0]
         s0 = self.frame.from_ecef(self.alm.ecef(float(t0_s))[0])
@@ -275,16 +275,9 @@ class TriadAircraftCore:
         """IMU step ``k`` (gyro, accel) (1, 3) each: emulated in blocks (world; journaled) or the journal's."""
         if self._inputs is not None:
             return self._inputs.sample(k)
-        b, i = divmod(k, self.BLOCK)
-        if b != self._block_id:
-            dt = self.tn.dt_s
-            dth, dv = self.motion.increments(b * self.BLOCK * dt, dt, self.BLOCK)
-            self.imu.rng = np.random.default_rng(self._key + [1, b])
-            self._block = self.imu.measure(dth, dv)
-            self._block_id = b
-        g, a = self._block
-        self.journal.imu(k, self.t0_s + (k + 1) * self.tn.dt_s, g[i], a[i])
-        return g[i], a[i]
+        g, a = self._imu_blocks.sample(k, self.tn.dt_s)
+        self.journal.imu(k, self.t0_s + (k + 1) * self.tn.dt_s, g, a)
+        return g, a
 
     def step_to(self, k_end: int) -> None:
         """Navigator side: integrate IMU steps up to (excluding) ``k_end``, with the epochs."""

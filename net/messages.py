@@ -174,9 +174,13 @@ def _opt(check: Callable[[Any, str], Any]) -> Callable[[Any, str], Any]:
     return f
 
 
-def _cfg_value(v: Any, name: str) -> Any:
-    """A station-config value: bool, int, finite number, short string or a list of ids (kept as is)."""
-    if isinstance(v, bool) or v is None:
+_COMPOUND = object()  # _scalar: not a scalar, the caller decides
+
+
+def _scalar(v: Any, name: str) -> Any:
+    """A journal scalar: None, bool, an int within +-MAX_SEQ, a finite number or a short string
+    (checked); ``_COMPOUND`` for anything else."""
+    if v is None or isinstance(v, bool):
         return v
     if type(v) is int:
         if not -MAX_SEQ <= v <= MAX_SEQ:
@@ -186,6 +190,14 @@ def _cfg_value(v: Any, name: str) -> Any:
         return _num(v, name)
     if isinstance(v, str):
         return _text(v, name)
+    return _COMPOUND
+
+
+def _cfg_value(v: Any, name: str) -> Any:
+    """A station-config value: bool, int, finite number, short string or a list of ids (kept as is)."""
+    out = _scalar(v, name)
+    if out is not _COMPOUND:
+        return out
     if isinstance(v, (list, tuple)):
         return _members(v, name)
     raise MessageError("type", f"{name}: unsupported config value {type(v).__name__}")
@@ -292,16 +304,9 @@ AC_RECORD_MAX = 64  # entries of the init record
 def _ac_value(v: Any, name: str, depth: int = 0) -> Any:
     """A value of the aircraft init record: None, bool, a finite number, a short string, or a list
     (<= MAX_LIST) / map (<= AC_RECORD_MAX) of them, nested at most 3 deep."""
-    if v is None or isinstance(v, bool):
-        return v
-    if type(v) is int:
-        if not -MAX_SEQ <= v <= MAX_SEQ:
-            raise MessageError("range", f"{name} out of range")
-        return v
-    if type(v) is float:
-        return _num(v, name)
-    if isinstance(v, str):
-        return _text(v, name)
+    out = _scalar(v, name)
+    if out is not _COMPOUND:
+        return out
     if depth >= 3:
         raise MessageError("shape", f"{name} nested too deep")
     if isinstance(v, (list, tuple)) and len(v) <= MAX_LIST:

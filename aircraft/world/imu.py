@@ -136,6 +136,27 @@ class ImuEmulator:
         return g, a
 
 
+class ImuBlocks:
+    """An IMU's increments step by step, emulated in fixed blocks of ``block`` steps: block ``b``
+    from its own generator ``default_rng(key + [b])``, so step ``k`` is the same whatever steps were
+    asked for before it (a live process and its replay agree). ``sample(k, dt_s)`` -> (gyro (3,),
+    accel (3,)) increments of step ``k`` of length ``dt_s``."""
+
+    def __init__(self, imu: ImuEmulator, motion, key: list[int], block: int = 100):
+        self.imu, self.motion, self.key, self.block = imu, motion, list(key), int(block)
+        self._id = -1
+        self._gyro = self._accel = None
+
+    def sample(self, k: int, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+        b, i = divmod(int(k), self.block)
+        if b != self._id:
+            dth, dv = self.motion.increments(b * self.block * dt_s, dt_s, self.block)
+            self.imu.rng = np.random.default_rng(self.key + [b])
+            self._gyro, self._accel = self.imu.measure(dth, dv)
+            self._id = b
+        return self._gyro[i], self._accel[i]
+
+
 def allan_dev(rate: np.ndarray, dt_s: float, m: np.ndarray) -> np.ndarray:
     """Overlapping Allan deviation of a rate series (N,) at cluster sizes ``m`` (L,) -> (L,)."""
     theta = np.concatenate([[0.0], np.cumsum(rate) * dt_s])

@@ -13,21 +13,11 @@ import numpy as np
 
 from larns.adversary.insider import absurd_message, absurd_phy
 from net import messages as M
-from net import scenario as S
-from stations import node as N
-from fake_bus import FakeBus
-
-SPEED = 0.01
+from fake_bus import station_node
 
 
-def make_node():
-    scn = S.load("seed000", layout={"n": 4})
-    bus = FakeBus()
-    epoch = time.time() - (10.0 + 0.001) / SPEED
-    node = N.StationNode(scn, N.NodeOptions(station_id=2, speed=SPEED, epoch_unix_s=epoch, quiet=True), bus)
-    node.start_core()
-    bus.sent.clear()
-    return node, bus, scn
+def make_node(net=None):
+    return station_node(net)
 
 
 def test_a_request_stamped_far_from_now_is_dropped_before_the_senders_clock_is_read():

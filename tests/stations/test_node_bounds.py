@@ -3,30 +3,17 @@ range), the delivery loop survives a core exception, the wire-delay queue is bou
 
 from __future__ import annotations
 
-import time
-from dataclasses import replace
-
 import numpy as np
 
 from net import messages as M
 from net import scenario as S
 from stations import node as N
 from stations.sim import station_clock
-from fake_bus import FakeBus
-
-SPEED = 0.01
+from fake_bus import station_node
 
 
 def make_node(net=None):
-    scn = S.load("seed000", layout={"n": 4})
-    if net is not None:
-        scn = replace(scn, net=net)
-    bus = FakeBus()
-    epoch = time.time() - (10.0 + 0.001) / SPEED
-    node = N.StationNode(scn, N.NodeOptions(station_id=2, speed=SPEED, epoch_unix_s=epoch, quiet=True), bus)
-    node.start_core()
-    bus.sent.clear()
-    return node, bus, scn
+    return station_node(net)
 
 
 def request(scn, t_true, seq=1, phy_t=None, phy_pos=None):
