@@ -2,18 +2,15 @@
 
 The second-order term of the ranges (:func:`.measurements.second_order`) is a function of the state
 error, which changes slowly (the stations' clock biases, the hover), so the same linearization error
-repeats at every update. It enters ``R`` scaled by the number of times it repeats: the shorter of the
+repeats at every update. It enters ``R`` scaled by the number of times it repeats: the longer of the
 filter's memory time and the time since its start, at most ``linearization_corr_s`` long, over the
 station's own measurement interval (0 = white, the textbook second-order EKF).
 
 The error repeats while the estimation error it comes from persists: over the filter's memory time
-(its memory in updates, prior variance over what an update removes, times the update step), and
-never for longer than the filter has run. While a filter converges from a wide first prior its error
-changes at every update (counted as repeating then, the prior would hold the measurements off). The
-memory alone is not that bound: with the second-order term of a wide prior counted as repeating, an
-update removes little, so the memory stays long and keeps the inflation - a loop that held a live
-UKF-PR started 150 m wide at 141 m sigma after 10 s (docs/aircraft.md, "Known limits": 5 m once the
-time since the start bounds it). Within that time a station's range comes once per its
+(its memory in updates, prior variance over what an update removes, times the update step) or the
+time since the start, whichever is longer. While a filter converges from a wide first prior its error
+changes at every update (counted as repeating then, the prior would hold the measurements off); once
+either has grown, the same error comes back. Within that time a station's range comes once per its
 own measurement interval (one update step in synchronous epochs, one TDMA cycle when the stations
 take turns); counting updates instead over-counts TDMA ranges by the number of stations in the
 rotation (docs/aircraft.md, "Linearization error").
@@ -67,7 +64,7 @@ class RepeatCount:
         dtj = np.array([max(step, t - self.last_seen.get(key, -np.inf)) for key in keys])
         if tdoa_base is not None:
             dtj = np.delete(dtj, tdoa_base)
-        tau = np.minimum(np.asarray(self.memory) * step, t - self.t_start_s)
+        tau = np.maximum(np.asarray(self.memory) * step, t - self.t_start_s)
         return np.clip(tau[..., None] / dtj, 1.0, np.maximum(1.0, corr / dtj))
 
     def record(self, keys: list, t_s: float, P0: np.ndarray, P1: np.ndarray) -> None:
