@@ -38,22 +38,22 @@ def valid(line: str) -> bool:
     return checksum(line[1:-3]) == line[-2:].upper()
 
 
-def _lat(lat_deg: float) -> tuple[str, str]:
-    a = abs(lat_deg)
+def _degrees_minutes(value_deg: float, width: int, pos: str, neg: str) -> tuple[str, str]:
+    """NMEA ``(d)ddmm.mmmmm`` with ``width`` degree digits and the hemisphere letter."""
+    a = abs(value_deg)
     d = int(a)
     m = (a - d) * 60.0
     if round(m, 5) >= 60.0:
         d, m = d + 1, 0.0
-    return f"{d:02d}{m:08.5f}", "N" if lat_deg >= 0 else "S"
+    return f"{d:0{width}d}{m:08.5f}", pos if value_deg >= 0 else neg
+
+
+def _lat(lat_deg: float) -> tuple[str, str]:
+    return _degrees_minutes(lat_deg, 2, "N", "S")
 
 
 def _lon(lon_deg: float) -> tuple[str, str]:
-    a = abs(lon_deg)
-    d = int(a)
-    m = (a - d) * 60.0
-    if round(m, 5) >= 60.0:
-        d, m = d + 1, 0.0
-    return f"{d:03d}{m:08.5f}", "E" if lon_deg >= 0 else "W"
+    return _degrees_minutes(lon_deg, 3, "E", "W")
 
 
 def _utc(unix_s: float) -> datetime:
