@@ -57,11 +57,17 @@ from net.clock import TimeScale, ensemble_change, transition
 C = SPEED_OF_LIGHT_M_S
 ENTER_SD_S = 2e-9  # a clock enters the ensemble once its offset against it is known to 2 ns (1 sigma)
 # consensus on the definition (docs/sync.md "One time scale"): once per second of T the scale's phase
-# moves by STEER_P times the mean disagreement with the peers' definitions and its rate by STEER_I
-# times it (a second-order loop: the rate term removes a constant drift between definitions)
+# moves by STEER_P times the mean phase disagreement with the peers' definitions and its rate by
+# STEER_R times the mean rate disagreement, which the peers' corrections carry (their frequency term)
+# against our estimate of the same clocks' rates: a definition that drifts against the field's is
+# corrected from the drift measured, not learnt by integrating the phase error (an integral term
+# wound up over a late founder's first disagreement and rang for 30 s: docs/sync.md)
 STEER_P = 0.3
-STEER_I = 0.05
+STEER_R = 0.3
 STEER_GATE_S = 2e-9  # a peer's correction and our estimate of its clock both known to 2 ns (1 sigma)
+STEER_RATE_GATE = 1e-9  # ... and a rate disagreement used only where both rates are known to 1 ns/s
+AGREED_LIMIT_S = 1e-5  # largest disagreement an agreed definition steers on
+UNAGREED_LIMIT_S = 1.0  # ... and one not yet agreed adopts (a sanity bound: clocks are set to ms)
 UNAGREED_SD_S = 1e-6  # a definition not yet compared with any peer's: broadcast offsets carry 1 us more
 SCALE_LOG_MAX = 4096  # definitions kept for the world side (the recent ones; about an hour of steering)
 LEAVE_S = 5.0  # a member not heard in any exchange for 5 s of network time leaves the ensemble
@@ -167,7 +173,8 @@ class ClockEstimator:
         self.scale = TimeScale(((1, 1.0),), T_ref_s=self.T_s)
         self.scale_log: list[TimeScale] = [self.scale]
         self._heard_T: dict[int, float] = {}  # network time of the last exchange of each clock
-        self._disagree: list[tuple[float, bool]] = []  # (N_peer - N_me (s), peer agreed) since the last tick
+        # (N_peer - N_me (s), its rate (s/s; nan: not known well enough), peer agreed) since the last tick
+        self._disagree: list[tuple[float, float, bool]] = []
         # variance of our definition against the field's, added to the broadcast offset's: unknown (1 us)
         # until the first steering, which adopts the field's definition in full; then what is left of
         # the last measured disagreement
@@ -401,8 +408,14 @@ class ClockEstimator:
         if ptt + 2 * dt * ptf + dt * dt * pff > STEER_GATE_S**2:
             return
         d = (e + f * dt) - th_peer
-        if math.isfinite(d) and abs(d) < 1e-5:
-            self._disagree.append((d, agreed))
+        r = f - corr[2] if pff + corr[5] <= STEER_RATE_GATE**2 else math.nan
+        # an agreed definition moves by nanoseconds: a larger disagreement is not a steering input; one
+        # not yet agreed may lie as far from the field's as the clocks' offsets over the members (a
+        # founder powering on after the others defined time without it: milliseconds), all of which the
+        # first steering adopts
+        limit_s = UNAGREED_LIMIT_S if self._scale_var_s2 >= UNAGREED_SD_S**2 else AGREED_LIMIT_S
+        if math.isfinite(d) and abs(d) < limit_s:
+            self._disagree.append((d, r, agreed))
 
     def _steer(self) -> None:
         """Once per second of ``T``: move this station's definition toward its peers' (consensus)."""
@@ -410,18 +423,25 @@ class ClockEstimator:
             return
         # agreed peers' definitions first (a joiner takes the field's); none agreed yet (a cold start):
         # the founders steer on each other's
-        agreed = [d for d, ok in self._disagree if ok]
-        d = float(np.mean(agreed or [d for d, _ in self._disagree]))
+        agreed = [(d, r) for d, r, ok in self._disagree if ok]
+        use = agreed or [(d, r) for d, r, _ in self._disagree]
         self._disagree.clear()
+        d = float(np.mean([x[0] for x in use]))
+        rates = [x[1] for x in use if math.isfinite(x[1])]
         sc, T = self.scale, self.T_s
-        # the phase at T moves by g d and the rate by STEER_I d (T_ref_s kept: a departure can still be
-        # dated back before this tick, _membership); the first steering adopts the field's definition
-        # in full (g = 1: a joiner, which starts from its own, takes the field's at once)
-        g = 1.0 if self._scale_var_s2 >= UNAGREED_SD_S**2 else STEER_P
-        db = STEER_I * d
+        # the phase at T moves by g d and the rate by g_r times the mean rate disagreement (T_ref_s kept:
+        # a departure can still be dated back before this tick, _membership); the first steering adopts
+        # the field's definition in full, phase and rate (g = 1: a joiner, which starts from its own,
+        # takes the field's at once)
+        full = self._scale_var_s2 >= UNAGREED_SD_S**2
+        g = 1.0 if full else STEER_P
+        db = (1.0 if full else STEER_R) * float(np.mean(rates)) if rates else 0.0
         self.scale = TimeScale(sc.weights, a_s=sc.a_s + g * d - db * (T - sc.T_ref_s), b=sc.b + db,
                                T_ref_s=sc.T_ref_s, jump_s=0.0)
-        self._scale_var_s2 = ((1.0 - g) * d) ** 2
+        # a definition is agreed once the field's phase and rate are both taken: adopted without the
+        # rate (the clocks' rates not yet known to STEER_RATE_GATE) it stays unagreed and the next tick
+        # adopts again (else the rate left over pulls it microseconds away, undone only at STEER_P)
+        self._scale_var_s2 = UNAGREED_SD_S**2 if full and not rates else ((1.0 - g) * d) ** 2
         self.scale_log.append(self.scale)
         if len(self.scale_log) > SCALE_LOG_MAX:
             del self.scale_log[: len(self.scale_log) - SCALE_LOG_MAX]
