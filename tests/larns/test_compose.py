@@ -45,7 +45,9 @@ import numpy as np
 import pytest
 from scenario_text import random_world
 
-pytestmark = [pytest.mark.compose, pytest.mark.timeout(900)]
+# whole-product stage (marker matrix): containers run whole, ~2 min, beside the packaged scenarios'
+# fleets; keeps the default suite under its 12 minutes on 2 cores
+pytestmark = [pytest.mark.compose, pytest.mark.matrix, pytest.mark.timeout(900)]
 
 ROOT = Path(__file__).resolve().parents[2]
 SPEED = 5.0
