@@ -11,7 +11,7 @@ seconds to come up on a 2-core machine; fleet time runs from the epoch service's
 * +110 s: the README's ``docker compose down -v`` (the recorder finishes the MCAP on SIGTERM).
 
 From the recording: every aircraft estimate valid (the wire's validation, finite, PSD covariance); the
-aircraft's horizontal error <= 5 m from 30 s after the field's first nav and <= 3 m at the end, NEES from
+aircraft's horizontal error <= 5 m from 30 s after the field is up (every founder's first nav) and <= 3 m at the end, NEES from
 then on within its 95 % band or below; the hot-joiner surveying within 1 m; every founder surveyed to
 within its 3 sigma. ``docker compose`` in the README's lines is replaced by whichever compose command the
 machine has (v2 plugin or ``docker-compose`` v1, as the README says). About 2.5 min per run once the
@@ -110,14 +110,19 @@ def test_compose_up_as_the_readme_says(secure, image):
     assert "refusing to send invalid" not in ac_log, ac_log[-2000:]
     rec = load([mcap])
     assert rec.logs[0].complete, rec.logs[0].error  # the recorder finished its file on `down`
-    t_first_nav = min(s.nav[0][1]["stamp_s"] for s in rec.stations.values() if s.nav)
+    # the field is up when its last founder's first nav goes out: containers come up over ~10-20 s on a
+    # 2-core machine (a `larns fleet` starts every process within a second), so "30 s on" counts from there
+    first_nav = {sid: s.nav[0][1]["stamp_s"] for sid, s in rec.stations.items() if s.nav and sid <= 10}
+    assert sorted(first_nav) == list(range(1, 11)), sorted(first_nav)
+    t_field_up = max(first_nav.values())
     (a,) = rec.aircraft.values()
     assert list(a.estimates) == ["ukf-pr"], list(a.estimates)
     for msg in a.estimates["ukf-pr"]:
         M.validate_msg(msg)
         P = np.asarray(msg["cov_m2"], float)
         assert np.all(np.isfinite(msg["pos_m"])) and np.linalg.eigvalsh(P)[0] >= -1e-9 * np.abs(P).max()
-    acc = aircraft_accuracy(a.track("ukf-pr"), a.truth_track(), t_from_s=t_first_nav + 30.0)
+    acc = aircraft_accuracy(a.track("ukf-pr"), a.truth_track(), t_from_s=t_field_up + 30.0)
+    acc["first_nav_s"] = first_nav
     assert acc["max_eh_window_m"] <= 5.0 and acc["final_eh_m"] <= 3.0, acc
     assert acc["nees_mean"] <= acc["nees_band"][1], acc
     joiner = rec.stations[11].last
