@@ -17,7 +17,8 @@ import time
 import pytest
 from compose_support import ROOT, compose_cmd, larns_image, run
 
-pytestmark = [pytest.mark.compose, pytest.mark.timeout(900)]
+# whole-product stage (marker matrix), with the other compose tests
+pytestmark = [pytest.mark.compose, pytest.mark.matrix, pytest.mark.timeout(900)]
 
 
 
