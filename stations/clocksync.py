@@ -60,8 +60,7 @@ ENTER_SD_S = 2e-9  # a clock enters the ensemble once its offset against it is k
 # moves by STEER_P times the mean phase disagreement with the peers' definitions and its rate by
 # STEER_R times the mean rate disagreement, which the peers' corrections carry (their frequency term)
 # against our estimate of the same clocks' rates: a definition that drifts against the field's is
-# corrected from the drift measured, not learnt by integrating the phase error (an integral term
-# wound up over a late founder's first disagreement and rang for 30 s: docs/sync.md)
+# corrected from the drift measured, not learnt by integrating the phase error (docs/sync.md)
 STEER_P = 0.3
 STEER_R = 0.3
 STEER_GATE_S = 2e-9  # a peer's correction and our estimate of its clock both known to 2 ns (1 sigma)
@@ -414,9 +413,7 @@ class ClockEstimator:
         # not yet agreed may lie as far from an agreed peer's as the clocks' offsets over the members (a
         # founder powering on after the others defined time without it: milliseconds), all of which the
         # first steering adopts. Between definitions nobody has agreed yet (a cold start) the bound
-        # stays: there a large difference is a peer still coarse-synced, and adopting it held the whole
-        # field's agreement back (a 30 s fleet at speed 4: the vehicle's radio updates 2-55, against
-        # 31-130 before and 90-288 with the bound)
+        # stays: there a large difference is a peer still coarse-synced (docs/sync.md)
         limit_s = UNAGREED_LIMIT_S if agreed and self._scale_var_s2 >= UNAGREED_SD_S**2 else AGREED_LIMIT_S
         if math.isfinite(d) and abs(d) < limit_s:
             self._disagree.append((d, r, agreed))
