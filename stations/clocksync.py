@@ -178,7 +178,6 @@ class ClockEstimator:
         # until the first steering, which adopts the field's definition in full; then what is left of
         # the last measured disagreement
         self._scale_var_s2 = UNAGREED_SD_S**2
-        self._rate_adopted = False  # the field's rate not yet taken in full (the first steering with rates)
         self._tick_T = math.floor(self.T_s)
         self._t0_local = float(t0_s)
         self._ref_heard_local = -math.inf  # local time of the last nav heard from station 1
@@ -410,11 +409,10 @@ class ClockEstimator:
         d = (e + f * dt) - th_peer
         r = f - corr[2] if pff + corr[5] <= STEER_RATE_GATE**2 else math.nan
         # an agreed definition moves by nanoseconds: a larger disagreement is not a steering input; one
-        # not yet agreed may lie as far from an agreed peer's as the clocks' offsets over the members (a
+        # not yet agreed may lie as far from the field's as the clocks' offsets over the members (a
         # founder powering on after the others defined time without it: milliseconds), all of which the
-        # first steering adopts. Between definitions nobody has agreed yet (a cold start) the bound
-        # stays: there a large difference is a peer still coarse-synced (docs/sync.md)
-        limit_s = UNAGREED_LIMIT_S if agreed and self._scale_var_s2 >= UNAGREED_SD_S**2 else AGREED_LIMIT_S
+        # first steering adopts
+        limit_s = UNAGREED_LIMIT_S if self._scale_var_s2 >= UNAGREED_SD_S**2 else AGREED_LIMIT_S
         if math.isfinite(d) and abs(d) < limit_s:
             self._disagree.append((d, r, agreed))
 
@@ -436,12 +434,13 @@ class ClockEstimator:
         # takes the field's at once)
         full = self._scale_var_s2 >= UNAGREED_SD_S**2
         g = 1.0 if full else STEER_P
-        # the rate is adopted in full the first time it is known (often a few ticks after the phase)
-        db = (STEER_R if self._rate_adopted else 1.0) * float(np.mean(rates)) if rates else 0.0
-        self._rate_adopted = self._rate_adopted or bool(rates)
+        db = (1.0 if full else STEER_R) * float(np.mean(rates)) if rates else 0.0
         self.scale = TimeScale(sc.weights, a_s=sc.a_s + g * d - db * (T - sc.T_ref_s), b=sc.b + db,
                                T_ref_s=sc.T_ref_s, jump_s=0.0)
-        self._scale_var_s2 = ((1.0 - g) * d) ** 2
+        # a definition is agreed once the field's phase and rate are both taken: adopted without the
+        # rate (the clocks' rates not yet known to STEER_RATE_GATE) it stays unagreed and the next tick
+        # adopts again (else the rate left over pulls it microseconds away, undone only at STEER_P)
+        self._scale_var_s2 = UNAGREED_SD_S**2 if full and not rates else ((1.0 - g) * d) ** 2
         self.scale_log.append(self.scale)
         if len(self.scale_log) > SCALE_LOG_MAX:
             del self.scale_log[: len(self.scale_log) - SCALE_LOG_MAX]
