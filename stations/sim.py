@@ -292,6 +292,16 @@ class Simulator:
         return {sid: (self.clocks[k] if self.cores[k] is not None else station_clock(self.scn, sid, self.seed))
                 for k, sid in enumerate(self.scn.ids)}
 
+    def definition_spread_s(self, r, times_s) -> np.ndarray:
+        """How far the stations' definitions of network time are apart at each of ``times_s`` (K,), s:
+        each station's network time on the true clocks, ``E_k - x_1 = x_k - x_1 - its true offset``
+        (``r.clock_true_s`` (K, n) of :meth:`run` at those times), largest minus smallest over the
+        stations alive."""
+        clocks = self.true_clocks()
+        x = np.array([[clocks[sid].error_s(t) for sid in r.ids] for t in times_s])  # (K, n)
+        E = x - x[:, :1] - r.clock_true_s
+        return np.nanmax(E, axis=1) - np.nanmin(E, axis=1)
+
     def true_clock_offset_s(self, k: int, t_true_s: float) -> float:
         """True offset of station index ``k``'s clock against network time as that station defines it
         (its ensemble's members and constants, :attr:`ClockEstimator.scale_log`), on the true clocks."""

@@ -120,12 +120,7 @@ def _trial(job: tuple) -> dict:
     crlb = crlb_offset_var(scn, sim.exchange_log, r.ids, times, eig, stop_s)
     steps = {}  # departed station -> largest |step| of network time over the stations' scales, s
     clocks = sim.true_clocks()
-    # each station's network time on the true clocks (E_k - x_1 = x_k - x_1 - its true offset): the
-    # spread over the stations alive is how far their definitions of network time are apart
-    ids = r.ids
-    x = np.array([[clocks[sid].error_s(t) for sid in ids] for t in times])  # (K, n)
-    E = x - x[:, :1] - r.clock_true_s
-    spread = np.nanmax(E, axis=1) - np.nanmin(E, axis=1)
+    spread = sim.definition_spread_s(r, times)
     for sid, log in r.time_scales.items():
         if sid in stop_s:
             continue

@@ -405,15 +405,6 @@ def test_a_station_powering_on_after_station_1_left_gets_network_time_from_the_o
     assert core.counters["responses"] >= 15 and core.counters["lost"] <= 1
 
 
-def _definition_spread_s(sim, r, times) -> np.ndarray:
-    """Largest difference between the stations' definitions of network time at each of ``times`` (K,),
-    each definition evaluated on the true clocks (as ``larns bench sync`` does)."""
-    clocks = sim.true_clocks()
-    x = np.array([[clocks[sid].error_s(t) for sid in r.ids] for t in times])
-    E = x - x[:, :1] - r.clock_true_s
-    return np.nanmax(E, axis=1) - np.nanmin(E, axis=1)
-
-
 @pytest.mark.parametrize("seed", [1, 3])
 def test_a_founder_powering_on_late_takes_the_fields_time(seed):
     """Station 1 powers on 5 s after the others, which have defined network time without it by then. Its
@@ -425,6 +416,6 @@ def test_a_founder_powering_on_late_takes_the_fields_time(seed):
     sim = Simulator(scn, start_s={1: 5.0})
     times = np.arange(1.0, 40.0 + 1e-9, 1.0)
     r = sim.run(40.0, times)
-    spread = _definition_spread_s(sim, r, times)
+    spread = sim.definition_spread_s(r, times)
     assert np.all(spread[times >= 30.0] < 2e-9), spread * 1e9
     assert np.all(np.abs(r.clock_err_s[-1]) < 2e-9), r.clock_err_s[-1]  # every station at 40 s
