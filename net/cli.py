@@ -26,6 +26,7 @@ def add_process_args(p: argparse.ArgumentParser, *, scenario: str, what: str, ne
     p.add_argument("--speed", type=float, default=1.0, help="run K times faster than real time (default 1)")
     p.add_argument("--epoch", type=float, default=None,
                    help="fleet epoch, Unix seconds (all processes must agree; default: start of the UTC day)")
+    add_epoch_from_arg(p)
     p.add_argument("--duration", type=float, default=None, metavar="S",
                    help="run for S fleet seconds from power-on (--until T: stop at fleet time T); default: "
                         "until the attached fleet ends, else until signalled")
@@ -46,6 +47,44 @@ def add_process_args(p: argparse.ArgumentParser, *, scenario: str, what: str, ne
                                  "subscription is not faulted - the stations' links are)")
         for flag in ("--net-delay", "--net-jitter", "--net-loss", "--net-dup"):
             g.add_argument(flag, type=float, default=None, help=argparse.SUPPRESS)
+
+
+def add_epoch_from_arg(p: argparse.ArgumentParser) -> None:
+    """``--epoch-from FILE``: the start barrier of ``larns fleet`` (:func:`await_epoch`); not for users."""
+    p.add_argument("--epoch-from", default=None, metavar="FILE", help=argparse.SUPPRESS)
+
+
+#: how long a process started with ``--epoch-from`` waits for its launcher to fix the epoch (the
+#: launcher waits at most ``larns.fleet.spawn.BARRIER_TIMEOUT_S`` for every process to be up)
+AWAIT_EPOCH_TIMEOUT_S = 300.0
+
+
+def await_epoch(args: argparse.Namespace, who: str, stop: threading.Event | None = None) -> None:
+    """The start barrier of ``larns fleet`` (``--epoch-from FILE``, docs/operations.md): once this
+    process is up (imports done, Zenoh session open) it says so by creating ``FILE.ready.<pid>`` and
+    waits for the launcher to write the epoch (Unix s) to ``FILE``, which the launcher does when every
+    process it started is up. ``args.epoch`` is then the fleet's epoch. A fleet on a slow or loaded
+    machine thus starts its field time when its processes can take part, instead of some of them
+    powering on seconds late. Without ``--epoch-from``: nothing. No epoch within
+    :data:`AWAIT_EPOCH_TIMEOUT_S`, or ``stop`` set: exit 2 / return with ``args.epoch`` unchanged."""
+    import time
+    from pathlib import Path
+
+    path = getattr(args, "epoch_from", None)
+    if not path:
+        return
+    f = Path(path)
+    Path(f"{path}.ready.{os.getpid()}").touch()
+    t_end = time.monotonic() + AWAIT_EPOCH_TIMEOUT_S
+    while not f.exists():
+        if stop is not None and stop.is_set():
+            return
+        if time.monotonic() > t_end:
+            print(f"{who}: --epoch-from {path}: no epoch from the launcher in {AWAIT_EPOCH_TIMEOUT_S:g} s",
+                  file=sys.stderr)
+            raise SystemExit(2)
+        time.sleep(0.01)
+    args.epoch = float(f.read_text())
 
 
 def add_output_args(p: argparse.ArgumentParser) -> None:
@@ -74,6 +113,10 @@ def main(argv: list[str] | None, prog: str, doc: str | None, add_args: Callable[
 
     parser = build_parser(prog, doc, add_args)
     args = parser.parse_args(argv)
+    if args.epoch_from and args.epoch is None:
+        # the launcher fixes the epoch once every process is up (await_epoch); until then a
+        # provisional one (never the default fleet file: this process belongs to its launcher)
+        args.epoch = time.time()
     try:  # --fleet / the default fleet file; --duration as a run length -> the end's fleet time
         resolve(args, time.time(), prog, parser)
     except FleetFileError as e:

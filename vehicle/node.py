@@ -32,7 +32,7 @@ import queue
 import sys
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -244,6 +244,8 @@ def main_args(args: argparse.Namespace) -> int:
                           speed_m_s=args.vehicle_speed, outage_s=args.outage, status_every_s=args.status_every,
                           quiet=args.quiet)
     bus = cli.open_bus(f"vehicle {opts.name}", lambda: Bus(**bus_kwargs(args)))
+    cli.await_epoch(args, f"vehicle {opts.name}")  # larns fleet's start barrier (--epoch-from)
+    opts = replace(opts, epoch_unix_s=args.epoch)
     rep = cli.serve(args, bus, lambda: VehicleNode(scn, opts, bus))
     if rep is None:
         return 2

@@ -64,7 +64,8 @@ def register(sub) -> None:
     p.add_argument("--net-loss", type=float, default=None, metavar="P", help="wire loss probability")
     p.add_argument("--net-dup", type=float, default=None, metavar="P", help="wire duplication probability")
     p.add_argument("--startup", type=float, default=None, metavar="S",
-                   help="seconds between launch and the epoch (default 3 + 0.25 per station)")
+                   help="seconds a joining station is spawned ahead of its join time (default 3 + 0.25 per "
+                        "station); the epoch itself waits until every process started at launch is up")
     p.add_argument("--nice", type=int, default=0, metavar="N",
                    help="niceness change for the station processes (negative = higher priority; needs privileges)")
     p.add_argument("--topology", choices=("peer", "router"), default="peer",

@@ -25,6 +25,8 @@ def _attach(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
     from net.attach import apply_fleet, find_fleet
 
     now = time.time()
+    if args.epoch_from:  # started by larns fleet (its start barrier): never the default fleet file
+        return
     found = find_fleet(args, now, "larns record")
     if found is None:
         return
@@ -35,6 +37,18 @@ def _attach(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
         args.duration = max(1.0, end - now + 1.0)  # wall seconds: a second past the fleet's end
     print(f"larns record: attaching to the fleet of {path}: scenario {args.scenario}, epoch {args.epoch:.3f}, "
           f"speed {args.speed:g}, connect {' '.join(args.connect or [])}", file=sys.stderr, flush=True)
+
+
+def _await_epoch(args: argparse.Namespace):
+    """``--epoch-from``: the fleet's epoch once the recorder is up (net/cli.py ``await_epoch``)."""
+    if not args.epoch_from:
+        return None
+    from net.cli import await_epoch
+
+    def wait() -> float | None:
+        await_epoch(args, "larns record")
+        return args.epoch
+    return wait
 
 
 def cmd_record(args: argparse.Namespace) -> int:
@@ -63,7 +77,7 @@ def cmd_record(args: argparse.Namespace) -> int:
         stats = run_recorder(args.output, bus_kwargs(args), keyexpr=args.keyexpr,
                              duration_s=args.duration, flush_s=args.flush, metadata=md,
                              epoch_unix_s=args.epoch, speed=args.speed, quiet=args.quiet,
-                             foxglove=not args.no_foxglove)
+                             foxglove=not args.no_foxglove, await_epoch=_await_epoch(args))
     except KeystoreError as e:
         print(f"larns record: --secure: {e}", file=sys.stderr)
         return 2
@@ -95,6 +109,9 @@ def register(sub) -> None:
     p.add_argument("--epoch", type=float, default=None,
                    help="fleet epoch (Unix s): converts message stamps to publish_time")
     p.add_argument("--speed", type=float, default=1.0, help="fleet speed factor (for publish_time)")
+    from net.cli import add_epoch_from_arg
+
+    add_epoch_from_arg(p)
     p.add_argument("--meta", action="append", metavar="KEY=VALUE", help="extra metadata (repeatable)")
     p.add_argument("--no-foxglove", action="store_true",
                    help="do not write the Foxglove JSON channels (larns/foxglove/**: 3D scene, "

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,6 +30,7 @@ class FleetPlan:
     seeds: list[str]
     monitor_ep: str
     secure: str | None = None
+    epoch_file: Path | None = None  # the start barrier (larns/fleet/spawn.py): the epoch, once all are up
     children: list[Child] = field(default_factory=list)
     events: list["FleetEvent"] = field(default_factory=list)  # kills, leaves, restarts in fleet-time order
     endpoints: dict[str, str] = field(default_factory=dict)  # process name -> its listening endpoint
@@ -128,9 +130,11 @@ def log_folder(args: argparse.Namespace) -> Path:
     return logdir
 
 
-def common_argv(args: argparse.Namespace, epoch: float) -> list[str]:
-    """Arguments every station and the aircraft get: scenario, speed, epoch, network emulation."""
-    common = ["--scenario", args.scenario, "--speed", repr(args.speed), "--epoch", repr(epoch)]
+def common_argv(args: argparse.Namespace, epoch: float, epoch_file: Path | None = None) -> list[str]:
+    """Arguments every station and the aircraft get: scenario, speed, epoch (``epoch_file``: the
+    start barrier's ``--epoch-from`` instead), network emulation."""
+    common = ["--scenario", args.scenario, "--speed", repr(args.speed)]
+    common += ["--epoch-from", str(epoch_file)] if epoch_file is not None else ["--epoch", repr(epoch)]
     if args.n_stations:
         common += ["--n-stations", str(args.n_stations)]
     for flag, val in (("--net-delay", args.net_delay), ("--net-jitter", args.net_jitter),
@@ -161,7 +165,7 @@ def plan_fleet(args: argparse.Namespace) -> FleetPlan:
     eps = [f"tcp/127.0.0.1:{p}" for p in free_tcp_ports(len(scn.ids) + (1 if args.record else 0) + 2)]
     _warn_short_slot(args, scn)
     margin = args.startup if args.startup is not None else 3.0 + 0.25 * len(scn.ids)
-    epoch = time.time() + margin
+    epoch = time.time() + margin  # provisional: the start barrier fixes it (larns/fleet/spawn.py)
     station_ep = {sid: eps[i] for i, sid in enumerate(scn.ids)}
     # peer: seeds = the first two stations (gossip links everyone else); --connect overrides.
     # router: every process is a client of our own router (or of the routers given with --connect)
@@ -172,12 +176,13 @@ def plan_fleet(args: argparse.Namespace) -> FleetPlan:
         seeds = list(args.connect) if args.connect else [station_ep[scn.ids[0]], station_ep[scn.ids[1]]]
     p = FleetPlan(scn, joins, [i for i in scn.ids if i not in join_ids], epoch, margin, log_folder(args), mode,
                   seeds, eps[len(scn.ids)], secure)
+    p.epoch_file = Path(tempfile.mkdtemp(prefix="larns-fleet-")) / "epoch"
     p.endpoints = _endpoints(args, mode, station_ep, eps[-1])
     if mode == "client" and not args.connect:
         p.children.append(_router_child(args, p, eps[-1]))
     if args.record:
         p.children.append(_recorder_child(args, p, eps[len(scn.ids) + 1]))
-    common = common_argv(args, epoch)
+    common = common_argv(args, epoch, p.epoch_file)
     for sid in scn.ids:
         p.children.append(_station_child(args, p, sid, station_ep[sid], common))
     p.children.sort(key=lambda c: (c.name != "router", c.name != "recorder"))
@@ -244,7 +249,7 @@ def _recorder_child(args: argparse.Namespace, p: FleetPlan, rec_ep: str) -> Chil
 
     scn = p.scn
     cmd = [sys.executable, "-m", "larns", "record", "-o", str(args.record), "-q", "--scenario", scn.name,
-           "--epoch", repr(p.epoch), "--speed", repr(args.speed),
+           "--epoch-from", str(p.epoch_file), "--speed", repr(args.speed),
            "--meta", f"stations={','.join(map(str, scn.ids))}", "--meta", f"seed={scn.seed}",
            "--meta", f"duration_s={args.duration}"]
     cmd += ["--meta", f"site={scn.site.to_json()}"] if scn.site is not None else []  # [site]: LocationFix, export
@@ -264,10 +269,16 @@ def _station_child(args: argparse.Namespace, p: FleetPlan, sid: int, ep: str, co
     joins = dict(p.joins)
     if sid in joins:
         cmd += ["--join", "--start-at", repr(joins[sid])]
-        # spawn early enough to be up at t_join (it sleeps until then)
-        start_wall = max(0.0, p.epoch + joins[sid] / args.speed - p.margin)
+        # spawned early enough to be up at t_join (it sleeps until then); set again once the
+        # start barrier has fixed the epoch (join_start_wall)
+        start_wall = join_start_wall(args, p, joins[sid])
     cmd += bus_argv([ep], [s for s in p.seeds if s != ep], args.zenoh_config, p.mode, p.secure)
     return Child(f"station {sid}", cmd, _log(p, f"station_{sid}.log"), start_wall=start_wall)
+
+
+def join_start_wall(args: argparse.Namespace, p: FleetPlan, t_join_s: float) -> float:
+    """When to spawn a station that joins at fleet time ``t_join_s``: ``margin`` ahead of it."""
+    return max(1e-6, p.epoch + t_join_s / args.speed - p.margin)  # (0.0 means: spawn at once)
 
 
 def restart_child(args: argparse.Namespace, p: FleetPlan, sid: int, t_s: float, n: int) -> Child:

@@ -11,8 +11,8 @@ import time
 from pathlib import Path
 
 from .monitor import Monitor, StationView, format_table
-from .plan import FleetPlan, plan_fleet
-from .spawn import spawn
+from .plan import FleetPlan, join_start_wall, plan_fleet
+from .spawn import remove_barrier, spawn, start_barrier
 from .stop import shutdown
 from .watch import open_monitor, watch
 
@@ -23,7 +23,7 @@ def _announce(args: argparse.Namespace, p: FleetPlan) -> None:
           + (f" + {len(joins)} joining ({', '.join(f'{s}@{t:g}s' for s, t in joins)})" if joins else "")
           + (f", events {', '.join(f'{e.kind} {e.sid}@{e.t_s:g}s' for e in p.events)}" if p.events else "")
           + (f", recorder -> {args.record}" if args.record else "")
-          + f", speed {args.speed:g}, epoch in {p.margin:.1f} s"
+          + f", speed {args.speed:g}, epoch once every process is up"
           + (f", logs in {p.logdir}/" if p.logdir else ""), file=sys.stderr, flush=True)
 
 
@@ -79,6 +79,22 @@ def _final(args: argparse.Namespace, p: FleetPlan, monitor: Monitor, final: list
     return 130 if interrupted else (1 if bad else 0)
 
 
+def _start(args: argparse.Namespace, p: FleetPlan, stop: threading.Event, t0: float) -> None:
+    """The start barrier (larns/fleet/spawn.py): the epoch once the processes are up; then the
+    joiners' spawn times and the fleet file, which both follow from it."""
+    p.epoch, late = start_barrier(p.children, p.epoch_file, stop)
+    for c in p.children:
+        if c.start_wall:
+            c.start_wall = join_start_wall(args, p, dict(p.joins)[int(c.name.split()[1])])
+    up = sum(1 for c in p.children if c.proc is not None)
+    print(f"[fleet] {up - len(late)} of {up} processes up in {time.time() - t0:.1f} s; epoch {p.epoch:.3f}"
+          + (f" (not up: {', '.join(late)})" if late else ""), file=sys.stderr, flush=True)
+    ffile = write_fleet_file(args, p)
+    print(f"[fleet] fleet file {ffile} (epoch {p.epoch:.3f}, connect {' '.join(p.seeds)}"
+          f"{', secure' if p.secure else ''}); attach with: larns station --id N --join --fleet {ffile}",
+          file=sys.stderr, flush=True)
+
+
 def run_fleet(args: argparse.Namespace) -> int:
     """Launch the fleet of ``args`` (``larns fleet``), watch it until the end or Ctrl-C, stop it."""
     p = plan_fleet(args)
@@ -90,17 +106,15 @@ def run_fleet(args: argparse.Namespace) -> int:
     old_int = signal.signal(signal.SIGINT, on_signal)
     old_term = signal.signal(signal.SIGTERM, on_signal)
     _announce(args, p)
-    ffile = write_fleet_file(args, p)
-    print(f"[fleet] fleet file {ffile} (epoch {p.epoch:.3f}, connect {' '.join(p.seeds)}"
-          f"{', secure' if p.secure else ''}); attach with: larns station --id N --join --fleet {ffile}",
-          file=sys.stderr, flush=True)
     monitor = Monitor()
     bus = None
     final: list[StationView] = []
     try:
+        t0 = time.time()
         for c in p.children:
             if c.start_wall == 0.0:
                 spawn(c)
+        _start(args, p, stop, t0)
         bus = open_monitor(args, p, monitor)
         watch(args, p, monitor, stop)
         final = monitor.snapshot()
@@ -109,6 +123,7 @@ def run_fleet(args: argparse.Namespace) -> int:
         shutdown(p.children, wait_for_stations=not stop.is_set() and bool(args.duration))
         if bus is not None:
             bus.close()
+        remove_barrier(p.epoch_file)
         signal.signal(signal.SIGINT, old_int)
         signal.signal(signal.SIGTERM, old_term)
     return _final(args, p, monitor, final, stop.is_set())

@@ -27,6 +27,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Callable
 
 log = logging.getLogger("larns.record")
 
@@ -145,7 +146,10 @@ _VIEW_CHANNEL = {"source": "larns foxglove view"}
 def run_recorder(out: str, bus_kw: dict, keyexpr: str = "larns/**", duration_s: float | None = None,
                  flush_s: float = 2.0, metadata: dict[str, str] | None = None,
                  epoch_unix_s: float | None = None, speed: float = 1.0,
-                 quiet: bool = False, foxglove: bool = True) -> dict:
+                 quiet: bool = False, foxglove: bool = True,
+                 await_epoch: Callable[[], float | None] | None = None) -> dict:
+    """Record ``keyexpr`` to ``out`` until ``duration_s`` wall seconds or a signal. ``await_epoch``
+    (``larns fleet``'s start barrier): called once the session is open, returns the fleet's epoch."""
     from net.bus import Bus
     from net.queues import DropOldestQueue
 
@@ -163,6 +167,8 @@ def run_recorder(out: str, bus_kw: dict, keyexpr: str = "larns/**", duration_s: 
 
     q = DropOldestQueue(QUEUE_MAX)
     bus = Bus(**bus_kw)  # first: credentials that cannot be loaded fail before the file is created
+    if await_epoch is not None:
+        epoch_unix_s = await_epoch()
     sink = McapSink(out, metadata=metadata, epoch_unix_s=epoch_unix_s, speed=speed, foxglove=foxglove)
     on_sample = lambda k, d: q.put((time.time_ns(), k, d))  # noqa: E731
     limiter = None

@@ -40,11 +40,10 @@ def test_fleet_and_simulator_make_the_same_exchanges_and_sync(tmp_path):
     scn_path.write_text(five_stations("sync_e2e", 3, extra='\n[clock]\nmodel = "tcxo"\n'))
     rec = tmp_path / "run.mcap"
     r = subprocess.run([PY, "-m", "larns", "fleet", "--scenario", str(scn_path), "--duration", str(DURATION),
-                        "--record", str(rec), "--no-table", "--startup", "8"],
+                        "--record", str(rec), "--no-table"],
                        capture_output=True, text=True, timeout=180)
-    # --startup 8: six processes import numpy and zenoh at once on a 2-core CI machine; with the default
-    # 4.25 s the recorder was sometimes still connecting at the epoch and the recording began after
-    # cycle 2 (seen once in a fresh-clone run: cycle 2 absent for all five stations, later cycles equal)
+    # the recorder is up before the epoch: larns fleet fixes the epoch once every process is up (its
+    # start barrier; before it, a fixed 4.25 s lead once let the recording begin after cycle 2)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     scn = load(scn_path)
     navs = []
