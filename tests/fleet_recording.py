@@ -13,7 +13,10 @@ from scenario_text import aircraft_hover, five_stations
 
 PY = sys.executable
 DURATION = 30.0   # fleet s: the aircraft measures for > 20 s, the vehicle drives 150 m
-SPEED = 4.0
+# speed 2, not 4: on a CPU-starved machine (a CI run whose processes got well under two cores) the
+# aircraft (three filters) and the vehicle fell behind at speed 4 and published estimates for only part
+# of the run; at speed 2 the run holds on 0.7 of one core (measured under a CPU quota, docs/operations.md)
+SPEED = 2.0
 ALGOS = ["ukf-pr", "ekf-tdoa", "lsq-pr"]
 SCENARIO = five_stations("fleet_e2e", 3, extra=aircraft_hover(ALGOS))
 

@@ -18,7 +18,7 @@ pytestmark = pytest.mark.e2e
 
 def test_aircraft_process_in_a_fleet_from_mcap(fleet_run):
     """The shared recorded fleet (tests/conftest.py ``fleet_run``: 5 stations, the aircraft hovering
-    1.5 km out at 300 m with ukf-pr, ekf-tdoa and lsq-pr, the vehicle; 30 fleet s at speed 4)."""
+    1.5 km out at 300 m with ukf-pr, ekf-tdoa and lsq-pr, the vehicle; 30 fleet s at speed 2)."""
     from mcap.reader import make_reader
 
     from net import messages as M

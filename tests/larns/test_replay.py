@@ -295,7 +295,7 @@ def test_replay_into_a_live_aircraft(run, tmp_path):
                            "--listen", f"tcp/127.0.0.1:{p_ac}"],
                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        r = larns("replay", str(rec), "--topics", "larns/station/*/nav", "--rate", "4", "--delay", "0.5",
+        r = larns("replay", str(rec), "--topics", "larns/station/*/nav", "--rate", "2", "--delay", "0.5",
                   "--wait-for", "larns/alive/aircraft/*", "--json", "-q",
                   "--listen", f"tcp/127.0.0.1:{p_rp}", "--connect", f"tcp/127.0.0.1:{p_ac}")
     finally:

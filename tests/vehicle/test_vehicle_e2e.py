@@ -19,7 +19,7 @@ PY = sys.executable
 @pytest.fixture(scope="module")
 def recording(fleet_run):
     """The shared recorded fleet (tests/conftest.py ``fleet_run``: 5 stations, the aircraft, the
-    vehicle on its default route through the field; 30 fleet s at speed 4)."""
+    vehicle on its default route through the field; 30 fleet s at speed 2)."""
     assert fleet_run.rc == 0, fleet_run.log[-3000:]
     assert "vehicle    veh1  cdekf-map" in fleet_run.log, fleet_run.log[-2000:]
     return fleet_run.rec
@@ -34,7 +34,7 @@ def test_vehicle_recorded_error_bounded_and_offline_bit_exact(recording):
     rec = load([recording])
     v = rec.vehicles["veh1"]
     e = v.errors()
-    # the stations broadcast 20 navs per fleet second once surveying; on a loaded machine at speed 4
+    # the stations broadcast 20 navs per fleet second once surveying; on a loaded machine
     # they start late (a run under load 10 gave 157 navs in 24 s): ask for a fraction
     assert e["err_m"].size > 60 and e["updated"].sum() > 50, vehicle_row(v)
     assert v.init is not None and 1 in v.inputs
