@@ -76,7 +76,12 @@ def await_epoch(args: argparse.Namespace, who: str, stop: threading.Event | None
     f = Path(path)
     Path(f"{path}.ready.{os.getpid()}").touch()
     t_end = time.monotonic() + AWAIT_EPOCH_TIMEOUT_S
-    while not f.exists():
+    while True:
+        try:
+            args.epoch = float(f.read_text())  # (the launcher writes it atomically; a partial write retries)
+            return
+        except (OSError, ValueError):
+            pass
         if stop is not None and stop.is_set():
             return
         if time.monotonic() > t_end:
@@ -84,7 +89,6 @@ def await_epoch(args: argparse.Namespace, who: str, stop: threading.Event | None
                   file=sys.stderr)
             raise SystemExit(2)
         time.sleep(0.01)
-    args.epoch = float(f.read_text())
 
 
 def add_output_args(p: argparse.ArgumentParser) -> None:

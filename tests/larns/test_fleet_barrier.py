@@ -79,7 +79,9 @@ def test_await_epoch_reads_what_the_launcher_writes(tmp_path):
         ready = tmp_path / f"epoch.ready.{os.getpid()}"
         for _ in range(500):
             if ready.exists():
-                f.write_text("1700000000.25")
+                f.write_text("")  # a partial write is read as "not yet" ...
+                time.sleep(0.05)
+                f.write_text("1700000000.25")  # ... and the whole one taken
                 return
             time.sleep(0.01)
 
