@@ -400,6 +400,7 @@ TABLE: dict[str, Run | Skip] = {
     "./dev larns bench integrity --cases --aircraft seed001 seed003": Skip(BENCH),
     # --- docs/sync.md
     "larns bench sync --founders-leave": Skip(BENCH),
+    "larns bench sync --late-founder 5 --trials 100 --duration 60 --jobs 2": Skip(BENCH),
     "larns bench sync --trials 100 --founders-leave --json bench-out/sync/founders-leave.json": Skip(BENCH),
     "larns bench sync --trials 100 --json bench-out/sync/sync.json": Skip(BENCH),
     "larns fleet --scenario seed000 --duration 600 --speed 1 --record ten.mcap": Skip("a 10-minute measurement run; the same line with --duration 15 RUNs as docs/fleet.md's 'larns fleet --scenario seed000 --duration 60 --speed 1 --record run.mcap'"),
