@@ -445,8 +445,8 @@ def main_args(args: argparse.Namespace) -> int:
                            satellites=args.satellites if args.satellites is not None else ac.satellites)
     args.secure_cn = f"aircraft-{opts.name}"
     bus = cli.open_bus(f"aircraft {opts.name}", lambda: Bus(**bus_kwargs(args)))
-    cli.await_epoch(args, f"aircraft {opts.name}")  # larns fleet's start barrier (--epoch-from)
-    opts = replace(opts, epoch_unix_s=args.epoch)
+    # larns fleet's start barrier (--epoch-from): the epoch once every process is up
+    opts = replace(opts, epoch_unix_s=cli.await_epoch(args, f"aircraft {opts.name}"))
     rep = cli.serve(args, bus, lambda: AircraftNode(scn, opts, bus))
     if rep is None:  # bad options (algorithm mix, IMU preset, trajectory kind): the error was printed
         return 2

@@ -59,31 +59,31 @@ def add_epoch_from_arg(p: argparse.ArgumentParser) -> None:
 AWAIT_EPOCH_TIMEOUT_S = 300.0
 
 
-def await_epoch(args: argparse.Namespace, who: str, stop: threading.Event | None = None) -> None:
+def await_epoch(args: argparse.Namespace, who: str, stop: threading.Event | None = None) -> float | None:
     """The start barrier of ``larns fleet`` (``--epoch-from FILE``, docs/operations.md): once this
     process is up (imports done, Zenoh session open) it says so by creating ``FILE.ready.<pid>`` and
     waits for the launcher to write the epoch (Unix s) to ``FILE``, which the launcher does when every
     process it started is up. ``args.epoch`` is then the fleet's epoch. A fleet on a slow or loaded
     machine thus starts its field time when its processes can take part, instead of some of them
-    powering on seconds late. Without ``--epoch-from``: nothing. No epoch within
-    :data:`AWAIT_EPOCH_TIMEOUT_S`, or ``stop`` set: exit 2 / return with ``args.epoch`` unchanged."""
+    powering on seconds late. Returns ``args.epoch`` (without ``--epoch-from``: unchanged). No epoch
+    within :data:`AWAIT_EPOCH_TIMEOUT_S`, or ``stop`` set: exit 2 / return with ``args.epoch`` unchanged."""
     import time
     from pathlib import Path
 
     path = getattr(args, "epoch_from", None)
     if not path:
-        return
+        return args.epoch
     f = Path(path)
     Path(f"{path}.ready.{os.getpid()}").touch()
     t_end = time.monotonic() + AWAIT_EPOCH_TIMEOUT_S
     while True:
         try:
             args.epoch = float(f.read_text())  # (the launcher writes it atomically; a partial write retries)
-            return
+            return args.epoch
         except (OSError, ValueError):
             pass
         if stop is not None and stop.is_set():
-            return
+            return args.epoch
         if time.monotonic() > t_end:
             print(f"{who}: --epoch-from {path}: no epoch from the launcher in {AWAIT_EPOCH_TIMEOUT_S:g} s",
                   file=sys.stderr)

@@ -677,8 +677,8 @@ def main_args(args: argparse.Namespace) -> int:
                        lookahead_s=getattr(args, "lookahead", 0.05))
     args.secure_cn = f"station-{args.id}"
     bus = cli.open_bus(f"station {args.id}", lambda: Bus(**_bus_kwargs(args, scn)))
-    cli.await_epoch(args, f"station {args.id}", stop_early)  # larns fleet's start barrier (--epoch-from)
-    opts = replace(opts, epoch_unix_s=args.epoch)
+    # larns fleet's start barrier (--epoch-from): the epoch once every process is up
+    opts = replace(opts, epoch_unix_s=cli.await_epoch(args, f"station {args.id}", stop_early))
     rep = cli.serve(args, bus, lambda: StationNode(scn, opts, bus), run=_run, stop=stop_early)
     if rep is None:
         return 2

@@ -244,8 +244,8 @@ def main_args(args: argparse.Namespace) -> int:
                           speed_m_s=args.vehicle_speed, outage_s=args.outage, status_every_s=args.status_every,
                           quiet=args.quiet)
     bus = cli.open_bus(f"vehicle {opts.name}", lambda: Bus(**bus_kwargs(args)))
-    cli.await_epoch(args, f"vehicle {opts.name}")  # larns fleet's start barrier (--epoch-from)
-    opts = replace(opts, epoch_unix_s=args.epoch)
+    # larns fleet's start barrier (--epoch-from): the epoch once every process is up
+    opts = replace(opts, epoch_unix_s=cli.await_epoch(args, f"vehicle {opts.name}"))
     rep = cli.serve(args, bus, lambda: VehicleNode(scn, opts, bus))
     if rep is None:
         return 2

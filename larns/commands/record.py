@@ -39,21 +39,10 @@ def _attach(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
           f"speed {args.speed:g}, connect {' '.join(args.connect or [])}", file=sys.stderr, flush=True)
 
 
-def _await_epoch(args: argparse.Namespace):
-    """``--epoch-from``: the fleet's epoch once the recorder is up (net/cli.py ``await_epoch``)."""
-    if not args.epoch_from:
-        return None
-    from net.cli import await_epoch
-
-    def wait() -> float | None:
-        await_epoch(args, "larns record")
-        return args.epoch
-    return wait
-
-
 def cmd_record(args: argparse.Namespace) -> int:
     from net.attach import FleetFileError
     from net.bus import bus_kwargs
+    from net.cli import await_epoch
 
     try:
         _attach(args, args.parser)
@@ -77,7 +66,8 @@ def cmd_record(args: argparse.Namespace) -> int:
         stats = run_recorder(args.output, bus_kwargs(args), keyexpr=args.keyexpr,
                              duration_s=args.duration, flush_s=args.flush, metadata=md,
                              epoch_unix_s=args.epoch, speed=args.speed, quiet=args.quiet,
-                             foxglove=not args.no_foxglove, await_epoch=_await_epoch(args))
+                             foxglove=not args.no_foxglove,
+                             await_epoch=(lambda: await_epoch(args, "larns record")) if args.epoch_from else None)
     except KeystoreError as e:
         print(f"larns record: --secure: {e}", file=sys.stderr)
         return 2

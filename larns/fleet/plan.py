@@ -273,7 +273,7 @@ def _station_child(args: argparse.Namespace, p: FleetPlan, sid: int, ep: str, co
         # start barrier has fixed the epoch (join_start_wall)
         start_wall = join_start_wall(args, p, joins[sid])
     cmd += bus_argv([ep], [s for s in p.seeds if s != ep], args.zenoh_config, p.mode, p.secure)
-    return Child(f"station {sid}", cmd, _log(p, f"station_{sid}.log"), start_wall=start_wall)
+    return Child(f"station {sid}", cmd, _log(p, f"station_{sid}.log"), start_wall=start_wall, join_t_s=joins.get(sid))
 
 
 def join_start_wall(args: argparse.Namespace, p: FleetPlan, t_join_s: float) -> float:

@@ -84,8 +84,8 @@ def _start(args: argparse.Namespace, p: FleetPlan, stop: threading.Event, t0: fl
     joiners' spawn times and the fleet file, which both follow from it."""
     p.epoch, late = start_barrier(p.children, p.epoch_file, stop)
     for c in p.children:
-        if c.start_wall:
-            c.start_wall = join_start_wall(args, p, dict(p.joins)[int(c.name.split()[1])])
+        if c.join_t_s is not None:
+            c.start_wall = join_start_wall(args, p, c.join_t_s)
     up = sum(1 for c in p.children if c.proc is not None)
     print(f"[fleet] {up - len(late)} of {up} processes up in {time.time() - t0:.1f} s; epoch {p.epoch:.3f}"
           + (f" (not up: {', '.join(late)})" if late else ""), file=sys.stderr, flush=True)

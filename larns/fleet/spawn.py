@@ -15,6 +15,7 @@ class Child:
     log_path: Path | None
     proc: subprocess.Popen | None = None
     start_wall: float = 0.0  # when to spawn (wall clock)
+    join_t_s: float | None = None  # a joiner's fleet time of joining (its start_wall follows from the epoch)
     log_file: Any = None
     expected_exit: bool = False  # killed or stopped on purpose (--kill, [[faults]] leave / kill)
 
