@@ -43,8 +43,7 @@ import numpy as np
 
 from nav.constellation import gps_like, tropo_delay_m
 from nav.geometry import SPEED_OF_LIGHT_M_S
-from nav.rotations import dcm_from_euler, euler_from_dcm
-from nav.strapdown import G0_M_S2
+from nav.rotations import euler_from_dcm
 
 from .ins_core import motion_from_config
 from net.clock import broadcast_clock_var_m2
@@ -54,8 +53,8 @@ from .journal import AcJournal
 from .navigator import receiver as rx
 from .navigator import field_tie as ft
 from .navigator.ins_ekf import InsTuning
-from .navigator.triad_ekf import (TRIAD_LAYOUT, Epoch, TriadEkf, TriadFrame, initial_fix, satellite_elevation_deg,
-                                  start_from_window)
+from .navigator.triad_ekf import (Epoch, TriadEkf, TriadFrame, initial_fix, satellite_elevation_deg,
+                                  start_from_window, turn_corrected)
 from .world import baro as wbaro
 from .world import clock as wclock
 from .world.field import Field
@@ -245,20 +244,8 @@ class TriadAircraftCore:
                                    self.sigma_sat_m, t_ref)
         f_mean = self._f_sum / self.INIT_WINDOW_S
         st = start_from_window(self.tn, x, cov, f_mean[None], cost, 0)
-        # a coordinated turn seen by the window's mean yaw rate (gyro, body z ~ up): the levelling reads
-        # no bank (the specific force stays on the body z axis) and the constant-velocity fix's track is
-        # the mid-window one; add the bank -atan(V w / g) and turn the heading and the velocity by w W / 2
-        w_z = float(self._w_sum[2]) / self.INIT_WINDOW_S
-        speed = float(np.linalg.norm(st.v[0, :2]))
-        roll, pitch, yaw = euler_from_dcm(st.C[0])
-        dpsi = w_z * self.INIT_WINDOW_S / 2
-        st.C[0] = dcm_from_euler(roll - np.arctan(speed * w_z / G0_M_S2), pitch, yaw + dpsi)
-        c, s_ = np.cos(dpsi), np.sin(dpsi)
-        st.v[0, :2] = np.array([[c, -s_], [s_, c]]) @ st.v[0, :2]  # the velocity turned likewise
-        # the levelling and the track-as-heading assume straight flight over the window; in a turn the
-        # bank angle and the track's rotation are missed: widen the attitude prior to cover them
-        att = TRIAD_LAYOUT.ATT
-        st.P0[:, att, att] += np.diag([self.START_ATT_SIGMA_RAD**2] * 3)
+        st = turn_corrected(st, float(self._w_sum[2]) / self.INIT_WINDOW_S, self.INIT_WINDOW_S,
+                            self.START_ATT_SIGMA_RAD)
         self.ekf = TriadEkf(self.tn, self.alm, self.frame, st.p, st.v, st.C, st.clk, st.P0, self.sigma_sat_m,
                             self.mask_deg, t_ref)
         self.init_sigma_m = float(np.sqrt(np.trace(cov[0, :3, :3])))

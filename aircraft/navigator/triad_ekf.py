@@ -39,7 +39,7 @@ from nav.constellation import Almanac, tropo_delay_m
 from nav.geometry import SPEED_OF_LIGHT_M_S
 from nav.kalman import chol_solve, symmetrize
 from nav.orbits import enu_rotation
-from nav.rotations import dcm_from_euler
+from nav.rotations import dcm_from_euler, euler_from_dcm
 from nav.strapdown import G0_M_S2
 
 from .ins_ekf import BaroAltitude, InsEkf, InsTuning, Pseudorange, initial_covariance
@@ -439,6 +439,24 @@ def start_from_window(tn: InsTuning, x: np.ndarray, cov: np.ndarray, f_b_mean: n
     P0[:, L.BAC, L.ATT] = np.swapaxes(J @ Sc, -1, -2)
     return TriadStart(x[:, :3], v, C, x[:, 6:8], P0, cov, cost, dof)
 
+
+def turn_corrected(st: TriadStart, w_z_rad_s: float, window_s: float, att_sigma_rad: float) -> TriadStart:
+    """The start of one run (``st``, M = 1) corrected for a coordinated turn seen by the window's mean
+    yaw rate ``w_z_rad_s`` (gyro, body z ~ up), in place.
+
+    The levelling reads no bank in a coordinated turn (the specific force stays on the body z axis) and
+    the constant-velocity fix's track is the mid-window one: the bank ``-atan(V w / g)`` is added and the
+    heading and the velocity are turned by ``w W / 2``. Both assume a steady turn over the window; the
+    attitude prior is widened by ``att_sigma_rad`` per axis to cover what that misses."""
+    speed = float(np.linalg.norm(st.v[0, :2]))
+    roll, pitch, yaw = euler_from_dcm(st.C[0])
+    dpsi = w_z_rad_s * window_s / 2
+    st.C[0] = dcm_from_euler(roll - np.arctan(speed * w_z_rad_s / G0_M_S2), pitch, yaw + dpsi)
+    c, s_ = np.cos(dpsi), np.sin(dpsi)
+    st.v[0, :2] = np.array([[c, -s_], [s_, c]]) @ st.v[0, :2]
+    att = TRIAD_LAYOUT.ATT
+    st.P0[:, att, att] += np.diag([att_sigma_rad**2] * 3)
+    return st
 
 def initial_fix(alm: Almanac, frame: TriadFrame, t_s: np.ndarray, ids: np.ndarray, rho_m: np.ndarray,
                 sigma_m: float, t_ref_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
