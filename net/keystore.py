@@ -11,7 +11,7 @@ import os
 import sys
 from pathlib import Path
 
-from .security import INDEX, Keystore, KeystoreError, aircraft_cn, station_cn, zenoh_security_json5
+from .security import INDEX, Keystore, KeystoreError, aircraft_cn, station_cn, vehicle_cn, zenoh_security_json5
 
 DEFAULT_RESERVE = 64
 VALID_DAYS = 30        # an enclave's certificate: short on purpose (`larns keys renew` re-issues it)
@@ -110,7 +110,7 @@ class WritableKeystore(Keystore):
         return float(self.index.get("valid_days", VALID_DAYS))
 
     def issue(self, cn: str, role: str, hosts: list[str] | None = None, **meta) -> bool:
-        """Issue ``cn`` (role station/aircraft/recorder/monitor/router) unless it exists. True if new."""
+        """Issue ``cn`` (role station/aircraft/vehicle/recorder/monitor/router) unless it exists. True if new."""
         if cn in self.index.setdefault("enclaves", {}) and self.path(cn, "cert.pem").is_file():
             return False
         self._write_cert(cn, None, hosts=hosts)
@@ -187,8 +187,9 @@ class WritableKeystore(Keystore):
 
 def init_keystore(root: str | Path, stations: list[int], aircraft: list[str] = (), recorder: bool = True,
                   reserve: list[int] | None = None, hosts: list[str] | None = None,
-                  force: bool = False, valid_days: float = VALID_DAYS) -> Keystore:
-    """Create a keystore: CA, router, monitor (and recorder), one enclave per station and aircraft."""
+                  force: bool = False, valid_days: float = VALID_DAYS, vehicles: list[str] = ()) -> Keystore:
+    """Create a keystore: CA, router, monitor (and recorder), one enclave per station, aircraft and
+    vehicle."""
     from cryptography.hazmat.primitives import serialization as ser
 
     root = Path(root)
@@ -210,12 +211,14 @@ def init_keystore(root: str | Path, stations: list[int], aircraft: list[str] = (
         ks.issue(station_cn(sid), "station", id=int(sid))
     for name in aircraft:
         ks.issue(aircraft_cn(name), "aircraft", name=name)
+    for name in vehicles:
+        ks.issue(vehicle_cn(name), "vehicle", name=name)
     ks.write_configs()
     return ks
 
 
 def add_to_keystore(root: str | Path, stations: list[int] = (), aircraft: list[str] = (),
-                    recorder: bool = False) -> tuple[Keystore, list[str]]:
+                    recorder: bool = False, vehicles: list[str] = ()) -> tuple[Keystore, list[str]]:
     ks = WritableKeystore(root)
     new: list[str] = []
     for sid in stations:
@@ -228,6 +231,9 @@ def add_to_keystore(root: str | Path, stations: list[int] = (), aircraft: list[s
     for name in aircraft:
         if ks.issue(aircraft_cn(name), "aircraft", name=name):
             new.append(aircraft_cn(name))
+    for name in vehicles:
+        if ks.issue(vehicle_cn(name), "vehicle", name=name):
+            new.append(vehicle_cn(name))
     if recorder and ks.issue("recorder", "recorder"):
         new.append("recorder")
     ks.write_configs()

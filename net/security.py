@@ -56,6 +56,21 @@ def aircraft_cn(name: str) -> str:
     return f"aircraft-{name}"
 
 
+def vehicle_cn(name: str) -> str:
+    return f"vehicle-{name}"
+
+
+def sender_cn(key: str, src) -> str | None:
+    """The enclave that may send a message with source ``src`` on ``key``: the key's role (station,
+    aircraft, vehicle) with that source (None: no LARNS sender)."""
+    role = str(key).split("/")[1] if str(key).count("/") >= 2 else ""
+    if role == "station":
+        return station_cn(src) if isinstance(src, int) and not isinstance(src, bool) else None
+    if role in ("aircraft", "vehicle") and isinstance(src, str):
+        return f"{role}-{src}"
+    return None
+
+
 # --------------------------------------------------------------------------- keystore (reading)
 
 class Keystore:
@@ -85,6 +100,10 @@ class Keystore:
     @property
     def aircraft(self) -> list[str]:
         return sorted(e["name"] for e in self.enclaves.values() if e.get("role") == "aircraft")
+
+    @property
+    def vehicles(self) -> list[str]:
+        return sorted(e["name"] for e in self.enclaves.values() if e.get("role") == "vehicle")
 
     def path(self, cn: str, name: str) -> Path:
         return self.root / cn / name
@@ -205,11 +224,12 @@ def access_control(ks: Keystore, me: str) -> dict:
         r_tok = rule(f"tok-station-{sid}", ["liveliness_token"], [f"larns/alive/station/{sid}"])
         r_sub = rule(f"sub-station-{sid}", ["declare_subscriber"], station_subscriptions(sid))
         subject(station_cn(sid), [station_cn(sid)], [everyone, r_pub, r_tok, r_sub])
-    for name in ks.aircraft:
-        r_pub = rule(f"pub-aircraft-{name}", ["put"], [f"larns/aircraft/{name}/**"])
-        r_tok = rule(f"tok-aircraft-{name}", ["liveliness_token"], [f"larns/alive/aircraft/{name}"])
-        r_sub = rule(f"sub-aircraft-{name}", ["declare_subscriber"], ["larns/station/*/nav"])
-        subject(aircraft_cn(name), [aircraft_cn(name)], [everyone, r_pub, r_tok, r_sub])
+    for role, names in (("aircraft", ks.aircraft), ("vehicle", ks.vehicles)):  # users: hear navs, speak for themselves
+        for name in names:
+            r_pub = rule(f"pub-{role}-{name}", ["put"], [f"larns/{role}/{name}/**"])
+            r_tok = rule(f"tok-{role}-{name}", ["liveliness_token"], [f"larns/alive/{role}/{name}"])
+            r_sub = rule(f"sub-{role}-{name}", ["declare_subscriber"], ["larns/station/*/nav"])
+            subject(f"{role}-{name}", [f"{role}-{name}"], [everyone, r_pub, r_tok, r_sub])
     r_rtok = rule("tok-recorder", ["liveliness_token"], ["larns/alive/recorder/**"])
     subject("recorder", ["recorder"], [everyone, observe, r_rtok])
     subject("monitor", ["monitor"], [everyone, observe])
@@ -408,8 +428,8 @@ def expected_signer(key: str) -> str | None:
         return None
     if parts[1] == "station":
         return f"station-{parts[2]}" if parts[2].isdigit() else None
-    if parts[1] == "aircraft":
-        return f"aircraft-{parts[2]}"
+    if parts[1] in ("aircraft", "vehicle"):
+        return f"{parts[1]}-{parts[2]}"
     return None
 
 
@@ -681,7 +701,7 @@ class ReceiveGuard:
             raise refused(e.reason, str(e)) from None
         msg, phy = self._decode(env)
         src = msg["src"]
-        if signer != (f"aircraft-{src}" if isinstance(src, str) else f"station-{src}"):
+        if signer != sender_cn(key, src):
             raise refused("signer_mismatch", f"{signer} sent src {src}")
         try:
             if self.replay is not None:

@@ -29,7 +29,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
@@ -174,12 +174,23 @@ def test_every_packaged_scenario_whole(name, tmp_path_factory):
 @pytest.mark.e2e
 @pytest.mark.matrix
 def test_the_default_scenario_whole_secure(tmp_path_factory):
-    """seed000 with --secure (temporary keys: mTLS, access control, signed messages). The fleet runs no
-    vehicle under --secure yet (its access rules have no vehicle subject; the fleet says so): the stations
-    and the aircraft."""
-    case = replace(MATRIX[DEFAULT], vehicle=False)
-    _RUNS.setdefault((DEFAULT, True), run_whole(DEFAULT, case, tmp_path_factory.mktemp("secure"), secure=True)[:2])
-    check_whole(DEFAULT, case, *_RUNS[DEFAULT, True])
+    """seed000 with --secure (temporary keys: mTLS, access control, signed messages), the stations, the
+    aircraft and the vehicle (its own enclave ``vehicle-veh1``): held to the plain run's bounds, and every
+    recorded air message signed by the enclave its key names."""
+    import re
+
+    from larns.analysis.verify import verify_recording
+    from net.security import Keystore
+
+    case = MATRIX[DEFAULT]
+    rec, report, log = run_whole(DEFAULT, case, tmp_path_factory.mktemp("secure"), secure=True)
+    _RUNS.setdefault((DEFAULT, True), (rec, report))
+    check_whole(DEFAULT, case, rec, report)
+    keys = re.search(r"--secure: temporary keystore (\S+)", log)
+    assert keys, log[-2000:]
+    res = verify_recording(Keystore(keys.group(1)), [rec])
+    assert not res["by_reason"] and res["by_signer"].get("vehicle-veh1", 0) > 100, res
+    assert res["by_signer"].get("aircraft-ac1", 0) > 100 and res["by_signer"].get("station-1", 0) > 100, res
 
 
 @pytest.mark.e2e

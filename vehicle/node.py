@@ -233,16 +233,15 @@ def main_args(args: argparse.Namespace) -> int:
     from net.bus import Bus, bus_kwargs
     from net.scenario import load_cli
 
+    from net.security import vehicle_cn
+
     cli.setup_logging()
-    if getattr(args, "secure", None):
-        print("error: vehicle: --secure is not supported yet (the access rules have no vehicle subject)",
-              file=sys.stderr)
-        return 2
     scn = load_cli(args.scenario, args.n_stations)
     opts = VehicleOptions(name=args.name, route=args.route, speed=args.speed, epoch_unix_s=args.epoch,
                           duration_s=args.duration, seed=args.seed, imu_rate_hz=args.imu_rate,
                           speed_m_s=args.vehicle_speed, outage_s=args.outage, status_every_s=args.status_every,
                           quiet=args.quiet)
+    args.secure_cn = vehicle_cn(opts.name)  # --secure: the keystore's vehicle-<name> enclave
     bus = cli.open_bus(f"vehicle {opts.name}", lambda: Bus(**bus_kwargs(args)))
     # larns fleet's start barrier (--epoch-from): the epoch once every process is up
     opts = replace(opts, epoch_unix_s=cli.await_epoch(args, f"vehicle {opts.name}"))

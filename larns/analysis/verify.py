@@ -3,12 +3,7 @@
 
 from __future__ import annotations
 
-from net.security import Keystore, aircraft_cn, station_cn
-
-
-def expected_cn(src) -> str:
-    """The enclave that may send as ``src`` (station id, or aircraft / vehicle name)."""
-    return aircraft_cn(src) if isinstance(src, str) else station_cn(src)
+from net.security import Keystore, sender_cn
 
 
 def signer_check(ks: Keystore):
@@ -29,7 +24,7 @@ def signer_check(ks: Keystore):
             signer, _env = v.open(m.topic, m.data)
         except SecurityError as e:
             return e.reason
-        return None if signer == expected_cn(msg["src"]) else "signer_mismatch"
+        return None if signer == sender_cn(m.topic, msg["src"]) else "signer_mismatch"
 
     check.verifier = v
     return check
@@ -66,7 +61,7 @@ def verify_recording(ks: Keystore, paths, topics=None, exclude=None) -> dict:
         try:
             signer, env = v.open(m.topic, m.data)
             msg, _ = decode(env)
-            if signer != expected_cn(msg["src"]):
+            if signer != sender_cn(m.topic, msg["src"]):
                 raise SecurityError("signer_mismatch", f"{signer} sent src {msg['src']}")
         except SecurityError as e:
             reasons[e.reason] += 1

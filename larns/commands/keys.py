@@ -1,7 +1,7 @@
 """`larns keys`: a LARNS keystore (in the spirit of SROS2's: one certificate authority, one enclave
 per process, security switched on by pointing a process at the keystore).
 
-    larns keys init DIR --stations 1-10 --aircraft ac1 --recorder [--days 30]
+    larns keys init DIR --stations 1-10 --aircraft ac1 [--vehicle veh1] --recorder [--days 30]
     larns keys add DIR --station 11          # a hot-joiner, CA of DIR
     larns keys list DIR
     larns keys renew DIR --all [--days 30]   # new certificates for the same keys (before expiry)
@@ -23,7 +23,7 @@ Layout::
 Certificates last ``--days`` (default 30): renew them with ``keys renew`` before they expire;
 receivers refuse signatures by an expired or revoked certificate (``expired``, ``revoked``).
 
-Common names: ``station-<id>``, ``aircraft-<name>``, ``recorder``, ``monitor`` (the launcher's
+Common names: ``station-<id>``, ``aircraft-<name>``, ``vehicle-<name>``, ``recorder``, ``monitor`` (the launcher's
 observer), ``router``, ``attacker-<n>`` is never issued. Keys are Ed25519 (RFC 8032): the same key
 authenticates the process's TLS links and signs its air messages (:mod:`net.security`).
 
@@ -81,15 +81,16 @@ def cmd_verify_recordings(keystore: str, paths, topics=None, exclude=None) -> in
 # --------------------------------------------------------------------------- command line
 
 def _enclave_names(a: argparse.Namespace, ks: Keystore) -> list[str]:
-    """The common names picked by --station / --aircraft / --enclave / --all."""
-    from net.security import aircraft_cn, station_cn
+    """The common names picked by --station / --aircraft / --vehicle / --enclave / --all."""
+    from net.security import aircraft_cn, station_cn, vehicle_cn
 
     if getattr(a, "all", False):
         return sorted(ks.enclaves)
     cns = [station_cn(i) for i in (parse_ids(a.station) if a.station else [])]
-    cns += [aircraft_cn(n) for n in a.aircraft or []] + list(getattr(a, "enclave", None) or [])
+    cns += [aircraft_cn(n) for n in a.aircraft or []] + [vehicle_cn(n) for n in getattr(a, "vehicle", None) or []]
+    cns += list(getattr(a, "enclave", None) or [])
     if not cns:
-        raise ValueError("name what to act on: --station ID, --aircraft NAME, --enclave CN"
+        raise ValueError("name what to act on: --station ID, --aircraft NAME, --vehicle NAME, --enclave CN"
                          + (" or --all" if hasattr(a, "all") else ""))
     return cns
 
@@ -166,7 +167,7 @@ def _cmd_init(a: argparse.Namespace) -> int:
     try:
         ks = init_keystore(a.dir, parse_ids(a.stations), a.aircraft or [], recorder=a.recorder,
                            reserve=parse_ids(a.reserve) if a.reserve else None,
-                           hosts=a.host or None, force=a.force, valid_days=a.days)
+                           hosts=a.host or None, force=a.force, valid_days=a.days, vehicles=a.vehicle or [])
     except (KeystoreError, ValueError) as e:
         print(f"larns keys: {e}", file=sys.stderr)
         return 2
@@ -179,7 +180,7 @@ def _cmd_init(a: argparse.Namespace) -> int:
 def _cmd_add(a: argparse.Namespace) -> int:
     try:
         ks, new = add_to_keystore(a.dir, parse_ids(a.station) if a.station else [], a.aircraft or [],
-                                  recorder=a.recorder)
+                                  recorder=a.recorder, vehicles=a.vehicle or [])
     except (KeystoreError, ValueError) as e:
         print(f"larns keys: {e}", file=sys.stderr)
         return 2
@@ -221,6 +222,7 @@ def register(sub) -> None:
     i.add_argument("dir")
     i.add_argument("--stations", default="1-10", help="station ids to issue, e.g. 1-10 (default 1-10)")
     i.add_argument("--aircraft", action="append", metavar="NAME", help="aircraft name (repeatable)")
+    i.add_argument("--vehicle", action="append", metavar="NAME", help="ground vehicle name (repeatable)")
     i.add_argument("--recorder", action="store_true", default=True, help="issue the recorder (default)")
     i.add_argument("--no-recorder", dest="recorder", action="store_false")
     i.add_argument("--reserve", default=None,
@@ -237,6 +239,7 @@ def register(sub) -> None:
     a.add_argument("dir")
     a.add_argument("--station", default=None, help="station id(s), e.g. 11 or 11-12")
     a.add_argument("--aircraft", action="append", metavar="NAME")
+    a.add_argument("--vehicle", action="append", metavar="NAME")
     a.add_argument("--recorder", action="store_true")
     a.set_defaults(func=_cmd_add)
     ls = ks.add_parser("list", help="enclaves and whether their credentials check out")
@@ -246,6 +249,7 @@ def register(sub) -> None:
     r.add_argument("dir")
     r.add_argument("--station", default=None, help="station id(s), e.g. 5 or 1-10")
     r.add_argument("--aircraft", action="append", metavar="NAME")
+    r.add_argument("--vehicle", action="append", metavar="NAME")
     r.add_argument("--enclave", action="append", metavar="CN", help="common name, e.g. recorder")
     r.add_argument("--all", action="store_true", help="every enclave")
     r.add_argument("--days", type=float, default=None, help="lifetime, days (default: the keystore's)")
@@ -254,6 +258,7 @@ def register(sub) -> None:
     v.add_argument("dir")
     v.add_argument("--station", default=None, help="station id(s), e.g. 5")
     v.add_argument("--aircraft", action="append", metavar="NAME")
+    v.add_argument("--vehicle", action="append", metavar="NAME")
     v.add_argument("--enclave", action="append", metavar="CN")
     v.add_argument("--publish", action="store_true", help="put the list on the bus (as the monitor enclave)")
     v.add_argument("--connect", action="append", metavar="ENDPOINT", help="tls/HOST:PORT of the field (repeatable)")

@@ -17,6 +17,8 @@ from typing import Any
 
 from .spawn import Child
 
+VEHICLE_NAME = "veh1"  # the fleet's ground vehicle (--vehicle): its name, and its enclave vehicle-veh1 under --secure
+
 
 @dataclass
 class FleetPlan:
@@ -194,11 +196,7 @@ def plan_fleet(args: argparse.Namespace) -> FleetPlan:
         else:
             p.children.append(_aircraft_child(args, p, common))
     if wants_vehicle(args):
-        if p.secure:
-            print("[fleet] --vehicle: not supported with --secure yet (no vehicle subject in the access rules); skipped",
-                  file=sys.stderr)
-        else:
-            p.children.append(_vehicle_child(args, p, common))
+        p.children.append(_vehicle_child(args, p, common))
     if getattr(args, "view", None) is not None:  # --view: live Foxglove view (larns/commands/view.py)
         from larns.commands.view import view_child
 
@@ -222,7 +220,7 @@ def wants_vehicle(args: argparse.Namespace) -> bool:
 def _vehicle_child(args: argparse.Namespace, p: FleetPlan, common: list[str]) -> Child:
     from net.bus import bus_argv
 
-    cmd = [sys.executable, "-m", "vehicle", *common]  # (net-fault flags accepted, not applied: as the aircraft)
+    cmd = [sys.executable, "-m", "vehicle", *common, "--name", VEHICLE_NAME]  # (net-fault flags: not applied)
     if args.duration:
         cmd += ["--until", repr(args.duration)]
     if getattr(args, "vehicle_route", None):
@@ -321,12 +319,13 @@ def _fleet_keystore(args: argparse.Namespace, scn) -> str:
     """``--secure DIR`` (checked: every process's credentials must be there) or, with a bare
     ``--secure``, a fresh temporary keystore for this scenario's stations, its aircraft, the
     recorder, the router and the monitor."""
-    from net.security import Keystore, KeystoreError, station_cn
+    from net.security import Keystore, KeystoreError, station_cn, vehicle_cn
 
     if args.secure != "auto":
         ks = Keystore(args.secure)
         need = [station_cn(i) for i in scn.ids] + ["monitor"]
         need += ["recorder"] if args.record else []
+        need += [vehicle_cn(VEHICLE_NAME)] if wants_vehicle(args) else []
         need += ["router"] if args.topology == "router" and not args.connect else []
         for cn in need:
             ks.check_enclave(cn)
@@ -337,7 +336,7 @@ def _fleet_keystore(args: argparse.Namespace, scn) -> str:
 
     root = Path(tempfile.mkdtemp(prefix="larns-keys-")) / "keys"
     name = str(scn.aircraft.get("name", "ac1")) if isinstance(getattr(scn, "aircraft", None), dict) else "ac1"
-    init_keystore(root, list(scn.ids), [name], recorder=True)
+    init_keystore(root, list(scn.ids), [name], recorder=True, vehicles=[VEHICLE_NAME])
     print(f"[fleet] --secure: temporary keystore {root}", file=sys.stderr)
     if not root.is_dir():
         raise KeystoreError(f"cannot create {root}")

@@ -348,3 +348,40 @@ def test_recording_keeps_signatures_and_replay_verifies(ks, tmp_path):
     p = subprocess.run([PY, "-m", "larns", "replay", "--secure", str(ks), str(tmp_path / "r.mcap")],
                        capture_output=True, text=True, timeout=60)
     assert p.returncode == 1 and '"valid": 5' in p.stdout, p.stderr
+
+
+def test_vehicle_enclave_speaks_only_for_itself(tmp_path):
+    """A ground vehicle has its own enclave (``vehicle-<name>``): access rules for its keys, and its
+    signed messages verify only on its own keys (recorder / replay check; live receivers likewise)."""
+    from larns.analysis.verify import verify_recording
+    from larns.log.record import McapSink
+    from net.keystore import add_to_keystore, init_keystore
+
+    root = tmp_path / "keys"
+    init_keystore(root, [1, 2], ["ac1"], vehicles=["veh1"])
+    k = S.Keystore(root)
+    assert k.vehicles == ["veh1"] and k.aircraft == ["ac1"]
+    k.check_enclave("vehicle-veh1")
+    acl = S.load_enclave_settings(root, "station-1")["access_control"]
+    rules = {r["id"]: r for r in acl["rules"]}
+    assert rules["pub-vehicle-veh1"]["key_exprs"] == ["larns/vehicle/veh1/**"]
+    assert rules["tok-vehicle-veh1"]["key_exprs"] == ["larns/alive/vehicle/veh1"]
+    assert rules["sub-vehicle-veh1"]["key_exprs"] == ["larns/station/*/nav"]
+    assert {"id": "vehicle-veh1", "cert_common_names": ["vehicle-veh1"]} in acl["subjects"]
+    assert add_to_keystore(root, vehicles=["veh2"])[1] == ["vehicle-veh2"]
+    assert S.sender_cn("larns/vehicle/veh1/estimate", "veh1") == "vehicle-veh1"
+    assert S.sender_cn("larns/aircraft/ac1/estimate", "ac1") == "aircraft-ac1"
+    assert S.sender_cn("larns/station/3/nav", 3) == "station-3"
+    assert S.sender_cn("larns/station/3/nav", "3") is None and S.sender_cn("larns/vehicle/veh1/x", 1) is None
+    assert S.expected_signer("larns/vehicle/veh1/estimate") == "vehicle-veh1"
+    veh = S.Security(root, "vehicle-veh1")
+    est = {"kind": "veh_estimate", "src": "veh1", "seq": 1, "stamp_s": 1.0, "t_s": 1.0, "pos_m": [1.0, 2.0, 3.0],
+           "cov_m2": np.eye(3).tolist(), "vel_m_s": [0.0, 0.0, 0.0], "algo": "ekf", "n_updates": 1}
+    mine, theirs = "larns/vehicle/veh1/estimate", "larns/aircraft/veh1/estimate"
+    sink = McapSink(tmp_path / "v.mcap", epoch_unix_s=0.0, foxglove=False)
+    t0 = time.time_ns()
+    sink.write(mine, veh.seal(mine, M.encode(est)), t0)
+    sink.write(theirs, veh.seal(theirs, M.encode(est)), t0 + 1000)  # its key on an aircraft's topic
+    sink.finish()
+    res = verify_recording(S.Keystore(root), [tmp_path / "v.mcap"])
+    assert res["by_signer"] == {"vehicle-veh1": 1} and res["by_reason"] == {"signer_mismatch": 1}, res
