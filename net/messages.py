@@ -568,6 +568,16 @@ def vehicle_key(name: str, *rest: str) -> str:
     return "/".join([KEY_PREFIX, "vehicle", name, *rest])
 
 
+# Every key a sender publishes under its own prefix ``larns/<role>/<name>/`` (``*``: one chunk, the
+# destination station or the algorithm); :func:`key_for` gives no other. The access rules
+# (net/security.py) allow exactly these, so an invented sub-key is refused by every receiver's Zenoh.
+OWN_KEYS = {
+    "station": ("nav", "estimate", "truth", "init", "input", "integrity", "range/req/*", "range/rsp/*"),
+    "aircraft": ("estimate/*", "truth", "status/*", "init", "input"),
+    "vehicle": ("estimate", "truth", "init", "input"),
+}
+
+
 def alive_key(role: str, name: str | int) -> str:
     return f"{KEY_PREFIX}/alive/{role}/{name}"
 

@@ -6,8 +6,9 @@ Three layers, each stopping what the one below cannot:
    issued by the keystore's CA (``larns keys``). A process without credentials cannot connect.
 2. **Access control** (Zenoh, Rust, enforced by *every* process on its own ingress, and by the
    router on each client's): subjects by certificate common name; station ``<id>`` may publish
-   only under ``larns/station/<id>/**``, the aircraft only under ``larns/aircraft/<name>/**``,
-   the recorder and monitor nothing; default deny. Peers do not relay for each other (Zenoh >= 1.9)
+   only its own keys ``larns/station/<id>/...`` (exactly those of ``net.messages.OWN_KEYS``: no
+   invented sub-key), the aircraft and the vehicle likewise under ``larns/aircraft/<name>/`` and
+   ``larns/vehicle/<name>/``, the recorder and monitor nothing; default deny. Peers do not relay for each other (Zenoh >= 1.9)
    and each enforces its own rules, so a peer that does not cannot speak for anyone else.
 3. **Message signatures** (here): air and survey messages are relayed (router) and recorded, and
    TLS protects a link, not a message. Each sender signs ``key + envelope`` with its Ed25519 key;
@@ -201,6 +202,8 @@ def access_control(ks: Keystore, me: str) -> dict:
     """Zenoh ``access_control`` section for process ``me``: what it accepts from each subject on
     its ingress (one subject per common name; default deny). Egress is allowed to every subject
     (ours to send); the peers' and the router's ingress rules limit what each may receive."""
+    from net.messages import OWN_KEYS
+
     rules: list[dict] = []
     subjects: list[dict] = []
     policies: list[dict] = []
@@ -220,13 +223,13 @@ def access_control(ks: Keystore, me: str) -> dict:
                  ["larns/trust/**"])
     observe = rule("observe-all", _OBSERVE, ["larns/**"])
     for sid in ks.reserved:
-        r_pub = rule(f"pub-station-{sid}", ["put"], [f"larns/station/{sid}/**"])
+        r_pub = rule(f"pub-station-{sid}", ["put"], [f"larns/station/{sid}/{k}" for k in OWN_KEYS["station"]])
         r_tok = rule(f"tok-station-{sid}", ["liveliness_token"], [f"larns/alive/station/{sid}"])
         r_sub = rule(f"sub-station-{sid}", ["declare_subscriber"], station_subscriptions(sid))
         subject(station_cn(sid), [station_cn(sid)], [everyone, r_pub, r_tok, r_sub])
     for role, names in (("aircraft", ks.aircraft), ("vehicle", ks.vehicles)):  # users: hear navs, speak for themselves
         for name in names:
-            r_pub = rule(f"pub-{role}-{name}", ["put"], [f"larns/{role}/{name}/**"])
+            r_pub = rule(f"pub-{role}-{name}", ["put"], [f"larns/{role}/{name}/{k}" for k in OWN_KEYS[role]])
             r_tok = rule(f"tok-{role}-{name}", ["liveliness_token"], [f"larns/alive/{role}/{name}"])
             r_sub = rule(f"sub-{role}-{name}", ["declare_subscriber"], ["larns/station/*/nav"])
             subject(f"{role}-{name}", [f"{role}-{name}"], [everyone, r_pub, r_tok, r_sub])

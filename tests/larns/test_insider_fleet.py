@@ -8,7 +8,8 @@ fleet second 25 (larns/adversary/insider.py) - and scored from the recordings:
 * the honest stations' mean final horizontal error <= 0.25 m;
 * the aircraft's horizontal RMS error from 30 s on within 1.2 x the clean run's;
 * every process (router, fleet, stations, aircraft, recorder, insider) below 300 MB of RSS;
-* the recording complete (MCAP footer).
+* the recording complete (MCAP footer), with no sample on a sub-key the insider invented (refused by
+  the access rules' exact keys).
 
 Run once (`-m matrix`); the figures are printed and quoted in docs/security.md.
 """
@@ -210,3 +211,13 @@ def test_insider_with_station_2s_key_does_not_bring_the_field_down(tmp_path):
         assert row["rms_eh_m"] <= 1.2 * clean["aircraft"][algo]["rms_eh_m"], (algo, figures)
     assert peak[0][0] < 300.0, peak
     assert clean["complete"] and att["complete"]
+    # the insider's invented sub-keys never got past the router's access rules (exact keys)
+    from larns.log import read_logs
+    from net.messages import OWN_KEYS
+
+    own = [f"larns/station/{INSIDER}/{k}".split("/") for k in OWN_KEYS["station"]]
+    recorded = {m.topic for lg in read_logs([run["rec"]], sort=False) for m in lg.messages
+                if m.topic.startswith(f"larns/station/{INSIDER}/")}
+    invented = [t for t in recorded if not any(len(p) == len(t.split("/")) and all(
+        a == "*" or a == b for a, b in zip(p, t.split("/"))) for p in own)]
+    assert not invented, sorted(invented)[:10]

@@ -54,7 +54,7 @@ def test_keystore_layout_and_checks(ks, tmp_path):
     acl = S.load_enclave_settings(ks, "station-3")["access_control"]
     assert acl["default_permission"] == "deny"
     rules = {r["id"]: r for r in acl["rules"]}
-    assert rules["pub-station-5"]["key_exprs"] == ["larns/station/5/**"]
+    assert "larns/station/5/nav" in rules["pub-station-5"]["key_exprs"]
     assert rules["pub-station-5"]["messages"] == ["put"]
     with pytest.raises(S.KeystoreError, match="station-11"):
         k.check_enclave("station-11")
@@ -364,7 +364,7 @@ def test_vehicle_enclave_speaks_only_for_itself(tmp_path):
     k.check_enclave("vehicle-veh1")
     acl = S.load_enclave_settings(root, "station-1")["access_control"]
     rules = {r["id"]: r for r in acl["rules"]}
-    assert rules["pub-vehicle-veh1"]["key_exprs"] == ["larns/vehicle/veh1/**"]
+    assert rules["pub-vehicle-veh1"]["key_exprs"] == [f"larns/vehicle/veh1/{k}" for k in ("estimate", "truth", "init", "input")]
     assert rules["tok-vehicle-veh1"]["key_exprs"] == ["larns/alive/vehicle/veh1"]
     assert rules["sub-vehicle-veh1"]["key_exprs"] == ["larns/station/*/nav"]
     assert {"id": "vehicle-veh1", "cert_common_names": ["vehicle-veh1"]} in acl["subjects"]
@@ -385,3 +385,32 @@ def test_vehicle_enclave_speaks_only_for_itself(tmp_path):
     sink.finish()
     res = verify_recording(S.Keystore(root), [tmp_path / "v.mcap"])
     assert res["by_signer"] == {"vehicle-veh1": 1} and res["by_reason"] == {"signer_mismatch": 1}, res
+
+
+def _matches(pattern: str, key: str) -> bool:
+    """Zenoh key-expression inclusion for the rules' patterns (``*``: one chunk, no ``**`` in them)."""
+    p, k = pattern.split("/"), key.split("/")
+    return len(p) == len(k) and all(a == "*" or a == b for a, b in zip(p, k))
+
+
+def test_access_rules_name_exactly_the_keys_each_sender_publishes(ks):
+    """Every message kind's key (``key_for``) is allowed to its own sender and to nobody else, and
+    invented sub-keys (the insider's ``subkeys``) are allowed to nobody."""
+    from net.keystore import add_to_keystore
+
+    add_to_keystore(ks, vehicles=["veh1"])
+    acl = S.load_enclave_settings(ks, "station-3")["access_control"]
+    rules = {r["id"]: r["key_exprs"] for r in acl["rules"] if r["id"].startswith("pub-")}
+    assert all("**" not in k for keys in rules.values() for k in keys), rules
+    senders = {"station": 7, "aircraft": "ac1", "vehicle": "veh1"}
+    for kind in M.SCHEMAS:
+        role = "aircraft" if kind.startswith("ac_") else "vehicle" if kind.startswith("veh_") else "station"
+        try:
+            key = M.key_for({"kind": kind, "src": senders[role], "dst": 4, "algo": "ukf-pr"})
+        except M.MessageError:
+            continue  # not published by a sender (no key)
+        allowed = [rid for rid, keys in rules.items() if any(_matches(p, key) for p in keys)]
+        assert allowed == [f"pub-{role}-{senders[role]}"], (kind, key, allowed)
+    for key in ("larns/station/7/x/1", "larns/station/7/nav/extra/2", "larns/aircraft/ac1/estimate/a/b",
+                "larns/vehicle/veh1/x", "larns/station/7"):
+        assert not any(_matches(p, key) for keys in rules.values() for p in keys), key
