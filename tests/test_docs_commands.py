@@ -654,6 +654,16 @@ def scratch(d: Path, s: Session) -> Path:
     return d
 
 
+def own_outputs(d: Path, line: str) -> None:
+    """A line that writes a recording under a name :func:`scratch` linked to the session recording
+    (``--record run.mcap``, ``-o out.mcap``) gets its own file: the link is removed first, so that the
+    line does not write through it over the recording the other lines read."""
+    words = line.split()
+    for flag, name in zip(words, words[1:]):
+        if flag in ("--record", "-o", "--output") and (d / name).is_symlink():
+            (d / name).unlink()
+
+
 def rewritten(cmd: str) -> str:
     entry = TABLE[cmd]
     assert isinstance(entry, Run)
@@ -667,6 +677,7 @@ def rewritten(cmd: str) -> str:
 def run_before(cmd: str, d: Path) -> None:
     """The ``before`` lines of a table line, in d."""
     for pre in TABLE[cmd].before:
+        own_outputs(d, rewritten(pre))
         rc, out = run_line(rewritten(pre), d, TABLE[pre].timeout_s)
         assert rc == 0, f"{pre!r} (run first) exited {rc}:\n{out[-3000:]}"
 
@@ -678,6 +689,7 @@ def run_once(cmd: str, tmp_path_factory, s: Session) -> tuple[Path, int, str]:
     """A table line run once per session in its own directory (a recording other lines read)."""
     if cmd not in _ONCE:
         d = scratch(tmp_path_factory.mktemp("docs_once"), s)
+        own_outputs(d, rewritten(cmd))
         run_before(cmd, d)
         rc, out = run_line(rewritten(cmd), d, TABLE[cmd].timeout_s)
         _ONCE[cmd] = (d, rc, out)
@@ -705,6 +717,7 @@ def _directory(cmd: str, s: Session, tmp_path: Path, factory) -> Path:
         assert rc == 0, f"{entry.in_dir_of!r} (run first) exited {rc}:\n{out[-3000:]}"
         return d
     d = scratch(tmp_path, s)
+    own_outputs(d, rewritten(cmd))
     run_before(cmd, d)
     return d
 
