@@ -34,6 +34,8 @@ CASES: dict[str, dict] = {
     "bad_fix": {"faults": [{"kind": "bad_fix", "station": FAULTY, "offset_m": [50.0, 0.0, 0.0], "sigma0_m": 10.0}]},
 }
 DETECT_WITHIN_S = 10.0
+RECOVER_WITHIN_S = 20.0  # issue 32: honest stations back to <= RECOVER_RATIO x the fault-free twin's RMS
+RECOVER_RATIO = 1.15
 
 
 def register(sub) -> None:
@@ -64,6 +66,10 @@ def register(sub) -> None:
                    help=f"aircraft filters with integrity monitoring (aircraft/fde.py) on the same worlds at the "
                         f"scenario's epoch rate, {AC_FILTER_DURATION_S:g} s (default: {' '.join(AC_FILTERS)}; "
                         "none: snapshot RAIM only)")
+    p.add_argument("--recovery", action="store_true",
+                   help=f"faulty cases: also run each trial's fault-free twin (same seed) and report how the honest "
+                        f"stations' horizontal RMS returns to it after the exclusion (bar: <= {RECOVER_RATIO:g} x "
+                        f"within {RECOVER_WITHIN_S:g} s, NEES in band)")
     p.set_defaults(func=main)
 
 
@@ -274,30 +280,90 @@ def fault_metrics(sim, faults, duration_s: float) -> dict:
             "false_exclusions": false, "station_hours": deciders * duration_s / 3600.0}
 
 
-def _trial(job: tuple) -> dict:
-    from nav.crlb import survey_crlb
-    from nav.geometry import frame_free_mask
+def _world(case: str | None, estimator: str, seed: int, duration: float, scenario: str, times: np.ndarray):
+    """One simulated trial: ``(scn, sim, result, keep)``, ``keep`` the honest non-frame stations (4..n,
+    not faulty), sampled at ``times``."""
     from net.scenario import load
     from stations.sim import Simulator
 
-    case, estimator, seed, duration, scenario = job
     over = CASES.get(case, {}) if case else {}
     scn = load(scenario, seed=seed, **{k: (dict(v) if isinstance(v, dict) else v) for k, v in over.items()})
     sim = Simulator(scn, estimator=estimator)
-    times = np.array([40.0, duration])
     r = sim.run(duration, times)
     bad = {f.station for f in scn.faults}
-    keep = np.array([i >= 4 and i not in bad for i in scn.ids])
+    return scn, sim, r, np.array([i >= 4 and i not in bad for i in scn.ids])
+
+
+def _h2_nees(r, keep) -> tuple[np.ndarray, np.ndarray]:
+    """Horizontal squared error and 3-D NEES of the ``keep`` stations at every sample: (K, n) each."""
     err = (r.pos_m - r.truth_m)[:, keep]
-    free = frame_free_mask(len(scn.ids))
-    crlb = np.stack([survey_crlb(r.truth_m, r.link_counts[k], scn.channel.sigma_d_m, free, scn.sigma0_m)
-                     for k in range(len(times))])[:, keep]
     P = r.cov_m2[:, keep]
     nees = np.einsum("kni,kni->kn", err, np.linalg.solve(P, err[..., None])[..., 0])
-    out = {"h2": err[..., 0] ** 2 + err[..., 1] ** 2, "crlb_h2": crlb[..., 0, 0] + crlb[..., 1, 1], "nees": nees}
+    return err[..., 0] ** 2 + err[..., 1] ** 2, nees
+
+
+def _trial(job: tuple) -> dict:
+    from nav.crlb import survey_crlb
+    from nav.geometry import frame_free_mask
+
+    case, estimator, seed, duration, scenario, recovery = (*job, False)[:6]
+    at = [40.0, duration]
+    grid = np.arange(1.0, np.floor(duration) + 1e-9) if recovery else np.array(at)
+    scn, sim, r, keep = _world(case, estimator, seed, duration, scenario, np.union1d(grid, at))
+    t = np.union1d(grid, at)
+    k_at = np.searchsorted(t, at)
+    h2, nees = _h2_nees(r, keep)
+    free = frame_free_mask(len(scn.ids))
+    crlb = np.stack([survey_crlb(r.truth_m, r.link_counts[k], scn.channel.sigma_d_m, free, scn.sigma0_m)
+                     for k in k_at])[:, keep]
+    out = {"h2": h2[k_at], "crlb_h2": crlb[..., 0, 0] + crlb[..., 1, 1], "nees": nees[k_at]}
     out.update(fault_metrics(sim, scn.faults, duration))
     out["faulty"] = bool(scn.faults)
+    if recovery and scn.faults:  # the same world without the fault: same seed, same noise draws
+        _s, _sim, r0, _k = _world(None, estimator, seed, duration, scenario, t)
+        out["grid_s"], out["grid_h2"], out["grid_nees"] = t, h2, nees
+        out["twin_h2"] = _h2_nees(r0, keep)[0]
+        out["onset_s"] = min(f.onset_s for f in scn.faults)
     return out
+
+
+def recovery_summary(res: list[dict], lags_s: np.ndarray) -> dict:
+    """How the honest stations return to the fault-free twin after the exclusion (``--recovery``).
+
+    Per lag ``L`` after each trial's first exclusion ``t_x`` (onset + detection time): the horizontal
+    RMS over trials and honest stations at ``t_x + L`` against the twin's at the same times, and the
+    mean NEES there with its 95 % band (3 dof, trials x stations values). ``recover_s``: the first lag
+    from which the ratio stays <= RECOVER_RATIO (to the largest lag every trial reaches)."""
+    from .survey import chi2_band
+
+    rows = [r for r in res if r.get("detect_time_s") is not None and "grid_s" in r]
+    if not rows:
+        return {"trials_excluded": 0}
+    ratio, nees, band = [], [], []
+    lags = []
+    for lag in lags_s:
+        h2f, h2t, nq = [], [], []
+        for r in rows:
+            k = int(np.searchsorted(r["grid_s"], r["onset_s"] + r["detect_time_s"] + lag))
+            if k >= len(r["grid_s"]):
+                break
+            h2f.append(r["grid_h2"][k])
+            h2t.append(r["twin_h2"][k])
+            nq.append(r["grid_nees"][k])
+        else:
+            lags.append(float(lag))
+            ratio.append(float(np.sqrt(np.mean(h2f)) / np.sqrt(np.mean(h2t))))
+            nq = np.concatenate(nq)
+            nees.append(float(nq.mean()))
+            band.append(chi2_band(3, nq.size))
+            continue
+        break
+    ratio_a = np.array(ratio)
+    above = np.flatnonzero(ratio_a > RECOVER_RATIO)
+    recover = None if not lags else (0.0 if above.size == 0 else
+                                     lags[above[-1] + 1] if above[-1] + 1 < len(lags) else None)
+    return {"trials_excluded": len(rows), "lags_s": lags, "ratio": ratio, "nees_mean": nees, "nees_band_95": band,
+            "recover_s": recover}
 
 
 def summarize(case: str, res: list[dict], faulty: bool) -> dict:
@@ -367,6 +433,58 @@ def plot(rows: list[dict], png_dir: Path) -> Path:
     fig.savefig(f, dpi=110)
     plt.close(fig)
     return f
+
+
+def print_recovery(rows: list[dict]) -> None:
+    """The ``--recovery`` table: the honest stations' RMS against the fault-free twin after the exclusion."""
+    print(f"\nrecovery after the exclusion (honest stations 4..n, horizontal RMS / the same world without the fault; "
+          f"bar: <= {RECOVER_RATIO:g} within {RECOVER_WITHIN_S:g} s, NEES in band)")
+    hdr = ("case", "trials_exc", "ratio@0s", "ratio@10s", "ratio@20s", "NEES@20s", "band_lo", "band_hi", "recover_s",
+           "bar")
+    print("  ".join(f"{h:>10}" for h in hdr))
+    for r in rows:
+        v = r["recovery"]
+        lags = v["lags_s"]
+
+        def at(key, lag):
+            return v[key][lags.index(lag)] if lag in lags else None
+
+        k20 = lags.index(RECOVER_WITHIN_S) if RECOVER_WITHIN_S in lags else None
+        lo, hi = v["nees_band_95"][k20] if k20 is not None else (None, None)
+        ok = (k20 is not None and v["recover_s"] is not None and v["recover_s"] <= RECOVER_WITHIN_S
+              and v["nees_mean"][k20] <= hi)
+        v["bar_met"] = bool(ok)
+        vals = [at("ratio", 0.0), at("ratio", 10.0), at("ratio", 20.0), at("nees_mean", 20.0), lo, hi, v["recover_s"]]
+        print(f"{r['case']:>10}  {v['trials_excluded']:>10}  " + "  ".join(
+            f"{'-':>10}" if x is None else f"{x:10.3f}" for x in vals) + f"  {'met' if ok else 'NOT met':>10}")
+
+
+def plot_recovery(rows: list[dict], png_dir: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    png_dir.mkdir(parents=True, exist_ok=True)
+    fig, ax = plt.subplots(1, 2, figsize=(10, 4))
+    for r in rows:
+        v = r["recovery"]
+        ax[0].plot(v["lags_s"], v["ratio"], marker=".", label=r["case"])
+        ax[1].plot(v["lags_s"], v["nees_mean"], marker=".", label=r["case"])
+        ax[1].fill_between(v["lags_s"], [b[0] for b in v["nees_band_95"]], [b[1] for b in v["nees_band_95"]],
+                           alpha=0.15)
+    ax[0].axhline(RECOVER_RATIO, color="k", ls="--", lw=0.8)
+    ax[0].axvline(RECOVER_WITHIN_S, color="k", ls=":", lw=0.8)
+    ax[0].set(xlabel="s after the exclusion", ylabel="RMS / fault-free twin", title="honest stations' horizontal RMS")
+    ax[1].set(xlabel="s after the exclusion", ylabel="mean NEES (3 dof)", title="NEES and its 95 % band")
+    for a in ax:
+        a.legend()
+        a.grid(alpha=0.3)
+    fig.tight_layout()
+    out = png_dir / "integrity_recovery.png"
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
 
 
 def print_filter_table(ac_rows: list[dict]) -> None:
@@ -439,19 +557,27 @@ def main(args) -> int:
     ctx = mp.get_context("fork")
     with ctx.Pool(max(1, args.jobs)) as pool:
         for case in args.cases:
-            jobs = [(case, args.estimator, args.seed + k, args.duration, "seed000") for k in range(args.trials)]
+            rec = bool(getattr(args, "recovery", False)) and bool(CASES.get(case, {}).get("faults"))
+            jobs = [(case, args.estimator, args.seed + k, args.duration, "seed000", rec) for k in range(args.trials)]
             t0 = time.perf_counter()
             res = list(progress(pool.imap(_trial, jobs), f"integrity {case}", total=len(jobs)))
             row = summarize(case, res, res[0]["faulty"])
             row["times_s"][1] = args.duration
+            if rec:
+                row["recovery"] = recovery_summary(res, np.arange(0.0, 31.0))
             row["wall_s"] = time.perf_counter() - t0
             rows.append(row)
     print(f"\nestimator={args.estimator}  trials/case={args.trials}  faulty station={FAULTY}  "
           f"(FE/st-h: false exclusions per station-hour by non-faulty stations)")
     if rows:
         print_table(rows)
+    rec_rows = [r for r in rows if r.get("recovery", {}).get("lags_s")]
+    if rec_rows:
+        print_recovery(rec_rows)
     if args.png_dir and rows:
         print(f"wrote {plot(rows, Path(args.png_dir))}")
+    if args.png_dir and rec_rows:
+        print(f"wrote {plot_recovery(rec_rows, Path(args.png_dir))}")
     ac_rows = []
     if args.aircraft is not None:
         for scn in args.aircraft or ["seed001", "seed003"]:
