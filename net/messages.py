@@ -364,7 +364,7 @@ SCHEMAS: dict[str, tuple[dict[str, Callable], dict[str, Callable]]] = {
                    "state": _state}, {"t_tx_s": _num, "t_rx_s": _num, "clock": _clock}),
     "nav": ({**_COMMON_STATION, "cycle": _count, "slot": _slot, "t_tx_s": _num, "pos_m": _vec3,
              "cov_m2": _cov33, "n_updates": _count, "state": _state, "ranges": _ranges,
-             "members": _members}, {"clock": _clock}),
+             "members": _members}, {"clock": _clock, "excluded": _members}),
     "estimate": ({**_COMMON_STATION, "t_s": _num, "pos_m": _vec3, "cov_m2": _cov33,
                   "n_updates": _count, "estimator": _text, "state": _state},
                  {"slot": _slot, "cycle": _count, "dropped": _count, "clock_offset_s": _num,

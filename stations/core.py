@@ -200,6 +200,9 @@ class StationCore:
                  pos_m=self.est.pos_m.tolist(), cov_m2=self.est.cov_m2.tolist(),
                  n_updates=int(self.est.n_updates), state=self.state,
                  ranges=self.ranges_out, members=self.members(t_s), clock=self.clk.correction(t_s))
+        own = self.integrity.own_excluded
+        if own:  # the quorum's input at the other stations (stations/integrity.py)
+            m["excluded"] = sorted(own)
         self.ranges_out = []
         return m
 
@@ -391,6 +394,7 @@ class StationCore:
                 self.listen_until_s = t_rx_s + self.plan.cycle_s
                 self._next_req_T = self._nav_s = float("inf")
         self.est.on_peer(src, pos, cov)
+        self.integrity.on_announcement(src, msg.get("excluded"), t_rx_s)
         corr = msg.get("clock")
         if corr is not None:
             self.clk.on_nav(src, t_rx_s, msg["t_tx_s"], corr)  # coarse, only while unknown
@@ -428,7 +432,8 @@ class StationCore:
         if not self.est.initialized:
             return []
         out = []
-        for body in self.integrity.evaluate(t_s, self.est.pos_m, self.est.cov_m2, self.peers):
+        bodies = self.integrity.evaluate(t_s, self.est.pos_m, self.est.cov_m2, self.peers)
+        for body in bodies + self.integrity.quorum(t_s, set(self.members(t_s))):
             self.seq.setdefault("integrity", 0)
             m = self._base("integrity", t_s)
             m.update(body)

@@ -25,6 +25,16 @@ enough) in ``pass_to_readmit`` consecutive tests is *re-admitted*. Each decision
 ``integrity`` message. When more than half of the peers tested fail at once, the common factor is this station itself (a biased antenna, a
 jumped clock): it excludes nobody new (``self_suspect``).
 
+**Quorum.** Each station announces its own exclusions in its nav (``excluded``). A test sees a fault
+only through its own links: a lying peer whose false position lies across our line of sight to it
+leaves our ranges consistent while its bounded pull still drags our solve (``larns bench integrity
+--recovery``: seed 31, one station excluded the liar 53 s after its neighbours). So a peer is also
+excluded while at least ``quorum_min`` (2) and more than half of the live announcers other than
+itself (those we have not excluded ourselves, heard within ``window_s``) announce it; the exclusion
+lapses when the quorum does. Only own exclusions are announced (an adopted one would hold itself up),
+and one insider's announcements can exclude nobody. Quorum decisions are ``integrity`` messages with
+``dof = 0`` (``statistic``: votes, ``threshold``: votes needed).
+
 Both estimates were partly built from this very link, which makes the residual smaller than the
 formula says, and the survey's covariance is conservative (NEES below its band): on clean data the
 observed false-alarm rate is at or below ``p_fa`` (measured in ``tests/stations/test_integrity.py`` and by
@@ -61,8 +71,12 @@ class StationIntegrity:
 
     def __init__(self, station_id: int, sigma_d_m: float, *, p_fa: float = 1e-4, window_s: float = 20.0,
                  fail_to_exclude: int = 2, pass_to_readmit: int = 10, readmit_p: float = 0.1, gate: float = 4.0,
-                 min_ranges: int = 3):
+                 min_ranges: int = 3, quorum_min: int = 2):
         self.id = station_id
+        self.quorum_min = int(quorum_min)
+        # announcer -> (local time heard, the peers it has excluded itself); admitted senders only
+        self.announced: dict[int, tuple[float, frozenset[int]]] = {}
+        self.adopted: set[int] = set()  # peers excluded by the quorum (module docstring)
         self.sigma_d_m = float(sigma_d_m)
         self.p_fa = float(p_fa)
         self.threshold = float(chdtri(1, p_fa))
@@ -77,8 +91,50 @@ class StationIntegrity:
         self.events: list[tuple[float, int, str, float]] = []  # (t_s, suspect, decision, statistic)
 
     @property
-    def excluded(self) -> set[int]:
+    def own_excluded(self) -> set[int]:
+        """Peers this station's own test has excluded (what its nav announces)."""
         return {p for p, s in self.peers.items() if s.excluded}
+
+    @property
+    def excluded(self) -> set[int]:
+        """Peers the survey leaves out: our own exclusions and the quorum's."""
+        return self.own_excluded | self.adopted
+
+    def on_announcement(self, src: int, excluded_ids, t_s: float) -> None:
+        """A peer's nav: the peers it has excluded itself (its ``excluded`` field; none: empty)."""
+        if src != self.id:
+            self.announced[int(src)] = (float(t_s), frozenset(int(i) for i in excluded_ids or ()))
+
+    def quorum(self, t_s: float, live) -> list[dict]:
+        """Adopt or drop quorum exclusions among the ``live`` peers at ``t_s`` (module docstring);
+        returns the decisions taken now (``integrity`` message bodies, ``dof = 0``)."""
+        own = self.own_excluded
+        fresh = {a: ex for a, (t, ex) in self.announced.items()
+                 if a in live and a not in own and t_s - t <= self.window_s}
+        now = set()
+        votes_of: dict[int, tuple[int, int]] = {}
+        for j in set().union(*fresh.values()) if fresh else ():
+            if j == self.id or j in own:
+                continue
+            voters = [ex for a, ex in fresh.items() if a != j]
+            votes = sum(j in ex for ex in voters)
+            need = max(self.quorum_min, len(voters) // 2 + 1)
+            votes_of[j] = (votes, need)
+            if votes >= need:
+                now.add(j)
+        out = []
+        for j, decision in [(j, "exclude") for j in sorted(now - self.adopted)] + \
+                           [(j, "readmit") for j in sorted(self.adopted - now - own)]:
+            votes, need = votes_of.get(j, (0, self.quorum_min))
+            self.events.append((float(t_s), j, decision, float(votes)))
+            out.append({"t_s": float(t_s), "suspect": int(j), "statistic": float(votes), "threshold": float(need),
+                        "dof": 0, "p_fa": self.p_fa, "decision": decision})
+        self.adopted = now
+        if out:
+            ex = sorted(self.excluded)
+            for m in out:
+                m["excluded"] = ex
+        return out
 
     def on_range(self, peer_id: int, range_m: float, t_s: float) -> None:
         st = self.peers.setdefault(peer_id, PeerTest())

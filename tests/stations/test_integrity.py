@@ -325,3 +325,32 @@ def test_info_shows_a_station_excluded_by_its_neighbours(tmp_path):
     s = summarize([p])
     assert s["stations"][6]["excluded_by"] == [3, 4]
     assert "station 6 EXCLUDED by 3,4" in format_info(s)
+
+
+def test_quorum_of_announced_exclusions():
+    """A peer excluded by at least 2 and more than half of the live announcers (other than itself) is
+    excluded here too, while the quorum holds; one announcer alone (an insider) excludes nobody."""
+    from stations.integrity import StationIntegrity
+
+    mon = StationIntegrity(1, 0.5)
+    live = {2, 3, 4, 5, 6}
+    for a in live:
+        mon.on_announcement(a, [], 0.0)
+    mon.on_announcement(2, [6], 1.0)
+    assert mon.quorum(1.0, live) == [] and mon.excluded == set()  # one voice: nobody
+    mon.on_announcement(3, [6], 1.0)
+    assert mon.quorum(1.0, live) == []  # 2 of the 4 voters other than 6: not more than half
+    mon.on_announcement(4, [6], 1.0)
+    (d,) = mon.quorum(1.5, live)
+    assert (d["suspect"], d["decision"], d["dof"], d["statistic"], d["threshold"]) == (6, "exclude", 0, 3.0, 3.0)
+    assert mon.excluded == {6} and mon.own_excluded == set() and d["excluded"] == [6]
+    assert mon.quorum(2.0, live) == []  # no repeated decision
+    mon.on_announcement(1, [6, 1], 2.0)  # our own id as an announcer or a suspect: ignored
+    mon.on_announcement(4, [], 3.0)  # 4 re-admits 6: the quorum lapses
+    (d,) = mon.quorum(3.0, live)
+    assert (d["suspect"], d["decision"]) == (6, "readmit") and mon.excluded == set()
+    # stale announcements and announcers no longer live do not vote
+    mon.on_announcement(4, [6], 3.0)
+    assert mon.quorum(3.0 + mon.window_s + 1.0, live) == []
+    assert mon.quorum(3.0, live - {2, 4}) == []  # 2 and 4 no longer live: 3 alone of 3, 5
+    assert [e[2] for e in mon.events] == ["exclude", "readmit"]
