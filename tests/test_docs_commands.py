@@ -250,6 +250,8 @@ TABLE: dict[str, Run | Skip] = {
             expect=(SURVEYED, r"aircraft\s+ac1\s+ukf-pr: t="), slow=True),
     "larns bench integrity --aircraft seed001 seed003": Skip(BENCH),
     "larns bench integrity --aircraft": Skip(BENCH),
+    "./dev larns bench integrity --cases liar range_bias --trials 40 --duration 90 --recovery --png-dir docs/img": Skip(BENCH),
+    "larns keys add DIR --vehicle veh1": Skip(SYNOPSIS, concrete=False),
     "./dev larns fleet --scenario FILE --duration 45 --speed 3 --aircraft --record f.mcap": Skip(SYNOPSIS + " (FILE: a world written from tests/scenario_text.py)", concrete=False),
     "./dev larns report f.mcap -o rep": Run("f.mcap: " + DEMO, expect=r"figures \+ report.md in rep", slow=True),
     "./dev larns bench aircraft --quick --no-speed --json ...": Skip(SYNOPSIS, concrete=False),

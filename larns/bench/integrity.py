@@ -548,15 +548,14 @@ def plot_filters(ac_rows: list[dict], png_dir: Path) -> Path:
     return f
 
 
-def main(args) -> int:
+def station_rows(args) -> list[dict]:
+    """The station cases of ``args.cases`` (with ``--recovery``, their twins): one summary row each."""
     from .progress import progress
 
     rows = []
-    if not args.cases:
-        args.cases = []
     ctx = mp.get_context("fork")
     with ctx.Pool(max(1, args.jobs)) as pool:
-        for case in args.cases:
+        for case in args.cases or []:
             rec = bool(getattr(args, "recovery", False)) and bool(CASES.get(case, {}).get("faults"))
             jobs = [(case, args.estimator, args.seed + k, args.duration, "seed000", rec) for k in range(args.trials)]
             t0 = time.perf_counter()
@@ -567,6 +566,11 @@ def main(args) -> int:
                 row["recovery"] = recovery_summary(res, np.arange(0.0, 31.0))
             row["wall_s"] = time.perf_counter() - t0
             rows.append(row)
+    return rows
+
+
+def main(args) -> int:
+    rows = station_rows(args)
     print(f"\nestimator={args.estimator}  trials/case={args.trials}  faulty station={FAULTY}  "
           f"(FE/st-h: false exclusions per station-hour by non-faulty stations)")
     if rows:
