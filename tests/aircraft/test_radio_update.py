@@ -46,28 +46,3 @@ def test_strategy_is_the_linear_kalman_update_on_a_linear_model(kind, iterations
     np.testing.assert_allclose(P1, Pk, rtol=1e-8, atol=1e-8)
     np.testing.assert_allclose(nu, nuk, rtol=1e-8, atol=1e-8)
     np.testing.assert_allclose(S, Sk, rtol=1e-8, atol=1e-8)
-
-
-def test_station_position_covariance_counted_like_the_linearization_error():
-    """A station's broadcast position error persists, so its range share ``u^T C u`` enters R scaled by
-    the station's repeat count (white with ``linearization_corr_s = 0``)."""
-    station = np.array([[100.0, 100.0, 5.0]])
-    C = np.array([[[1.0, 0.2, 0.0], [0.2, 2.0, 0.1], [0.0, 0.1, 9.0]]])
-    x0 = np.array([[400.0, 300.0, 200.0, 1.0, 0.0, 0.0, 3.0, 0.0]])
-    trk = {c: CvTracker("ekf", "pr", x0, Tuning(coords="cartesian", floor_z_m=None, height_jacobian_lag_s=0.0,
-                                                 ekf_second_order=False, iterations=1, linearization_corr_s=c))
-           for c in (0.0, 10.0)}
-    S = {}
-    for c, tk in trk.items():  # first reception: never heard before, counted once by both
-        S[c] = tk.update(station, np.array([[420.0]]), C, bias_ids=[7])[1]
-    np.testing.assert_array_equal(S[0.0], S[10.0])
-    np.testing.assert_array_equal(trk[0.0].P, trk[10.0].P)
-    k = float(trk[10.0].repeats.count([("id", 7)], 0.5, 0.5, None)[0, 0])  # heard again 0.5 s later
-    assert 1.0 < k <= 10.0 / 0.5
-    for tk in trk.values():
-        tk.predict_to(0.5)
-    p = trk[0.0].x[0, :3]  # the (common) prior at 0.5 s, where u is taken
-    for c, tk in trk.items():
-        S[c] = tk.update(station, np.array([[421.0]]), C, bias_ids=[7])[1]
-    u = (p - station[0]) / np.linalg.norm(p - station[0])
-    assert S[10.0][0, 0, 0] - S[0.0][0, 0, 0] == pytest.approx((k - 1.0) * float(u @ C[0] @ u), rel=1e-9)

@@ -23,7 +23,7 @@ from .chart import InverseChart
 from .floor import HeightFloor
 from .lag import LaggedJacobian
 from .measurements import make_model, second_order
-from .repeats import RepeatCount, scaled
+from .repeats import RepeatCount
 from .snapshot import TrackerSnapshot
 from .state import StateLayout
 from .tuning import Tuning
@@ -232,13 +232,11 @@ class CvTracker:
         sig = self.tuning.sigma_m if sigma_m is None else sigma_m
         D, sig = self._bias_map(stations_m, sig, bias_ids, bias_var_m2)
         model = make_model(self.layout.kind, stations_m, self.n_base, self.base, dt_s, D)
-        keys = self.repeats.keys(stations_m, bias_ids)
-        k = self.repeats.count(keys, self.t_s, self._step_s, self.base if self.layout.kind == "tdoa" else None)
-        R, z = self._noise(model, None, sig), model.z(rho_m)
-        if station_cov_m2 is not None:  # a station's position error persists: counted like the linearization's
-            R = R + scaled(model.noise(self.x, station_cov_m2, 0.0), k)
+        R, z = self._noise(model, station_cov_m2, sig), model.z(rho_m)
         self.lag.update_direction(model.jacobian, lambda: self._cart(self._constrained()[0]), self.chart.inv,
                                   self.layout.pos_clock, self._step_s, self.t_s)
+        keys = self.repeats.keys(stations_m, bias_ids)
+        k = self.repeats.count(keys, self.t_s, self._step_s, self.base if self.layout.kind == "tdoa" else None)
         x1, P1, nu, S = self.strategy(self, model, z, R, k)
         self.repeats.record(keys, self.t_s, self._P, P1)
         self._x, self._P = x1, P1

@@ -56,8 +56,6 @@ class Tuning:
     # (navigator/radio/repeats.py; 0 = white, the textbook second-order EKF); the UKF gets the same term.
     # Far from the transmitters it is negligible; 2.6 m above one (seed001 hover 50 m) it keeps the
     # filters from reading curvature as information (docs/aircraft.md, "Linearization error").
-    # The stations' broadcast position covariances (their surveys' errors, persistent for minutes) enter
-    # ``R`` with the same count.
     linearization_corr_s: float = 10.0
     # filter coordinates: "inverse" = position inverted through the unit sphere about the broadcast
     # station centroid and the clock carried as b + range to it (aircraft/coords.py: straightens the
