@@ -458,6 +458,7 @@ def turn_corrected(st: TriadStart, w_z_rad_s: float, window_s: float, att_sigma_
     st.P0[:, att, att] += np.diag([att_sigma_rad**2] * 3)
     return st
 
+
 def initial_fix(alm: Almanac, frame: TriadFrame, t_s: np.ndarray, ids: np.ndarray, rho_m: np.ndarray,
                 sigma_m: float, t_ref_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`window_fix` from raw pseudoranges (M, K, N) of satellites ``ids`` (N,) (NaN: not tracked):

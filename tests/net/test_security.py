@@ -387,15 +387,10 @@ def test_vehicle_enclave_speaks_only_for_itself(tmp_path):
     assert res["by_signer"] == {"vehicle-veh1": 1} and res["by_reason"] == {"signer_mismatch": 1}, res
 
 
-def _matches(pattern: str, key: str) -> bool:
-    """Zenoh key-expression inclusion for the rules' patterns (``*``: one chunk, no ``**`` in them)."""
-    p, k = pattern.split("/"), key.split("/")
-    return len(p) == len(k) and all(a == "*" or a == b for a, b in zip(p, k))
-
-
 def test_access_rules_name_exactly_the_keys_each_sender_publishes(ks):
     """Every message kind's key (``key_for``) is allowed to its own sender and to nobody else, and
     invented sub-keys (the insider's ``subkeys``) are allowed to nobody."""
+    from larns.log.keyexpr import keyexpr_match as _matches
     from net.keystore import add_to_keystore
 
     add_to_keystore(ks, vehicles=["veh1"])
