@@ -113,6 +113,12 @@ class StationCore:
         self.frame_released = False  # no member broadcasts a frame constraint any more
         self.field_datum = False  # a founder was missed since: the references are frozen
         self.integrity = StationIntegrity(cfg.id, cfg.sigma_d_m)  # peer consistency tests (issue 14)
+        # own estimates at the last navs, (t_s, pos_m, cov_m2): what an exclusion rolls the solve back to
+        self._pos_hist: deque[tuple[float, np.ndarray, np.ndarray]] = deque(maxlen=ROLLBACK_KEEP)
+        # the peers' broadcasts at the last navs, peer -> (t_s, pos_m, cov_m2): the solve holds them at
+        # the roll-back time until ``_hold_until_s``
+        self._peer_hist: dict[int, deque] = {}
+        self._hold_from_s = self._hold_until_s = -math.inf
         self.known: dict[int, float] = {p: start_s for p in cfg.known_ids if p != cfg.id}
         self.seq = {"range_req": 0, "range_rsp": 0, "nav": 0, "estimate": 0}
         self.pending: dict[int, tuple[int, float, float]] = {}  # req seq -> (dst, t_tx, slot end)
@@ -237,8 +243,11 @@ class StationCore:
             self._claim_slot(t_s)
         if t_s >= self._nav_s - 1e-12:
             self._nav_s = float("inf")
+            if self._hold_until_s != -math.inf and t_s >= self._hold_until_s:
+                self._release_peers()
             out += self._integrity(t_s)
             self.est.refresh()
+            self._pos_hist.append((float(t_s), self.est.pos_m.copy(), self.est.cov_m2.copy()))
             self._datum(t_s)
             self._hold_frame(t_s)
             self._refresh_state()
@@ -358,7 +367,7 @@ class StationCore:
             self.counters["rejected_ranges"] += 1
             return []
         self.counters["responses"] += 1
-        pos, cov = self._update_peer(src, msg)
+        pos, cov = self._peer_for_solve(src, *self._update_peer(src, msg), t_rx_s)
         entry = [src, float(range_m), float(t_rx_s)]
         t3 = msg.get("t_tx_s")
         if t3 is not None:
@@ -381,7 +390,7 @@ class StationCore:
         """A peer's nav broadcast: its estimate, slot, clock correction and the ranges it measured."""
         src = msg.get("src")
         self._heard(src, t_rx_s)
-        pos, cov = self._update_peer(src, msg)
+        pos, cov = self._peer_for_solve(src, *self._update_peer(src, msg), t_rx_s)
         slot = msg.get("slot")
         # a slot claim is believed only if the nav arrived inside that slot (and not too often changed)
         in_slot = "cycle" not in msg or self._in_slot(msg, t_rx_s)  # (every nav on the wire has a cycle)
@@ -439,10 +448,71 @@ class StationCore:
             m.update(body)
             out.append(m)
         if hasattr(self.est, "excluded"):
+            new = self.integrity.excluded - self.est.excluded
             self.est.excluded = self.integrity.excluded
+            if new:
+                self._roll_back(t_s)
             if out:
                 self.est._dirty = self.est.nf > 0
         return out
+
+    def _roll_back(self, t_s: float) -> None:
+        """A peer newly excluded: restart the solve from our estimate of before the fault could show.
+
+        The exclusion comes ``fail_to_exclude`` failing tests (one per cycle) after the fault shows in
+        our ranges, and a quorum's a cycle later; meanwhile every solve took the faulty peer in, and in
+        a flat field its bounded pull moves the weakly observed heights by tens of metres in one
+        second, the whole field together (docs/survey.md, "Recovery after the exclusion"). Our later
+        solves start where the last one ended, and with every neighbour contaminated the same way that
+        place is a fixed point, so the excluded peer's lies would stay in the field. So the solve restarts
+        from our estimate of ``fail_to_exclude + 2`` cycles earlier and, for ``HOLD_CYCLES`` cycles,
+        takes every peer's broadcast of that time (the peers roll back within that hold too); the
+        ranges themselves are all kept (the excluded link just leaves the solve). Measured in
+        ``larns bench integrity --recovery`` (docs/survey.md)."""
+        if not hasattr(self.est, "restart_from"):
+            return
+        cyc = self.plan.cycle_s
+        holding = self._hold_until_s != -math.inf
+        back = t_s - (self.integrity.fail_to_exclude + 2) * cyc
+        back = min(back, self._hold_from_s) if holding else back
+        old = [(p, c) for t, p, c in self._pos_hist if t <= back + 1e-9]
+        if not old:
+            return
+        pos, cov = old[-1]
+        f = self.est.free
+        d = (self.est.pos_m - pos)[f]
+        if not holding and d @ np.linalg.solve(cov[np.ix_(f, f)], d) <= ROLLBACK_CHI2[int(f.sum())]:
+            return  # we have not moved beyond our covariance since: nothing to undo
+        self._hold_from_s, self._hold_until_s = back, t_s + HOLD_CYCLES * cyc
+        self.est.restart_from(pos)
+        for src, hist in self._peer_hist.items():
+            self.est.on_peer(src, *self._held(hist))
+
+    def _held(self, hist: deque) -> tuple[np.ndarray, np.ndarray]:
+        """A peer's broadcast at the roll-back time (its oldest kept if none is that old)."""
+        for t, pos, cov in reversed(hist):
+            if t <= self._hold_from_s + 1e-9:
+                return pos, cov
+        return hist[0][1], hist[0][2]
+
+    def _peer_for_solve(self, src: int, pos: np.ndarray, cov: np.ndarray, t_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """Keep the peer's broadcast (one per cycle) and return what the solve takes: the broadcast
+        itself, or during a roll-back hold the one of the roll-back time (:meth:`_roll_back`)."""
+        hist = self._peer_hist.get(src)
+        if hist is None:
+            hist = self._peer_hist[src] = deque(maxlen=ROLLBACK_KEEP)
+        if not hist or t_s - hist[-1][0] >= 0.5 * self.plan.cycle_s:
+            hist.append((float(t_s), pos, cov))
+        if self._hold_until_s == -math.inf:
+            return pos, cov
+        return self._held(hist)
+
+    def _release_peers(self) -> None:
+        """End of a roll-back hold: the solve takes the peers' latest broadcasts again."""
+        self._hold_until_s = -math.inf
+        for src, (pos, cov) in self.peers.items():
+            self.est.on_peer(src, pos, cov)
+        self.est._dirty = self.est.nf > 0
 
     def _converged_sigma_m(self) -> float:
         c = self.cfg.datum_converged_m
@@ -550,6 +620,14 @@ class StationCore:
         return pc
 
 
+# the exclusion roll-back (StationCore._roll_back): own and peer estimates kept per nav, and how many
+# cycles the solve holds the peers' broadcasts of the roll-back time (a peer's own exclusion comes up
+# to a cycle before or after ours, a quorum's a cycle later, and its rolled-back nav a cycle after that)
+ROLLBACK_KEEP = 8
+HOLD_CYCLES = 4
+# ... and only a station whose estimate moved since then beyond its covariance of then rolls back: the
+# chi-square 99.9 % quantile for its free coordinates (a static station's solve moves inside it)
+ROLLBACK_CHI2 = {0: 0.0, 1: 10.83, 2: 13.82, 3: 16.27}
 FOUNDERS = (1, 2, 3)  # the stations whose estimates define the frame until one of them is gone
 
 

@@ -407,6 +407,12 @@ class DistributedMap:
         self.initialized = True
         self._dirty = True
 
+    def restart_from(self, pos_m: np.ndarray) -> None:
+        """Start the next solve from ``pos_m`` (3,) (its free coordinates): the core's roll-back after an
+        exclusion (``StationCore._roll_back``)."""
+        self.pos_m = np.where(self.free, np.asarray(pos_m, float), self.pos_m)
+        self._dirty = True
+
     def shift(self, delta_m: np.ndarray) -> None:
         """Move the estimate by ``delta_m`` (3,) (the datum correction of the core, datum mode only)."""
         self.pos_m = self.pos_m + np.asarray(delta_m, float) * self.free
