@@ -479,9 +479,7 @@ class StationCore:
         if not old:
             return
         pos, cov = old[-1]
-        f = self.est.free
-        d = (self.est.pos_m - pos)[f]
-        if not holding and d @ np.linalg.solve(cov[np.ix_(f, f)], d) <= ROLLBACK_CHI2[int(f.sum())]:
+        if not holding and not _moved_beyond(self.est.pos_m - pos, cov, self.est.free):
             return  # we have not moved beyond our covariance since: nothing to undo
         self._hold_from_s, self._hold_until_s = back, t_s + HOLD_CYCLES * cyc
         self.est.restart_from(pos)
@@ -628,6 +626,22 @@ HOLD_CYCLES = 4
 # ... and only a station whose estimate moved since then beyond its covariance of then rolls back: the
 # chi-square 99.9 % quantile for its free coordinates (a static station's solve moves inside it)
 ROLLBACK_CHI2 = {0: 0.0, 1: 10.83, 2: 13.82, 3: 16.27}
+def _moved_beyond(d_m: np.ndarray, cov_m2: np.ndarray, free: np.ndarray) -> bool:
+    """True if the move ``d_m`` (3,) is outside the chi-square 99.9 % region of ``cov_m2`` (3, 3) over
+    the coordinates free then and now (``free`` (3,) and a positive variance then: a founder that has
+    since entered the datum mode had fixed coordinates)."""
+    f = free & (np.diag(cov_m2) > 0.0)
+    if not f.any():
+        return False
+    d = d_m[f]
+    try:
+        L = np.linalg.cholesky(cov_m2[np.ix_(f, f)])
+    except np.linalg.LinAlgError:
+        return False
+    y = np.linalg.solve(L, d)
+    return bool(y @ y > ROLLBACK_CHI2[int(f.sum())])
+
+
 FOUNDERS = (1, 2, 3)  # the stations whose estimates define the frame until one of them is gone
 
 

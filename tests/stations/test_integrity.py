@@ -376,3 +376,19 @@ def test_quorum_of_announced_exclusions():
     assert mon.quorum(3.0 + mon.window_s + 1.0, live) == []
     assert mon.quorum(3.0, live - {2, 4}) == []  # 2 and 4 no longer live: 3 alone of 3, 5
     assert [e[2] for e in mon.events] == ["exclude", "readmit"]
+
+
+def test_roll_back_movement_test_takes_the_coordinates_free_then_and_now():
+    """A founder in the datum mode is free in x, y, z but its estimate of before the hand-over had
+    zero variances in the coordinates the frame fixed: the movement test uses the others, never
+    inverts a singular covariance."""
+    from stations.core import _moved_beyond
+
+    free = np.ones(3, bool)
+    founder_then = np.diag([0.04, 0.0, 0.0])  # station 2 under the founders' frame: only x free
+    assert not _moved_beyond(np.array([0.3, 50.0, 50.0]), founder_then, free)  # 1.5 sigma in x
+    assert _moved_beyond(np.array([1.0, 0.0, 0.0]), founder_then, free)  # 5 sigma in x
+    assert not _moved_beyond(np.array([9.0, 9.0, 9.0]), np.zeros((3, 3)), free)
+    full = np.diag([1.0, 1.0, 25.0])
+    assert not _moved_beyond(np.array([1.0, 1.0, 10.0]), full, free)  # chi2 = 6 < 16.27
+    assert _moved_beyond(np.array([0.0, 0.0, 21.0]), full, free)  # chi2 = 17.6
