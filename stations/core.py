@@ -464,8 +464,10 @@ class StationCore:
         a flat field its bounded pull moves the weakly observed heights by tens of metres in one
         second, the whole field together (docs/survey.md, "Recovery after the exclusion"). Our later
         solves start where the last one ended, and with every neighbour contaminated the same way that
-        place is a fixed point, so the excluded peer's lies would stay in the field. So the solve restarts
-        from our estimate of ``fail_to_exclude + 2`` cycles earlier and, for ``HOLD_CYCLES`` cycles,
+        place is a fixed point, so the excluded peer's lies would stay in the field. So, if our estimate
+        has moved since ``fail_to_exclude + 2`` cycles earlier beyond its covariance of then (a false
+        exclusion on clean data moves nothing: no roll-back), the solve restarts from that earlier
+        estimate and, for ``HOLD_CYCLES`` cycles,
         takes every peer's broadcast of that time (the peers roll back within that hold too); the
         ranges themselves are all kept (the excluded link just leaves the solve). Measured in
         ``larns bench integrity --recovery`` (docs/survey.md)."""
