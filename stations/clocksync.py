@@ -74,6 +74,17 @@ LEAVE_S = 5.0  # a member not heard in any exchange for 5 s of network time leav
 # on its peers' broadcast corrections: their offsets against the ensemble stand for their offsets
 # against that coordinate clock, within ANCHOR_SD_S (the field keeps both continuous: ns apart)
 ANCHOR_SD_S = 1e-6
+# a clock step (a jump of a peer's phase, docs/sync.md "A clock that steps"): a time transfer between
+# two members of the time scale whose normalized innovation squared exceeds STEP_NIS (chi-square 1 dof,
+# p = 1e-7) is not used; a clock all
+# of whose last STEP_N time transfers were refused so is re-initialized (its state decorrelated, its
+# phase and frequency variances back to the class prior): it leaves the ensemble as a silent member
+# does and re-enters once known again
+STEP_NIS = 28.4
+STEP_N = 4
+STEP_KNOWN_S = 1e-7  # ... judged only where the predicted transfer is known to 100 ns, not while the
+# clocks are acquired (seed000 world seed 2: the first seconds' transfers, known to ~1 us after the
+# coarse sync, come out ~6 sigma off, NIS 32-38, until the exchanges have refined them)
 
 
 @dataclass(frozen=True)
@@ -139,13 +150,14 @@ class ClockEstimator:
     ``T_s - T0`` before ``P0`` is moved to ``T_s``, s. time_gate : largest variance that the
     uncertain network time of an exchange may add to it, as a fraction of the time-transfer
     variance; an exchange whose time is less certain waits up to ``defer_s`` (s of network time) for
-    its clock to be known (``on_exchange``).
+    its clock to be known (``on_exchange``). step_nis : the clock-step gate (``STEP_NIS``; inf: none).
     """
 
     def __init__(self, station_id: int, model: ClockModel, t0_s: float, sigma_d_m: float,
                  coarse_range_m: float = 5000.0, coarse_gate_s: float = 1e-6, rebase_s: float = 1.0,
-                 time_gate: float = 0.01, defer_s: float = 3.0):
+                 time_gate: float = 0.01, defer_s: float = 3.0, step_nis: float = STEP_NIS):
         self.id = station_id
+        self.step_nis = float(step_nis)
         self.ref = station_id == 1
         self.model = model
         self.T_s = float(t0_s)
@@ -161,6 +173,9 @@ class ClockEstimator:
         self.n_updates = 0
         self.n_coarse = 0
         self.n_untimed = 0  # exchanges dropped: their network time too uncertain (on_exchange)
+        self.n_step_refused = 0  # time transfers refused by the step gate (STEP_NIS)
+        self.n_reinit = 0  # clocks re-initialized after STEP_N refusals in a row
+        self._refused: dict[int, int] = {}  # clock -> time transfers refused in a row
         self.n_deferred = 0  # exchanges kept until their time was known (on_exchange)
         self.time_gate = time_gate
         self.defer_s = defer_s
@@ -172,6 +187,8 @@ class ClockEstimator:
         self.scale = TimeScale(((1, 1.0),), T_ref_s=self.T_s)
         self.scale_log: list[TimeScale] = [self.scale]
         self._heard_T: dict[int, float] = {}  # network time of the last exchange of each clock
+        self._stepped_T: dict[int, float] = {}  # re-initialized clock -> its last exchange before the step
+        self._stepped_state: dict[int, tuple[float, float, float]] = {}  # ... and (T, theta, f) before it
         # (N_peer - N_me (s), its rate (s/s; nan: not known well enough), peer agreed) since the last tick
         self._disagree: list[tuple[float, float, bool]] = []
         # variance of our definition against the field's, added to the broadcast offset's: unknown (1 us)
@@ -460,7 +477,8 @@ class ClockEstimator:
         T = self.T_s
         heard = self._heard_T
         old = self.scale.w
-        alive = {s for s in old if s == self.id or T - heard.get(s, -math.inf) <= LEAVE_S}
+        stepped = self._stepped_T
+        alive = {s for s in old if s == self.id or (T - heard.get(s, -math.inf) <= LEAVE_S and s not in stepped)}
         if not alive:
             # none of our definition's clocks is heard (a station powered on after station 1 left, its
             # definition still station 1's clock): define it over the clocks we do hear, known against
@@ -473,7 +491,7 @@ class ClockEstimator:
         w_alive = {s: 1.0 / len(alive) for s in alive}
         new = set(alive)
         for sid in [self.id, *self.index]:
-            if sid in new or (sid != self.id and T - heard.get(sid, -math.inf) > 1.5):
+            if sid in new or sid in stepped or (sid != self.id and T - heard.get(sid, -math.inf) > 1.5):
                 continue
             if self._combo(self._coeffs(sid, w_alive))[2] <= ENTER_SD_S**2:
                 new.add(sid)
@@ -482,8 +500,13 @@ class ClockEstimator:
         # a departure dates back to the leaver's last exchange: its offset is taken where it was last
         # measured, not extrapolated over LEAVE_S (the others' states are moved back to that time)
         gone = set(old) - new
-        T_c = max([heard.get(s, T) for s in gone] + [self.scale.T_ref_s]) if gone else T
+        last = {s: stepped.get(s, heard.get(s, T)) for s in gone}
+        T_c = max(list(last.values()) + [self.scale.T_ref_s]) if gone else T
         states = {s: self._state(s) for s in new | set(old)}
+        for s in gone & set(stepped):  # its estimate from before the step, carried to T
+            T0, th, f = self._stepped_state.pop(s)
+            states[s] = (th + f * (T - T0), f)
+            stepped.pop(s)  # (a stepped clock re-enters like any clock: once known again)
         self.scale = ensemble_change(self.scale, {s: 1.0 / len(new) for s in new},
                                      {s: th - f * (T - T_c) for s, (th, f) in states.items()},
                                      {s: f for s, (_, f) in states.items()}, T_c)
@@ -517,8 +540,10 @@ class ClockEstimator:
             signs.append(sign)
         return ks, signs, T_s - self.T_s
 
-    def _update(self, ks: list[int], signs: list[float], dt_h: float, z: float, r: float) -> float:
-        """Scalar update ``z = h x + v``, ``var v = r``, ``h = sum_i s_i e_{k_i} (x) [1, dt_h]``; the NIS."""
+    def _update(self, ks: list[int], signs: list[float], dt_h: float, z: float, r: float,
+                gate: float = math.inf) -> float:
+        """Scalar update ``z = h x + v``, ``var v = r``, ``h = sum_i s_i e_{k_i} (x) [1, dt_h]``; the NIS
+        (above ``gate`` while both clocks are known to ``STEP_KNOWN_S``: returned, nothing updated)."""
         if self.T_s - self._T0 > self.rebase_s:
             self._rebase()
         PH = self._PH(ks, signs, dt_h)
@@ -529,6 +554,8 @@ class ClockEstimator:
             hx += sg * (x[2 * k] + dt_h * x[2 * k + 1])
         S = float(hph) + r
         nu = z - float(hx)
+        if nu * nu > gate * S and hph <= STEP_KNOWN_S**2:
+            return nu * nu / S
         x += PH * (nu / S)
         # Joseph form with the optimal gain K = P h / S: (I - K h) P (I - K h)^T + r K K^T = P - w w^T,
         # w = P h / sqrt(S); at the reference time T0: P0 - v v^T, v = F^{-1} w (exactly symmetric)
@@ -589,10 +616,39 @@ class ClockEstimator:
                 return None
             r += r_t
         self.predict(T_s)
+        ks, signs, dt_h = self._terms(T_s, [(a, 1.0), (b, -1.0)])
+        n_before = self.n_updates
+        w = self.scale.w  # steps are judged between members of the time scale (acquired clocks)
+        nis = self._update(ks, signs, dt_h, dtheta_s, r, gate=self.step_nis if a in w and b in w else math.inf)
+        if self.n_updates == n_before:  # refused: a step of a or b (whichever keeps failing with every partner)
+            self.n_step_refused += 1
+            for sid in (a, b):
+                n = self._refused[sid] = self._refused.get(sid, 0) + 1
+                if n >= STEP_N and sid != 1:
+                    self._reinit(sid)
+            return nis
         for sid in (a, b):
             self._heard_T[sid] = max(self._heard_T.get(sid, -math.inf), T_s)
-        ks, signs, dt_h = self._terms(T_s, [(a, 1.0), (b, -1.0)])
-        return self._update(ks, signs, dt_h, dtheta_s, r)
+            self._refused[sid] = 0
+        return nis
+
+    def _reinit(self, sid: int) -> None:
+        """Forget clock ``sid``'s state (a step): decorrelated, class-prior phase and frequency variances
+        about its current estimate; the exchanges that follow re-acquire it."""
+        self._rebase()
+        k = self.index[sid]
+        J = [2 * k, 2 * k + 1]
+        before = (self.T_s, *self._state(sid))  # the refused transfers left it as it was before the step
+        self._P0[J, :] = 0.0
+        self._P0[:, J] = 0.0
+        self._P0[J[0], J[0]] = self.model.offset_sigma_s**2
+        self._P0[J[1], J[1]] = self.model.freq_sigma**2
+        self._refused[sid] = 0
+        self.n_reinit += 1
+        if sid != self.id and sid in self.scale.w:  # it leaves the time scale where it was last good
+            self._stepped_T[sid] = self._heard_T.get(sid, self.T_s)
+            self._stepped_state[sid] = before
+            self._membership()
 
     def _retry(self, force: bool = False) -> None:
         """Place the deferred exchanges whose clock is now known well enough (late inputs); at most

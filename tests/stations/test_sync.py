@@ -111,7 +111,9 @@ def test_network_clock_filter_equals_a_linear_kf_on_a_linear_problem():
     rng = np.random.default_rng(7)
     q = (1e-20, 3e-22)
     model = ClockModel(q[0], q[1], 1e-6, 2e-8)  # after coarse sync (a 1 ms prior costs float precision)
-    est = ClockEstimator(2, model, 0.0, 0.5)
+    # an algebra test: its transfers (100 ns) are far outside the model's noise (1.7 ns), which the
+    # clock-step gate would refuse as steps
+    est = ClockEstimator(2, model, 0.0, 0.5, step_nis=np.inf)
     for sid in (3, 4, 5):  # the same state order as the explicit filter
         est._add(sid)
     events = []
@@ -261,13 +263,13 @@ def test_fast_clock_update_equals_the_dense_filter_on_a_recorded_station(monkeyp
             events.append(("x", a, b, T, z, t_var))
         return out
 
-    def rec_u(self, ks, signs, dt_h, z, r):
+    def rec_u(self, ks, signs, dt_h, z, r, gate=np.inf):
         if self.id == 4:
             seen.setdefault("est", self)
             if r == self.coarse_var:
                 src = [sid for sid, k in self.index.items() if k == ks[-1]][0] if len(ks) == 2 else 1
                 events.append(("c", src, self.T_s + dt_h, z))
-        return orig_u(self, ks, signs, dt_h, z, r)
+        return orig_u(self, ks, signs, dt_h, z, r, gate)
 
     monkeypatch.setattr(cls, "_exchange", rec_x)
     monkeypatch.setattr(cls, "_update", rec_u)
@@ -419,3 +421,38 @@ def test_a_founder_powering_on_late_takes_the_fields_time(seed):
     spread = sim.definition_spread_s(r, times)
     assert np.all(spread[times >= 30.0] < 2e-9), spread * 1e9
     assert np.all(np.abs(r.clock_err_s[-1]) < 2e-9), r.clock_err_s[-1]  # every station at 40 s
+
+
+@pytest.mark.parametrize("gate", [True, False])
+def test_a_clock_that_steps_leaves_the_time_scale_and_comes_back(gate, monkeypatch):
+    """Station 6's clock jumps 1 ms at 20 s (``larns bench integrity`` case clock_jump, world seed 1).
+    Every filter refuses its time transfers with the step gate, re-initializes its clock after
+    ``STEP_N`` refusals and drops it from the time scale where it was last good: the others' clocks stay
+    within 2 ns of network time from 22 s, nobody's survey moves (no range bias, no false exclusion),
+    and 6 is back in every station's scale by 60 s. Without the gate (the case that must fail) the
+    1 ms innovation went into every filter: ranges 0.4-1 m short and honest stations excluded."""
+    import math
+
+    from stations.clocksync import ClockEstimator
+
+    if not gate:
+        init = ClockEstimator.__init__
+
+        def no_gate(self, *a, **k):
+            init(self, *a, **k)
+            self.step_nis = math.inf
+        monkeypatch.setattr(ClockEstimator, "__init__", no_gate)
+    scn = load("seed000", seed=1, faults=[{"kind": "clock_jump", "station": 6, "jump_s": 1e-3, "at_s": 20.0}])
+    sim = Simulator(scn)
+    t = np.array([22.0, 25.0, 40.0, 60.0])
+    r = sim.run(60.0, t)
+    honest = np.array([i != 6 for i in scn.ids])
+    sync_ns = np.abs(np.asarray(r.clock_err_s)[:, honest]) * 1e9
+    err = (r.pos_m - r.truth_m)[-1, honest]
+    false_exc = sum(e[2] == "exclude" and e[1] != 6 for c in sim.cores if c.id != 6 for e in c.integrity.events)
+    if gate:
+        assert sync_ns.max() < 2.0, sync_ns.max()
+        assert np.hypot(err[:, 0], err[:, 1]).max() < 0.3 and false_exc == 0
+        assert all(c.clk.n_reinit >= 1 and 6 in c.clk.scale.w for c in sim.cores)
+    else:
+        assert false_exc > 0 or np.hypot(err[:, 0], err[:, 1]).max() > 0.4
