@@ -76,15 +76,31 @@ LEAVE_S = 5.0  # a member not heard in any exchange for 5 s of network time leav
 ANCHOR_SD_S = 1e-6
 # a clock step (a jump of a peer's phase, docs/sync.md "A clock that steps"): a time transfer between
 # two members of the time scale whose normalized innovation squared exceeds STEP_NIS (chi-square 1 dof,
-# p = 1e-7) is not used; a clock all
-# of whose last STEP_N time transfers were refused so is re-initialized (its state decorrelated, its
-# phase and frequency variances back to the class prior): it leaves the ensemble as a silent member
-# does and re-enters once known again
+# p = 1e-7) is not used. A clock whose last STEP_N transfers, with STEP_PARTNERS partners or more, were
+# all refused with innovations that agree (one sign, spread within STEP_AGREE of the smallest: a step
+# shows the same jump to every partner, NLOS excesses scatter in sign and size) is re-initialized (its state decorrelated, its phase
+# and frequency variances back to the class prior): it leaves the ensemble as a silent member does and
+# re-enters once known again
 STEP_NIS = 28.4
 STEP_N = 4
+STEP_AGREE = 0.1
+STEP_PARTNERS = 3
 STEP_KNOWN_S = 1e-7  # ... judged only where the predicted transfer is known to 100 ns, not while the
 # clocks are acquired (seed000 world seed 2: the first seconds' transfers, known to ~1 us after the
 # coarse sync, come out ~6 sigma off, NIS 32-38, until the exchanges have refined them)
+
+
+def _one_jump(seen: list[tuple[float, int]]) -> bool:
+    """The refused innovations of one clock, ``(jump_s, partner)``, show one jump: with at least
+    ``STEP_PARTNERS`` partners (an NLOS link repeats its excess), one sign, spread within
+    ``STEP_AGREE`` of the smallest."""
+    if len({p for _, p in seen}) < STEP_PARTNERS:
+        return False
+    jumps_s = [j for j, _ in seen]
+    lo, hi = min(jumps_s), max(jumps_s)
+    if lo * hi <= 0.0:
+        return False
+    return hi - lo <= STEP_AGREE * min(abs(lo), abs(hi))
 
 
 @dataclass(frozen=True)
@@ -174,8 +190,9 @@ class ClockEstimator:
         self.n_coarse = 0
         self.n_untimed = 0  # exchanges dropped: their network time too uncertain (on_exchange)
         self.n_step_refused = 0  # time transfers refused by the step gate (STEP_NIS)
-        self.n_reinit = 0  # clocks re-initialized after STEP_N refusals in a row
-        self._refused: dict[int, int] = {}  # clock -> time transfers refused in a row
+        self.n_reinit = 0  # clocks re-initialized after STEP_N refusals in a row that show one jump
+        self._last_nu = 0.0  # the innovation of the last scalar update (refused or not), s
+        self._refused: dict[int, list] = {}  # clock -> (its jump as seen, s; partner) of the refusals in a row
         self.n_deferred = 0  # exchanges kept until their time was known (on_exchange)
         self.time_gate = time_gate
         self.defer_s = defer_s
@@ -554,6 +571,7 @@ class ClockEstimator:
             hx += sg * (x[2 * k] + dt_h * x[2 * k + 1])
         S = float(hph) + r
         nu = z - float(hx)
+        self._last_nu = nu
         if nu * nu > gate * S and hph <= STEP_KNOWN_S**2:
             return nu * nu / S
         x += PH * (nu / S)
@@ -622,14 +640,16 @@ class ClockEstimator:
         nis = self._update(ks, signs, dt_h, dtheta_s, r, gate=self.step_nis if a in w and b in w else math.inf)
         if self.n_updates == n_before:  # refused: a step of a or b (whichever keeps failing with every partner)
             self.n_step_refused += 1
-            for sid in (a, b):
-                n = self._refused[sid] = self._refused.get(sid, 0) + 1
-                if n >= STEP_N and sid != 1:
+            for sid, other, jump in ((a, b, self._last_nu), (b, a, -self._last_nu)):
+                seen = self._refused.setdefault(sid, [])
+                seen.append((jump, other))
+                del seen[:-STEP_N]
+                if sid != 1 and len(seen) == STEP_N and _one_jump(seen):
                     self._reinit(sid)
             return nis
         for sid in (a, b):
             self._heard_T[sid] = max(self._heard_T.get(sid, -math.inf), T_s)
-            self._refused[sid] = 0
+            self._refused.pop(sid, None)
         return nis
 
     def _reinit(self, sid: int) -> None:
@@ -643,7 +663,7 @@ class ClockEstimator:
         self._P0[:, J] = 0.0
         self._P0[J[0], J[0]] = self.model.offset_sigma_s**2
         self._P0[J[1], J[1]] = self.model.freq_sigma**2
-        self._refused[sid] = 0
+        self._refused.pop(sid, None)
         self.n_reinit += 1
         if sid != self.id and sid in self.scale.w:  # it leaves the time scale where it was last good
             self._stepped_T[sid] = self._heard_T.get(sid, self.T_s)
