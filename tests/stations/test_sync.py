@@ -456,3 +456,14 @@ def test_a_clock_that_steps_leaves_the_time_scale_and_comes_back(gate, monkeypat
         assert all(c.clk.n_reinit >= 1 and 6 in c.clk.scale.w for c in sim.cores)
     else:
         assert false_exc > 0 or np.hypot(err[:, 0], err[:, 1]).max() > 0.4
+
+
+def test_one_jump_needs_agreeing_innovations_from_three_partners():
+    """A step shows one jump to every partner; NLOS excesses scatter in sign and size, and one NLOS link
+    repeats its own excess."""
+    from stations.clocksync import _one_jump
+
+    assert _one_jump([(1.0e-3, 2), (1.0001e-3, 10), (0.9999e-3, 1), (1.0e-3, 1)])
+    assert not _one_jump([(1.0e-3, 2), (1.0e-3, 2), (1.0e-3, 2), (1.0e-3, 3)])  # two partners
+    assert not _one_jump([(6.0e-8, 2), (-5.0e-8, 3), (7.0e-8, 4), (6.5e-8, 5)])  # signs differ
+    assert not _one_jump([(2.0e-8, 2), (9.0e-8, 3), (5.0e-8, 4), (3.0e-8, 5)])  # sizes scatter
