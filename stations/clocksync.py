@@ -485,6 +485,22 @@ class ClockEstimator:
         k = self.index[sid]
         return float(self.x[2 * k]), float(self.x[2 * k + 1])
 
+    def _change_states(self, gone: set[int], clocks: set[int]) -> tuple[float, dict[int, tuple[float, float]]]:
+        """The time of a membership change and the ``(theta, f)`` at ``T_s`` of ``clocks`` for it.
+
+        A departure dates back to the leaver's last exchange: its offset is taken where it was last
+        measured, not extrapolated over LEAVE_S (the others' states are moved back to that time); a
+        stepped clock's is its estimate from before the step, carried to ``T_s``."""
+        T, stepped = self.T_s, self._stepped_T
+        last = [stepped.get(s, self._heard_T.get(s, T)) for s in gone]
+        T_c = max(last + [self.scale.T_ref_s]) if gone else T
+        states = {s: self._state(s) for s in clocks}
+        for s in gone & set(stepped):
+            T0, th, f = self._stepped_state.pop(s)
+            states[s] = (th + f * (T - T0), f)
+            stepped.pop(s)  # (a stepped clock re-enters like any clock: once known again)
+        return T_c, states
+
     def _membership(self) -> None:
         """Once per second of ``T``: members not heard for ``LEAVE_S`` leave, clocks known against the
         ensemble to ``ENTER_SD_S`` enter; on a change the weights are renormalized without a step
@@ -514,16 +530,7 @@ class ClockEstimator:
                 new.add(sid)
         if new == set(old):
             return
-        # a departure dates back to the leaver's last exchange: its offset is taken where it was last
-        # measured, not extrapolated over LEAVE_S (the others' states are moved back to that time)
-        gone = set(old) - new
-        last = {s: stepped.get(s, heard.get(s, T)) for s in gone}
-        T_c = max(list(last.values()) + [self.scale.T_ref_s]) if gone else T
-        states = {s: self._state(s) for s in new | set(old)}
-        for s in gone & set(stepped):  # its estimate from before the step, carried to T
-            T0, th, f = self._stepped_state.pop(s)
-            states[s] = (th + f * (T - T0), f)
-            stepped.pop(s)  # (a stepped clock re-enters like any clock: once known again)
+        T_c, states = self._change_states(set(old) - new, new | set(old))
         self.scale = ensemble_change(self.scale, {s: 1.0 / len(new) for s in new},
                                      {s: th - f * (T - T_c) for s, (th, f) in states.items()},
                                      {s: f for s, (_, f) in states.items()}, T_c)

@@ -402,6 +402,9 @@ TABLE: dict[str, Run | Skip] = {
     "./dev larns bench integrity --cases --aircraft seed001 seed003": Skip(BENCH),
     # --- docs/sync.md
     "larns bench sync --founders-leave": Skip(BENCH),
+    "larns bench sync --trials 20": Skip(BENCH),
+    "larns bench integrity --trials 20": Skip(BENCH),
+    "larns bench integrity --cases clock_jump": Skip(BENCH),
     "larns bench sync --late-founder 5 --trials 100 --duration 60 --jobs 2": Skip(BENCH),
     "larns bench sync --trials 100 --founders-leave --json bench-out/sync/founders-leave.json": Skip(BENCH),
     "larns bench sync --trials 100 --json bench-out/sync/sync.json": Skip(BENCH),
