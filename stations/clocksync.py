@@ -78,9 +78,9 @@ ANCHOR_SD_S = 1e-6
 # two members of the time scale whose normalized innovation squared exceeds STEP_NIS (chi-square 1 dof,
 # p = 1e-7) is not used. A clock whose last STEP_N transfers, with STEP_PARTNERS partners or more, were
 # all refused with innovations that agree (one sign, spread within STEP_AGREE of the smallest: a step
-# shows the same jump to every partner, NLOS excesses scatter in sign and size) is re-initialized (its state decorrelated, its phase
-# and frequency variances back to the class prior): it leaves the ensemble as a silent member does and
-# re-enters once known again
+# shows the same jump to every partner, NLOS excesses scatter in sign and size) is re-initialized (its
+# state decorrelated, its phase and frequency variances back to the class prior): it leaves the
+# ensemble as a silent member does and re-enters once known again
 STEP_NIS = 28.4
 STEP_N = 4
 STEP_AGREE = 0.1

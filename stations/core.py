@@ -33,6 +33,7 @@ from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.special import chdtri  # chi-square inverse survival (scipy.stats costs ~0.5 s of start-up)
 
 from nav.geometry import SPEED_OF_LIGHT_M_S
 
@@ -467,10 +468,9 @@ class StationCore:
         place is a fixed point, so the excluded peer's lies would stay in the field. So, if our estimate
         has moved since ``fail_to_exclude + 2`` cycles earlier beyond its covariance of then (a false
         exclusion on clean data moves nothing: no roll-back), the solve restarts from that earlier
-        estimate and, for ``HOLD_CYCLES`` cycles,
-        takes every peer's broadcast of that time (the peers roll back within that hold too); the
-        ranges themselves are all kept (the excluded link just leaves the solve). Measured in
-        ``larns bench integrity --recovery`` (docs/survey.md)."""
+        estimate and, for ``HOLD_CYCLES`` cycles, takes every peer's broadcast of that time (the peers
+        roll back within that hold too); the ranges themselves are all kept (the excluded link just
+        leaves the solve). Measured in ``larns bench integrity --recovery`` (docs/survey.md)."""
         if not hasattr(self.est, "restart_from"):
             return
         cyc = self.plan.cycle_s
@@ -626,8 +626,8 @@ class StationCore:
 ROLLBACK_KEEP = 8
 HOLD_CYCLES = 4
 # ... and only a station whose estimate moved since then beyond its covariance of then rolls back: the
-# chi-square 99.9 % quantile for its free coordinates (a static station's solve moves inside it)
-ROLLBACK_CHI2 = {0: 0.0, 1: 10.83, 2: 13.82, 3: 16.27}
+# chi-square 1 - ROLLBACK_P quantile for its free coordinates (a static station's solve moves inside it)
+ROLLBACK_P = 1e-3
 def _moved_beyond(d_m: np.ndarray, cov_m2: np.ndarray, free: np.ndarray) -> bool:
     """True if the move ``d_m`` (3,) is outside the chi-square 99.9 % region of ``cov_m2`` (3, 3) over
     the coordinates free then and now (``free`` (3,) and a positive variance then: a founder that has
@@ -641,7 +641,7 @@ def _moved_beyond(d_m: np.ndarray, cov_m2: np.ndarray, free: np.ndarray) -> bool
     except np.linalg.LinAlgError:
         return False
     y = np.linalg.solve(L, d)
-    return bool(y @ y > ROLLBACK_CHI2[int(f.sum())])
+    return bool(y @ y > chdtri(int(f.sum()), ROLLBACK_P))
 
 
 FOUNDERS = (1, 2, 3)  # the stations whose estimates define the frame until one of them is gone
