@@ -34,6 +34,9 @@ class AircraftConfig:
     init_sigma_m: float | None = None  # coarse external fix of the start point (node); None: LSQ start
     imu: str | None = None  # IMU preset of the inertial aircraft (ins-ekf, docs/ins.md)
     satellites: int | None = None  # the triad's satellites (algo triad, docs/triad.md)
+    # the scenario's [radio] in the network frame (net/radio.py), world side: which stations the
+    # aircraft hears and how noisy each reception is; None: every station, noise sigma_m
+    radio: Any = None
 
 
 def from_scenario(sc) -> AircraftConfig:
@@ -72,4 +75,5 @@ def from_scenario(sc) -> AircraftConfig:
         init_sigma_m=None if a.get("init_sigma_m") is None else float(a["init_sigma_m"]),
         imu=None if a.get("imu") is None else str(a["imu"]),
         satellites=None if a.get("satellites") is None else int(a["satellites"]),
+        radio=getattr(sc.channel, "radio", None),
     )

@@ -39,6 +39,7 @@ from nav.rotations import euler_from_dcm
 
 from net.clock import broadcast_clock_var_m2
 from net.nettime import pseudorange_time_error_s
+from net.radio import link_var_m2, reception_sigma_m
 
 from .journal import AcJournal
 from .navigator import receiver as rx
@@ -199,12 +200,15 @@ class InsAircraftCore:
         p, v, C = self.field.truth(self.motion, np.array([t_s - self.t0_s]))
         return p[0], v[0], C[0]
 
-    def measure(self, phy: dict, msg: dict | None = None, noise: bool = True) -> tuple[float, float]:
-        """Channel layer: true reception time and pseudorange from the station-stamped transmit time
-        corrected by the broadcast clock correction (:func:`net.clock.broadcast_time_error_s`),
-        read on the receiver clock of the scenario. ``noise=False``: without the timing noise (its one
-        draw is then :meth:`noise_m`, taken only for a broadcast the navigator uses, so that a
-        broadcast dropped as late live, and absent from the re-flight, consumes no draw)."""
+    def measure(self, phy: dict, msg: dict | None = None,
+                noise: bool = True) -> tuple[float, float, float] | None:
+        """Channel layer: true reception time, pseudorange and one-way timing sigma (m) from the
+        station-stamped transmit time corrected by the broadcast clock correction
+        (:func:`net.clock.broadcast_time_error_s`), read on the receiver clock of the scenario; ``None``
+        where the scenario's ``[radio]`` has no link (:func:`net.radio.reception_sigma_m`).
+        ``noise=False``: without the timing noise (its one draw is then :meth:`noise_m`, taken only
+        for a broadcast the navigator uses, so that a broadcast dropped as late live, and absent from
+        the re-flight, consumes no draw)."""
         p_tx = np.asarray(phy["pos_m"], float)
         t_tx = float(phy["t_true_s"])
         t_rx = t_tx
@@ -212,14 +216,17 @@ class InsAircraftCore:
             p, _, _ = self.truth_n(t_rx)
             t_rx = t_tx + float(np.linalg.norm(p - p_tx)) / SPEED_OF_LIGHT_M_S
         p, _, _ = self.truth_n(t_rx)
+        sigma = reception_sigma_m(p_tx, p, self.ac.radio, self.ac.sigma_m)
+        if sigma is None:
+            return None
         rho = float(np.linalg.norm(p - p_tx)) \
             + SPEED_OF_LIGHT_M_S * pseudorange_time_error_s(msg, t_tx, t_rx, self.net_clock) \
             + float(self.ac.clock.bias_m(t_rx))
-        return t_rx, rho + (self.noise_m() if noise else 0.0)
+        return t_rx, rho + (self.noise_m(sigma) if noise else 0.0), sigma
 
-    def noise_m(self) -> float:
-        """One draw of the channel's timing noise (m)."""
-        return self.ac.sigma_m * float(self.rng.standard_normal())
+    def noise_m(self, sigma_m: float) -> float:
+        """One draw of the channel's timing noise of sigma ``sigma_m`` (m)."""
+        return sigma_m * float(self.rng.standard_normal())
 
     def on_nav(self, msg: dict, phy: dict) -> list[dict]:
         """One nav broadcast -> ``ac_truth`` + the ``ac_estimate`` of ``ins-ekf`` (with attitude in
@@ -232,15 +239,21 @@ class InsAircraftCore:
 
         if plausible.refuse(msg, float(phy["t_true_s"]), self.ac, self.stats):
             return []
-        t_rx, rho = self.measure(phy, msg, noise=False)
+        got = self.measure(phy, msg, noise=False)
+        if got is None:
+            self.stats["no_link"] += 1  # [radio]: beyond the horizon or the link budget
+            return []
+        t_rx, rho, sigma = got
         s = np.asarray(msg["pos_m"], dtype=float)
         t_nav = self.t0_s + self.imu_steps * self.tn.dt_s if self.ekf is None else self.ekf.t_s
         if not (np.all(np.isfinite(s)) and np.isfinite(t_rx) and np.isfinite(rho)) or t_rx < t_nav - self.tn.dt_s:
             self.stats["nav_bad_or_late"] += 1
             return []
-        rho += self.noise_m()
+        rho += self.noise_m(sigma)
         cov = msg.get("cov_m2", [[0.0] * 3] * 3)
-        cvar = broadcast_clock_var_m2(msg)
+        # white range variance beside the nominal sigma: the broadcast clock's and the link's timing
+        # variance above the nominal sigma_m (known to the receiver from its SNR)
+        cvar = broadcast_clock_var_m2(msg) + link_var_m2(sigma, self.ac.sigma_m)
         self.journal.m(t_rx, int(msg["src"]), msg["pos_m"], cov, cvar, rho)
         return [self._truth_msg(t_rx)] + self.measurement(float(t_rx), int(msg["src"]), msg["pos_m"], cov, cvar,
                                                            float(rho))

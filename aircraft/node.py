@@ -43,6 +43,7 @@ from net.clock import broadcast_clock_var_m2
 from net.nettime import network_time, pseudorange_time_error_s
 
 from net.queues import DropOldestQueue
+from net.radio import link_var_m2, reception_sigma_m
 
 from .journal import AcJournal
 from .navigator import receiver as rx
@@ -110,22 +111,27 @@ class AircraftCore:
         core._navigator(record, name, algos)
         return core
 
-    def measure(self, phy: dict, msg: dict | None = None) -> tuple[float, float, np.ndarray]:
-        """Channel layer: (t_rx true, pseudorange, true aircraft position at reception).
+    def measure(self, phy: dict, msg: dict | None = None) -> tuple[float, float, np.ndarray, float] | None:
+        """Channel layer: (t_rx true, pseudorange, true aircraft position at reception, one-way
+        timing sigma in m), or ``None`` where the scenario's ``[radio]`` has no link.
 
         ``rho = c (t_rx_ac - T_tx)``: ``t_rx_ac`` the receiver clock (network time at the true reception
         plus the seed-001 receiver clock), ``T_tx`` the station's stamped transmit time ``msg.t_tx_s``
-        minus its broadcast offset ``msg.clock`` (without ``msg``: the true transmit time)."""
+        minus its broadcast offset ``msg.clock`` (without ``msg``: the true transmit time); timing
+        noise of sigma ``sigma_m`` in quadrature with the link's TOA CRLB (:func:`net.radio.reception_sigma_m`)."""
         p_tx = np.asarray(phy["pos_m"], float)
         t_tx = float(phy["t_true_s"])
         p, _ = self.track.at(t_tx)
         t_rx = t_tx + np.linalg.norm(p - p_tx) / SPEED_OF_LIGHT_M_S
         p, _ = self.track.at(t_rx)  # one fixed-point step is exact to micrometres at aircraft speeds
+        sigma = reception_sigma_m(p_tx, p, self.ac.radio, self.ac.sigma_m)
+        if sigma is None:
+            return None
         r = float(np.linalg.norm(p - p_tx))
         dt_s = pseudorange_time_error_s(msg, t_tx, t_rx, self.net_clock)
         rho = r + SPEED_OF_LIGHT_M_S * dt_s + float(self.ac.clock.bias_m(t_rx)) \
-            + self.ac.sigma_m * float(self.rng.standard_normal())
-        return t_rx, rho, p
+            + sigma * float(self.rng.standard_normal())
+        return t_rx, rho, p, sigma
 
     @staticmethod
     def clock_var_m2(msg: dict) -> float:
@@ -141,8 +147,16 @@ class AircraftCore:
 
         if plausible.refuse(msg, float(phy["t_true_s"]), self.ac, self.stats):
             return []
-        t_rx, rho, p_true = self.measure(phy, msg)
-        st_cov = np.asarray(msg["cov_m2"], float)
+        got = self.measure(phy, msg)
+        if got is None:
+            self.stats["no_link"] += 1  # [radio]: beyond the horizon or the link budget
+            return []
+        t_rx, rho, p_true, sigma = got
+        # the link's timing variance above the nominal sigma_m, known to the receiver from its SNR,
+        # as an isotropic part of the transmitter's covariance: the radio filters weight a range by
+        # sigma_m^2 + u^T C u, and u^T (C + s^2 I) u = u^T C u + s^2 (their clock variance feeds the
+        # stations' clock-bias states, which are not white)
+        st_cov = np.asarray(msg["cov_m2"], float) + link_var_m2(sigma, self.ac.sigma_m) * np.eye(3)
         cvar = self.clock_var_m2(msg)
         if not (np.all(np.isfinite(msg["pos_m"])) and math.isfinite(t_rx)):
             self.stats["nav_bad"] += 1

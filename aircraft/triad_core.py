@@ -48,6 +48,7 @@ from nav.rotations import euler_from_dcm
 from .ins_core import motion_from_config
 from net.clock import broadcast_clock_var_m2
 from net.nettime import pseudorange_time_error_s
+from net.radio import link_var_m2, reception_sigma_m
 
 from .journal import AcJournal
 from .navigator import receiver as rx
@@ -196,19 +197,26 @@ class TriadAircraftCore:
         self._baro_t = t
         return float(self.truth_n(t)[0][2] + self.frame.h_m + self._baro_b + m.sigma_m * rng.standard_normal())
 
-    def measure(self, phy: dict, msg: dict) -> tuple[float, float]:
-        """Station pseudorange on the receiver clock (as :meth:`InsAircraftCore.measure`), its noise
-        drawn from the generator of (station, broadcast seq)."""
+    def measure(self, phy: dict, msg: dict) -> tuple[float, float, float] | None:
+        """Station pseudorange on the receiver clock and its one-way timing sigma (as
+        :meth:`InsAircraftCore.measure`; ``None`` where ``[radio]`` has no link), its noise drawn from
+        the generator of (station, broadcast seq)."""
         p_tx = self.to_local(np.asarray(phy["pos_m"], float))
         t_tx = float(phy["t_true_s"])
         t_rx = t_tx
         for _ in range(2):
             t_rx = t_tx + float(np.linalg.norm(self.truth_n(t_rx)[0] - p_tx)) / SPEED_OF_LIGHT_M_S
+        p_rx = self.truth_n(t_rx)[0]
+        # the radio's parameters are in the network frame: the receiver back there (p_n = R (p - t))
+        sigma = reception_sigma_m(np.asarray(phy["pos_m"], float), (p_rx - self.field.t) @ self.field.R.T,
+                                  self.ac.radio, self.ac.sigma_m)
+        if sigma is None:
+            return None
         rng = np.random.default_rng(self._key + [6, sum(map(ord, str(msg.get("src")))), int(msg.get("seq", 0))])
-        rho = float(np.linalg.norm(self.truth_n(t_rx)[0] - p_tx)) \
+        rho = float(np.linalg.norm(p_rx - p_tx)) \
             + SPEED_OF_LIGHT_M_S * pseudorange_time_error_s(msg, t_tx, t_rx, self.net_clock) \
-            + float(self.ac.clock.bias_m(t_rx)) + self.ac.sigma_m * float(rng.standard_normal())
-        return t_rx, rho
+            + float(self.ac.clock.bias_m(t_rx)) + sigma * float(rng.standard_normal())
+        return t_rx, rho, sigma
 
     # ---------------------------------------------------------------------------- navigator
     def _epoch(self, k: int) -> None:
@@ -306,12 +314,18 @@ class TriadAircraftCore:
         if not (np.all(np.isfinite(s_n)) and np.all(np.isfinite(np.asarray(cov_l, dtype=float)))):
             self.stats["nav_bad"] += 1
             return []
-        t_rx, rho = self.measure(phy, msg)
+        got = self.measure(phy, msg)
+        if got is None:
+            self.stats["no_link"] += 1  # [radio]: beyond the horizon or the link budget
+            return []
+        t_rx, rho, sigma = got
         if not np.isfinite(t_rx) or t_rx < self.t0_s + self.imu_steps * self.tn.dt_s - self.tn.dt_s:
             self.stats["nav_bad_or_late"] += 1
             return []
         # received: it enters the navigator's state (the tie's broadcast positions) whatever follows
-        cvar = broadcast_clock_var_m2(msg)
+        # white range variance beside the nominal sigma: the broadcast clock's and the link's timing
+        # variance above the nominal sigma_m (known to the receiver from its SNR)
+        cvar = broadcast_clock_var_m2(msg) + link_var_m2(sigma, self.ac.sigma_m)
         self.journal.m(t_rx, src, msg["pos_m"], cov_l, cvar, rho)
         pt, vt, _ = self.truth_n(t_rx)
         self.seq["ac_truth"] += 1

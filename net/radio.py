@@ -174,3 +174,26 @@ def parse(table: dict, error) -> RadioParams | None:
             raise error(f"[radio] antenna_height_m: {v!r} (expected >= 0)")
         values[key] = float(v)
     return RadioParams(**values)
+
+
+def reception_sigma_m(tx_pos_m, rx_pos_m, params: RadioParams | None, floor_m: float) -> float | None:
+    """One-way timing sigma (range units, m) of one reception from ``tx_pos_m`` (3,) at ``rx_pos_m``
+    (3,), both in the parameters' frame: the receiver's floor ``floor_m`` in quadrature with ``c`` x
+    the link's TOA CRLB; ``None`` where the link does not exist (beyond the horizon or the budget).
+    Without a ``[radio]`` section (``params`` None) every link exists with the floor.
+
+    This is the one channel model of a user receiver (the aircraft's and the vehicle's world sides);
+    the stations' two-way legs get theirs in :class:`net.channel.AirChannel`."""
+    if params is None:
+        return float(floor_m)
+    air = link(tx_pos_m, rx_pos_m, params)
+    if not bool(air.exists):
+        return None
+    return float(np.hypot(floor_m, SPEED_OF_LIGHT_M_S * float(air.sigma_crlb_s)))
+
+
+def link_var_m2(sigma_m: float, floor_m: float) -> float:
+    """The part of a reception's timing variance above the receiver's nominal floor, ``sigma^2 -
+    floor^2`` (m^2): a white range variance the navigator adds to its nominal one. A receiver knows it
+    from the SNR it measures (its C/N0 estimate), so the navigator gets no truth from it."""
+    return max(float(sigma_m) ** 2 - float(floor_m) ** 2, 0.0)

@@ -38,6 +38,7 @@ import numpy as np
 from nav.geometry import SPEED_OF_LIGHT_M_S
 from net.clock import broadcast_clock_var_m2
 from net.nettime import pseudorange_time_error_s
+from net.radio import link_var_m2, reception_sigma_m
 from vehicle.navigator.live import MapTie, VehicleNavigator, route_of
 from vehicle.world import sensors
 
@@ -130,6 +131,7 @@ class VehicleCore:
         self.tie = MapTie(rec["origin_deg"], rec["net_to_enu"], rec["net_offset_m"])
         self.plan = world_truth.speed_plan(self.route, None, stop_at_end=True)
         self.sigma_rho_m, self.sigma_rate_m_s = float(sigma_rho_m), float(sigma_rate_m_s)
+        self.radio = getattr(scn.channel, "radio", None)  # [radio] in the network frame (world side)
         # navigator
         self.nav = VehicleNavigator(rec)
         self.blocks = 0  # IMU blocks generated (one per vehicle second)
@@ -174,8 +176,10 @@ class VehicleCore:
         while self.blocks * 1.0 <= tau + self.dt:
             self._gen_block()
 
-    def measure(self, msg: dict, phy: dict) -> tuple[float, float, float]:
-        """(t_rx fleet, pseudorange, pseudorange rate) of one broadcast at the vehicle."""
+    def measure(self, msg: dict, phy: dict) -> tuple[float, float, float, float] | None:
+        """(t_rx fleet, pseudorange, pseudorange rate, one-way timing sigma in m) of one broadcast at
+        the vehicle; ``None`` where the scenario's ``[radio]`` has no link (a vehicle behind the
+        horizon: :func:`net.radio.reception_sigma_m`, the aircraft's channel model)."""
         s_g = self.tie.to_greenwich(np.asarray(phy["pos_m"], float))
         t_tx = float(phy["t_true_s"])
         p, v = self.truth(t_tx - self.t0_s)
@@ -183,14 +187,18 @@ class VehicleCore:
         # over the microseconds of flight the motion is straight at v (acceleration <= 0.5 m/s^2: < 1e-11 m)
         p = p + v * (t_rx - t_tx)
         t_rx = t_tx + float(np.linalg.norm(p - s_g)) / SPEED_OF_LIGHT_M_S
+        sigma = reception_sigma_m(np.asarray(phy["pos_m"], float), self.tie.to_network(p), self.radio,
+                                  self.sigma_rho_m)
+        if sigma is None:
+            return None
         d = s_g - p
         r = float(np.linalg.norm(d))
         rng = np.random.default_rng(self._key + [2, int(msg["src"]), int(msg.get("seq", 0))])
         n = rng.standard_normal(2)
         rho = r + SPEED_OF_LIGHT_M_S * pseudorange_time_error_s(msg, t_tx, t_rx, self.net_clock) \
-            + self.clock_m(t_rx) + self.sigma_rho_m * float(n[0])
+            + self.clock_m(t_rx) + sigma * float(n[0])
         rate = -float(d @ v) / r + self.clock_drift_m_s + self.sigma_rate_m_s * float(n[1])
-        return t_rx, rho, rate
+        return t_rx, rho, rate, sigma
 
     # ------------------------------------------------------------------ shell-facing
     def advance_to(self, t_s: float) -> list[dict]:
@@ -215,7 +223,11 @@ class VehicleCore:
         if not (np.all(np.isfinite(pos_n)) and np.all(np.isfinite(cov_n))):
             self.stats["nav_bad"] += 1
             return self._take()
-        t_rx, rho, rate = self.measure(msg, phy)
+        got = self.measure(msg, phy)
+        if got is None:
+            self.stats["no_link"] += 1  # [radio]: beyond the horizon or the link budget
+            return self._take()
+        t_rx, rho, rate, sigma = got
         tau = t_rx - self.t0_s
         if tau < 0:
             self.stats["nav_before_start"] += 1
@@ -230,7 +242,10 @@ class VehicleCore:
         if not self.nav.accepts(tau):
             self.stats["nav_late"] += 1
             return self._take()
-        entry = ["m", tau, int(msg["src"]), pos_n.tolist(), cov_n.tolist(), broadcast_clock_var_m2(msg), rho, rate]
+        # white range variance beside the nominal sigma: the broadcast clock's and the link's timing
+        # variance above sigma_rho_m (known to the receiver from its SNR)
+        cvar = broadcast_clock_var_m2(msg) + link_var_m2(sigma, self.sigma_rho_m)
+        entry = ["m", tau, int(msg["src"]), pos_n.tolist(), cov_n.tolist(), cvar, rho, rate]
         self.journal.append(entry)
         self.stats["measurements"] += 1
         return self._wrap(self.nav.measurement(*entry[1:]))

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from net.channel import AirChannel, Clock
-from net.radio import RadioParams, horizon_m, link, max_range_m, parse, path_loss_db
+from net.radio import (RadioParams, horizon_m, link, link_var_m2, max_range_m, parse, path_loss_db,
+                       reception_sigma_m)
 from net.scenario import ChannelParams, ScenarioError
 
 C = 299_792_458.0
@@ -132,3 +133,15 @@ def test_a_scenario_radio_sees_physical_heights_in_the_network_frame(tmp_path):
     bad.write_text('name = "r"\n[radio]\nbandwidth_hz = -1\n' + text)
     with pytest.raises(ScenarioError, match=r"bad.toml: \[radio\] bandwidth_hz: -1 \(expected > 0\)"):
         load(bad)
+
+
+def test_a_user_receptions_sigma_is_its_floor_and_the_links_crlb_or_no_link():
+    radio = RadioParams()
+    tx, near, far = np.zeros(3), np.array([2000.0, 0.0, 0.0]), np.array([40_000.0, 0.0, 0.0])
+    assert reception_sigma_m(tx, far, None, 0.5) == 0.5  # no [radio]: every link, the floor
+    s = reception_sigma_m(tx, near, radio, 0.5)
+    assert s == pytest.approx(np.hypot(0.5, C * float(link(tx, near, radio).sigma_crlb_s)), rel=1e-12)
+    assert s > 0.5
+    assert reception_sigma_m(tx, far, radio, 0.5) is None  # two 10 m masts: beyond the 26 km horizon
+    assert link_var_m2(s, 0.5) == pytest.approx(s**2 - 0.25, rel=1e-12)
+    assert link_var_m2(0.5, 0.5) == 0.0 and link_var_m2(0.4, 0.5) == 0.0

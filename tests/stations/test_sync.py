@@ -385,7 +385,7 @@ def test_aircraft_pseudorange_error_equals_the_station_sync_error_times_c():
         corr = [t_tx - 0.3, true_theta + sync_err - 0.3 * f_hat, f_hat, 4e-18, 1e-19, 1e-20]
         msg = {"t_tx_s": t_tx, "clock": corr}
         phy = {"pos_m": scn.true_pos(5).tolist(), "t_true_s": tau_tx}
-        t_rx, rho, p = core.measure(phy, msg)
+        t_rx, rho, p, _ = core.measure(phy, msg)
         r = np.linalg.norm(p - scn.true_pos(5))
         err = rho - r - ac.clock.bias_m(t_rx)
         # c x the residual sync error; network time runs at station 1's rate (r x its ppm-level drift)
