@@ -26,7 +26,7 @@ def _index(free: np.ndarray) -> np.ndarray:
     return idx
 
 
-def survey_fim(pos_m: np.ndarray, counts: np.ndarray, sigma_d_m: float, free: np.ndarray,
+def survey_fim(pos_m: np.ndarray, counts: np.ndarray, sigma_d_m: float | np.ndarray, free: np.ndarray,
                sigma0_m: float | np.ndarray | None) -> np.ndarray:
     """Bayesian Fisher information of the free coordinates.
 
@@ -34,7 +34,8 @@ def survey_fim(pos_m: np.ndarray, counts: np.ndarray, sigma_d_m: float, free: np
     ----------
     pos_m : (n, 3) true positions (network frame). counts : (n, n) ranges measured per ordered pair
         (initiator, responder); the pair total ``counts + counts.T`` is what matters.
-    sigma_d_m : range noise. free : (n, 3) bool. sigma0_m : prior sigma per coordinate, scalar or (n,)
+    sigma_d_m : range noise, scalar or (n, n) per link (a radio's SNR-dependent noise; only the pairs
+        measured are read). free : (n, 3) bool. sigma0_m : prior sigma per coordinate, scalar or (n,)
         (``np.inf`` / None for no prior).
 
     Returns
@@ -51,6 +52,7 @@ def survey_fim(pos_m: np.ndarray, counts: np.ndarray, sigma_d_m: float, free: np
                 k = idx[i][free[i]]
                 J[k, k] += 1.0 / s0[i] ** 2
     tot = counts + counts.T
+    sig = np.broadcast_to(np.asarray(sigma_d_m, dtype=float), tot.shape)
     ii, jj = np.nonzero(np.triu(tot, 1))
     for i, j in zip(ii, jj):
         d = pos_m[i] - pos_m[j]
@@ -58,12 +60,13 @@ def survey_fim(pos_m: np.ndarray, counts: np.ndarray, sigma_d_m: float, free: np
         g = np.zeros(p)
         g[idx[i][free[i]]] += u[free[i]]
         g[idx[j][free[j]]] -= u[free[j]]
-        J += tot[i, j] / sigma_d_m**2 * np.outer(g, g)
+        J += tot[i, j] / sig[i, j] ** 2 * np.outer(g, g)
     return J
 
 
 def survey_crlb(pos_m, counts, sigma_d_m, free, sigma0_m) -> np.ndarray:
-    """Per-station bound covariances (n, 3, 3) (zeros on constrained coordinates), from ``J^-1``."""
+    """Per-station bound covariances (n, 3, 3) (zeros on constrained coordinates), from ``J^-1``;
+    ``sigma_d_m`` scalar or (n, n) per link (:func:`survey_fim`)."""
     J = survey_fim(pos_m, counts, sigma_d_m, free, sigma0_m)
     C = sla.cho_solve(sla.cho_factor(J, lower=True), np.eye(len(J)))
     idx = _index(free)

@@ -121,10 +121,51 @@ def link(tx_pos_m, rx_pos_m, params: RadioParams) -> Link:
     snr_db = (params.tx_power_dbm + 2.0 * params.antenna_gain_dbi - path_loss_db(d, h1, h2, params)
               - params.noise_dbm + params.processing_gain_db)
     exists = (d <= horizon_m(h1, h2, params.k_factor)) & (snr_db >= params.threshold_db)
-    beta = params.bandwidth_hz / np.sqrt(12.0)
-    snr = 10.0 ** (snr_db / 10.0)
-    sigma = np.where(exists, 1.0 / (2.0 * np.pi * beta * np.sqrt(2.0 * snr)), np.inf)
+    sigma = np.where(exists, toa_crlb_s(snr_db, params), np.inf)
     return Link(exists=np.asarray(exists), snr_db=np.asarray(snr_db), sigma_crlb_s=np.asarray(sigma))
+
+
+def toa_crlb_s(snr_db, params: RadioParams) -> np.ndarray:
+    """One-way TOA Cramer-Rao bound (...) s at post-correlation SNR ``snr_db`` (...):
+    ``1 / (2 pi beta sqrt(2 SNR))``, ``beta = B / sqrt(12)`` (flat spectrum)."""
+    beta = params.bandwidth_hz / np.sqrt(12.0)
+    snr = 10.0 ** (np.asarray(snr_db, float) / 10.0)
+    return 1.0 / (2.0 * np.pi * beta * np.sqrt(2.0 * snr))
+
+
+def range_var_m2(pos_a_m, pos_b_m, params: RadioParams | None, sigma_d_m: float):
+    """Variance (...) m^2 of a two-way range between stations at ``pos_a_m``, ``pos_b_m`` (..., 3)
+    (estimates: this is what a station weights its ranges with, not truth), in the parameters' frame.
+
+    The channel times each leg with sigma ``hypot(sqrt(2) sigma_d / c, sigma_crlb)``
+    (:class:`net.channel.AirChannel`) and a range is ``c / 2`` times the sum of the two legs, so its
+    variance is ``sigma_d^2 + c^2 sigma_crlb^2 / 2``. A range that was measured came over a link at or
+    above the detection threshold: the SNR is taken at least there (an estimated geometry can put it
+    below). Without ``[radio]`` (``params`` None): ``sigma_d^2``, a scalar."""
+    if params is None:
+        return float(sigma_d_m) ** 2
+    a, b = np.asarray(pos_a_m, float), np.asarray(pos_b_m, float)
+    d = np.linalg.norm(a - b, axis=-1)
+    h1, h2 = _heights(a, params), _heights(b, params)
+    snr_db = (params.tx_power_dbm + 2.0 * params.antenna_gain_dbi - path_loss_db(d, h1, h2, params)
+              - params.noise_dbm + params.processing_gain_db)
+    crlb_m = SPEED_OF_LIGHT_M_S * toa_crlb_s(np.maximum(snr_db, params.threshold_db), params)
+    return float(sigma_d_m) ** 2 + 0.5 * crlb_m**2
+
+
+def radio_dict(params: RadioParams | None) -> dict | None:
+    """The parameters as a plain dict (a station core's journaled config), or None."""
+    if params is None:
+        return None
+    return {f.name: (list(getattr(params, f.name)) if f.name == "up" else getattr(params, f.name))
+            for f in fields(params)}
+
+
+def radio_from_dict(d: dict | None) -> RadioParams | None:
+    """Inverse of :func:`radio_dict`."""
+    if d is None:
+        return None
+    return RadioParams(**{k: (tuple(v) if k == "up" else v) for k, v in d.items()})
 
 
 def max_range_m(params: RadioParams, h1_m: float, h2_m: float) -> float:

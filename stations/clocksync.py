@@ -196,7 +196,7 @@ class ClockEstimator:
         self.n_deferred = 0  # exchanges kept until their time was known (on_exchange)
         self.time_gate = time_gate
         self.defer_s = defer_s
-        self._pending: list[tuple[int, int, float, float, float]] = []
+        self._pending: list[tuple[int, int, float, float, float, float | None]] = []
         self._retry_T = -np.inf
         self.exact = model.offset_sigma_s == 0 and model.freq_sigma == 0 and model.q_wf_s == 0 \
             and model.q_rw_per_s == 0  # perfect clocks: nothing to estimate
@@ -592,8 +592,10 @@ class ClockEstimator:
         self.n_updates += 1
         return nu * nu / S
 
-    def on_exchange(self, a: int, b: int, T_s: float, dtheta_s: float, t_var_s2: float = 0.0) -> float | None:
+    def on_exchange(self, a: int, b: int, T_s: float, dtheta_s: float, t_var_s2: float = 0.0,
+                    z_var_s2: float | None = None) -> float | None:
         """Two-way time transfer ``theta_a - theta_b = dtheta_s`` at network time ``T_s``; the NIS.
+        ``z_var_s2``: the transfer's noise variance (a radio link's, from its SNR); None: ``(sigma_d / c)^2``.
 
         ``T_s`` is the network time of the exchange's midpoint on clock ``a`` (the initiator's local
         ``t_mid``) by this filter's estimate of clock ``a``, ``t_var_s2`` its variance. An error ``e`` in
@@ -606,22 +608,23 @@ class ClockEstimator:
         (``n_deferred``; within ``defer_s``, else dropped: ``n_untimed``). Returns None unless used."""
         if self.exact or (a == 1 and b == 1):
             return None
-        nis = self._exchange(a, b, T_s, dtheta_s, t_var_s2)
+        nis = self._exchange(a, b, T_s, dtheta_s, t_var_s2, z_var_s2)
         if nis is None:
             k = self.index.get(a)
             if k is None:  # placed by a broadcast correction we cannot re-evaluate
                 self.n_untimed += 1
             else:  # back to clock a's local time (the inverse of peer_time / network_time)
                 t_loc = T_s + self.x[2 * k] + self.x[2 * k + 1] * (T_s - self.T_s)
-                self._pending.append((a, b, float(t_loc), float(dtheta_s), float(T_s)))
+                self._pending.append((a, b, float(t_loc), float(dtheta_s), float(T_s), z_var_s2))
                 self.n_deferred += 1
                 return None
         self._retry()
         return nis
 
-    def _exchange(self, a: int, b: int, T_s: float, dtheta_s: float, t_var_s2: float) -> float | None:
+    def _exchange(self, a: int, b: int, T_s: float, dtheta_s: float, t_var_s2: float,
+                  z_var_s2: float | None = None) -> float | None:
         """The update of ``on_exchange``; None (nothing changed) if its time is too uncertain."""
-        r = self.var_z
+        r = self.var_z if z_var_s2 is None else float(z_var_s2)
         if t_var_s2 > 0:
             ef, vf, ks, sg = 0.0, 0.0, [], []
             for sid, g in ((a, 1.0), (b, -1.0)):
@@ -637,7 +640,7 @@ class ClockEstimator:
                 ef = sum(g * self.x[2 * k + 1] for k, g in zip(ks, sg))  # E[f_a - f_b]
                 vf += sum(gi * gj * self._ff(ki, kj) for ki, gi in zip(ks, sg) for kj, gj in zip(ks, sg))
             r_t = (float(ef) ** 2 + float(vf)) * t_var_s2
-            if r_t > self.time_gate * self.var_z:
+            if r_t > self.time_gate * r:
                 return None
             r += r_t
         self.predict(T_s)
@@ -684,14 +687,14 @@ class ClockEstimator:
             return
         self._retry_T = self.T_s
         keep, unknown = [], set()
-        for a, b, t_loc, z, T0 in self._pending:
+        for a, b, t_loc, z, T0, zv in self._pending:
             if a not in unknown:
                 T, var = self.peer_time(a, t_loc)
-                if self._exchange(a, b, T, z, var) is not None:
+                if self._exchange(a, b, T, z, var, zv) is not None:
                     continue
                 unknown.add(a)
             if self.T_s - T0 <= self.defer_s:
-                keep.append((a, b, t_loc, z, T0))
+                keep.append((a, b, t_loc, z, T0, zv))
             else:
                 self.n_untimed += 1
         self._pending = keep

@@ -37,6 +37,8 @@ from scipy.special import chdtri  # chi-square inverse survival (scipy.stats cos
 
 from nav.geometry import SPEED_OF_LIGHT_M_S
 
+from net.radio import radio_from_dict, range_var_m2
+
 from .admission import Admission, Bounds
 from .clocksync import ClockEstimator, ClockModel
 from .estimators import SurveyEstimator, make_estimator
@@ -80,6 +82,9 @@ class StationConfig:
     datum_quorum: int = 4
     datum_convention: bool = False  # keep the founders' convention while they are all heard (docs)
     datum_damping_m: float = 1.0
+    # the scenario's [radio] in the network frame (net.radio.radio_dict): the survey, the integrity
+    # tests and the clock filter weight each link by its SNR's timing noise; None: sigma_d everywhere
+    radio: dict | None = None
 
 
 class StationCore:
@@ -102,8 +107,10 @@ class StationCore:
         self.plan = cfg.tdma
         # a station 1-3 started with the field holds the frame until the field carries it; one that
         # joins a running field (a restarted founder included) is an ordinary station
+        self.radio = radio_from_dict(cfg.radio)
         self.est: SurveyEstimator = make_estimator(cfg.estimator, cfg.id, init_pos_m, init_cov_m2,
-                                                   cfg.sigma_d_m, cfg.ranges_per_update, founder=not cfg.join)
+                                                   cfg.sigma_d_m, cfg.ranges_per_update, founder=not cfg.join,
+                                                   radio=self.radio)
         self.clk = ClockEstimator(cfg.id, ClockModel(cfg.clock_q_wf_s, cfg.clock_q_rw_per_s, cfg.clock_offset_sigma_s,
                                                      cfg.clock_freq_sigma), start_s, cfg.sigma_d_m)
         self.peers: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # peer -> its latest broadcast (pos_m, cov_m2)
@@ -113,7 +120,7 @@ class StationCore:
         self.datum_shift_m = np.zeros(3)
         self.frame_released = False  # no member broadcasts a frame constraint any more
         self.field_datum = False  # a founder was missed since: the references are frozen
-        self.integrity = StationIntegrity(cfg.id, cfg.sigma_d_m)  # peer consistency tests (issue 14)
+        self.integrity = StationIntegrity(cfg.id, cfg.sigma_d_m, radio=self.radio)  # peer consistency tests (issue 14)
         # own estimates at the last navs, (t_s, pos_m, cov_m2): what an exclusion rolls the solve back to
         self._pos_hist: deque[tuple[float, np.ndarray, np.ndarray]] = deque(maxlen=ROLLBACK_KEEP)
         # the peers' broadcasts at the last navs, peer -> (t_s, pos_m, cov_m2): the solve holds them at
@@ -320,6 +327,18 @@ class StationCore:
             return False
         return True
 
+    def _transfer_var_s2(self, a: int, b: int) -> float | None:
+        """Noise variance of a two-way time transfer between stations ``a`` and ``b`` under ``[radio]``:
+        their link's range variance over ``c^2`` (both are half the sum of the two legs' timing errors)
+        at the estimated geometry (ours, the peers' broadcasts); None without ``[radio]`` or while a
+        position is unknown (the clock filter then takes ``(sigma_d / c)^2``)."""
+        if self.radio is None:
+            return None
+        pos = [self.est.pos_m if s == self.id else self.peers.get(s, (None,))[0] for s in (a, b)]
+        if pos[0] is None or pos[1] is None:
+            return None
+        return float(range_var_m2(pos[0], pos[1], self.radio, self.cfg.sigma_d_m)) / SPEED_OF_LIGHT_M_S**2
+
     def _plausible_entry(self, src: int, r: list, t_tx_s: float, t_rx_s: float) -> bool:
         """A nav's range entry: its values within bounds, its peer id admitted (counted if not)."""
         why = self.admission.range_entry(r, t_tx_s)
@@ -379,7 +398,7 @@ class StationCore:
             t_mid = 0.5 * (t_tx + t_rx_s)
             entry = [src, float(range_m), float(t_mid), float(dtheta)]
             if self.clk.on_exchange(self.id, src, self.clk.network_time(t_mid), dtheta,
-                                    self.clk.offset_var_s2) is not None:
+                                    self.clk.offset_var_s2, self._transfer_var_s2(self.id, src)) is not None:
                 self.counters["sync_in"] += 1
         self.ranges_out.append(entry)
         self.est.on_range(src, range_m, t_rx_s, True, pos, cov)
@@ -417,7 +436,8 @@ class StationCore:
                 # every exchange the network makes refines the network clock filter: ours (the
                 # responder's end) and the others' alike
                 T_mid, T_var = self.clk.peer_time(src, r[2], corr)  # our prior view of src's clock
-                if self.clk.on_exchange(src, peer, T_mid, float(r[3]), T_var) is not None:
+                if self.clk.on_exchange(src, peer, T_mid, float(r[3]), T_var,
+                                        self._transfer_var_s2(src, peer)) is not None:
                     self.counters["sync_in"] += 1
             if peer == self.id and 0.0 < range_m < self.cfg.max_range_m:
                 self.counters["ranges_in"] += 1

@@ -39,6 +39,7 @@ import numpy as np
 from nav.geometry import frame_free_mask
 from nav.kalman import symmetrize, update
 from nav.ut import SigmaParams, unscented_transform
+from net.radio import range_var_m2
 
 
 def free_mask(station_id: int, founder: bool = True) -> np.ndarray:
@@ -90,6 +91,7 @@ class SeedUkf:
         self.pos_m = np.asarray(pos0_m, dtype=float).copy()
         self.cov_m2 = _clean_cov(cov0_m2, self.free)
         self.sigma_d_m = float(sigma_d_m)
+        self.radio = None  # the scenario's [radio] (DistributedMap.radio)
         self.l = int(ranges_per_update)
         self.buffer: list[tuple[int, float, np.ndarray, np.ndarray]] = []
         self.n_updates = 0
@@ -139,7 +141,10 @@ class SeedUkf:
             return np.sqrt(np.einsum("...ki,...ki->...k", d, d))
 
         ut = unscented_transform(h, x, P, self.params)  # eq. (10)
-        S = ut.cov + self.sigma_d_m**2 * np.eye(len(z))
+        # range noise: sigma_d^2, or under [radio] each link's at the estimated geometry
+        var = np.broadcast_to(range_var_m2(self.pos_m, np.stack([b[2] for b in self.buffer]), self.radio,
+                                           self.sigma_d_m), (len(z),))
+        S = ut.cov + np.diag(var) if self.radio is not None else ut.cov + self.sigma_d_m**2 * np.eye(len(z))
         nf = int(self.free.sum())
         xm, Pm = update(x[:nf], P[:nf, :nf], z - ut.mean, S, ut.cross[:nf])  # eqs. (12), (13)
         self.pos_m = self.pos_m.copy()
@@ -232,6 +237,9 @@ class DistributedMap:
         self.datum_sigma_m: float | None = None
         self.nf = int(self.free.sum())
         self.sigma_d_m = float(sigma_d_m)
+        # the scenario's [radio] (net/radio.py), network frame: each link's range variance from the
+        # SNR at the estimated geometry (range_var_m2); None: sigma_d^2 on every link
+        self.radio = None
         self.max_iter = max_iter
         self.tol_m = tol_m
         self.no_fix_sigma_m = no_fix_sigma_m
@@ -291,6 +299,7 @@ class DistributedMap:
         self._lver = np.zeros(0, np.int64)  # per peer slot: bumped when that link's kept ranges change
         self._centre_ver = np.zeros(0, np.int64)  # per peer slot: the version its cached centre is of
         self._centre = np.zeros(0)
+        self._sdl = self.sigma_d_m  # the links' noise sigma of the last consensus (_link_sigma)
         self.range_weight = np.zeros(0)
         self._dirty = False
         if pos0_m is None or cov0_m2 is None or not np.any(np.diag(cov0_m2)[self.free] > 0) and self.nf:
@@ -434,16 +443,27 @@ class DistributedMap:
                 sel[k] = False
         return sel
 
+    def _link_var(self, x: np.ndarray, Pj: np.ndarray):
+        """Range noise variance of the links from ``x`` (3,) to the peers at ``Pj`` (k, 3): ``sigma_d^2``
+        (a scalar), or under ``[radio]`` (k,) with each link's timing CRLB (:func:`net.radio.range_var_m2`)."""
+        return range_var_m2(x, Pj, self.radio, self.sigma_d_m)
+
+    def _link_sigma(self, m: int):
+        """Range noise sigma of the first ``m`` peer slots at the current estimate (scalar without ``[radio]``)."""
+        if self.radio is None:
+            return self.sigma_d_m
+        return np.sqrt(self._link_var(self.pos_m, self._pos[:m]))
+
     def _z(self, x: np.ndarray) -> np.ndarray:
         """(nr,) normalized innovation of every kept range against the range predicted at ``x``:
-        ``(d - |x - c_j|) / s``, ``s^2 = sigma_d^2 + u^T (P + C_j) u``."""
+        ``(d - |x - c_j|) / s``, ``s^2 = sigma_j^2 + u^T (P + C_j) u`` (``sigma_j = sigma_d`` without ``[radio]``)."""
         nr = self._nr
         rk, rv = self._rk[:nr], self._rv[:nr]
         m = len(self._index)
         diff = x - self._pos[:m]
         r = np.sqrt(np.einsum("ki,ki->k", diff, diff))
         u = diff / np.maximum(r, 1e-9)[:, None]
-        s2 = self.sigma_d_m**2 + np.einsum("ki,kij,kj->k", u, self._cov[:m] + self.cov_m2, u)
+        s2 = self._link_var(x, self._pos[:m]) + np.einsum("ki,kij,kj->k", u, self._cov[:m] + self.cov_m2, u)
         return (rv - r[rk]) / np.sqrt(s2[rk])
 
     def _weights(self, x: np.ndarray, robust: bool) -> np.ndarray:
@@ -491,8 +511,9 @@ class DistributedMap:
                 self._centre_ver = np.concatenate([self._centre_ver, np.full(m - n_old, -1, np.int64)])
                 self._support = np.concatenate([self._support, np.zeros(m - n_old, np.int64)])
             centre, factor, conf, supp = self._centre, self._centre_factor, self._confirmed, self._support
-            sd = self.sigma_d_m
+            self._sdl = sdl = self._link_sigma(m)
             for k in np.flatnonzero(self._centre_ver[:m] != self._lver[:m]):
+                sd = sdl if np.ndim(sdl) == 0 else sdl[k]
                 v = rv[rk == k]
                 centre[k], factor[k], conf[k], supp[k] = 0.0, 1.0, False, 0
                 self._centre_ver[k] = self._lver[k]
@@ -508,9 +529,14 @@ class DistributedMap:
             if self.weak_below_nlos is not None and self.link_consensus == "cluster":
                 self._adapt_weakness(rk, rv, m)
             self._centre_key = (self._rver, m)
-            ok = np.abs(rv - self._centre[rk]) <= self.consensus_gate * self.sigma_d_m
+            ok = np.abs(rv - self._centre[rk]) <= self.consensus_gate * self._range_sigma(rk)
             self._consensus_out = ok * self._centre_factor[rk], self._confirmed[rk]
         return self._consensus_out
+
+    def _range_sigma(self, rk: np.ndarray):
+        """Noise sigma of each kept range's link (scalar without ``[radio]``), as of the last consensus."""
+        sdl = self._sdl
+        return sdl if np.ndim(sdl) == 0 else sdl[rk]
 
     def _adapt_weakness(self, rk: np.ndarray, rv: np.ndarray, m: int) -> None:
         """Adaptive link weakness (``weak_below_nlos``): NLOS evidence from this station's own ranges.
@@ -530,7 +556,7 @@ class DistributedMap:
         supp = self._support[:m]
         multi = np.bincount(rk, minlength=m)[:m] >= 2
         inl = multi[rk]
-        out = inl & (np.abs(rv - self._centre[rk]) > self.consensus_gate * self.sigma_d_m)
+        out = inl & (np.abs(rv - self._centre[rk]) > self.consensus_gate * self._range_sigma(rk))
         n_out, n_in = int(out.sum()), int(inl.sum())
         self.nlos_seen = ((n_out >= self.nlos_min_outliers and n_out >= self.nlos_min_frac * max(n_in, 1))
                           or n_in < self.clean_after_n)
@@ -566,7 +592,7 @@ class DistributedMap:
         """
         diff = x - Pj
         u = diff / np.linalg.norm(diff, axis=1)[:, None]
-        w = 1.0 / (self.sigma_d_m**2 / n + np.einsum("ki,ij,kj->k", u, self.cov_m2, u))
+        w = 1.0 / (self._link_var(x, Pj) / n + np.einsum("ki,ij,kj->k", u, self.cov_m2, u))
         # rank-1 downdate of the information, (C^-1 - w u u^T)^-1, by Sherman-Morrison; positive
         # definite iff w u^T C u < 1 (else the peer's information is mostly ours: keep C as is)
         Cu = np.einsum("kij,kj->ki", Cj, u)
@@ -585,7 +611,7 @@ class DistributedMap:
         diff = x - Pj
         r = np.sqrt(np.einsum("ki,ki->k", diff, diff))
         u = diff / r[:, None]
-        w = 1.0 / (self.sigma_d_m**2 / n + gamma * np.einsum("ki,kij,kj->k", u, Cj, u))
+        w = 1.0 / (self._link_var(x, Pj) / n + gamma * np.einsum("ki,kij,kj->k", u, Cj, u))
         J = u[:, self.free]
         A = self.prior_info + (J.T * w) @ J
         b = self.prior_info @ (self.prior_mean - x[:nf]) + J.T @ (w * (dbar - r))
@@ -684,12 +710,19 @@ ESTIMATORS = {"dmap": DistributedMap, "dmap-nlos": DistributedMap, "dmap-ls": Di
 
 
 def make_estimator(name: str, station_id: int, pos0_m, cov0_m2, sigma_d_m: float,
-                   ranges_per_update: int = 3, founder: bool = True) -> SurveyEstimator:
+                   ranges_per_update: int = 3, founder: bool = True, radio=None) -> SurveyEstimator:
     """``dmap`` (robust, default: a link weak while no two of its ranges agree, or until 3 agree while
     the station's own ranges show NLOS, :meth:`DistributedMap._adapt_weakness`), ``dmap-nlos`` (the
     same, always weak until 3 agree: slower clean convergence, docs/survey.md), ``dmap-ls`` (the same
     without the robust weights) or ``seed-ukf``. ``founder=False``: stations 1-3 free in x, y, z
     (a founder that joins a running field; ``seed-ukf`` keeps the paper's frame)."""
+    est = _make(name, station_id, pos0_m, cov0_m2, sigma_d_m, ranges_per_update, founder)
+    est.radio = radio  # [radio]: each link weighted by its SNR's timing noise (net/radio.py range_var_m2)
+    return est
+
+
+def _make(name: str, station_id: int, pos0_m, cov0_m2, sigma_d_m: float, ranges_per_update: int,
+          founder: bool) -> SurveyEstimator:
     if name == "seed-ukf":
         if pos0_m is None:
             raise ValueError("seed-ukf needs an initial fix (scenario init.sigma0_m > 0)")

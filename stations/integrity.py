@@ -49,6 +49,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import chdtri  # chi-square inverse survival (scipy.stats costs ~0.5 s of start-up)
 
+from net.radio import range_var_m2
+
 from .estimators import los_cluster
 
 
@@ -71,13 +73,16 @@ class StationIntegrity:
 
     def __init__(self, station_id: int, sigma_d_m: float, *, p_fa: float = 1e-4, window_s: float = 20.0,
                  fail_to_exclude: int = 2, pass_to_readmit: int = 10, readmit_p: float = 0.1, gate: float = 4.0,
-                 min_ranges: int = 3, quorum_min: int = 2):
+                 min_ranges: int = 3, quorum_min: int = 2, radio=None):
         self.id = station_id
         self.quorum_min = int(quorum_min)
         # announcer -> (local time heard, the peers it has excluded itself); admitted senders only
         self.announced: dict[int, tuple[float, frozenset[int]]] = {}
         self.adopted: set[int] = set()  # peers excluded by the quorum (module docstring)
         self.sigma_d_m = float(sigma_d_m)
+        # the scenario's [radio] (net/radio.py): each link's range noise from its SNR at the estimated
+        # geometry (range_var_m2); None: sigma_d on every link
+        self.radio = radio
         self.p_fa = float(p_fa)
         self.threshold = float(chdtri(1, p_fa))
         self.readmit_threshold = float(chdtri(1, readmit_p))  # hysteresis: re-admit on clear passes
@@ -141,14 +146,15 @@ class StationIntegrity:
         st.ranges.append((float(t_s), float(range_m)))
         st.n_in += 1
 
-    def _clusters(self, st: PeerTest) -> list[tuple[float, int]]:
+    def _clusters(self, st: PeerTest, sigma_m: float) -> list[tuple[float, int]]:
         """(mean range, count) of the window's clusters that the test uses (module docstring): the
-        line-of-sight cluster and the newest range's. Depends on the window's ranges only, which
-        change once in a few tests (ranges only join at the end and leave at the start): cached."""
-        key = (st.n_in, len(st.ranges))
+        line-of-sight cluster and the newest range's, ``sigma_m`` the link's range noise. Depends on the
+        window's ranges only, which change once in a few tests (ranges only join at the end and leave
+        at the start): cached."""
+        key = (st.n_in, len(st.ranges), sigma_m)
         if st.window_key != key:
             d = np.array([r for _, r in st.ranges])
-            g = self.gate * self.sigma_d_m
+            g = self.gate * sigma_m
             centre, support = los_cluster(d, g)
             sets = [d[np.abs(d - centre) <= g]] if support >= 2 else []
             newest = d[np.abs(d - d[-1]) <= 0.5 * g]  # the newest range's cluster (a step: fault onset)
@@ -166,7 +172,8 @@ class StationIntegrity:
             st.ranges.popleft()
         if len(st.ranges) < self.min_ranges:  # one or two ranges cannot tell an NLOS one-off from a fault
             return None
-        sets = self._clusters(st)
+        var = range_var_m2(pos_m, peer_pos_m, self.radio, self.sigma_d_m)
+        sets = self._clusters(st, self.sigma_d_m if self.radio is None else float(np.sqrt(var)))
         if not sets:  # no two ranges of the window agree (NLOS one-offs): inconclusive
             return None
         diff = np.asarray(pos_m, float) - np.asarray(peer_pos_m, float)
@@ -175,7 +182,7 @@ class StationIntegrity:
             return None
         u = diff / pred
         pv = float(u @ (np.asarray(cov_m2, float) + np.asarray(peer_cov_m2, float)) @ u)
-        return max(float((mean - pred) ** 2 / (self.sigma_d_m**2 / n + pv)) for mean, n in sets)
+        return max(float((mean - pred) ** 2 / (var / n + pv)) for mean, n in sets)
 
     def evaluate(self, t_s: float, pos_m, cov_m2, peers: dict[int, tuple]) -> list[dict]:
         """Test every peer with a range in the window. ``peers``: {id: (pos_m (3,), cov_m2 (3, 3))}

@@ -18,6 +18,7 @@ import numpy as np
 
 from net.channel import AirChannel, Clock, coarse_fix, draw_clock, station_rng
 from net.clock import true_network_offset_s
+from net.radio import radio_dict
 from net.scenario import DEPARTURE_KINDS, Scenario
 
 from .admission import field_radius
@@ -92,6 +93,7 @@ def make_core(scn: Scenario, station_id: int, *, estimator: str | None = None, j
         field_radius_m=field_radius(scn.pos_m, scn.ids),
         # the frame datum: the founders' throughout, or handed to the converged field ([survey] datum)
         datum_converged_m=0.0 if scn.datum == "field" else -1.0,
+        radio=radio_dict(scn.channel.radio),
     )
     return StationCore(cfg, pos0, cov0, start_s=clock.to_local(start_s)), clock
 

@@ -77,6 +77,8 @@ MATRIX: dict[str, Case] = {
                     nees=False, defects=("ekf-tdoa", "ukf-tdoa", "lsq-pr", "lsq-tdoa")),
     # 8 stations over 40 x 30 km, the aircraft on a 50 m/s ellipse
     "seed003": Case(**TCXO, survey_m=5.0, ac_window_m=10.0, ac_final_m=5.0, lsq_window_m=100.0, nees=False),
+    # the same field heard through a radio ([radio]): links beyond the 26 km horizon do not exist
+    "seed003-radio": Case(**TCXO, survey_m=5.0, ac_window_m=10.0, ac_final_m=5.0, lsq_window_m=100.0, nees=False),
     "seed003-text": Case(survey_m=5.0),
     "seed003-text-10": Case(survey_m=5.0),
 }

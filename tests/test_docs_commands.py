@@ -202,6 +202,8 @@ TABLE: dict[str, Run | Skip] = {
     "./dev bench survey --trials 100 --json survey.json": Skip(BENCH),
     "./dev bench sync --trials 100 --json sync.json": Skip(BENCH),
     "./dev bench speed --speeds 1,2,5,10": Skip(BENCH),
+    "larns bench survey --scenario seed003-radio --stations 8 --sigma-d 0.9 --estimator dmap --trials 20": Skip(BENCH),
+    "larns bench sync --scenario seed003-radio --stations 8 --sigma-d 0.9 --trials 20": Skip(BENCH),
     "./dev bench aircraft --json aircraft.json": Skip(BENCH),
     "./dev bench aircraft --envelope --png-dir png/": Skip(BENCH),
     "./dev bench aircraft --clocks --no-sweep --no-speed": Skip(BENCH),

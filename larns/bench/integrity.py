@@ -306,6 +306,8 @@ def _trial(job: tuple) -> dict:
     from nav.crlb import survey_crlb
     from nav.geometry import frame_free_mask
 
+    from .survey import link_sigma_m
+
     case, estimator, seed, duration, scenario, recovery = (*job, False)[:6]
     at = [40.0, duration]
     t = np.union1d(np.arange(1.0, np.floor(duration) + 1e-9) if recovery else [], at)
@@ -313,7 +315,8 @@ def _trial(job: tuple) -> dict:
     k_at = np.searchsorted(t, at)
     h2, nees = _h2_nees(r, keep)
     free = frame_free_mask(len(scn.ids))
-    crlb = np.stack([survey_crlb(r.truth_m, r.link_counts[k], scn.channel.sigma_d_m, free, scn.sigma0_m)
+    crlb = np.stack([survey_crlb(r.truth_m, r.link_counts[k], link_sigma_m(scn, r.truth_m, scn.channel.sigma_d_m),
+                                 free, scn.sigma0_m)
                      for k in k_at])[:, keep]
     out = {"h2": h2[k_at], "crlb_h2": crlb[..., 0, 0] + crlb[..., 1, 1], "nees": nees[k_at]}
     out.update(fault_metrics(sim, scn.faults, duration))

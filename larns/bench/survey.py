@@ -55,6 +55,17 @@ def register(sub) -> None:
     p.set_defaults(func=main)
 
 
+def link_sigma_m(scn, truth_m: np.ndarray, sigma_d_m: float):
+    """The bound's range noise: ``sigma_d``, or under ``[radio]`` (n, n) each link's at the true
+    geometry (the timing CRLB of its SNR, :func:`net.radio.range_var_m2`)."""
+    from net.radio import range_var_m2
+
+    radio = getattr(scn.channel, "radio", None)
+    if radio is None:
+        return sigma_d_m
+    return np.sqrt(range_var_m2(truth_m[:, None, :], truth_m[None, :, :], radio, sigma_d_m))
+
+
 def _trial(job: tuple) -> dict:
     from nav.crlb import batch_map, survey_crlb
     from nav.geometry import frame_free_mask
@@ -71,7 +82,8 @@ def _trial(job: tuple) -> dict:
     err = r.pos_m - r.truth_m  # (K, n, 3)
     free = frame_free_mask(len(scn.ids))
     ti = [int(np.argmin(np.abs(times - t))) for t in table_times]
-    crlb = np.stack([survey_crlb(r.truth_m, r.link_counts[k], sigma_d, free, scn.sigma0_m) for k in ti])
+    sig = link_sigma_m(scn, r.truth_m, sigma_d)
+    crlb = np.stack([survey_crlb(r.truth_m, r.link_counts[k], sig, free, scn.sigma0_m) for k in ti])
     # NEES over stations 4..n (3 dof each)
     e4 = err[:, 3:]
     P4 = r.cov_m2[:, 3:]

@@ -75,11 +75,18 @@ def crlb_offset_var(scn, exchange_log, ids, times_s: np.ndarray, corr_eig: list 
 
     ``corr_eig``, if a list, receives per time the eigenvalues of the alive stations' offsets'
     correlation matrix in that filter: how strongly the stations' errors share a common mode."""
+    from nav.geometry import SPEED_OF_LIGHT_M_S
+    from net.radio import range_var_m2
     from stations.clocksync import ClockEstimator, ClockModel
 
     ck = scn.clock
     model = ClockModel(ck.q_wf_s, ck.q_rw_per_s, ck.offset_s, ck.freq_sigma)
     kf = ClockEstimator(ids[1], model, 0.0, scn.channel.sigma_d_m)
+    # each exchange's transfer noise: (sigma_d / c)^2, or under [radio] its link's at the true geometry
+    radio = getattr(scn.channel, "radio", None)
+    P = np.asarray([scn.true_pos(sid) for sid in ids], float)
+    z_var = (np.full((len(ids), len(ids)), None) if radio is None else
+             range_var_m2(P[:, None, :], P[None, :, :], radio, scn.channel.sigma_d_m) / SPEED_OF_LIGHT_M_S**2)
     for sid in ids[1:]:
         kf._add(sid)
     stop_s = stop_s or {}
@@ -89,7 +96,7 @@ def crlb_offset_var(scn, exchange_log, ids, times_s: np.ndarray, corr_eig: list 
     for k, t in enumerate(times_s):
         while i < len(log) and log[i][0] <= t:
             tt, a, b = log[i]
-            kf.on_exchange(ids[a], ids[b], tt - 0.5 * (scn.channel.turnaround_s), 0.0)
+            kf.on_exchange(ids[a], ids[b], tt - 0.5 * (scn.channel.turnaround_s), 0.0, z_var_s2=z_var[a, b])
             i += 1
         kf.predict(t)
         alive = [j for j, sid in enumerate(ids) if t < stop_s.get(sid, np.inf)]

@@ -135,6 +135,29 @@ def test_survey_crlb_matches_finite_difference_fisher():
     assert np.all(C[0] == 0) and np.all(C[1][1:, :] == 0) and C[1][0, 0] > 0
 
 
+def test_survey_fim_takes_each_links_own_noise():
+    """Per-link sigma (a radio's SNR-dependent noise): equal sigmas give the scalar bound, and one
+    noisier link is the finite-difference Fisher with that link's weight alone changed."""
+    rng = np.random.default_rng(8)
+    n = 5
+    pos, _, _ = to_network_frame(rng.uniform(0, 1000, size=(n, 3)) * [1, 1, 0.2])
+    counts = np.ones((n, n), int) - np.eye(n, dtype=int)
+    free = frame_free_mask(n)
+    np.testing.assert_array_equal(survey_fim(pos, counts, np.full((n, n), 0.7), free, 10.0),
+                                  survey_fim(pos, counts, 0.7, free, 10.0))
+    sig = np.full((n, n), 0.7)
+    sig[1, 3] = sig[3, 1] = 2.0
+    d = pos[1] - pos[3]
+    u = d / np.linalg.norm(d)
+    g = np.zeros(int(free.sum()))
+    idx = -np.ones(free.shape, int)
+    idx[free] = np.arange(int(free.sum()))
+    g[idx[1][free[1]]] += u[free[1]]
+    g[idx[3][free[3]]] -= u[free[3]]
+    expect = survey_fim(pos, counts, 0.7, free, 10.0) - 2 * (1 / 0.7**2 - 1 / 2.0**2) * np.outer(g, g)
+    np.testing.assert_allclose(survey_fim(pos, counts, sig, free, 10.0), expect, rtol=1e-12, atol=1e-12)
+
+
 def test_batch_map_recovers_truth_without_noise():
     rng = np.random.default_rng(7)
     n = 6

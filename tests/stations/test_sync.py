@@ -256,9 +256,9 @@ def test_fast_clock_update_equals_the_dense_filter_on_a_recorded_station(monkeyp
     events, seen = [], {}
     orig_x, orig_u = cls._exchange, cls._update
 
-    def rec_x(self, a, b, T, z, t_var):
+    def rec_x(self, a, b, T, z, t_var, z_var=None):
         n = self.n_updates
-        out = orig_x(self, a, b, T, z, t_var)
+        out = orig_x(self, a, b, T, z, t_var, z_var)
         if self.id == 4 and self.n_updates > n:  # used (not deferred)
             events.append(("x", a, b, T, z, t_var))
         return out
