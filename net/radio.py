@@ -103,6 +103,13 @@ def path_loss_db(d_m, h1_m, h2_m, params: RadioParams) -> np.ndarray:
     return np.maximum(fspl, plane)
 
 
+def link_snr_db(d_m, h1_m, h2_m, params: RadioParams) -> np.ndarray:
+    """Post-correlation SNR (...) dB of a link of length ``d_m`` between antennas at ``h1_m``, ``h2_m``:
+    the link budget ``P_tx + G_tx + G_rx - L(d) - N`` plus the processing gain."""
+    return (params.tx_power_dbm + 2.0 * params.antenna_gain_dbi - path_loss_db(d_m, h1_m, h2_m, params)
+            - params.noise_dbm + params.processing_gain_db)
+
+
 @dataclass(frozen=True)
 class Link:
     """One link's physics: ``exists`` (...) bool, post-correlation ``snr_db`` (...) and the one-way
@@ -118,8 +125,7 @@ def link(tx_pos_m, rx_pos_m, params: RadioParams) -> Link:
     tx, rx = np.asarray(tx_pos_m, float), np.asarray(rx_pos_m, float)
     d = np.linalg.norm(rx - tx, axis=-1)
     h1, h2 = _heights(tx, params), _heights(rx, params)
-    snr_db = (params.tx_power_dbm + 2.0 * params.antenna_gain_dbi - path_loss_db(d, h1, h2, params)
-              - params.noise_dbm + params.processing_gain_db)
+    snr_db = link_snr_db(d, h1, h2, params)
     exists = (d <= horizon_m(h1, h2, params.k_factor)) & (snr_db >= params.threshold_db)
     sigma = np.where(exists, toa_crlb_s(snr_db, params), np.inf)
     return Link(exists=np.asarray(exists), snr_db=np.asarray(snr_db), sigma_crlb_s=np.asarray(sigma))
@@ -146,9 +152,7 @@ def range_var_m2(pos_a_m, pos_b_m, params: RadioParams | None, sigma_d_m: float)
         return float(sigma_d_m) ** 2
     a, b = np.asarray(pos_a_m, float), np.asarray(pos_b_m, float)
     d = np.linalg.norm(a - b, axis=-1)
-    h1, h2 = _heights(a, params), _heights(b, params)
-    snr_db = (params.tx_power_dbm + 2.0 * params.antenna_gain_dbi - path_loss_db(d, h1, h2, params)
-              - params.noise_dbm + params.processing_gain_db)
+    snr_db = link_snr_db(d, _heights(a, params), _heights(b, params), params)
     crlb_m = SPEED_OF_LIGHT_M_S * toa_crlb_s(np.maximum(snr_db, params.threshold_db), params)
     return float(sigma_d_m) ** 2 + 0.5 * crlb_m**2
 
@@ -174,9 +178,7 @@ def max_range_m(params: RadioParams, h1_m: float, h2_m: float) -> float:
     lo, hi = 1.0, float(horizon_m(h1_m, h2_m, params.k_factor))
 
     def ok(d: float) -> bool:
-        snr = (params.tx_power_dbm + 2.0 * params.antenna_gain_dbi - float(path_loss_db(d, h1_m, h2_m, params))
-               - params.noise_dbm + params.processing_gain_db)
-        return snr >= params.threshold_db
+        return float(link_snr_db(d, h1_m, h2_m, params)) >= params.threshold_db
 
     if ok(hi):
         return hi

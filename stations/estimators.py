@@ -142,9 +142,8 @@ class SeedUkf:
 
         ut = unscented_transform(h, x, P, self.params)  # eq. (10)
         # range noise: sigma_d^2, or under [radio] each link's at the estimated geometry
-        var = np.broadcast_to(range_var_m2(self.pos_m, np.stack([b[2] for b in self.buffer]), self.radio,
-                                           self.sigma_d_m), (len(z),))
-        S = ut.cov + np.diag(var) if self.radio is not None else ut.cov + self.sigma_d_m**2 * np.eye(len(z))
+        var = range_var_m2(self.pos_m, np.stack([b[2] for b in self.buffer]), self.radio, self.sigma_d_m)
+        S = ut.cov + np.diag(np.broadcast_to(var, (len(z),)))
         nf = int(self.free.sum())
         xm, Pm = update(x[:nf], P[:nf, :nf], z - ut.mean, S, ut.cross[:nf])  # eqs. (12), (13)
         self.pos_m = self.pos_m.copy()

@@ -7,18 +7,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from broadcast_support import nav_broadcast
 from net.radio import link, link_var_m2, reception_sigma_m
 from net.scenario import load
 
 # a 40 x 30 km field (seed003) heard by a weak transmitter: the aircraft hears the near stations only
 RADIO = {"tx_power_dbm": 10.0}
-
-
-def _nav(scn, sid: int, t_s: float) -> tuple[dict, dict]:
-    msg = {"kind": "nav", "src": sid, "seq": int(t_s * 10), "stamp_s": t_s, "t_tx_s": t_s,
-           "pos_m": scn.true_pos(sid).tolist(), "cov_m2": (np.eye(3) * 0.01).tolist(),
-           "n_updates": 50, "state": "frame", "ranges": [], "members": list(scn.ids)}
-    return msg, {"pos_m": scn.true_pos(sid).tolist(), "t_true_s": t_s}
 
 
 @pytest.fixture(scope="module")
@@ -36,7 +30,7 @@ def test_the_aircraft_hears_exactly_the_links_the_radio_allows(radio_core):
     heard, unheard = [], []
     for k, sid in enumerate(scn.ids):
         t = 10.0 + 0.01 * k
-        msg, phy = _nav(scn, sid, t)
+        msg, phy = nav_broadcast(scn, sid, t)
         p, _ = core.track.at(t)
         exists = bool(link(scn.true_pos(sid), p, ac.radio).exists)
         before = core.stats["no_link"]
@@ -66,7 +60,7 @@ def test_the_aircraft_timing_noise_follows_the_links_snr(radio_core):
     d = {sid: np.linalg.norm(scn.true_pos(sid) - p) for sid in scn.ids
          if link(scn.true_pos(sid), p, ac.radio).exists}
     sid = max(d, key=d.get)
-    msg, phy = _nav(scn, sid, t)
+    msg, phy = nav_broadcast(scn, sid, t)
     rho = np.array([core.measure(phy, msg)[1] for _ in range(4000)])
     s = reception_sigma_m(scn.true_pos(sid), core.measure(phy, msg)[2], ac.radio, ac.sigma_m)
     assert s > 1.2 * ac.sigma_m, (s, ac.sigma_m)
@@ -84,7 +78,7 @@ def test_inertial_and_triad_cores_drop_what_the_radio_does_not_carry():
     outcomes = []
     for k, sid in enumerate(scn.ids):
         t = 5.0 + 0.01 * k
-        msg, phy = _nav(scn, sid, t)
+        msg, phy = nav_broadcast(scn, sid, t)
         p = core.truth_n(t)[0]
         exists = bool(link(scn.true_pos(sid), p, ac.radio).exists)
         got = core.measure(phy, msg)

@@ -3,17 +3,9 @@ link budget does not hear a station (the aircraft's channel model, :func:`net.ra
 
 from __future__ import annotations
 
-import numpy as np
-
+from broadcast_support import nav_broadcast
 from net.radio import link
 from net.scenario import load
-
-
-def _nav(scn, sid: int, t_s: float) -> tuple[dict, dict]:
-    msg = {"kind": "nav", "src": sid, "seq": int(t_s * 10), "stamp_s": t_s, "t_tx_s": t_s,
-           "pos_m": scn.true_pos(sid).tolist(), "cov_m2": (np.eye(3) * 0.01).tolist(),
-           "n_updates": 50, "state": "frame", "ranges": [], "members": list(scn.ids)}
-    return msg, {"pos_m": scn.true_pos(sid).tolist(), "t_true_s": t_s}
 
 
 def test_the_vehicle_hears_only_the_linked_stations():
@@ -26,7 +18,7 @@ def test_the_vehicle_hears_only_the_linked_stations():
     outcomes = []
     for k, sid in enumerate(scn.ids):
         t = 1.0 + 0.01 * k
-        msg, phy = _nav(scn, sid, t)
+        msg, phy = nav_broadcast(scn, sid, t)
         got = core.measure(msg, phy)
         p_g, _ = core.truth(t - core.t0_s)
         exists = bool(link(scn.true_pos(sid), core.tie.to_network(p_g), scn.channel.radio).exists)
