@@ -3,7 +3,7 @@
 A field that has just been switched on broadcasts clock corrections that are honest but useless: in
 the first cycle a station's clock is known to about a millisecond (``sqrt(c^2 P_theta)`` of 10^5 m),
 after its first exchanges to microseconds (10^3 m), and only after a few cycles to nanoseconds
-(docs/aircraft.md "Cold start" measures it on seed000). Four rules turn that into a receiver:
+(docs/aircraft.md "Cold start" measures it on seed000). Five rules turn that into a receiver:
 
 1. **Usable broadcasts** (:func:`unusable_reason`): a broadcast is used only when its own clock and
    position covariance put its range error within ``max_broadcast_sigma_m``, i.e. the station has
@@ -18,6 +18,12 @@ after its first exchanges to microseconds (10^3 m), and only after a few cycles 
    summed over ``window`` updates, against ``chi2.ppf(1 - p_diverge, dof)``; beyond it the filter is
    lost (not a single station: the integrity monitor handles those) and restarts from the next
    consistent set.
+5. **Start on a surveyed field** (:func:`start_on_hold`): a filter starts only from a batch whose every
+   station is known to ``start_station_sigma_m`` (clock and position, as in rule 1), or once
+   ``start_wait_s`` have passed since the first batch that could start it. A station's position
+   error is a bias the filter's white range noise does not model; from a fix over stations still 8 m
+   uncertain, 1.5 km out and 300 m up, the filter settled on another root of the ranges (300-500 m
+   off, NEES 5e4) or stalled at 30-40 m (docs/aircraft.md "Cold start").
 4. **Publish only what is defensible** (:func:`publishable`): a finite estimate with a
    positive semi-definite covariance whose position sigma is below ``max_publish_sigma_m``; otherwise
    the process publishes a status (``ac_status``) instead.
@@ -43,13 +49,16 @@ class ReceiverConfig:
     """The receiver rules (module docstring). ``max_broadcast_sigma_m``: largest range sigma of a
     broadcast (clock and position) that is used; ``p_start``: false-refusal probability of the start
     test; ``p_diverge`` / ``window``: the divergence test over ``window`` updates;
-    ``max_publish_sigma_m``: largest position sigma ``sqrt(tr P)`` of a published estimate."""
+    ``max_publish_sigma_m``: largest position sigma ``sqrt(tr P)`` of a published estimate;
+    ``start_station_sigma_m`` / ``start_wait_s``: the start's survey level and longest wait (rule 5)."""
 
     max_broadcast_sigma_m: float = 30.0
     p_start: float = 1e-3
     p_diverge: float = 1e-9
     window: int = 20
     max_publish_sigma_m: float = 1.0e4
+    start_station_sigma_m: float = 3.0
+    start_wait_s: float = 10.0
 
 
 def broadcast_sigma_m(clock_var_m2: float, station_cov_m2: np.ndarray | None) -> float:
@@ -140,6 +149,18 @@ def nis(nu: np.ndarray, S: np.ndarray) -> tuple[float, int]:
         return float("inf"), nu.size
     y = np.linalg.solve(L, nu)
     return float(y @ y), nu.size
+
+
+def start_on_hold(station_cov_m2: np.ndarray | None, t_s: float, t_first_s: float, cfg: ReceiverConfig) -> bool:
+    """Rule 5: whether a filter's start waits for a better surveyed batch. ``station_cov_m2`` (m, 3, 3)
+    the batch's station covariances with the clock variance on the diagonal (range sigma of station
+    ``j`` = ``sqrt(lambda_max)``), ``t_s`` the batch time, ``t_first_s`` that of the first batch that
+    could have started the filter."""
+    if station_cov_m2 is None or t_s - t_first_s > cfg.start_wait_s:
+        return False
+    cov = np.asarray(station_cov_m2, dtype=float)
+    lam = np.linalg.eigvalsh(0.5 * (cov + np.swapaxes(cov, -1, -2)))[..., -1]
+    return bool(np.sqrt(max(float(np.max(lam)), 0.0)) > cfg.start_station_sigma_m)
 
 
 def publishable(pos_m, cov_m2, cfg: ReceiverConfig) -> bool:

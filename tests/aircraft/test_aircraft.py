@@ -12,6 +12,7 @@ from aircraft import models as mdl
 from aircraft import sim, trajectory
 from aircraft.config import from_scenario
 from aircraft.estimators import AircraftEstimator, CvTracker, EstimatorConfig, Tuning, lsq_pr, lsq_tdoa
+from aircraft.navigator import receiver as rx
 from nav.kalman import ekf_update, kf_predict, kf_update, ukf_predict, ukf_update
 from nav.pcrb import crlb_cycle, fisher_cycle, pcrb_linear_gaussian
 from nav.ut import SigmaParams
@@ -753,7 +754,8 @@ def test_start_waits_for_a_batch_with_redundancy():
     machine; the batch below is that run's first, as recorded: stations 5, 1, 2, 3 mid-survey, the
     aircraft hovering at (2260, 640, 316) m). The start sets such batches aside
     (InitConfig.defer_batches) until the fifth station is heard; a world of only 4 stations still
-    starts after that many batches."""
+    starts after that many batches. (The receiver's rule 5, which holds the start while a station is
+    known to worse than 3 m, is off here: ``test_start_waits_for_a_surveyed_field`` tests it.)"""
     from aircraft.initializer import InitConfig
 
     ids0 = [5, 1, 2, 3]
@@ -775,8 +777,9 @@ def test_start_waits_for_a_batch_with_redundancy():
             rho = np.linalg.norm(p_ac - st[i - 1]) + b_m + 0.5 * rng.standard_normal()
             est.on_measurement(t0 + 0.05 * k, i, st[i - 1] + err[i - 1], np.eye(3) * 0.09, rho)
 
+    no_hold = EstimatorConfig(fde=None, receiver=rx.ReceiverConfig(start_station_sigma_m=np.inf))
     for algo in ("ukf-pr", "ekf-tdoa", "lsq-pr"):
-        e = AircraftEstimator(algo, EstimatorConfig(fde=None))
+        e = AircraftEstimator(algo, no_hold)
         for k, i in enumerate(ids0):
             e.on_measurement(3.105 + 0.05 * k, i, pos0[k], cov0[k], rho0[k])
         cycle(e, 3.255, [1, 2, 3, 4, 5])              # 1 repeats: the batch of 4 flushes; then 4 comes up
@@ -791,8 +794,39 @@ def test_start_waits_for_a_batch_with_redundancy():
         bound = 50.0 if algo.startswith("lsq") else 25.0
         assert d < bound and d <= 4.0 * np.sqrt(np.trace(est["cov_m2"])) + 1.0, (algo, d, est["cov_m2"])
     n_def = InitConfig().defer_batches
-    only4 = AircraftEstimator("ukf-pr", EstimatorConfig(fde=None))
+    only4 = AircraftEstimator("ukf-pr", no_hold)
     for c in range(n_def + 2):
         for k, i in enumerate(ids0):
             only4.on_measurement(0.25 * c + 0.05 * k, i, pos0[k], cov0[k], rho0[k])
     assert only4.tracker is not None and only4.n_deferred == 0 and not only4.init.snapshot
+
+
+def test_start_waits_for_a_surveyed_field():
+    """Receiver rule 5 (aircraft/navigator/receiver.py): a filter does not start while a station of the
+    batch is known to worse than ``start_station_sigma_m`` (one station 6 m); it starts from the first
+    batch of surveyed stations, or from whatever it has once ``start_wait_s`` have passed; a snapshot
+    LSQ does not wait. Five stations of tests/scenario_text.py, the aircraft hovering 1.5 km out."""
+    st = np.array([[0.0, 0.0, 0.0], [1800.0, 0.0, 5.0], [900.0, 1500.0, 0.0], [800.0, 500.0, 60.0],
+                   [300.0, 1200.0, 20.0]])
+    p_ac = np.array([2260.0, 640.0, 316.0])
+    cfg = rx.ReceiverConfig()
+    rng = np.random.default_rng(5)
+
+    def run(algo, sigma_5_m, n_cycles):
+        e = AircraftEstimator(algo, EstimatorConfig(fde=None))
+        for c in range(n_cycles):
+            for k in range(5):
+                s = sigma_5_m if k == 4 else 0.3
+                rho = np.linalg.norm(p_ac - st[k]) + 0.5 * rng.standard_normal()
+                e.on_measurement(0.25 * c + 0.05 * k, k + 1, st[k], np.eye(3) * s**2, rho)
+        return e
+
+    held = run("ukf-pr", 6.0, 20)                     # 5 s: held all along
+    assert held.tracker is None and held.status == rx.WAITING and held.stats["start_wait_survey"] >= 18
+    surveyed = run("ukf-pr", 2.0, 3)                  # every station within 3 m: starts at once
+    assert surveyed.tracker is not None and surveyed.stats["start_wait_survey"] == 0
+    late = run("ekf-pr", 6.0, int(cfg.start_wait_s / 0.25) + 3)   # never surveyed: starts after the wait
+    assert late.tracker is not None and late.t_first_batch_s is not None
+    assert late.tracker.t_s - late.t_first_batch_s > cfg.start_wait_s
+    lsq = run("lsq-pr", 6.0, 3)
+    assert lsq.fix is not None and lsq.stats["start_wait_survey"] == 0

@@ -83,6 +83,7 @@ class AircraftEstimator:
         self.n_dropped = 0
         self.n_resets = 0
         self.n_deferred = 0  # batches set aside in a row at the start (InitConfig.defer_batches)
+        self.t_first_batch_s: float | None = None  # the first batch that could start a filter (rule 5)
         self.init = None  # the InitResult of the latest start (broadcast initializer)
         self.fde = None if self.cfg.fde is None else FilterFde(self.cfg.fde)
         rcfg = self.cfg.receiver
@@ -171,6 +172,8 @@ class AircraftEstimator:
             self.n_dropped += 1
             return
         if self.tracker is None:
+            if self._start_on_hold(t_s, cov):
+                return
             self._start(t_s, pos, cov, rho, dt)
             return
         try:
@@ -218,6 +221,18 @@ class AircraftEstimator:
             self.stats["diverged"] += 1
             self._reset()
             self.status = rx.RESTARTING
+
+    def _start_on_hold(self, t_s: float, cov) -> bool:
+        """The receiver's rule 5 (aircraft/navigator/receiver.py): a filter waits for a batch of
+        surveyed stations (snapshot LSQ fixes do not wait)."""
+        if self.cfg.receiver is None or self.method == "lsq":
+            return False
+        if self.t_first_batch_s is None:
+            self.t_first_batch_s = t_s
+        if rx.start_on_hold(cov, t_s, self.t_first_batch_s, self.cfg.receiver):
+            self.stats["start_wait_survey"] += 1
+            return True
+        return False
 
     def _start(self, t_s, pos, cov, rho, dt=None) -> None:
         """No filter yet: a snapshot fix from the batch (LSQ), or the filter's start."""
