@@ -18,9 +18,11 @@ after its first exchanges to microseconds (10^3 m), and only after a few cycles 
    summed over ``window`` updates, against ``chi2.ppf(1 - p_diverge, dof)``; beyond it the filter is
    lost (not a single station: the integrity monitor handles those) and restarts from the next
    consistent set.
-5. **Start on a surveyed field** (:func:`start_on_hold`): a filter starts only from a batch whose every
-   station is known to ``start_station_sigma_m`` (clock and position, as in rule 1), or once
-   ``start_wait_s`` have passed since the first batch that could start it. A station's position
+5. **Start on a surveyed field** (:func:`start_members`): a filter starts only from a batch whose every
+   station is known to ``start_station_sigma_m`` along its line of sight to the batch's fix (clock
+   and position), or once
+   ``start_wait_s`` have passed since the first batch that could start it; the surveyed stations alone
+   where they are enough for a snapshot with redundancy. A station's position
    error is a bias the filter's white range noise does not model; from a fix over stations still 8 m
    uncertain, 1.5 km out and 300 m up, the filter settled on another root of the ranges (300-500 m
    off, NEES 5e4) or stalled at 30-40 m (docs/aircraft.md "Cold start").
@@ -151,16 +153,18 @@ def nis(nu: np.ndarray, S: np.ndarray) -> tuple[float, int]:
     return float(y @ y), nu.size
 
 
-def start_on_hold(station_cov_m2: np.ndarray | None, t_s: float, t_first_s: float, cfg: ReceiverConfig) -> bool:
-    """Rule 5: whether a filter's start waits for a better surveyed batch. ``station_cov_m2`` (m, 3, 3)
-    the batch's station covariances with the clock variance on the diagonal (range sigma of station
-    ``j`` = ``sqrt(lambda_max)``), ``t_s`` the batch time, ``t_first_s`` that of the first batch that
-    could have started the filter."""
-    if station_cov_m2 is None or t_s - t_first_s > cfg.start_wait_s:
-        return False
-    cov = np.asarray(station_cov_m2, dtype=float)
-    lam = np.linalg.eigvalsh(0.5 * (cov + np.swapaxes(cov, -1, -2)))[..., -1]
-    return bool(np.sqrt(max(float(np.max(lam)), 0.0)) > cfg.start_station_sigma_m)
+def start_members(range_sigma_m: np.ndarray, t_s: float, t_first_s: float, min_kept: int,
+                  cfg: ReceiverConfig) -> np.ndarray | None:
+    """Rule 5: the members (m,) bool of a batch a filter may start from, or None to wait for a better
+    surveyed batch. ``range_sigma_m`` (m,) each station's broadcast sigma along its line of sight to
+    the batch's fix (clock and position: ``sqrt(u^T C u + c^2 P_theta)``), ``t_s`` the batch time,
+    ``t_first_s`` that of the first batch that could have started the filter, ``min_kept`` the fewest
+    surveyed stations a start uses without the others (a snapshot with redundancy). Every member once
+    all are surveyed or ``start_wait_s`` has passed."""
+    ok = np.asarray(range_sigma_m, dtype=float) <= cfg.start_station_sigma_m
+    if ok.all() or t_s - t_first_s > cfg.start_wait_s:
+        return np.ones(ok.shape, dtype=bool)
+    return ok if int(ok.sum()) >= min_kept else None
 
 
 def publishable(pos_m, cov_m2, cfg: ReceiverConfig) -> bool:

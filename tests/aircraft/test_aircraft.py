@@ -803,19 +803,21 @@ def test_start_waits_for_a_batch_with_redundancy():
 
 def test_start_waits_for_a_surveyed_field():
     """Receiver rule 5 (aircraft/navigator/receiver.py): a filter does not start while a station of the
-    batch is known to worse than ``start_station_sigma_m`` (one station 6 m); it starts from the first
-    batch of surveyed stations, or from whatever it has once ``start_wait_s`` have passed; a snapshot
-    LSQ does not wait. Five stations of tests/scenario_text.py, the aircraft hovering 1.5 km out."""
+    batch is known to worse than ``start_station_sigma_m`` (one station 6 m) and the others are too few
+    for a snapshot with redundancy; it starts from the first batch of surveyed stations, from the
+    surveyed ones alone where there are enough, or from whatever it has once ``start_wait_s`` have
+    passed; a snapshot LSQ does not wait. Stations of tests/scenario_text.py (and a sixth), the
+    aircraft hovering 1.5 km out."""
     st = np.array([[0.0, 0.0, 0.0], [1800.0, 0.0, 5.0], [900.0, 1500.0, 0.0], [800.0, 500.0, 60.0],
-                   [300.0, 1200.0, 20.0]])
+                   [300.0, 1200.0, 20.0], [1500.0, 1300.0, 30.0]])
     p_ac = np.array([2260.0, 640.0, 316.0])
     cfg = rx.ReceiverConfig()
     rng = np.random.default_rng(5)
 
-    def run(algo, sigma_5_m, n_cycles):
+    def run(algo, sigma_5_m, n_cycles, n_st=5):
         e = AircraftEstimator(algo, EstimatorConfig(fde=None))
         for c in range(n_cycles):
-            for k in range(5):
+            for k in range(n_st):
                 s = sigma_5_m if k == 4 else 0.3
                 rho = np.linalg.norm(p_ac - st[k]) + 0.5 * rng.standard_normal()
                 e.on_measurement(0.25 * c + 0.05 * k, k + 1, st[k], np.eye(3) * s**2, rho)
@@ -825,6 +827,9 @@ def test_start_waits_for_a_surveyed_field():
     assert held.tracker is None and held.status == rx.WAITING and held.stats["start_wait_survey"] >= 18
     surveyed = run("ukf-pr", 2.0, 3)                  # every station within 3 m: starts at once
     assert surveyed.tracker is not None and surveyed.stats["start_wait_survey"] == 0
+    subset = run("ukf-pr", 6.0, 3, n_st=6)            # five surveyed of six: starts from those five
+    assert subset.tracker is not None and subset.stats["start_surveyed_subset"] == 1
+    assert subset.stats["start_wait_survey"] == 0
     late = run("ekf-pr", 6.0, int(cfg.start_wait_s / 0.25) + 3)   # never surveyed: starts after the wait
     assert late.tracker is not None and late.t_first_batch_s is not None
     assert late.tracker.t_s - late.t_first_batch_s > cfg.start_wait_s

@@ -172,8 +172,6 @@ class AircraftEstimator:
             self.n_dropped += 1
             return
         if self.tracker is None:
-            if self._start_on_hold(t_s, cov):
-                return
             self._start(t_s, pos, cov, rho, dt)
             return
         try:
@@ -222,17 +220,24 @@ class AircraftEstimator:
             self._reset()
             self.status = rx.RESTARTING
 
-    def _start_on_hold(self, t_s: float, cov) -> bool:
-        """The receiver's rule 5 (aircraft/navigator/receiver.py): a filter waits for a batch of
-        surveyed stations (snapshot LSQ fixes do not wait)."""
-        if self.cfg.receiver is None or self.method == "lsq":
-            return False
+    def _start_members(self, t_s: float, fix_m: np.ndarray, pos: np.ndarray, cov) -> np.ndarray | None:
+        """The receiver's rule 5 (aircraft/navigator/receiver.py) for a filter's start: the batch's
+        members (m,) bool it starts from, or None to wait for a better surveyed batch; ``fix_m`` (3,)
+        the batch's snapshot fix, which gives each station's line of sight."""
+        m = pos.shape[0]
+        if self.method == "lsq" or cov is None:
+            return np.ones(m, dtype=bool)
         if self.t_first_batch_s is None:
             self.t_first_batch_s = t_s
-        if rx.start_on_hold(cov, t_s, self.t_first_batch_s, self.cfg.receiver):
+        u = np.asarray(fix_m, float)[None, :] - pos
+        u = u / np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-9)
+        sigma = np.sqrt(np.maximum(np.einsum("ki,kij,kj->k", u, cov, u), 0.0))
+        keep = rx.start_members(sigma, t_s, self.t_first_batch_s, self.cfg.min_stations + 1, self.cfg.receiver)
+        if keep is None:
             self.stats["start_wait_survey"] += 1
-            return True
-        return False
+        elif not keep.all():
+            self.stats["start_surveyed_subset"] += 1
+        return keep
 
     def _start(self, t_s, pos, cov, rho, dt=None) -> None:
         """No filter yet: a snapshot fix from the batch (LSQ), or the filter's start."""
@@ -265,6 +270,14 @@ class AircraftEstimator:
         tu = self.cfg.tuning
         init = initial_state(self.model, tu, pos, cov, rho, self.cfg.init)
         if self.cfg.receiver is not None:
+            keep = self._start_members(t_s, init.fix[:3], pos, cov)
+            if keep is None:
+                return
+            if not keep.all():  # the surveyed stations alone (enough for a snapshot with redundancy)
+                pos, rho = pos[keep], rho[keep]
+                cov = cov[keep]
+                dt = None if dt is None else np.asarray(dt)[keep]
+                init = initial_state(self.model, tu, pos, cov, rho, self.cfg.init)
             init = consistent_start(self.model, self.cfg, self.stats, init, pos, cov, rho, dt)
             if init is None:
                 return
