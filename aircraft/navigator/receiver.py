@@ -17,7 +17,8 @@ after its first exchanges to microseconds (10^3 m), and only after a few cycles 
 3. **Divergence** (:class:`DivergenceMonitor`): the normalized innovations of the running filter,
    summed over ``window`` updates, against ``chi2.ppf(1 - p_diverge, dof)``; beyond it the filter is
    lost (not a single station: the integrity monitor handles those) and restarts from the next
-   consistent set.
+   consistent set. So does a filter whose own Gaussian lies more than ``floor_lost_sigma`` below the
+   height floor: its truncated moments sit on the floor, confident, with small innovations.
 5. **Start on a surveyed field** (:func:`start_members`): a filter starts only from a batch whose every
    station is known to ``start_station_sigma_m`` along its line of sight to the batch's fix (clock
    and position), or once
@@ -52,7 +53,9 @@ class ReceiverConfig:
     broadcast (clock and position) that is used; ``p_start``: false-refusal probability of the start
     test; ``p_diverge`` / ``window``: the divergence test over ``window`` updates;
     ``max_publish_sigma_m``: largest position sigma ``sqrt(tr P)`` of a published estimate;
-    ``start_station_sigma_m`` / ``start_wait_s``: the start's survey level and longest wait (rule 5)."""
+    ``floor_lost_sigma``: a filter whose Gaussian lies this many sigma under the height floor is lost
+    (rule 3; None: not tested); ``start_station_sigma_m`` / ``start_wait_s``: the start's survey level
+    and longest wait (rule 5)."""
 
     max_broadcast_sigma_m: float = 30.0
     p_start: float = 1e-3
@@ -60,6 +63,7 @@ class ReceiverConfig:
     window: int = 20
     max_publish_sigma_m: float = 1.0e4
     start_station_sigma_m: float = 3.0
+    floor_lost_sigma: float | None = 5.0
     start_wait_s: float = 10.0
 
 

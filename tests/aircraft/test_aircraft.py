@@ -835,3 +835,36 @@ def test_start_waits_for_a_surveyed_field():
     assert late.tracker.t_s - late.t_first_batch_s > cfg.start_wait_s
     lsq = run("lsq-pr", 6.0, 3)
     assert lsq.fix is not None and lsq.stats["start_wait_survey"] == 0
+
+
+def test_a_filter_under_the_floor_restarts():
+    """Receiver rule 3's floor test: a filter whose own Gaussian has gone more than ``floor_lost_sigma``
+    under the height floor (its truncated moments confident on the station plane, as a starved fleet's
+    ukf-pr at a true 316 m: docs/aircraft.md "Cold start") restarts; a filter above it runs on. The
+    innovation test is held off (a window it never fills) so that the floor test alone is seen."""
+    st = np.array([[0.0, 0.0, 0.0], [1800.0, 0.0, 5.0], [900.0, 1500.0, 0.0], [800.0, 500.0, 60.0],
+                   [300.0, 1200.0, 20.0]])
+    p_ac = np.array([2260.0, 640.0, 316.0])
+    rng = np.random.default_rng(9)
+
+    def cycles(e, c0, n):
+        for c in range(c0, c0 + n):
+            for k in range(5):
+                rho = np.linalg.norm(p_ac - st[k]) + 0.5 * rng.standard_normal()
+                e.on_measurement(0.25 * c + 0.05 * k, k + 1, st[k], np.eye(3) * 0.01, rho)
+
+    for algo in ("ukf-pr", "ekf-pr"):
+        e = AircraftEstimator(algo, EstimatorConfig(fde=None, receiver=rx.ReceiverConfig(window=10**6)))
+        cycles(e, 0, 8)
+        assert e.tracker is not None and e.stats["under_floor"] == 0 and not e._under_floor(), algo
+        trk = e.tracker
+        x, P = trk.x.copy(), trk.P.copy()
+        x[2] = -150.0                      # planted: 150 m under the floor at sigma 20 m
+        P[2, :], P[:, 2] = 0.0, 0.0
+        P[2, 2] = 400.0
+        trk.x, trk.P = x, P
+        assert trk.x[2] > -1.0 and e._under_floor()   # its truncated moments: on the floor
+        cycles(e, 8, 1)
+        assert e.stats["under_floor"] == 1 and e.n_resets == 1, (algo, dict(e.stats))
+        cycles(e, 9, 12)                   # restarts from the next consistent batch
+        assert e.tracker is not None and abs(e.estimate()["pos_m"][2] - p_ac[2]) < 100.0, algo

@@ -215,10 +215,21 @@ class AircraftEstimator:
             q, w = snooping(nu, S, fault_vectors(self.model, len(ids), self.tracker.base))
         except np.linalg.LinAlgError:
             q, w = np.inf, np.zeros(len(ids))
-        if self.monitor.push(float(q), nu.size, dict(zip(ids, np.atleast_1d(w).tolist()))):
-            self.stats["diverged"] += 1
+        why = "diverged" if self.monitor.push(float(q), nu.size, dict(zip(ids, np.atleast_1d(w).tolist()))) \
+            else "under_floor" if self._under_floor() else None
+        if why is not None:
+            self.stats[why] += 1
             self._reset()
             self.status = rx.RESTARTING
+
+    def _under_floor(self) -> bool:
+        """Rule 3's second test (aircraft/navigator/receiver.py): the filter's own Gaussian lies more
+        than ``floor_lost_sigma`` below the height floor. Its truncated moments then sit on the floor,
+        confident, where no range has a height gradient, and its innovations stay small."""
+        trk, k = self.tracker, self.cfg.receiver.floor_lost_sigma
+        if k is None or trk.floor.floor_z_m is None:
+            return False
+        return bool(np.any(trk.floor.depth(trk._x, trk._P, trk.chart.inv, trk.chart.ref) > k))
 
     def _start_members(self, t_s: float, fix_m: np.ndarray, pos: np.ndarray, cov) -> np.ndarray | None:
         """The receiver's rule 5 (aircraft/navigator/receiver.py) for a filter's start: the batch's

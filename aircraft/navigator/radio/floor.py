@@ -55,6 +55,23 @@ class HeightFloor:
         self._cache = (x, P) + out
         return out
 
+    def depth(self, x: np.ndarray, P: np.ndarray, inv: np.ndarray, ref: np.ndarray | None) -> np.ndarray:
+        """How far the floor lies above the mean of ``N(x, P)`` (internal coordinates), in standard
+        deviations of the height (...,): ``(floor - z) / sigma_z`` (inverse-range runs: the floor
+        taken at the mean, as in :meth:`moments`). Above ~5 the Gaussian has no mass left on the
+        physical side. Requires a floor."""
+        n = x.shape[-1]
+        xf, Pf = x.reshape(-1, n), P.reshape(-1, n, n)
+        fz = self.floor_z_m
+        with np.errstate(invalid="ignore"):  # a broken filter (P not PD) is reset by its owner
+            s = np.sqrt(Pf[:, Z, Z])
+        a = (fz - xf[:, Z]) / s
+        if inv.any():
+            ai = ((fz - ref[Z]) * np.einsum("ki,ki->k", xf[:, POS], xf[:, POS]) / crd.SCALE_M**2
+                  - xf[:, Z]) / s
+            a = np.where(inv.reshape(-1), ai, a)
+        return a.reshape(x.shape[:-1])
+
     def moments(self, x: np.ndarray, P: np.ndarray, inv: np.ndarray, ref: np.ndarray | None):
         """The moments ``(x, P)`` (internal coordinates, (..., n), (..., n, n)) of ``N(x, P)`` truncated to
         above the floor; where no run has mass below it within ``trunc_sigma`` the inputs come back
@@ -62,19 +79,12 @@ class HeightFloor:
         (the floor is then ``q_z >= (floor - c_z) |q|^2 / L^2``, linear if the reference point lies on
         the floor; the right side is taken at the mean)."""
         out = x, P
-        fz = self.floor_z_m
-        if fz is None:
+        if self.floor_z_m is None:
             return out
         n = x.shape[-1]
         xf, Pf = x.reshape(-1, n), P.reshape(-1, n, n)
         s2 = Pf[:, Z, Z]
-        with np.errstate(invalid="ignore"):  # a broken filter (P not PD) is reset by its owner
-            s = np.sqrt(s2)
-        a = (fz - xf[:, Z]) / s
-        if inv.any():
-            ai = ((fz - ref[Z]) * np.einsum("ki,ki->k", xf[:, POS], xf[:, POS]) / crd.SCALE_M**2
-                  - xf[:, Z]) / s
-            a = np.where(inv.reshape(-1), ai, a)
+        a = self.depth(x, P, inv, ref).reshape(-1)
         act = a > -self.trunc_sigma
         if np.any(act):
             a, s2 = a[act], s2[act]
