@@ -19,17 +19,16 @@ after its first exchanges to microseconds (10^3 m), and only after a few cycles 
    lost (not a single station: the integrity monitor handles those) and restarts from the next
    consistent set. So does a filter whose own Gaussian lies more than ``floor_lost_sigma`` below the
    height floor: its truncated moments sit on the floor, confident, with small innovations.
-5. **Start on a surveyed field** (:func:`start_members`): a filter starts only from a batch whose every
-   station is known to ``start_station_sigma_m`` along its line of sight to the batch's fix (clock
-   and position), or once
-   ``start_wait_s`` have passed since the first batch that could start it; the surveyed stations alone
-   where they are enough for a snapshot with redundancy. A station's position
-   error is a bias the filter's white range noise does not model; from a fix over stations still 8 m
-   uncertain, 1.5 km out and 300 m up, the filter settled on another root of the ranges (300-500 m
-   off, NEES 5e4) or stalled at 30-40 m (docs/aircraft.md "Cold start").
 4. **Publish only what is defensible** (:func:`publishable`): a finite estimate with a
    positive semi-definite covariance whose position sigma is below ``max_publish_sigma_m``; otherwise
    the process publishes a status (``ac_status``) instead.
+5. **Start on a surveyed field** (:func:`start_members`): a filter starts only from a batch whose every
+   station is known to ``start_station_sigma_m`` along its line of sight to the batch's fix (clock and
+   position); from the surveyed stations alone where they are enough for a snapshot with redundancy;
+   from the whole batch once ``start_wait_s`` have passed since the first batch that could start it.
+   A station's position error is a bias the filter's white range noise does not model: from a fix
+   over stations still 8 m uncertain, 1.5 km out and 300 m up, the filter settled on another root of
+   the ranges or stalled (docs/aircraft.md "Cold start").
 """
 
 from __future__ import annotations
@@ -62,8 +61,8 @@ class ReceiverConfig:
     p_diverge: float = 1e-9
     window: int = 20
     max_publish_sigma_m: float = 1.0e4
-    start_station_sigma_m: float = 3.0
     floor_lost_sigma: float | None = 5.0
+    start_station_sigma_m: float = 3.0
     start_wait_s: float = 10.0
 
 

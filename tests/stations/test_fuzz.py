@@ -42,7 +42,7 @@ def test_fuzz_absurd_requests_replies_and_navs_through_the_node():
     node, bus, scn = make_node()
     rng = np.random.default_rng(32)
     pos3 = scn.true_pos(3)
-    costs = []
+    worst = 0.0
     for k in range(3000):
         t = node.fleet_now()
         kind = ("nav", "range_req", "range_rsp")[k % 3]
@@ -53,12 +53,10 @@ def test_fuzz_absurd_requests_replies_and_navs_through_the_node():
         if kind == "nav":  # navs reach the core in the node's batches
             node._nav_sub = None
             node._deliver(*M.decode(data))
-        costs.append(time.process_time() - t0)
-    # no message hangs the node: a claim that drew the sender's emulated clock out to 1e12 s took
-    # minutes. The bound is 1 s as above (here: median 0.07 ms, worst 24 ms; a loaded CI run had a
-    # 0.25 s worst against the earlier 0.2 s bound, one message's share of a slow machine)
-    worst, typical = max(costs), float(np.median(costs))
-    assert worst < 1.0, (worst, typical)
+        worst = max(worst, time.process_time() - t0)
+    # no message hangs the node (a claim drawing the sender's emulated clock out to 1e12 s would take
+    # minutes); a typical message costs ~0.1 ms, so 1 s leaves room for a slow or loaded machine
+    assert worst < 1.0, worst
     assert node.stats["core_errors"] == 0
     clock = node.senders._clocks.get(3)
     assert clock is None or len(clock._x) < 100_000

@@ -226,10 +226,8 @@ class AircraftEstimator:
         """Rule 3's second test (aircraft/navigator/receiver.py): the filter's own Gaussian lies more
         than ``floor_lost_sigma`` below the height floor. Its truncated moments then sit on the floor,
         confident, where no range has a height gradient, and its innovations stay small."""
-        trk, k = self.tracker, self.cfg.receiver.floor_lost_sigma
-        if k is None or trk.floor.floor_z_m is None:
-            return False
-        return bool(np.any(trk.floor.depth(trk._x, trk._P, trk.chart.inv, trk.chart.ref) > k))
+        k = self.cfg.receiver.floor_lost_sigma
+        return k is not None and bool(np.any(self.tracker.floor_depth() > k))
 
     def _start_members(self, t_s: float, fix_m: np.ndarray, pos: np.ndarray, cov) -> np.ndarray | None:
         """The receiver's rule 5 (aircraft/navigator/receiver.py) for a filter's start: the batch's
@@ -240,9 +238,7 @@ class AircraftEstimator:
             return np.ones(m, dtype=bool)
         if self.t_first_batch_s is None:
             self.t_first_batch_s = t_s
-        u = np.asarray(fix_m, float)[None, :] - pos
-        u = u / np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-9)
-        sigma = np.sqrt(np.maximum(np.einsum("ki,kij,kj->k", u, cov, u), 0.0))
+        sigma = np.sqrt(np.maximum(mdl.range_var(np.asarray(fix_m, float), pos, cov, 0.0), 0.0))
         keep = rx.start_members(sigma, t_s, self.t_first_batch_s, self.cfg.min_stations + 1, self.cfg.receiver)
         if keep is None:
             self.stats["start_wait_survey"] += 1
@@ -285,8 +281,7 @@ class AircraftEstimator:
             if keep is None:
                 return
             if not keep.all():  # the surveyed stations alone (enough for a snapshot with redundancy)
-                pos, rho = pos[keep], rho[keep]
-                cov = cov[keep]
+                pos, cov, rho = pos[keep], cov[keep], rho[keep]
                 dt = None if dt is None else np.asarray(dt)[keep]
                 init = initial_state(self.model, tu, pos, cov, rho, self.cfg.init)
             init = consistent_start(self.model, self.cfg, self.stats, init, pos, cov, rho, dt)

@@ -127,6 +127,13 @@ class CvTracker:
             return self.floor.cached(self._x, self._P, self.chart.inv, self.chart.ref)
         return self.floor.moments(x, P, self.chart.inv, self.chart.ref)
 
+    def floor_depth(self) -> np.ndarray:
+        """How many height sigmas the floor lies above the filter's own (untruncated) Gaussian (...,);
+        -inf without a floor (:meth:`.floor.HeightFloor.depth`)."""
+        if self.floor.floor_z_m is None:
+            return np.full(self._x.shape[:-1], -np.inf)
+        return self.floor.depth(self._x, self._P, self.chart.inv, self.chart.ref)
+
     @property
     def x(self) -> np.ndarray:
         """Cartesian state (..., n): the mean of the filter's density above the floor (truncated)."""
