@@ -387,6 +387,22 @@ def _at(s: dict, t_ns: int) -> int:
     return i
 
 
+def _stalled(run: FleetRun, sid: int, t0_ns: int, t1_ns: int) -> str:
+    """Why a station made no survey update between ``t0_ns`` and ``t1_ns``: whether it still published
+    (a frozen process or a deaf Zenoh session publishes nothing; a stuck estimator publishes the same
+    ``n_updates``), and the last lines its container printed (its counters, any core error)."""
+    s = run.summary[sid]
+    t = s["log_time_ns"]
+    n_in = int(((t > t0_ns) & (t <= t1_ns)).sum())
+    last = (t[-1] - t0_ns) / 1e9
+    lines = []
+    if run.logs is not None and run.logs.exists():
+        lines = [ln for ln in run.logs.read_text(errors="replace").splitlines() if f"station{sid}_" in ln
+                 or f"station{sid}-" in ln][-6:]
+    return (f"station {sid}: {n_in} estimates published in the window, n_updates {int(s['n_updates'][-1])} "
+            f"at its last estimate {last:+.1f} s wall after the window's start; its log ends:\n" + "\n".join(lines))
+
+
 def _err_sigma(s: dict, i: int) -> tuple[float, float]:
     return (float(np.linalg.norm(s["pos_m"][i] - s["truth_m"])),
             float(math.sqrt(max(np.trace(s["cov_m2"][i]), 0.0))))
@@ -463,7 +479,7 @@ def test_docker_kill_of_a_station_rest_keeps_converging(fleet):
     for sid in [i for i in IDS + [JOINER] if i not in (1, KILLED)]:
         s = fleet.summary[sid]
         b, e = _at(s, t_kill), _at(s, t_end)
-        assert s["n_updates"][e] - s["n_updates"][b] >= 2, (sid, "stopped updating after the kill")
+        assert s["n_updates"][e] - s["n_updates"][b] >= 2, _stalled(fleet, sid, t_kill, t_end)
         err, sig = _err_sigma(s, e)
         assert err <= 4.0 * sig + 0.5, (sid, err, sig)
     # and later on, with the cut station back, everyone but the dead one still updates
@@ -490,7 +506,7 @@ def test_network_disconnect_station_recovers_others_undisturbed(fleet):
     others = [i for i in IDS + [JOINER] if i not in (1, KILLED, CUT)]
     for sid in others:
         s = fleet.summary[sid]
-        assert s["n_updates"][_at(s, t_back)] - s["n_updates"][_at(s, t_cut)] >= 10, sid
+        assert s["n_updates"][_at(s, t_back)] - s["n_updates"][_at(s, t_cut)] >= 10, _stalled(fleet, sid, t_cut, t_back)
     # ... without a pause: a peer dying without closing its links once stopped every station (one
     # Zenoh worker) or the recorder (tcp_retries2 = 5) for 4-9 s wall, docs/deploy.md "Dead links"
     for sid in others:
