@@ -12,6 +12,7 @@ import importlib
 
 BENCHES: list[str] = [
     "larns.bench.aircraft",
+    "larns.bench.coldstart",
     "larns.bench.survey",
     "larns.bench.net",
     "larns.bench.replay",
@@ -36,6 +37,8 @@ EXAMPLES: dict[str, list[str]] = {
     "aircraft": ["larns bench aircraft --quick --no-speed                 # smoke test, a minute",
                  "larns bench aircraft --json out.json --png-dir png/",
                  "larns bench aircraft --envelope --json env.json --png-dir png/"],
+    "cold-start": ["larns bench cold-start runs/demo.mcap                  # the demo's recording (./dev demo)",
+                   "larns bench cold-start runs/a.mcap runs/b.mcap --without survey --without floor --json cold.json"],
     "survey": ["larns bench survey --trials 10 --duration 30 --estimator dmap --no-map   # a quick look",
                "larns bench survey --trials 100 --sigma-d 0.5 --estimator dmap --no-map --json survey.json"],
     "net": ["larns bench net                               # 2000 round trips between 2 processes: p50/p99",
