@@ -452,7 +452,18 @@ class StationNode:
         print(f"[station {self.id}] t={t:7.1f}s state={self.core.state} slot={self.core.slot} "
               f"updates={est.n_updates} err={err:.2f} m drops={self.drops.total} "
               f"late={self.stats['core_late']} host_late={self.stats['host_late']} missed={self.stats['missed_slots']} "
-              f"sync={self._sync_ns():.2f} ns", file=sys.stderr, flush=True)
+              f"sync={self._sync_ns():.2f} ns rx={self._rx_total()} next={self._next_in_s():+.1f}s",
+              file=sys.stderr, flush=True)
+
+    def _rx_total(self) -> int:
+        """Air messages handed to the core so far: a number that stops growing means a deaf station."""
+        return sum(v for k, v in self.stats.items() if k.startswith("rx_"))
+
+    def _next_in_s(self) -> float:
+        """Fleet seconds until the core's next deadline (its slot or its nav; NaN if none): a number
+        far above the cycle means the station's network time jumped away from the others'."""
+        dl = self.core.next_deadline()
+        return math.nan if dl is None else (self.wall_of(self.clock.to_true(dl)) - time.time()) * self.speed
 
     def _sync_ns(self) -> float:
         """Current clock error against network time (estimate minus truth), ns - for status lines."""
