@@ -205,7 +205,10 @@ def run_recorder(out: str, bus_kw: dict, keyexpr: str = "larns/**", duration_s: 
     except LogWriteError as e:  # full disk: the writer finished the file with what it had
         failed = e
     finally:
-        bus.close()
+        if not bus.close():  # a hung Zenoh close: the entry point exits at once once the file is done
+            import net.cli
+
+            net.cli.BUS_HUNG = True
         try:
             while failed is None:  # whatever arrived before the session closed
                 try:

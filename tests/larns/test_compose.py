@@ -136,6 +136,7 @@ class FleetRun:
     logs: Path | None = None
     summary: dict = field(default_factory=dict)
     keys_add: str = ""                                       # output of `compose run keys add`
+    recorder_tail: str = ""                                  # what the recorder printed from `down` on
 
     def fleet_t(self, wall_s: float) -> float:
         return (wall_s - self.epoch) * SPEED
@@ -344,6 +345,10 @@ def _timeline(larns_image: str, tmp: Path) -> FleetRun:
         def wait_recorder() -> None:     # the recorder's exit code, caught before `down` removes it
             waiter["out"] = _run(["docker", "wait", rec], timeout=60).stdout.strip()
 
+        # the recorder's last words (its summary line, a warning, a panic), printed after the logs above
+        follow = subprocess.Popen(["docker", "logs", "-f", "--since", str(int(time.time()) - 1), rec],
+                                  stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
         th = threading.Thread(target=wait_recorder)
         th.start()
         run.events["down"] = time.time()
@@ -352,6 +357,12 @@ def _timeline(larns_image: str, tmp: Path) -> FleetRun:
         th.join(60)
         rc = waiter.get("out", "").splitlines()
         run.recorder_rc = int(rc[-1]) if rc and rc[-1].lstrip("-").isdigit() else None
+        try:
+            run.recorder_tail = _tail(follow.communicate(timeout=20)[0], 15)
+        except subprocess.TimeoutExpired:
+            follow.kill()
+        print(f"[compose] recorder exit code {run.recorder_rc}, its last line: "
+              f"{(run.recorder_tail.splitlines() or [''])[-1]}", file=sys.stderr)
         print(f"[compose] fleet run {run.events['down_done'] - t0:.1f} s wall "
               f"(down {run.events['down_done'] - run.events['down']:.1f} s)", file=sys.stderr)
         assert mcap.exists(), f"no MCAP in ./runs; logs: {logs}"
@@ -544,7 +555,7 @@ def test_compose_down_leaves_a_valid_mcap(fleet):
 
     from larns.log import read_log
     assert fleet.down_rc == 0
-    assert fleet.recorder_rc == 0, f"recorder exit code {fleet.recorder_rc}; logs: {fleet.logs}"
+    assert fleet.recorder_rc == 0, f"recorder exit code {fleet.recorder_rc}; it printed:\n{fleet.recorder_tail}"
     log = read_log(fleet.mcap)
     assert log.complete, log.error
     with open(fleet.mcap, "rb") as f:
