@@ -97,6 +97,7 @@ def score(ests: list[dict], truth_at, t0_s: float) -> dict:
     time from ``t0_s`` to its first estimate and to the first estimate from which the horizontal error
     stays under :data:`SETTLED_M` (as ``larns info``; NaN where it never did)."""
     from larns.analysis.metrics import first_time_staying_below
+    from nav.kalman import nees
 
     rows = [(e, truth_at(e["t_s"])) for e in ests]
     rows = [(e, p) for e, p in rows if p is not None]
@@ -108,13 +109,12 @@ def score(ests: list[dict], truth_at, t0_s: float) -> dict:
     t = np.array([e["t_s"] for e, _p in rows])
     cov = np.asarray(rows[-1][0]["cov_m2"], float)
     try:
-        y = np.linalg.solve(np.linalg.cholesky(cov), d[-1])
-        nees = float(y @ y)
+        nees_last = float(nees(d[-1], cov))
     except np.linalg.LinAlgError:
-        nees = math.inf
+        nees_last = math.inf
     settled = first_time_staying_below(t, eh, SETTLED_M)
     return {"t0_s": t0_s, "n": len(rows), "err_m": float(np.linalg.norm(d[-1])), "eh_m": float(eh[-1]),
-            "sigma_m": math.sqrt(max(float(np.trace(cov)), 0.0)), "nees": nees,
+            "sigma_m": math.sqrt(max(float(np.trace(cov)), 0.0)), "nees": nees_last,
             "first_s": float(t[0] - t0_s), "settled_s": math.nan if settled is None else settled - t0_s}
 
 
@@ -152,7 +152,12 @@ def run(args) -> int:
         if not Path(path).is_file():
             print(f"error: {path}: no such file", file=sys.stderr)
             return 2
-        for a in load_journals(path):
+        try:
+            journals = load_journals(path)
+        except ValueError as e:  # not an MCAP file: its one line, exit 2
+            print(f"error: {e}", file=sys.stderr)
+            return 2
+        for a in journals:
             entries, _hole, _n = a.contiguous()
             ms = [e[1] for e in entries if e[0] == "m"]
             if ms:

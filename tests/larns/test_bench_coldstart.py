@@ -95,3 +95,8 @@ def test_cli_bad_input(tmp_path):
     r = subprocess.run([sys.executable, "-m", "larns", "bench", "cold-start", str(tmp_path / "nope.mcap")],
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "no such file" in r.stderr and "Traceback" not in r.stderr
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"not an mcap file" * 100)
+    r = subprocess.run([sys.executable, "-m", "larns", "bench", "cold-start", str(junk)],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "not an MCAP file" in r.stderr and "Traceback" not in r.stderr
