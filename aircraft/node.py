@@ -3,8 +3,9 @@ measures pseudoranges in its own channel layer and runs the estimators (one per 
 
 * **time**: fleet time ``t = (wall - epoch) * speed`` like the stations (same ``--epoch``).
 * **receive**: ``larns/station/*/nav`` -> strict decode (malformed: counted and dropped) -> key/src
-  check -> channel layer: reception at ``t_rx = t_true_tx + |r(t_rx) - p_tx| / c`` (true sender
-  position and transmit time from ``phy``) read on the aircraft's receiver clock, which runs on network
+  check -> channel layer: reception at ``t_rx = t_true_tx + |r(t_rx) - p_tx| / c`` (the named sender's
+  true position and transmit time from the scenario's truth, never the sender's ``phy`` claims:
+  ``net.channel.channel_truth``) read on the aircraft's receiver clock, which runs on network
   time (station 1's oscillator) plus ``c dtau(t) = df lambda t + c tau0`` (seed 001) and timing noise
   ``sigma_m``; pseudorange ``rho = c (t_rx_local - (t_tx - theta_hat(t_tx)))`` from the *station-stamped*
   transmit time ``t_tx`` corrected by the broadcast clock correction ``theta_hat`` (``msg.clock``). Each
@@ -39,6 +40,7 @@ import numpy as np
 
 from nav.geometry import SPEED_OF_LIGHT_M_S
 
+from net.channel import channel_truth, scenario_senders
 from net.clock import broadcast_clock_var_m2
 from net.nettime import network_time, pseudorange_time_error_s
 
@@ -255,6 +257,8 @@ class AircraftNode:
         from net.nettime import network_time
 
         net_clock = network_time(scn, seed)  # the receivers run on network time as the field realizes it
+        # the channel owns physics (issue 32): each sender's true position and clock, never its phy claims
+        self.senders = scenario_senders(scn, int(seed), None if net_clock is None else net_clock.clock)
         triad = opts.satellites is not None or "triad" in opts.algos  # the triad: aircraft/triad_core.py
         if triad and set(opts.algos) - {"triad"}:
             raise ValueError(f"triad runs alone in its 6-DOF world; drop {sorted(set(opts.algos) - {'triad'})}")
@@ -303,10 +307,8 @@ class AircraftNode:
         if got is None:
             return
         msg, phy = got
-        if not 0.0 <= phy["t_true_s"] <= self.fleet_now() + 60.0 * self.opts.speed:
-            # nothing is sent before the epoch; the channel would draw the true clocks (network time) up
-            # to a time ahead of now: a claim of 1e12 s hung it
-            self.drops.drop("time", f"nav from {msg['src']} at t = {phy['t_true_s']:.3g} s")
+        phy = channel_truth(self.senders, msg, phy, self.fleet_now(), self.drops)
+        if phy is None:
             return
         try:
             outs = self.core.on_nav(msg, phy) if self.ins is None else []

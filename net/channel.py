@@ -46,6 +46,39 @@ class Clock:
         return t_true_s * self.drift + self.offset_s
 
 
+@dataclass(frozen=True)
+class JumpClock:
+    """A clock that steps by ``jump_s`` at true time ``at_s`` (wraps any clock with to_local/to_true):
+    a scenario's ``clock_jump`` fault, the clock the station's shell reads and the channel's truth of it."""
+
+    base: object
+    jump_s: float
+    at_s: float
+
+    def to_local(self, t_true_s: float) -> float:
+        return self.base.to_local(t_true_s) + (self.jump_s if t_true_s >= self.at_s else 0.0)
+
+    def to_true(self, t_local_s: float) -> float:
+        t = self.base.to_true(t_local_s - self.jump_s)
+        return t if t >= self.at_s else self.base.to_true(t_local_s)
+
+    def error_s(self, t_true_s: float) -> float:
+        """Local minus true time, the jump included (the truth record's clock error)."""
+        return self.base.error_s(t_true_s) + (self.jump_s if t_true_s >= self.at_s else 0.0)
+
+    def __getattr__(self, name):  # offset_s, drift, ... of the wrapped clock
+        return getattr(self.base, name)
+
+
+def with_clock_faults(clock, faults, station_id: int):
+    """``clock`` with the scenario's ``clock_jump`` faults of ``station_id`` applied (``faults``: the
+    scenario's ``[[faults]]``)."""
+    for f in faults:
+        if f.kind == "clock_jump" and f.station == station_id:
+            clock = JumpClock(clock, f.jump_s, f.at_s)
+    return clock
+
+
 def station_rng(seed: int, station_id: int, purpose: int) -> np.random.Generator:
     """Independent, reproducible stream per (world seed, station, purpose).
 
@@ -172,3 +205,43 @@ class SenderTruth:
         if clock is None:
             clock = self._clocks[tx_id] = self._clock_of(tx_id)
         return pos, max(float(claimed_t_true_s), float(clock.to_true(t_tx_local_s)))
+
+    def receive(self, msg: dict, phy: dict, now_s: float) -> tuple[np.ndarray, float] | str:
+        """The physical part of a received message as the channel takes it: ``(true sender position
+        (3,), true transmit time)`` of the named sender ``msg["src"]``, or the reason it is dropped:
+        ``"time"`` (stamped or claimed far from ``now_s``, :meth:`plausible_time`) or
+        ``"sender_unknown"`` (an id the world does not hold). Every receiver's shell (station,
+        aircraft, vehicle) calls this before its channel reads a clock or a geometry."""
+        if not self.plausible_time(phy["t_true_s"], msg.get("t_tx_s"), now_s):
+            return "time"
+        tx = self.transmission(int(msg["src"]), phy["t_true_s"], msg.get("t_tx_s"))
+        return "sender_unknown" if tx is None else tx
+
+
+def channel_truth(senders: SenderTruth, msg: dict, phy: dict, now_s: float, drops) -> dict | None:
+    """A user receiver's ``phy`` replaced by the channel's truth of the named sender
+    (:meth:`SenderTruth.receive`), or None with the drop counted in ``drops``
+    (``net.messages.DropCounter``: ``time``, ``sender_unknown``). Nothing is sent before the fleet's
+    epoch, so a claim before it is ``time`` too."""
+    got = "time" if not phy["t_true_s"] >= 0.0 else senders.receive(msg, phy, now_s)
+    if isinstance(got, str):
+        drops.drop(got, f"nav from {msg['src']} claimed at t = {phy['t_true_s']:.3g} s")
+        return None
+    return {"pos_m": got[0], "t_true_s": got[1]}
+
+
+def scenario_senders(scn, seed: int, base_clock=None) -> SenderTruth:
+    """The channel's truth of every station of scenario ``scn`` in world ``seed``: true positions and
+    true clocks, each drawn from its station's stream (``station_rng(seed, id, 0)``, the draw its
+    own process makes) unless ``base_clock(id)`` gives it (a realization the receiver already holds),
+    with the scenario's clock faults; a station the scenario does not list is a hot-joiner from
+    outside it, at :func:`net.scenario.joiner_position`."""
+    if base_clock is None:
+        def base_clock(sid: int):
+            return draw_clock(scn.clock, station_rng(seed, sid, 0))
+    from .scenario import WorldPositions
+
+    senders = SenderTruth({i: scn.true_pos(i) for i in scn.ids},
+                          lambda sid: with_clock_faults(base_clock(sid), scn.faults, sid))
+    senders.positions = WorldPositions(senders.positions, scn)  # + hot-joiners from outside the scenario
+    return senders

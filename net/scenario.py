@@ -954,3 +954,44 @@ def validate(raw: dict[str, Any]) -> None:
     _validate_clock(raw)
     _validate_survey(raw)
     _validate_aircraft(raw)
+
+
+class WorldPositions(dict):
+    """Station id -> true position, as the receive side's channel looks senders up: a sender the
+    scenario does not list is a hot-joiner from outside it, at :func:`joiner_position` - the same
+    place its own process puts itself (drawn from the scenario, so every process agrees)."""
+
+    def __init__(self, known: dict, scn: Scenario):
+        super().__init__(known)
+        self.scn = scn
+
+    def get(self, station_id, default=None):
+        if station_id not in self and isinstance(station_id, int) and 1 <= station_id <= 65535:
+            self[station_id] = joiner_position(self.scn, station_id)
+        return super().get(station_id, default)
+
+
+def joiner_position(scn: Scenario, station_id: int) -> np.ndarray:
+    """True position (network frame) of a hot-joining station ``station_id`` that ``scn`` does not list,
+    drawn from the scenario alone. Random layout: the scenario's own joiner stream (``[layout]
+    joiners``) extended to this id - station 11 of seed000 sits where seed000-join puts it. Listed
+    stations: uniform in the box the listed stations span, at least 100 m (horizontally) from each,
+    from the stream (seed, 7, id)."""
+    if station_id in scn.ids:
+        return np.asarray(scn.true_pos(station_id), float)
+    lay = scn.raw.get("layout")
+    if "stations" not in scn.raw and isinstance(lay, dict):
+        n = int(lay.get("n", 10))
+        if station_id > n:
+            raw = {k: (dict(v) if isinstance(v, dict) else v) for k, v in scn.raw.items()}
+            raw["layout"] = {**lay, "n": n, "joiners": station_id - n}
+            return np.asarray(from_dict(raw).true_pos(station_id), float)
+    pos = np.asarray(scn.pos_m, float)
+    lo, hi = pos.min(axis=0), pos.max(axis=0)
+    rng = np.random.default_rng([int(scn.seed), 7, int(station_id)])
+    p = lo + rng.uniform(0.0, 1.0, 3) * (hi - lo)
+    for _ in range(1000):
+        if all(np.hypot(*(p[:2] - q[:2])) >= 100.0 for q in pos):
+            break
+        p = lo + rng.uniform(0.0, 1.0, 3) * (hi - lo)
+    return p

@@ -47,10 +47,10 @@ from typing import Any
 import numpy as np
 
 from net import messages as M
-from net.channel import AirChannel, SenderTruth, station_rng
+from net.channel import AirChannel, scenario_senders, station_rng
 from net.faults import WireFaults, merge_faults
 from net.procsched import add_sched_args, apply_sched_args
-from net.scenario import Scenario
+from net.scenario import Scenario, joiner_position
 
 from .shell import PublishPolicy, true_clock_error_s
 from .shellfaults import ShellFaults
@@ -112,8 +112,7 @@ class StationNode:
         self.air = AirChannel(scn.channel, station_rng(self.seed, self.id, 2), (self.seed, self.id))
         from .sim import station_clock
 
-        self.senders = SenderTruth({i: scn.true_pos(i) for i in scn.ids},  # the channel's truth of each sender
-                                   lambda sid: ShellFaults(scn, sid).clock(self._true_clock(sid)))
+        self.senders = scenario_senders(scn, self.seed, self._true_clock)  # the channel's truth of each sender
         self.ref_clock = station_clock(scn, scn.ids[0], self.seed)  # station 1's clock (truth side only)
         self.true_clocks = {i: station_clock(scn, i, self.seed) for i in scn.ids}  # network time's truth side
         self._last_input_s = -math.inf  # local time of the core's latest input
@@ -273,12 +272,10 @@ class StationNode:
         if msg["kind"] in ("range_req", "range_rsp"):
             self._wire_delay_s.append((self.fleet_now() - phy["t_true_s"]) / self.speed)  # wall: tx -> here
         # the channel owns physics: the named sender's true position and clock, not its phy claims
-        if not self.senders.plausible_time(phy["t_true_s"], msg.get("t_tx_s"), self.fleet_now()):
-            self.drops.drop("time", f"{msg['kind']} from station {msg['src']}: stamped far from now")
-            return
-        tx = self.senders.transmission(msg["src"], phy["t_true_s"], msg.get("t_tx_s"))
-        if tx is None:
-            self.drops.drop("sender_unknown", f"{msg['kind']} from station {msg['src']}, not in the scenario")
+        tx = self.senders.receive(msg, phy, self.fleet_now())
+        if isinstance(tx, str):
+            self.drops.drop(tx, f"{msg['kind']} from station {msg['src']}: "
+                            + ("stamped far from now" if tx == "time" else "not in the scenario"))
             return
         t_rx_local = self.shell.arrival_local_s(self.air, msg["src"], tx[0], tx[1], self.true_pos, self.clock)
         if t_rx_local is None:
@@ -480,9 +477,6 @@ class StationNode:
                                                 join=self.opts.join, start_s=t0, seed=self.seed)
         for kind, fields in self.policy.start(self.core):
             self._journal_submit(kind, fields)
-        senders = getattr(self, "senders", None)  # the channel's truth of each sender (net.channel.SenderTruth)
-        if senders is not None and not isinstance(senders.positions, WorldPositions):
-            senders.positions = WorldPositions(senders.positions, self.scn)  # + joiners from outside the scenario
 
     def run(self) -> dict:
         bus = self.bus
@@ -600,49 +594,6 @@ def load_scenario(args: argparse.Namespace) -> Scenario:
     if getattr(args, "join", False) and args.id not in scn.ids:
         scn = with_joiner(scn, args.id)
     return scn
-
-
-class WorldPositions(dict):
-    """Station id -> true position, as the receive side's channel looks senders up: a sender the
-    scenario does not list is a hot-joiner from outside it, at :func:`joiner_position` - the same
-    place its own process puts itself (drawn from the scenario, so every process agrees)."""
-
-    def __init__(self, known: dict, scn: Scenario):
-        super().__init__(known)
-        self.scn = scn
-
-    def get(self, station_id, default=None):
-        if station_id not in self and isinstance(station_id, int) and 1 <= station_id <= 65535:
-            self[station_id] = joiner_position(self.scn, station_id)
-        return super().get(station_id, default)
-
-
-def joiner_position(scn: Scenario, station_id: int) -> np.ndarray:
-    """True position (network frame) of a hot-joining station ``station_id`` that ``scn`` does not list,
-    drawn from the scenario alone. Random layout: the scenario's own joiner stream (``[layout]
-    joiners``) extended to this id - station 11 of seed000 sits where seed000-join puts it. Listed
-    stations: uniform in the box the listed stations span, at least 100 m (horizontally) from each,
-    from the stream (seed, 7, id)."""
-    from net import scenario as S
-
-    if station_id in scn.ids:
-        return np.asarray(scn.true_pos(station_id), float)
-    lay = scn.raw.get("layout")
-    if "stations" not in scn.raw and isinstance(lay, dict):
-        n = int(lay.get("n", 10))
-        if station_id > n:
-            raw = {k: (dict(v) if isinstance(v, dict) else v) for k, v in scn.raw.items()}
-            raw["layout"] = {**lay, "n": n, "joiners": station_id - n}
-            return np.asarray(S.from_dict(raw).true_pos(station_id), float)
-    pos = np.asarray(scn.pos_m, float)
-    lo, hi = pos.min(axis=0), pos.max(axis=0)
-    rng = np.random.default_rng([int(scn.seed), 7, int(station_id)])
-    p = lo + rng.uniform(0.0, 1.0, 3) * (hi - lo)
-    for _ in range(1000):
-        if all(np.hypot(*(p[:2] - q[:2])) >= 100.0 for q in pos):
-            break
-        p = lo + rng.uniform(0.0, 1.0, 3) * (hi - lo)
-    return p
 
 
 def with_joiner(scn: Scenario, station_id: int) -> Scenario:

@@ -9,38 +9,15 @@ the fix the core is handed.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
 from nav.geometry import SPEED_OF_LIGHT_M_S
-from net.channel import AirChannel
+from net.channel import AirChannel, with_clock_faults
 from net.scenario import Scenario
 
 LIE_KINDS = ("nav", "range_rsp")  # air messages that carry the sender's position
-
-
-@dataclass(frozen=True)
-class JumpClock:
-    """A clock that steps by ``jump_s`` at true time ``at_s`` (wraps any clock with to_local/to_true)."""
-
-    base: object
-    jump_s: float
-    at_s: float
-
-    def to_local(self, t_true_s: float) -> float:
-        return self.base.to_local(t_true_s) + (self.jump_s if t_true_s >= self.at_s else 0.0)
-
-    def to_true(self, t_local_s: float) -> float:
-        t = self.base.to_true(t_local_s - self.jump_s)
-        return t if t >= self.at_s else self.base.to_true(t_local_s)
-
-    def error_s(self, t_true_s: float) -> float:
-        """Local minus true time, the jump included (the truth record's clock error)."""
-        return self.base.error_s(t_true_s) + (self.jump_s if t_true_s >= self.at_s else 0.0)
-
-    def __getattr__(self, name):  # offset_s, drift, ... of the wrapped clock
-        return getattr(self.base, name)
 
 
 class ShellFaults:
@@ -58,10 +35,7 @@ class ShellFaults:
         return bool(self.scn.faults or self.scn.links)
 
     def clock(self, clock):
-        for f in self.faults:
-            if f.kind == "clock_jump":
-                clock = JumpClock(clock, f.jump_s, f.at_s)
-        return clock
+        return with_clock_faults(clock, self.faults, self.id)
 
     def fix(self, pos0_m, cov0_m2, sigma0_m: float):
         """A ``bad_fix``: the coarse fix is off by ``offset_m`` while claiming ``sigma0_m``."""

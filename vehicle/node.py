@@ -6,7 +6,8 @@ route through the LARNS field, navigating by the stations' nav broadcasts, its I
   through the middle of the field at 5 m/s) from its start (the first whole fleet second after it
   comes up); IMU and odometer at ``--imu-rate``; receiver clock on network time.
 * **receive**: ``larns/station/*/nav`` -> strict decode (malformed: counted and dropped) -> key/src
-  check -> a reorder buffer (half the integration lag: broadcasts reach the process by different
+  check -> the channel's truth of the named sender (its true position and transmit time, never the
+  sender's ``phy`` claims: ``net.channel.channel_truth``) -> a reorder buffer (half the integration lag: broadcasts reach the process by different
   links) -> pseudorange and carrier pseudorange rate formed like the aircraft's (docs/vehicle.md).
   The navigator integrates ``lag_s`` (1 s) x ``--speed`` behind fleet time; a broadcast older than its
   filter time is late (counted, not used).
@@ -64,6 +65,7 @@ class VehicleNode:
 
     def __init__(self, scn, opts: VehicleOptions, bus: Any):
         from net import messages as M
+        from net.channel import scenario_senders
         from net.nettime import network_time
 
         from .core import VehicleCore
@@ -77,6 +79,8 @@ class VehicleNode:
                       else float(opts.epoch_unix_s))
         seed = scn.seed if opts.seed is None else opts.seed
         net_clock = network_time(scn, seed)  # the receiver runs on network time as the field realizes it
+        # the channel owns physics (issue 32): each sender's true position and clock, never its phy claims
+        self.senders = scenario_senders(scn, int(seed), None if net_clock is None else net_clock.clock)
         self.core = VehicleCore(scn, opts.name, seed=int(seed), t0_s=max(0.0, math.ceil(self.fleet_now())),
                                 net_clock=net_clock, route_file=opts.route, imu_rate_hz=opts.imu_rate_hz,
                                 speed_m_s=opts.speed_m_s, outage_s=opts.outage_s)
@@ -116,10 +120,15 @@ class VehicleNode:
                 log.error("vehicle %s: refusing to send invalid %s: %s", self.opts.name, m["kind"], e)
 
     def _ingest(self, key: str, data: bytes) -> None:
+        from net.channel import channel_truth
+
         got = self.M.station_nav(self._decode, key, data, self.drops)
         if got is None:
             return
         msg, phy = got
+        phy = channel_truth(self.senders, msg, phy, self.fleet_now(), self.drops)
+        if phy is None:
+            return
         if phy["t_true_s"] > self.fleet_now() + 10.0 * self.opts.speed:  # never drained: refuse it now
             self.drops.drop("future", f"nav from {msg['src']} at t = {phy['t_true_s']:.1f} s")
             return

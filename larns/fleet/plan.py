@@ -109,7 +109,7 @@ def parse_events(args: argparse.Namespace, scn) -> list[FleetEvent]:
 
 def with_outside_joiners(scn, joins: list[tuple[int, float]]):
     """The scenario plus the joiners it does not list (``--join 11@20`` on seed000's ten stations),
-    each where its own process and its peers put it (``stations.node.joiner_position``)."""
+    each where its own process and its peers put it (``net.scenario.joiner_position``)."""
     from stations.node import with_joiner
 
     for sid, _ in joins:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import time
 
 import numpy as np
 import pytest
@@ -353,7 +354,9 @@ def test_aircraft_node_shell_drops_garbage_and_publishes_valid_messages():
 
     scn = load("seed003", clock={"model": "perfect"})  # hand-made navs stamped on true time
     bus = FakeBus()
-    node = AircraftNode(scn, AircraftOptions(algos=("ukf-pr", "lsq-pr"), duration_s=60.0), bus)
+    # the fleet's epoch now: the channel takes only transmissions within a minute of the node's time
+    node = AircraftNode(scn, AircraftOptions(algos=("ukf-pr", "lsq-pr"), duration_s=60.0,
+                                             epoch_unix_s=time.time()), bus)
     node._ingest("larns/station/2/nav", b"\xc1garbage")
     nav = {"kind": "nav", "src": 2, "seq": 1, "stamp_s": 0.1, "cycle": 0, "slot": 1, "t_tx_s": 0.1,
            "pos_m": scn.pos_m[1], "cov_m2": np.eye(3), "n_updates": 3, "state": "surveying", "ranges": [],

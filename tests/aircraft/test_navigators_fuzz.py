@@ -220,3 +220,55 @@ def test_the_aircraft_node_drops_a_nav_whose_phy_claims_a_time_far_from_now():
     m = _honest_nav(2, 9, t, p)
     node._ingest(M.key_for(m), M.encode(m, {"pos_m": p, "t_true_s": t}))
     assert node.drops.by_reason["time"] == 4 and node.core.stats["measurements"] == 1
+
+
+def test_the_user_receivers_channel_takes_the_named_senders_truth_not_its_phy():
+    """The channel owns physics at the aircraft and the vehicle too (issue 32 item 2): what reaches
+    their cores is the named sender's true position and the later of its claimed transmit time and
+    the time its own clock stamp implies, so a compromised host can delay its signal (its own
+    business) but never move its antenna or advance its transmission; a hot-joiner from outside the
+    scenario is where the scenario draws it."""
+    import time
+
+    from aircraft.node import AircraftNode, AircraftOptions
+    from fake_bus import FakeBus
+    from net.channel import draw_clock, station_rng
+    from net.scenario import joiner_position
+    from vehicle.node import VehicleNode, VehicleOptions
+
+    class Bus(FakeBus):
+        def publish(self, key, data, block=False):
+            super().publish(key, data)
+
+    scn = load("seed000")  # TCXO clocks: a stamp is the sender's local time, not true time
+    epoch = time.time() - 20.0
+    ac = AircraftNode(scn, AircraftOptions(name="ac1", quiet=True, epoch_unix_s=epoch), Bus())
+    veh = VehicleNode(scn, VehicleOptions(name="veh1", quiet=True, epoch_unix_s=epoch), Bus())
+    seen: list[dict] = []
+    ac.core.on_nav = lambda msg, phy: seen.append(phy) or []
+    p = scn.true_pos(2)
+    t = ac.fleet_now()
+    stamp = draw_clock(scn.clock, station_rng(scn.seed, 2, 0)).to_local(t)  # station 2's own clock
+    claims = [{"pos_m": (p + [-1000.0, 0.0, 0.0]).tolist(), "t_true_s": t - 1e-5},  # moved and advanced
+              {"pos_m": p.tolist(), "t_true_s": t},                               # honest
+              {"pos_m": p.tolist(), "t_true_s": t + 1e-3}]                        # delayed by 1 ms
+    for k, phy in enumerate(claims):
+        m = dict(_honest_nav(2, k + 1, stamp, p), stamp_s=t, cycle=1)
+        for node in (ac, veh):
+            node._ingest(M.key_for(m), M.encode(m, phy))
+    held = [h[3] for h in sorted(veh._held, key=lambda h: h[1])]
+    for got in (seen, held):
+        assert len(got) == 3
+        for phy in got:
+            np.testing.assert_array_equal(phy["pos_m"], p)
+        assert abs(got[0]["t_true_s"] - t) < 1e-9 and abs(got[1]["t_true_s"] - t) < 1e-9
+        assert got[2]["t_true_s"] == t + 1e-3
+    # a station the scenario does not list is a hot-joiner from outside it, where its own process and
+    # every other receiver put it (net.scenario.joiner_position), whatever it claims
+    m = dict(_honest_nav(99, 9, t, p), stamp_s=t, cycle=1)
+    for node in (ac, veh):
+        node._ingest(M.key_for(m), M.encode(m, {"pos_m": p.tolist(), "t_true_s": t}))
+    j = joiner_position(scn, 99)
+    assert np.linalg.norm(j - p) > 100.0
+    np.testing.assert_array_equal(seen[3]["pos_m"], j)
+    np.testing.assert_array_equal(max(veh._held, key=lambda h: h[1])[3]["pos_m"], j)

@@ -149,7 +149,8 @@ def test_joiner_outside_the_scenario_sits_where_the_scenario_joiners_do():
 
 def test_joiner_of_a_listed_scenario_is_drawn_inside_it_and_peers_agree():
     from net import scenario as S
-    from stations.node import WorldPositions, joiner_position, with_joiner
+    from net.scenario import WorldPositions, joiner_position
+    from stations.node import with_joiner
 
     scn = S.from_dict({"name": "listed", "seed": 5, "stations": [
         {"id": 1, "pos_m": [0, 0, 0]}, {"id": 2, "pos_m": [900, 0, 10]}, {"id": 3, "pos_m": [0, 900, 20]}]})

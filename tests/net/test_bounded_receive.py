@@ -99,3 +99,24 @@ def test_the_channel_takes_the_named_senders_truth_not_its_phy():
     p, t = st.transmission(2, t_true + 1e-6, t_local)  # a later signal (a delay) is its own business
     assert t == t_true + 1e-6
     assert st.transmission(99, t_true, t_local) is None  # not in the world
+    msg = {"src": 2, "t_tx_s": t_local}
+    assert st.receive(msg, {"t_true_s": t_true - 1e-6}, now_s=t_true)[1] == t_true
+    assert st.receive(msg, {"t_true_s": t_true}, now_s=t_true + 61.0) == "time"  # far from the receiver's now
+    assert st.receive({"src": 99, "t_tx_s": t_local}, {"t_true_s": t_true}, now_s=t_true) == "sender_unknown"
+
+
+def test_the_channels_truth_of_a_scenario_has_its_clock_faults():
+    """``scenario_senders``: each station's clock drawn from its own stream, as its process draws it,
+    with the scenario's clock jumps (a station's stamps after its jump map back to true time)."""
+    from net.channel import JumpClock, draw_clock, scenario_senders, station_rng
+    from net.scenario import load
+
+    scn = load("seed000", faults=[{"kind": "clock_jump", "station": 3, "at_s": 5.0, "jump_s": 1e-3}])
+    st = scenario_senders(scn, 7)
+    own = draw_clock(scn.clock, station_rng(7, 3, 0))
+    jumped = JumpClock(own, 1e-3, 5.0)
+    for t_true in (4.0, 6.0):
+        p, t = st.transmission(3, 0.0, jumped.to_local(t_true))
+        assert abs(t - t_true) < 1e-12 and np.array_equal(p, scn.true_pos(3))
+    p, t = st.transmission(2, 0.0, draw_clock(scn.clock, station_rng(7, 2, 0)).to_local(6.0))
+    assert abs(t - 6.0) < 1e-12

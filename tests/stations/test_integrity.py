@@ -216,7 +216,7 @@ def _node(scn, station_id):
 
 def test_faults_are_applied_by_the_node_shell_like_the_simulator():
     from nav.geometry import SPEED_OF_LIGHT_M_S
-    from stations.shellfaults import JumpClock
+    from net.channel import JumpClock
     from stations.sim import make_core
 
     faults = [{"kind": "liar", "station": 2, "offset_m": [30.0, 0.0, 0.0], "from_s": 0.0},
