@@ -125,10 +125,14 @@ _MODE_SETTINGS: dict[str, dict[str, str]] = {
     # clients of a router: wait for a router that is not up yet instead of failing
     "client": {"mode": '"client"', **_NO_SHM,
                "connect/timeout_ms": '{"router": -1, "peer": -1, "client": -1}',
+               # back within ~0.1 s of a router that restarts or reopens its session (a revocation:
+               # larns/commands/router.py); Zenoh's default (1 s, x2 up to 4 s) lost 1-3 s of traffic
+               "connect/retry": '{"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2}',
                "connect/exit_on_failure": '{"router": false, "peer": false, "client": false}'},
     # router: no gossip; we never use storages or timestamps, so no HLC stamp per routed sample
     "router": {"mode": '"router"', **_NO_SHM,
                "scouting/gossip/enabled": "false",
+               "scouting/delay": "0",  # a router waited 0.5 s after binding its port, its clients with it
                "timestamping/enabled": '{"router": false, "peer": false, "client": false}',
                "connect/timeout_ms": '{"router": -1, "peer": -1, "client": 0}',
                "connect/exit_on_failure": '{"router": false, "peer": false, "client": true}'},
@@ -224,8 +228,9 @@ class Bus:
             from net.security import Security
 
             self.security = Security(*secure[:2])
+        self._config_args = (list(listen), list(connect), config_file, multicast, mode)
         try:
-            self.session = zenoh.open(make_config(listen, connect, config_file, multicast, mode, secure))
+            self.session = zenoh.open(make_config(*self._config_args, secure))
         finally:
             if set_env:  # read once, when the first session starts Zenoh's runtimes
                 os.environ.pop("ZENOH_RUNTIME", None)
@@ -331,6 +336,35 @@ class Bus:
         return [str(z) for z in self.session.info.routers_zid()]
 
     # ------------------------------------------------------------------ lifecycle
+    def reopen(self, secure: tuple, timeout_s: float = 5.0) -> None:
+        """Close the Zenoh session and open a new one on the same endpoints with ``secure`` settings
+        (``(DIR, cn, guard, revoked)``: a router taking a revocation into its access rules, which
+        Zenoh reads only when a session opens). Its clients reconnect by themselves (their
+        ``connect/retry``) and declare their subscriptions again; this process's own subscriptions
+        and tokens would not survive, so only a process that holds none may reopen (the router).
+        Publishers are declared again on first use; the trust queryables are served anew."""
+        if self._subs or self._tokens:
+            raise RuntimeError("Bus.reopen: subscriptions and tokens do not survive a reopen")
+        old = self.session
+        done = threading.Event()
+
+        def _close() -> None:
+            try:
+                old.close()
+            except Exception:
+                pass
+            finally:
+                done.set()
+
+        threading.Thread(target=_close, name="larns-bus-reopen", daemon=True).start()
+        if not done.wait(timeout_s):
+            log.warning("bus: the old Zenoh session did not close within %.0f s; opening the new one anyway", timeout_s)
+        with self._lock:
+            self._pubs.clear()
+            self.session = self._z.open(make_config(*self._config_args, secure))
+        if self.security is not None:
+            self.security.attach(self)
+
     def close(self, timeout_s: float = 5.0) -> bool:
         """Withdraw the tokens and close the session, within ``timeout_s``: a Zenoh session close has
         been seen to hang (a station not gone 20 s after SIGTERM, twice in full suites). Returns False

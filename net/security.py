@@ -37,7 +37,7 @@ import math
 import time
 from collections import Counter
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterable
 
 INDEX = "keystore.json"
 MAGIC = b"\xc1\x53"
@@ -287,10 +287,24 @@ def load_enclave_settings(root: str | Path, cn: str) -> dict[str, Any]:
             "access_control": acl}
 
 
-def apply_security(conf, root: str | Path, cn: str, guard: list[dict] | None = None) -> None:
+def without_subjects(acl: dict, cns: Iterable[str]) -> dict:
+    """Zenoh ``access_control`` ``acl`` without the subjects of common names ``cns`` (and their
+    policies): under default deny, Zenoh then refuses everything those identities send."""
+    gone = set(cns)
+    subjects = [s for s in acl.get("subjects", []) if not set(s.get("cert_common_names", [])) <= gone]
+    kept = {s["id"] for s in subjects}
+    policies = [p for p in acl.get("policies", []) if set(p.get("subjects", [])) <= kept]
+    return {**acl, "subjects": subjects, "policies": policies}
+
+
+def apply_security(conf, root: str | Path, cn: str, guard: list[dict] | None = None,
+                   revoked: Iterable[str] = ()) -> None:
     """Insert ``cn``'s security settings into a ``zenoh.Config``, turn its endpoints to tls/, and
-    add the Zenoh ingress flood guard ``guard`` (:func:`flood_guard`) unless it is a client."""
+    add the Zenoh ingress flood guard ``guard`` (:func:`flood_guard`) unless it is a client; the
+    common names ``revoked`` lose their access rules (:func:`without_subjects`)."""
     for key, value in load_enclave_settings(root, cn).items():
+        if key == "access_control" and revoked:
+            value = without_subjects(value, revoked)
         conf.insert_json5(key, json.dumps(value))
     if guard and json.loads(conf.get_json("mode")) != "client":
         conf.insert_json5("downsampling", json.dumps(guard))
@@ -482,21 +496,45 @@ class Verifier:
             pass
 
     def _look_up(self, cn: str) -> None:
-        from net.trust import CERTS_DIR, TrustError
-
         now = self.clock()
         if now - self._missing.get(cn, -math.inf) < self.rescan_s:
             return
         self._missing[cn] = now
         self._crl_file()
+        self.load_certs(cn)
+        if self._fetch is not None:
+            self._fetch(cn)
+
+    def load_certs(self, cn: str) -> None:
+        """Take ``cn``'s certificates from the keystore's files (its enclave, ``certs/``, ``revoked/``)."""
+        from net.trust import CERTS_DIR, TrustError
+
         for p in (self.ks.path(cn, "cert.pem"), self.ks.root / CERTS_DIR / f"{cn}.pem",
                   *sorted((self.ks.root / "revoked").glob(f"{cn}-*.pem"))):
             try:
                 self.trust.add_cert(p.read_bytes(), cn)
             except (OSError, TrustError):
                 continue
-        if self._fetch is not None:
-            self._fetch(cn)
+
+    def revoked_among(self, cns: Iterable[str]) -> frozenset[str]:
+        """The common names among ``cns`` whose every certificate held is revoked by the newest
+        list (the keystore's ``crl.pem`` re-read if due, or one taken from the bus); the
+        certificates of a name not held yet or revoked are read from the keystore's files again (at
+        most every ``rescan_s``: a re-issued one makes the name usable again)."""
+        if self.clock() >= self._crl_next:
+            self._crl_file()
+        if self.trust.crl is None:
+            return frozenset()
+        now, out = self.wall_s(), set()
+        for cn in cns:
+            if self.trust.status(cn, now) in ("unknown_signer", "revoked"):
+                t = self.clock()
+                if t - self._missing.get(cn, -math.inf) >= self.rescan_s:
+                    self._missing[cn] = t
+                    self.load_certs(cn)
+            if self.trust.status(cn, now) == "revoked":
+                out.add(cn)
+        return frozenset(out)
 
     def public_keys(self, cn: str) -> list:
         """Public keys of ``cn``'s certificates usable now (looked up if there is none)."""

@@ -103,6 +103,25 @@ def test_revoked_station_refused_and_reissued_accepted(ks):
     assert _reason(lambda: rx.verify(key, *S.split_signed(frame))) == "revoked"
 
 
+def test_router_access_rules_follow_the_revocation_list(ks):
+    """What the router reopens its session with (larns/commands/router.py ``RevocationWatch``): the
+    names whose every certificate is revoked, read from the keystore's files; their access rules
+    removed (subject and policy), everyone else's kept; a re-issued certificate gives them back."""
+    rx = S.Verifier(S.Keystore(ks), rescan_s=0.0)
+    names = ["station-1", "station-3", "station-5", "aircraft-ac1", "recorder", "station-9"]
+    assert rx.revoked_among(names) == frozenset()
+    WritableKeystore(ks).revoke("station-5")
+    assert rx.revoked_among(names) == {"station-5"}             # (station-9: never issued, not revoked)
+    acl = S.access_control(S.Keystore(ks), "router")
+    cut = S.without_subjects(acl, {"station-5"})
+    cns = {cn for sub in cut["subjects"] for cn in sub["cert_common_names"]}
+    assert "station-5" not in cns and {"station-1", "station-3", "router"} <= cns
+    assert len(cut["subjects"]) == len(acl["subjects"]) - 1 == len(cut["policies"])
+    assert cut["rules"] == acl["rules"] and cut["default_permission"] == "deny"
+    add_to_keystore(ks, stations=[5])
+    assert rx.revoked_among(names) == frozenset()                # a new certificate: usable again
+
+
 def test_expired_certificate_refused_and_renewed(ks):
     """A certificate that expired in 2001 is refused (the process does not start: one line; its
     signatures: ``expired``); `keys renew` re-issues it for the same key and it is accepted again."""
