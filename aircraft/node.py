@@ -42,6 +42,7 @@ from nav.geometry import SPEED_OF_LIGHT_M_S
 
 from net.channel import channel_truth, scenario_senders
 from net.clock import broadcast_clock_var_m2
+from net.plausible import NavPacer
 from net.nettime import network_time, pseudorange_time_error_s
 
 from net.queues import DropOldestQueue
@@ -259,6 +260,7 @@ class AircraftNode:
         net_clock = network_time(scn, seed)  # the receivers run on network time as the field realizes it
         # the channel owns physics (issue 32): each sender's true position and clock, never its phy claims
         self.senders = scenario_senders(scn, int(seed), None if net_clock is None else net_clock.clock)
+        self.pacer = NavPacer.for_cycle(scn.tdma.cycle_s)  # issue 32: a stolen key's extra navs weigh nothing
         triad = opts.satellites is not None or "triad" in opts.algos  # the triad: aircraft/triad_core.py
         if triad and set(opts.algos) - {"triad"}:
             raise ValueError(f"triad runs alone in its 6-DOF world; drop {sorted(set(opts.algos) - {'triad'})}")
@@ -309,6 +311,9 @@ class AircraftNode:
         msg, phy = got
         phy = channel_truth(self.senders, msg, phy, self.fleet_now(), self.drops)
         if phy is None:
+            return
+        if self.pacer.refuse(int(msg["src"]), float(phy["t_true_s"])):  # one nav per station and cycle
+            self.drops.drop("rate", f"nav from {msg['src']} within {self.pacer.min_gap_s:.2f} s of its last")
             return
         try:
             outs = self.core.on_nav(msg, phy) if self.ins is None else []

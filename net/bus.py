@@ -113,6 +113,11 @@ def free_tcp_ports(n: int, host: str = "127.0.0.1") -> list[int]:
 
 # Our Zenoh settings per mode (json5 values). Shared memory is off everywhere (containers, tests).
 _NO_SHM = {"transport/shared_memory/enabled": "false"}
+# Zenoh reassembles a message split over several batches (above ~64 KiB) up to this size before any
+# of our code sees it (default 1 GiB: a stolen key could make every receiver hold that much); every
+# LARNS payload is at most net.messages.MAX_PAYLOAD_BYTES (64 KiB, signature included) and every
+# receiver refuses a larger one at decode. A message that fits in one batch is not checked by Zenoh.
+MAX_ZENOH_MESSAGE_BYTES = 2 * 64 * 1024
 _MODE_SETTINGS: dict[str, dict[str, str]] = {
     # peers: full mesh through gossip (Zenoh >= 1.9 peers do not relay); keep retrying seeds that
     # are not up yet (processes start in any order)
@@ -170,6 +175,7 @@ def _make_config(listen, connect, config_file, multicast, mode):
     if mode == "client" and not connect:
         raise ValueError("client mode needs --connect <router endpoint>")
     settings = dict(_MODE_SETTINGS[mode])
+    settings["transport/link/rx/max_message_size"] = str(MAX_ZENOH_MESSAGE_BYTES)
     settings["scouting/multicast/enabled"] = json.dumps(bool(multicast))
     settings["connect/endpoints"] = json.dumps(list(connect))
     if mode != "client":  # a client only dials its router(s)

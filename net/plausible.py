@@ -119,3 +119,36 @@ def nav_reason(msg: dict, t_now_s: float, b: NavBounds) -> str | None:
     if corr is not None and not clock_ok(corr, float(t_now_s if t_tx is None else t_tx), b):
         return "clock"
     return None
+
+
+class NavPacer:
+    """One nav per station per TDMA cycle at a user receiver (the aircraft, the vehicle): a station
+    broadcasts its nav once per cycle, in its slot, so a second one from the same id within
+    ``min_gap_s`` (of the receiver's reception time) is refused (``rate``). A stolen key can send
+    copies at any time, and the channel - which lets a compromised box delay its signal to any
+    stamp it writes - makes them good pseudoranges from that station's antenna; counted several
+    times a cycle they multiply that station's weight, and with it its persistent position error,
+    in every filter. The first to arrive is kept. Bounded: at most ``max_ids`` stations remembered
+    (the oldest forgotten). Pure."""
+
+    def __init__(self, min_gap_s: float, max_ids: int = 4096):
+        self.min_gap_s = float(min_gap_s)
+        self.max_ids = int(max_ids)
+        self._last: dict[int, float] = {}
+
+    @classmethod
+    def for_cycle(cls, cycle_s: float) -> "NavPacer":
+        """3/4 of the cycle: an honest station's navs are one cycle apart (less only when it moves
+        to an earlier slot, which costs it one nav)."""
+        return cls(0.75 * float(cycle_s))
+
+    def refuse(self, src: int, t_rx_s: float) -> bool:
+        """True if station ``src``'s nav received at ``t_rx_s`` comes too soon after its last kept one."""
+        last = self._last.get(src)
+        if last is not None and abs(t_rx_s - last) < self.min_gap_s:
+            return True
+        self._last.pop(src, None)
+        self._last[src] = float(t_rx_s)
+        if len(self._last) > self.max_ids:
+            del self._last[next(iter(self._last))]
+        return False

@@ -1,7 +1,7 @@
 """Bounded receive queues (issue 32): a flood must cost old samples, never memory.
 
 Every process that hands Zenoh samples from the session's threads to its own loop (station wire
-delays, aircraft, vehicle, recorder) uses :class:`DropOldestQueue`: a thread-safe FIFO with the
+delays, aircraft, vehicle, recorder, live view) uses :class:`DropOldestQueue`: a thread-safe FIFO with the
 interface of :class:`queue.SimpleQueue` (``put``, ``get``, ``get_nowait``, ``qsize``, ``empty``) and
 a fixed capacity; a ``put`` on a full queue drops the *oldest* item (the newest data is worth
 more to a navigator) and counts it in :attr:`DropOldestQueue.dropped`.

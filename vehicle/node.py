@@ -66,6 +66,7 @@ class VehicleNode:
     def __init__(self, scn, opts: VehicleOptions, bus: Any):
         from net import messages as M
         from net.channel import scenario_senders
+        from net.plausible import NavPacer
         from net.nettime import network_time
 
         from .core import VehicleCore
@@ -81,6 +82,7 @@ class VehicleNode:
         net_clock = network_time(scn, seed)  # the receiver runs on network time as the field realizes it
         # the channel owns physics (issue 32): each sender's true position and clock, never its phy claims
         self.senders = scenario_senders(scn, int(seed), None if net_clock is None else net_clock.clock)
+        self.pacer = NavPacer.for_cycle(scn.tdma.cycle_s)  # issue 32: a stolen key's extra navs weigh nothing
         self.core = VehicleCore(scn, opts.name, seed=int(seed), t0_s=max(0.0, math.ceil(self.fleet_now())),
                                 net_clock=net_clock, route_file=opts.route, imu_rate_hz=opts.imu_rate_hz,
                                 speed_m_s=opts.speed_m_s, outage_s=opts.outage_s)
@@ -128,6 +130,9 @@ class VehicleNode:
         msg, phy = got
         phy = channel_truth(self.senders, msg, phy, self.fleet_now(), self.drops)
         if phy is None:
+            return
+        if self.pacer.refuse(int(msg["src"]), float(phy["t_true_s"])):  # one nav per station and cycle
+            self.drops.drop("rate", f"nav from {msg['src']} within {self.pacer.min_gap_s:.2f} s of its last")
             return
         if phy["t_true_s"] > self.fleet_now() + 10.0 * self.opts.speed:  # never drained: refuse it now
             self.drops.drop("future", f"nav from {msg['src']} at t = {phy['t_true_s']:.1f} s")

@@ -471,6 +471,9 @@ class FoxgloveServer:
         self.server.stop()
 
 
+LIVE_QUEUE_MAX = 16384  # samples waiting for the view's loop (a 10-station fleet sends ~300 per second)
+
+
 def serve_live(bus_kw: dict, host: str = "127.0.0.1", port: int = DEFAULT_PORT, keyexpr: str = "larns/**",
                duration_s: float | None = None, stop: threading.Event | None = None,
                on_ready: Callable[[int], None] | None = None, site=None) -> dict:
@@ -479,8 +482,10 @@ def serve_live(bus_kw: dict, host: str = "127.0.0.1", port: int = DEFAULT_PORT, 
     Returns statistics (samples, messages sent, dropped by reason)."""
     from net.bus import Bus
 
+    from net.queues import DropOldestQueue
+
     stop = stop or threading.Event()
-    q: queue.SimpleQueue = queue.SimpleQueue()
+    q = DropOldestQueue(LIVE_QUEUE_MAX)  # bounded (issue 32): a flood costs old samples, never memory
     bus = Bus(**bus_kw)
     view = LiveView(site=site)
     try:
@@ -513,7 +518,7 @@ def serve_live(bus_kw: dict, host: str = "127.0.0.1", port: int = DEFAULT_PORT, 
         srv.stop()
     return {"samples": view.samples, "sources": dict(sorted(view.sources.items())), "sent": srv.sent,
             "channels": len(srv.channels),
-            "dropped": dict(view.dropped),
+            "dropped": {**view.dropped, **({"queue_full": q.dropped} if q.dropped else {})},
             "failed": dict(srv.failed)}
 
 

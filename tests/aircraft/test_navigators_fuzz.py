@@ -227,7 +227,8 @@ def test_the_user_receivers_channel_takes_the_named_senders_truth_not_its_phy():
     their cores is the named sender's true position and the later of its claimed transmit time and
     the time its own clock stamp implies, so a compromised host can delay its signal (its own
     business) but never move its antenna or advance its transmission; a hot-joiner from outside the
-    scenario is where the scenario draws it."""
+    scenario is where the scenario draws it. And one nav per station per cycle (``rate``): a stolen
+    key's extra copies would otherwise count that station several times a cycle."""
     import time
 
     from aircraft.node import AircraftNode, AircraftOptions
@@ -246,25 +247,29 @@ def test_the_user_receivers_channel_takes_the_named_senders_truth_not_its_phy():
     veh = VehicleNode(scn, VehicleOptions(name="veh1", quiet=True, epoch_unix_s=epoch), Bus())
     seen: list[dict] = []
     ac.core.on_nav = lambda msg, phy: seen.append(phy) or []
-    p = scn.true_pos(2)
     t = ac.fleet_now()
-    stamp = draw_clock(scn.clock, station_rng(scn.seed, 2, 0)).to_local(t)  # station 2's own clock
-    claims = [{"pos_m": (p + [-1000.0, 0.0, 0.0]).tolist(), "t_true_s": t - 1e-5},  # moved and advanced
-              {"pos_m": p.tolist(), "t_true_s": t},                               # honest
-              {"pos_m": p.tolist(), "t_true_s": t + 1e-3}]                        # delayed by 1 ms
-    for k, phy in enumerate(claims):
-        m = dict(_honest_nav(2, k + 1, stamp, p), stamp_s=t, cycle=1)
-        for node in (ac, veh):
+
+    def send(sid, seq, t_true, phy, node_list=(ac, veh)):
+        stamp = draw_clock(scn.clock, station_rng(scn.seed, sid, 0)).to_local(t_true)  # the station's own clock
+        m = dict(_honest_nav(sid, seq, stamp, scn.true_pos(sid)), stamp_s=t_true, cycle=int(t_true))
+        for node in node_list:
             node._ingest(M.key_for(m), M.encode(m, phy))
+
+    claims = {2: (-1000.0, -1e-5),  # moved 1 km and advanced 10 us
+              3: (0.0, 0.0),        # honest
+              4: (0.0, 1e-3)}       # delayed by 1 ms
+    for k, (sid, (dx, dt)) in enumerate(claims.items()):
+        send(sid, k + 1, t, {"pos_m": (scn.true_pos(sid) + [dx, 0.0, 0.0]).tolist(), "t_true_s": t + dt})
     held = [h[3] for h in sorted(veh._held, key=lambda h: h[1])]
     for got in (seen, held):
         assert len(got) == 3
-        for phy in got:
-            np.testing.assert_array_equal(phy["pos_m"], p)
+        for phy, sid in zip(got, claims):
+            np.testing.assert_array_equal(phy["pos_m"], scn.true_pos(sid))
         assert abs(got[0]["t_true_s"] - t) < 1e-9 and abs(got[1]["t_true_s"] - t) < 1e-9
         assert got[2]["t_true_s"] == t + 1e-3
     # a station the scenario does not list is a hot-joiner from outside it, where its own process and
     # every other receiver put it (net.scenario.joiner_position), whatever it claims
+    p = scn.true_pos(2)
     m = dict(_honest_nav(99, 9, t, p), stamp_s=t, cycle=1)
     for node in (ac, veh):
         node._ingest(M.key_for(m), M.encode(m, {"pos_m": p.tolist(), "t_true_s": t}))
@@ -272,3 +277,21 @@ def test_the_user_receivers_channel_takes_the_named_senders_truth_not_its_phy():
     assert np.linalg.norm(j - p) > 100.0
     np.testing.assert_array_equal(seen[3]["pos_m"], j)
     np.testing.assert_array_equal(max(veh._held, key=lambda h: h[1])[3]["pos_m"], j)
+    # station 3 again 0.3 s later (a copy outside its slot): refused; a cycle after its first: taken
+    send(3, 20, t + 0.3, {"pos_m": scn.true_pos(3).tolist(), "t_true_s": t + 0.3})
+    assert len(seen) == 4 and ac.drops.by_reason["rate"] == 1 and veh.drops.by_reason["rate"] == 1
+    send(3, 21, t + scn.tdma.cycle_s, {"pos_m": scn.true_pos(3).tolist(), "t_true_s": t + scn.tdma.cycle_s})
+    assert len(seen) == 5 and ac.drops.by_reason["rate"] == 1
+
+
+def test_nav_pacer_keeps_one_nav_per_station_and_cycle_and_stays_bounded():
+    from net.plausible import NavPacer
+
+    pacer = NavPacer.for_cycle(1.0)
+    assert not pacer.refuse(2, 10.0) and pacer.refuse(2, 10.5) and pacer.refuse(2, 9.5)
+    assert not pacer.refuse(3, 10.5)            # another station: its own pace
+    assert not pacer.refuse(2, 11.0)            # the next cycle
+    small = NavPacer(0.75, max_ids=3)
+    for sid in range(1, 10):
+        assert not small.refuse(sid, 1.0)
+    assert len(small._last) == 3

@@ -130,3 +130,30 @@ def test_lean_runtime_one_worker_and_not_inherited():
     assert out[:2] == ["True", "False"], out
     pools = set(out[2].split(","))
     assert "app" in pools and not pools & {"rx", "tx", "net", "acc"}, pools
+
+
+def test_a_message_over_the_size_bound_is_refused_by_zenoh():
+    """Zenoh reassembles a message split over batches before any of our code sees it; our sessions
+    cap that at ``MAX_ZENOH_MESSAGE_BYTES`` (Zenoh's default 1 GiB would let a stolen key make every
+    receiver hold that much). Real sessions: 100 kB (two batches) arrives, 200 kB and 10 MB do not,
+    the link survives and the next small message arrives."""
+    import time
+
+    from net.bus import MAX_ZENOH_MESSAGE_BYTES, Bus
+
+    port = free_tcp_ports(1)[0]
+    got = []
+    with Bus(listen=[f"tcp/127.0.0.1:{port}"]) as a, Bus(connect=[f"tcp/127.0.0.1:{port}"]) as b:
+        a.subscribe("larns/test/**", lambda k, d: got.append(len(d)))
+        t0 = time.time()
+        while not b.peers() and time.time() - t0 < 10:
+            time.sleep(0.05)
+        time.sleep(0.5)
+        for n in (100_000, 200_000, 10_000_000, 10):
+            b.publish("larns/test/x", b"x" * n, block=True)
+            time.sleep(0.3)
+        t0 = time.time()
+        while 10 not in got and time.time() - t0 < 5:
+            time.sleep(0.05)
+    assert MAX_ZENOH_MESSAGE_BYTES < 200_000
+    assert got == [100_000, 10], got
