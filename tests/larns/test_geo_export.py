@@ -230,7 +230,8 @@ def test_location_fixes_over_the_foxglove_websocket(tmp_path):
     (port,) = free_tcp_ports(1)
     stop = threading.Event()
     th = threading.Thread(target=serve_recording, args=(msgs, Timebase.of(logs, msgs[0].log_time)),
-                          kwargs=dict(port=port, speed=20.0, stop=stop, duration_s=30, site=site), daemon=True)
+                          kwargs=dict(port=port, speed=20.0, stop=stop, duration_s=30, site=site,
+                                      start_paused=True), daemon=True)
     th.start()
 
     async def watch():
@@ -242,6 +243,12 @@ def test_location_fixes_over_the_foxglove_websocket(tmp_path):
             except OSError:
                 await asyncio.sleep(0.1)
         try:
+            # play once subscribed to every channel: the 3 s recording plays in 0.15 s at speed 20, and
+            # an auto-start (0.25 s after the first subscription) raced the subscriptions on a busy machine
+            await c.run(5.0, until=lambda g: sum("/fix/" in ch["topic"] for ch in g.channels.values())
+                        >= 2 * len(scn.ids))
+            await c.run(0.5)  # (the server takes the subscriptions in on its own thread)
+            await c.playback(0, speed=20.0)
             return await c.run(8.0, until=lambda g: len({t for t in g.topics() if "/fix/" in t}) >= 2 * len(scn.ids)
                                and len(g.of("larns/foxglove/fix/station/10")) >= 3)
         finally:
@@ -260,8 +267,11 @@ def test_location_fixes_over_the_foxglove_websocket(tmp_path):
         est = got.of(f"larns/foxglove/fix/station/{sid}")
         assert est, sid
         last = est[-1]
-        k = len(est) - 1
         p = site.geodetic_to_net(last["latitude"], last["longitude"], last["altitude"])
+        # the k-th estimate sits 0.1 k m off the station on every axis (a loaded machine may cost the
+        # client one of the first: the server keeps a bounded backlog per client)
+        k = int(round(float(np.mean(p - scn.pos_m[i])) / 0.1))
+        assert len(est) - 1 <= k <= 2, (sid, k, len(est))
         assert np.linalg.norm(p - (scn.pos_m[i] + 0.1 * k)) < 1e-3
         assert last["frame_id"] == f"station_{sid}" and len(last["position_covariance"]) == 9
         assert got.of(f"larns/foxglove/fix/station/{sid}/truth")
