@@ -40,9 +40,8 @@ import numpy as np
 
 from nav.geometry import SPEED_OF_LIGHT_M_S
 
-from net.channel import channel_truth, scenario_senders
+from net.channel import UserIntake
 from net.clock import broadcast_clock_var_m2
-from net.plausible import NavPacer
 from net.nettime import network_time, pseudorange_time_error_s
 
 from net.queues import DropOldestQueue
@@ -255,12 +254,7 @@ class AircraftNode:
         seed = scn.seed if opts.seed is None else opts.seed
         rng = np.random.default_rng([int(seed), 0xA1C, sum(map(ord, opts.name))])
         horizon = (opts.duration_s or 7200.0) + 10.0
-        from net.nettime import network_time
-
         net_clock = network_time(scn, seed)  # the receivers run on network time as the field realizes it
-        # the channel owns physics (issue 32): each sender's true position and clock, never its phy claims
-        self.senders = scenario_senders(scn, int(seed), None if net_clock is None else net_clock.clock)
-        self.pacer = NavPacer.for_cycle(scn.tdma.cycle_s)  # issue 32: a stolen key's extra navs weigh nothing
         triad = opts.satellites is not None or "triad" in opts.algos  # the triad: aircraft/triad_core.py
         if triad and set(opts.algos) - {"triad"}:
             raise ValueError(f"triad runs alone in its 6-DOF world; drop {sorted(set(opts.algos) - {'triad'})}")
@@ -291,8 +285,10 @@ class AircraftNode:
         self._last_status = -math.inf
         # (key, bytes) -> (msg, phy); --secure: rate limit, signature, replay first (net/security.py)
         sec = getattr(bus, "security", None)
-        self._decode = (lambda key, data: M.decode(data)) if sec is None else \
+        decode = (lambda key, data: M.decode(data)) if sec is None else \
             sec.aircraft_guard(scn.tdma.cycle_s, self.fleet_now, opts.speed).decode  # (limiter: monotonic clock)
+        # the channel owns physics (issue 32): each sender's true position and clock, never its phy claims
+        self.intake = UserIntake(scn, int(seed), net_clock, decode, self.drops)
 
     def fleet_now(self) -> float:
         return (time.time() - self.epoch) * self.opts.speed
@@ -304,17 +300,10 @@ class AircraftNode:
         self._inbox.put((key, data))
 
     def _ingest(self, key: str, data: bytes) -> None:
-        M = self.M
-        got = M.station_nav(self._decode, key, data, self.drops)
+        got = self.intake.take(key, data, self.fleet_now())
         if got is None:
             return
         msg, phy = got
-        phy = channel_truth(self.senders, msg, phy, self.fleet_now(), self.drops)
-        if phy is None:
-            return
-        if self.pacer.refuse(int(msg["src"]), float(phy["t_true_s"])):  # one nav per station and cycle
-            self.drops.drop("rate", f"nav from {msg['src']} within {self.pacer.min_gap_s:.2f} s of its last")
-            return
         try:
             outs = self.core.on_nav(msg, phy) if self.ins is None else []
         except Exception as e:  # an estimator failure must not kill the node

@@ -230,6 +230,39 @@ def channel_truth(senders: SenderTruth, msg: dict, phy: dict, now_s: float, drop
     return {"pos_m": got[0], "t_true_s": got[1]}
 
 
+class UserIntake:
+    """A user receiver's (the aircraft's, the vehicle's) intake of a station nav from the wire:
+    decoded and on its own station's key (``net.messages.station_nav``: ``decode`` is plain or a
+    ``--secure`` guard's), its ``phy`` replaced by the channel's truth of the named sender
+    (:func:`channel_truth`), and at most one per station per cycle (``net.plausible.NavPacer``).
+    Drops are counted in ``drops`` by reason. The shell's part; the navigators' plausibility checks
+    follow in the cores."""
+
+    def __init__(self, scn, seed: int, net_clock, decode, drops):
+        from .plausible import NavPacer
+
+        self.senders = scenario_senders(scn, int(seed), None if net_clock is None else net_clock.clock)
+        self.pacer = NavPacer.for_cycle(scn.tdma.cycle_s)  # issue 32: a stolen key's extra navs weigh nothing
+        self.decode = decode
+        self.drops = drops
+
+    def take(self, key: str, data: bytes, now_s: float) -> tuple[dict, dict] | None:
+        """``(msg, phy)`` of one sample, or None (counted)."""
+        from .messages import station_nav
+
+        got = station_nav(self.decode, key, data, self.drops)
+        if got is None:
+            return None
+        msg, phy = got
+        phy = channel_truth(self.senders, msg, phy, now_s, self.drops)
+        if phy is None:
+            return None
+        if self.pacer.refuse(int(msg["src"]), float(phy["t_true_s"])):
+            self.drops.drop("rate", f"nav from {msg['src']} within {self.pacer.min_gap_s:.2f} s of its last")
+            return None
+        return msg, phy
+
+
 def scenario_senders(scn, seed: int, base_clock=None) -> SenderTruth:
     """The channel's truth of every station of scenario ``scn`` in world ``seed``: true positions and
     true clocks, each drawn from its station's stream (``station_rng(seed, id, 0)``, the draw its

@@ -65,8 +65,7 @@ class VehicleNode:
 
     def __init__(self, scn, opts: VehicleOptions, bus: Any):
         from net import messages as M
-        from net.channel import scenario_senders
-        from net.plausible import NavPacer
+        from net.channel import UserIntake
         from net.nettime import network_time
 
         from .core import VehicleCore
@@ -80,9 +79,6 @@ class VehicleNode:
                       else float(opts.epoch_unix_s))
         seed = scn.seed if opts.seed is None else opts.seed
         net_clock = network_time(scn, seed)  # the receiver runs on network time as the field realizes it
-        # the channel owns physics (issue 32): each sender's true position and clock, never its phy claims
-        self.senders = scenario_senders(scn, int(seed), None if net_clock is None else net_clock.clock)
-        self.pacer = NavPacer.for_cycle(scn.tdma.cycle_s)  # issue 32: a stolen key's extra navs weigh nothing
         self.core = VehicleCore(scn, opts.name, seed=int(seed), t0_s=max(0.0, math.ceil(self.fleet_now())),
                                 net_clock=net_clock, route_file=opts.route, imu_rate_hz=opts.imu_rate_hz,
                                 speed_m_s=opts.speed_m_s, outage_s=opts.outage_s)
@@ -96,8 +92,10 @@ class VehicleNode:
         self._held: list[tuple] = []  # (t_true_s, n, msg, phy): the reorder buffer
         self._n_in = 0
         sec = getattr(bus, "security", None)
-        self._decode = (lambda key, data: M.decode(data)) if sec is None else \
+        decode = (lambda key, data: M.decode(data)) if sec is None else \
             sec.aircraft_guard(scn.tdma.cycle_s, self.fleet_now, opts.speed).decode  # (limiter: monotonic clock)
+        # the channel owns physics (issue 32): each sender's true position and clock, never its phy claims
+        self.intake = UserIntake(scn, int(seed), net_clock, decode, self.drops)
 
     def fleet_now(self) -> float:
         return (time.time() - self.epoch) * self.opts.speed
@@ -122,18 +120,10 @@ class VehicleNode:
                 log.error("vehicle %s: refusing to send invalid %s: %s", self.opts.name, m["kind"], e)
 
     def _ingest(self, key: str, data: bytes) -> None:
-        from net.channel import channel_truth
-
-        got = self.M.station_nav(self._decode, key, data, self.drops)
+        got = self.intake.take(key, data, self.fleet_now())
         if got is None:
             return
         msg, phy = got
-        phy = channel_truth(self.senders, msg, phy, self.fleet_now(), self.drops)
-        if phy is None:
-            return
-        if self.pacer.refuse(int(msg["src"]), float(phy["t_true_s"])):  # one nav per station and cycle
-            self.drops.drop("rate", f"nav from {msg['src']} within {self.pacer.min_gap_s:.2f} s of its last")
-            return
         if phy["t_true_s"] > self.fleet_now() + 10.0 * self.opts.speed:  # never drained: refuse it now
             self.drops.drop("future", f"nav from {msg['src']} at t = {phy['t_true_s']:.1f} s")
             return

@@ -113,13 +113,17 @@ def _time(v: Any) -> float:
 
 
 def decode_input(data: bytes, cache: dict[bytes, dict]) -> dict:
-    """Strictly validate a ``core_input`` envelope, as ``net.messages.decode`` does, but validate each
+    """Strictly validate a ``core_input`` envelope (signed or not), as ``net.messages.decode`` does, but validate each
     distinct embedded air message once: a nav broadcast sits in the journal of every station that
     heard it (``cache`` maps its msgpack bytes to the validated message)."""
     from net import messages as M
 
     if len(data) > M.MAX_PAYLOAD_BYTES:
         raise M.MessageError("size", "too big")
+    if data[:1] == M.SIGNED_MARK:  # a secure fleet's signed frame: the envelope inside, unverified (as decode)
+        from net.security import strip_signature
+
+        data = strip_signature(bytes(data))
     try:
         env = msgpack.unpackb(data, raw=False, strict_map_key=True, max_bin_len=0, max_ext_len=0,
                               max_array_len=M.MAX_LIST * 4, max_map_len=64)

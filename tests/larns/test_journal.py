@@ -81,6 +81,28 @@ def test_the_recorded_journal_re_estimates_bit_for_bit(published):
         assert all(o.get("slot") == j.estimates[o["seq"]][1].get("slot") for _l, _p, o in r.estimates)
 
 
+def test_a_secure_fleets_signed_journal_re_estimates_bit_for_bit(published, tmp_path, monkeypatch):
+    """A ``--secure`` fleet records every message as its signed frame: the offline decoder takes the
+    envelope inside (as ``net.messages.decode`` does; it read nothing of a secure recording's station
+    journals before), and the journal re-estimates bit for bit."""
+    from net.keystore import init_keystore
+    from net.security import Security
+
+    monkeypatch.setenv("LARNS_STATE_DIR", str(tmp_path / "state"))
+    ks = init_keystore(tmp_path / "keys", [1, 2, 3, 4], []).root
+    sec = {sid: Security(ks, f"station-{sid}") for sid in (1, 2, 3, 4)}
+    recs = []
+    for r in _records(published):
+        signed = sec[int(r.topic.split("/")[2])].seal(r.topic, r.data)
+        assert signed[:1] == M.SIGNED_MARK
+        recs.append(Msg(r.topic, r.log_time, r.publish_time, r.sequence, signed))
+    journals = collect_journals(recs, strict=True)
+    assert sorted(journals) == [1, 2, 3, 4]
+    for j in journals.values():
+        res = reestimate_station(j)
+        assert res.error is None and res.compared == len(j.estimates) > 3 and res.bit_exact
+
+
 def _bad_entries(nav):
     return {
         "entries not a list": 3,
