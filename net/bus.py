@@ -31,6 +31,7 @@ import logging
 import os
 import socket
 import threading
+import time
 from typing import Callable, Iterable, Sequence
 
 log = logging.getLogger("larns.bus")
@@ -118,21 +119,21 @@ _NO_SHM = {"transport/shared_memory/enabled": "false"}
 # LARNS payload is at most net.messages.MAX_PAYLOAD_BYTES (64 KiB, signature included) and every
 # receiver refuses a larger one at decode. A message that fits in one batch is not checked by Zenoh.
 MAX_ZENOH_MESSAGE_BYTES = 2 * 64 * 1024
+# link again within ~0.1 s of a peer or router that restarts or reopens its session (a revocation:
+# Bus.reopen); Zenoh's default (1 s, x2 up to 4 s) lost 1-3 s of traffic
+_FAST_RETRY = {"connect/retry": '{"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2}'}
 _MODE_SETTINGS: dict[str, dict[str, str]] = {
     # peers: full mesh through gossip (Zenoh >= 1.9 peers do not relay); keep retrying seeds that
     # are not up yet (processes start in any order)
-    "peer": {"mode": '"peer"', **_NO_SHM,
+    "peer": {"mode": '"peer"', **_NO_SHM, **_FAST_RETRY,
              "scouting/gossip/enabled": "true",
              "scouting/gossip/multihop": "false",
              "scouting/gossip/autoconnect": '{"router": [], "peer": ["router", "peer"]}',
              "connect/timeout_ms": '{"router": -1, "peer": -1, "client": 0}',
              "connect/exit_on_failure": '{"router": false, "peer": false, "client": true}'},
     # clients of a router: wait for a router that is not up yet instead of failing
-    "client": {"mode": '"client"', **_NO_SHM,
+    "client": {"mode": '"client"', **_NO_SHM, **_FAST_RETRY,
                "connect/timeout_ms": '{"router": -1, "peer": -1, "client": -1}',
-               # back within ~0.1 s of a router that restarts or reopens its session (a revocation:
-               # larns/commands/router.py); Zenoh's default (1 s, x2 up to 4 s) lost 1-3 s of traffic
-               "connect/retry": '{"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2}',
                "connect/exit_on_failure": '{"router": false, "peer": false, "client": false}'},
     # router: no gossip; we never use storages or timestamps, so no HLC stamp per routed sample
     "router": {"mode": '"router"', **_NO_SHM,
@@ -213,6 +214,30 @@ def use_lean_runtime() -> bool:
     return True
 
 
+class _Empty:
+    @staticmethod
+    def try_recv():
+        return None
+
+
+class _Ring:
+    """A ring-buffer subscription that survives a reopen (:meth:`Bus.reopen` swaps ``sub``)."""
+
+    CLOSED = _Empty()
+
+    def __init__(self, sub):
+        self.sub = sub
+
+    def try_recv(self):
+        sub = self.sub
+        try:
+            return sub.try_recv()
+        except Exception:
+            if sub is not self.sub:  # closed by a reopen meanwhile: the new one is read next time
+                return None
+            raise
+
+
 class Bus:
     """One Zenoh session with cached publishers, byte-level subscribe and liveliness.
 
@@ -235,6 +260,7 @@ class Bus:
 
             self.security = Security(*secure[:2])
         self._config_args = (list(listen), list(connect), config_file, multicast, mode)
+        self._secure = secure
         try:
             self.session = zenoh.open(make_config(*self._config_args, secure))
         finally:
@@ -243,11 +269,17 @@ class Bus:
         self._pubs: dict[str, object] = {}
         self._subs: list[object] = []
         self._tokens: list[object] = []
+        self._decls: list[tuple] = []  # what this process declared, declared again by a reopen
         self._lock = threading.Lock()
         self._express = express
         self.closed = False
+        self._reopening = False    # between closing the old session and declaring on the new one
+        self.revoked: frozenset[str] = frozenset()  # names whose access rules the session left out
+        self.reopened = 0
+        self.dropped_in_reopen = 0
         if self.security is not None:  # certificates and the revocation list on the bus (net/trust.py)
             self.security.attach(self)
+            threading.Thread(target=self._watch_revocations, name="larns-bus-revocations", daemon=True).start()
 
     # ------------------------------------------------------------------ publish
     def publish(self, key: str, data: bytes, block: bool = False) -> None:
@@ -255,19 +287,31 @@ class Bus:
         one anyway); ``block=True`` waits for room instead (journals, bulk senders, fuzzers)."""
         pub = self._pubs.get((key, block))
         if pub is None:
-            with self._lock:
+            with self._lock:  # (a reopen swaps the session under this lock)
                 pub = self._pubs.get((key, block))
                 if pub is None:
                     cc = self._z.CongestionControl
-                    pub = self.session.declare_publisher(
-                        key, express=self._express and not block,
-                        congestion_control=cc.BLOCK if block else cc.DROP,
-                        priority=self._z.Priority.REAL_TIME if "/range/" in key
-                        else self._z.Priority.DATA)
+                    try:
+                        pub = self.session.declare_publisher(
+                            key, express=self._express and not block,
+                            congestion_control=cc.BLOCK if block else cc.DROP,
+                            priority=self._z.Priority.REAL_TIME if "/range/" in key
+                            else self._z.Priority.DATA)
+                    except Exception:
+                        if self._reopening:  # the old session is closed, the new one not yet here
+                            self.dropped_in_reopen += 1
+                            return
+                        raise
                     self._pubs[(key, block)] = pub
         if self.security is not None:
             data = self.security.seal(key, data)
-        pub.put(data)
+        try:
+            pub.put(data)
+        except Exception:
+            if self._reopening or pub not in self._pubs.values():  # a publisher of the closed session: lost
+                self.dropped_in_reopen += 1
+                return
+            raise
 
     # ------------------------------------------------------------------ subscribe
     def subscribe(self, keyexpr: str, callback: Callable[[str, bytes], None]) -> object:
@@ -280,17 +324,21 @@ class Bus:
             except Exception:  # a subscriber bug must not kill the Zenoh thread
                 log.exception("subscriber callback failed on %s", sample.key_expr)
 
-        sub = self.session.declare_subscriber(keyexpr, on_sample)
-        self._subs.append(sub)
+        with self._lock:
+            sub = self.session.declare_subscriber(keyexpr, on_sample)
+            self._subs.append(sub)
+            self._decls.append(("sub", keyexpr, on_sample))
         return sub
 
     def subscribe_ring(self, keyexpr: str, capacity: int = 8192) -> object:
         """Subscribe into a Zenoh ring buffer (Rust side, no Python wake-up per sample; the oldest
         samples are dropped when full). Read with :meth:`drain` at times of your choosing: for
         many small, not latency-critical messages this costs far less CPU than a callback."""
-        sub = self.session.declare_subscriber(keyexpr, self._z.handlers.RingChannel(int(capacity)))
-        self._subs.append(sub)
-        return sub
+        with self._lock:
+            ring = _Ring(self.session.declare_subscriber(keyexpr, self._z.handlers.RingChannel(int(capacity))))
+            self._subs.append(ring.sub)
+            self._decls.append(("ring", keyexpr, int(capacity), ring))
+        return ring
 
     @staticmethod
     def drain(sub, max_n: int = 100_000) -> list[tuple[str, bytes]]:
@@ -305,8 +353,10 @@ class Bus:
 
     # ------------------------------------------------------------------ liveliness
     def declare_token(self, key: str) -> object:
-        tok = self.session.liveliness().declare_token(key)
-        self._tokens.append(tok)
+        with self._lock:
+            tok = self.session.liveliness().declare_token(key)
+            self._tokens.append(tok)
+            self._decls.append(("token", key))
         return tok
 
     def subscribe_liveliness(self, keyexpr: str, callback: Callable[[str, bool], None],
@@ -320,8 +370,10 @@ class Bus:
             except Exception:
                 log.exception("liveliness callback failed")
 
-        sub = self.session.liveliness().declare_subscriber(keyexpr, on_sample, history=history)
-        self._subs.append(sub)
+        with self._lock:
+            sub = self.session.liveliness().declare_subscriber(keyexpr, on_sample, history=history)
+            self._subs.append(sub)
+            self._decls.append(("live", keyexpr, on_sample, history))
         return sub
 
     def alive(self, keyexpr: str, timeout_s: float = 1.0) -> list[str]:
@@ -342,16 +394,21 @@ class Bus:
         return [str(z) for z in self.session.info.routers_zid()]
 
     # ------------------------------------------------------------------ lifecycle
-    def reopen(self, secure: tuple, timeout_s: float = 5.0) -> None:
-        """Close the Zenoh session and open a new one on the same endpoints with ``secure`` settings
-        (``(DIR, cn, guard, revoked)``: a router taking a revocation into its access rules, which
-        Zenoh reads only when a session opens). Its clients reconnect by themselves (their
-        ``connect/retry``) and declare their subscriptions again; this process's own subscriptions
-        and tokens would not survive, so only a process that holds none may reopen (the router).
-        Publishers are declared again on first use; the trust queryables are served anew."""
-        if self._subs or self._tokens:
-            raise RuntimeError("Bus.reopen: subscriptions and tokens do not survive a reopen")
+    def reopen(self, revoked: frozenset[str], timeout_s: float = 5.0) -> None:
+        """Close the Zenoh session and open a new one on the same endpoints whose access rules leave
+        out the common names ``revoked`` (``net.security.without_subjects``): Zenoh reads
+        ``access_control`` only when a session opens (1.10: a change on an open session has no
+        effect, the admin space refuses it). Everything this process declared (subscriptions, ring
+        buffers, liveliness tokens and subscriptions, the trust queryables) is declared again on the
+        new session; publishers on first use; a sample published meanwhile is lost
+        (:attr:`dropped_in_reopen`). Its peers, clients or router link again by themselves (their
+        ``connect/retry``)."""
+        root, cn, guard = (*self._secure, None)[:3]
         old = self.session
+        self._reopening = True
+        for d in self._decls:
+            if d[0] == "ring":
+                d[3].sub = _Ring.CLOSED  # (read as empty until the new session's ring is in)
         done = threading.Event()
 
         def _close() -> None:
@@ -365,11 +422,58 @@ class Bus:
         threading.Thread(target=_close, name="larns-bus-reopen", daemon=True).start()
         if not done.wait(timeout_s):
             log.warning("bus: the old Zenoh session did not close within %.0f s; opening the new one anyway", timeout_s)
+        try:
+            new = self._z.open(make_config(*self._config_args, (root, cn, guard, revoked)))
+        except Exception:
+            self._reopening = False
+            raise
         with self._lock:
+            self.session = new
             self._pubs.clear()
-            self.session = self._z.open(make_config(*self._config_args, secure))
+            self._subs, self._tokens = [], []
+            for d in self._decls:
+                if d[0] == "sub":
+                    self._subs.append(new.declare_subscriber(d[1], d[2]))
+                elif d[0] == "ring":
+                    d[3].sub = new.declare_subscriber(d[1], self._z.handlers.RingChannel(d[2]))
+                    self._subs.append(d[3].sub)
+                elif d[0] == "token":
+                    self._tokens.append(new.liveliness().declare_token(d[1]))
+                else:
+                    self._subs.append(new.liveliness().declare_subscriber(d[1], d[2], history=d[3]))
+            self.revoked, self.reopened = frozenset(revoked), self.reopened + 1
+            self._reopening = False
         if self.security is not None:
             self.security.attach(self)
+
+    #: how often a secure session compares the newest revocation list with its access rules
+    REVOCATION_CHECK_S = 0.2
+
+    def _watch_revocations(self) -> None:
+        """Reopen the session when the newest revocation list (the keystore's ``crl.pem`` re-read
+        every 2 s, or one put on or served by the bus: net/trust.py) revokes every certificate of a
+        name the access rules admit - or when a re-issued certificate makes it usable again. A
+        process that verifies no signature (a router, a monitor) reads the certificates from its
+        keystore's files; one with a receive guard knows the certificates of those who spoke to it
+        (the guard loads them on its own thread: the watch then only reads)."""
+        from net.security import access_control
+
+        sec = self.security
+        names = sorted({c for sub in access_control(sec.ks, sec.cn)["subjects"]
+                        for c in sub["cert_common_names"]} - {sec.cn})
+        while not self.closed:
+            time.sleep(self.REVOCATION_CHECK_S)
+            try:
+                now = sec.verifier.revoked_among(names, load=not sec.verifies)
+                if now != self.revoked and not self.closed:
+                    t0 = time.monotonic()
+                    self.reopen(now)
+                    log.warning("bus %s: access rules reopened in %.2f s; refused as revoked: %s", sec.cn,
+                                time.monotonic() - t0, ", ".join(sorted(now)) or "none")
+            except RuntimeError:  # the receive guard added a certificate meanwhile: next tick
+                continue
+            except Exception:  # noqa: BLE001 - the watch must not die (the next tick retries)
+                log.warning("bus %s: revocation watch failed", sec.cn, exc_info=True)
 
     def close(self, timeout_s: float = 5.0) -> bool:
         """Withdraw the tokens and close the session, within ``timeout_s``: a Zenoh session close has

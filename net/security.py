@@ -516,18 +516,18 @@ class Verifier:
             except (OSError, TrustError):
                 continue
 
-    def revoked_among(self, cns: Iterable[str]) -> frozenset[str]:
+    def revoked_among(self, cns: Iterable[str], load: bool = True) -> frozenset[str]:
         """The common names among ``cns`` whose every certificate held is revoked by the newest
         list (the keystore's ``crl.pem`` re-read if due, or one taken from the bus); the
         certificates of a name not held yet or revoked are read from the keystore's files again (at
-        most every ``rescan_s``: a re-issued one makes the name usable again)."""
+        most every ``rescan_s``: a re-issued one makes the name usable again) if ``load``."""
         if self.clock() >= self._crl_next:
             self._crl_file()
         if self.trust.crl is None:
             return frozenset()
         now, out = self.wall_s(), set()
         for cn in cns:
-            if self.trust.status(cn, now) in ("unknown_signer", "revoked"):
+            if load and self.trust.status(cn, now) in ("unknown_signer", "revoked"):
                 t = self.clock()
                 if t - self._missing.get(cn, -math.inf) >= self.rescan_s:
                     self._missing[cn] = t
@@ -771,7 +771,14 @@ class Security:
         self.verifier = Verifier(self.ks)
         self.verifier.trust.add_cert(self.ks.certificate(cn))  # ours, served on the bus
         self._replay: list[ReplayGuard] = []
+        self._guarded = False
         self._trust_bus: dict | None = None
+
+    @property
+    def verifies(self) -> bool:
+        """Whether this process made a receive guard (which loads signers' certificates on its own
+        thread): then a revocation watch must only read the trust store."""
+        return self._guarded
 
     def attach(self, bus) -> None:
         """On a running bus: serve our certificate and the newest revocation list, take lists put
@@ -810,6 +817,7 @@ class Security:
         """A receive guard; ``now_s`` is the receiver's fleet clock (stamps are fleet seconds). With
         ``speed`` the rate limiter runs on the monotonic clock at fleet rate
         (:func:`monotonic_fleet_clock`), else on ``now_s`` (never backwards either way)."""
+        self._guarded = True
         on = rate_limits_on()
         own = "/".join(self.cn.split("-", 1)) if "-" in self.cn else None  # station-5 -> station/5
         clock = None if speed is None else monotonic_fleet_clock(speed)

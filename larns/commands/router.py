@@ -11,8 +11,8 @@ It is also the natural multi-host setup (one router per host, routers connected 
 Secure (docs/security.md): ``larns router --secure DIR --listen tls/127.0.0.1:7447`` and the clients
 with ``--secure DIR --connect tls/127.0.0.1:7447``. A revocation list that revokes a client (the
 keystore's ``crl.pem``, or ``larns keys revoke --publish``) takes it out of the router's access rules:
-the router reopens its session (~0.03 s; the clients are back within ~0.1 s) and Zenoh refuses
-everything that client sends from then on.
+the router reopens its session (~0.03 s; the clients are back within ~0.1 s: net/bus.py ``Bus.reopen``)
+and Zenoh refuses everything that client sends from then on.
 
 SIGINT / SIGTERM: clean exit. The router holds no LARNS state; its clients lose connectivity while
 it is down and reconnect when it comes back.
@@ -60,53 +60,16 @@ def run_router(listen: list[str], connect: list[str], config_file: str | None = 
         print(f"[router] zid {bus.session.info.zid()} listening on {', '.join(listen)}",
               file=sys.stderr, flush=True)
     t_end = None if duration_s is None else time.time() + duration_s
-    watch = RevocationWatch(bus, secure) if secure is not None else None
-    try:
+    try:  # (--secure: the Bus takes revocations into its access rules by itself, net/bus.py)
         while not stop.is_set():
             if t_end is not None and time.time() >= t_end:
                 break
-            stop.wait(0.5 if watch is None else watch.every_s)
-            if watch is not None:
-                watch.check()
+            stop.wait(0.5)
     finally:
         bus.close()
     if not quiet:
         print("[router] stopped", file=sys.stderr, flush=True)
     return 0
-
-
-class RevocationWatch:
-    """Revocation in the router's Zenoh access rules (issue 32): Zenoh reads ``access_control`` only
-    when a session opens (1.10: no change on an open session, none through the admin space), so when
-    the newest revocation list (the keystore's ``crl.pem``, or one put on or served by the bus:
-    net/trust.py) revokes every certificate of a client's common name, the router reopens its session
-    without that name's access rules. Zenoh then refuses everything the revoked identity sends or
-    subscribes to through this router (its TLS link still opens: Zenoh's TLS reads no revocation
-    list). Every client reconnects within ~0.1 s (their ``connect/retry``, net/bus.py); a name whose
-    certificate is re-issued gets its rules back the same way."""
-
-    every_s = 0.1
-
-    def __init__(self, bus, secure: tuple):
-        from net.security import access_control
-
-        self.bus = bus
-        self.secure = secure
-        acl = access_control(bus.security.ks, bus.security.cn)
-        self.cns = sorted({cn for s in acl["subjects"] for cn in s["cert_common_names"]} - {bus.security.cn})
-        self.revoked: frozenset[str] = frozenset()
-        self.reopened = 0
-
-    def check(self) -> None:
-        now = self.bus.security.verifier.revoked_among(self.cns)
-        if now == self.revoked:
-            return
-        t0 = time.monotonic()
-        self.bus.reopen((*self.secure[:3], now))
-        self.revoked, self.reopened = now, self.reopened + 1
-        # an event, not a statistic: printed under --quiet too
-        print(f"[router] access rules reopened in {time.monotonic() - t0:.2f} s; refused as revoked: "
-              f"{', '.join(sorted(now)) or 'none'}", file=sys.stderr, flush=True)
 
 
 def cmd_router(args: argparse.Namespace) -> int:
