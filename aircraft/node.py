@@ -5,7 +5,7 @@ measures pseudoranges in its own channel layer and runs the estimators (one per 
 * **receive**: ``larns/station/*/nav`` -> strict decode (malformed: counted and dropped) -> key/src
   check -> channel layer: reception at ``t_rx = t_true_tx + |r(t_rx) - p_tx| / c`` (the named sender's
   true position and transmit time from the scenario's truth, never the sender's ``phy`` claims:
-  ``net.channel.channel_truth``) read on the aircraft's receiver clock, which runs on network
+  ``net.channel.UserIntake``) read on the aircraft's receiver clock, which runs on network
   time (station 1's oscillator) plus ``c dtau(t) = df lambda t + c tau0`` (seed 001) and timing noise
   ``sigma_m``; pseudorange ``rho = c (t_rx_local - (t_tx - theta_hat(t_tx)))`` from the *station-stamped*
   transmit time ``t_tx`` corrected by the broadcast clock correction ``theta_hat`` (``msg.clock``). Each

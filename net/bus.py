@@ -214,6 +214,23 @@ def use_lean_runtime() -> bool:
     return True
 
 
+def _within(fn: Callable[[], None], timeout_s: float, name: str) -> bool:
+    """Run ``fn`` on a daemon thread and wait up to ``timeout_s`` for it (a Zenoh session close has
+    been seen to hang); its exceptions are swallowed. False if it had not finished by then."""
+    done = threading.Event()
+
+    def run() -> None:
+        try:
+            fn()
+        except Exception:
+            pass
+        finally:
+            done.set()
+
+    threading.Thread(target=run, name=name, daemon=True).start()
+    return done.wait(timeout_s)
+
+
 class _Empty:
     @staticmethod
     def try_recv():
@@ -409,18 +426,7 @@ class Bus:
         for d in self._decls:
             if d[0] == "ring":
                 d[3].sub = _Ring.CLOSED  # (read as empty until the new session's ring is in)
-        done = threading.Event()
-
-        def _close() -> None:
-            try:
-                old.close()
-            except Exception:
-                pass
-            finally:
-                done.set()
-
-        threading.Thread(target=_close, name="larns-bus-reopen", daemon=True).start()
-        if not done.wait(timeout_s):
+        if not _within(old.close, timeout_s, "larns-bus-reopen"):
             log.warning("bus: the old Zenoh session did not close within %.0f s; opening the new one anyway", timeout_s)
         try:
             new = self._z.open(make_config(*self._config_args, (root, cn, guard, revoked)))
@@ -482,25 +488,18 @@ class Bus:
         if self.closed:
             return True
         self.closed = True
-        done = threading.Event()
 
         def _close() -> None:
-            try:
-                if self.security is not None:
-                    self.security.close()  # the replay history, for a restart
-                for t in self._tokens:
-                    try:
-                        t.undeclare()
-                    except Exception:
-                        pass
-                self.session.close()
-            except Exception:
-                pass
-            finally:
-                done.set()
+            if self.security is not None:
+                self.security.close()  # the replay history, for a restart
+            for t in self._tokens:
+                try:
+                    t.undeclare()
+                except Exception:
+                    pass
+            self.session.close()
 
-        threading.Thread(target=_close, name="larns-bus-close", daemon=True).start()
-        if done.wait(timeout_s):
+        if _within(_close, timeout_s, "larns-bus-close"):
             return True
         log.warning("bus: the Zenoh session did not close within %.0f s; leaving it to the process exit", timeout_s)
         return False

@@ -218,23 +218,12 @@ class SenderTruth:
         return "sender_unknown" if tx is None else tx
 
 
-def channel_truth(senders: SenderTruth, msg: dict, phy: dict, now_s: float, drops) -> dict | None:
-    """A user receiver's ``phy`` replaced by the channel's truth of the named sender
-    (:meth:`SenderTruth.receive`), or None with the drop counted in ``drops``
-    (``net.messages.DropCounter``: ``time``, ``sender_unknown``). Nothing is sent before the fleet's
-    epoch, so a claim before it is ``time`` too."""
-    got = "time" if not phy["t_true_s"] >= 0.0 else senders.receive(msg, phy, now_s)
-    if isinstance(got, str):
-        drops.drop(got, f"nav from {msg['src']} claimed at t = {phy['t_true_s']:.3g} s")
-        return None
-    return {"pos_m": got[0], "t_true_s": got[1]}
-
-
 class UserIntake:
     """A user receiver's (the aircraft's, the vehicle's) intake of a station nav from the wire:
     decoded and on its own station's key (``net.messages.station_nav``: ``decode`` is plain or a
     ``--secure`` guard's), its ``phy`` replaced by the channel's truth of the named sender
-    (:func:`channel_truth`), and at most one per station per cycle (``net.plausible.NavPacer``).
+    (:meth:`SenderTruth.receive`; nothing is sent before the fleet's epoch, so a claim before it is
+    ``time`` too), and at most one per station per cycle (``net.plausible.NavPacer``).
     Drops are counted in ``drops`` by reason. The shell's part; the navigators' plausibility checks
     follow in the cores."""
 
@@ -254,9 +243,11 @@ class UserIntake:
         if got is None:
             return None
         msg, phy = got
-        phy = channel_truth(self.senders, msg, phy, now_s, self.drops)
-        if phy is None:
+        tx = "time" if not phy["t_true_s"] >= 0.0 else self.senders.receive(msg, phy, now_s)
+        if isinstance(tx, str):
+            self.drops.drop(tx, f"nav from {msg['src']} claimed at t = {phy['t_true_s']:.3g} s")
             return None
+        phy = {"pos_m": tx[0], "t_true_s": tx[1]}
         if self.pacer.refuse(int(msg["src"]), float(phy["t_true_s"])):
             self.drops.drop("rate", f"nav from {msg['src']} within {self.pacer.min_gap_s:.2f} s of its last")
             return None

@@ -7,7 +7,7 @@ route through the LARNS field, navigating by the stations' nav broadcasts, its I
   comes up); IMU and odometer at ``--imu-rate``; receiver clock on network time.
 * **receive**: ``larns/station/*/nav`` -> strict decode (malformed: counted and dropped) -> key/src
   check -> the channel's truth of the named sender (its true position and transmit time, never the
-  sender's ``phy`` claims: ``net.channel.channel_truth``) -> a reorder buffer (half the integration lag: broadcasts reach the process by different
+  sender's ``phy`` claims: ``net.channel.UserIntake``) -> a reorder buffer (half the integration lag: broadcasts reach the process by different
   links) -> pseudorange and carrier pseudorange rate formed like the aircraft's (docs/vehicle.md).
   The navigator integrates ``lag_s`` (1 s) x ``--speed`` behind fleet time; a broadcast older than its
   filter time is late (counted, not used).
