@@ -7,8 +7,9 @@ from typing import Any
 
 import numpy as np
 
-from .estimators import ALGOS, Tuning
-from .models import ReceiverClock
+from .navigator.radio.models import ALGOS
+from .navigator.radio.tuning import Tuning
+from .world.clock import ReceiverClock
 
 _KNOWN = {"name", "algos", "rate_hz", "sync", "sigma_m", "df_hz", "lambda_m", "tau0_s", "height_m",
           "trajectory", "tuning", "turn", "hover", "bench", "crlb", "init_sigma_m", "imu",

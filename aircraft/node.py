@@ -80,7 +80,7 @@ class AircraftCore:
 
     def __init__(self, ac, algos, name: str, rng: np.random.Generator,
                  height_m: float | None = None, horizon_s: float = 7200.0, net_clock=None):
-        from . import trajectory
+        from .world import trajectory
 
         self.ac = ac
         self.rng = rng
@@ -96,7 +96,7 @@ class AircraftCore:
 
     def _navigator(self, record: dict, name: str, algos: tuple[str, ...]) -> None:
         """The navigator side: the estimators of ``algos`` configured by the init record."""
-        from .estimators import AircraftEstimator
+        from .navigator.radio.estimator import AircraftEstimator
 
         self.name = name
         self.estimators = {a: AircraftEstimator(a, estimator_config(record)) for a in algos}
@@ -215,11 +215,11 @@ def radio_record(ac, algos) -> dict:
 
 
 def estimator_config(record: dict):
-    """The :class:`aircraft.estimators.EstimatorConfig` of an init record. The filters start from the
-    broadcasts alone (aircraft/initializer.py), never from the truth or the scenario's station
+    """The :class:`aircraft.navigator.radio.estimator.EstimatorConfig` of an init record. The filters start from the
+    broadcasts alone (aircraft/navigator/radio/initializer.py), never from the truth or the scenario's station
     positions; ``init_sigma_m`` only widens the wide prior."""
-    from .estimators import EstimatorConfig, Tuning
-    from .initializer import InitConfig
+    from .navigator.radio.estimator import EstimatorConfig, Tuning
+    from .navigator.radio.initializer import InitConfig
 
     s = record.get("init_sigma_m")
     init = InitConfig() if not s else InitConfig(wide_sigma_m=max(InitConfig.wide_sigma_m, float(s)))
@@ -421,7 +421,7 @@ class AircraftNode:
 def add_args(p: argparse.ArgumentParser) -> None:
     from net import cli
 
-    from .models import ALGOS
+    from .navigator.radio.models import ALGOS
 
     p.add_argument("--algo", action="append", choices=ALGOS + ("ins-ekf", "triad"), default=None,
                    help="estimator to run (repeatable; default: the scenario's [aircraft] algos)")

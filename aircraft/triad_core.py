@@ -10,7 +10,7 @@ blocks as :class:`aircraft.ins_core.InsAircraftCore`); the baro (Gauss-Markov bi
 
 Measurements: every whole second of the IMU grid, the pseudoranges of the ``N`` satellites highest
 at the start that are above the mask (``|p - s(t_tx)| + b + tropo(el) - c dt_sat + n``, as
-:mod:`aircraft.triad_sim`) and the baro altitude; every station nav broadcast, a pseudorange formed
+:mod:`aircraft.montecarlo.triad`) and the baro altitude; every station nav broadcast, a pseudorange formed
 as the INS core forms it (reception time from the sender's true position and transmit time,
 broadcast clock correction residual, receiver clock, timing noise).
 

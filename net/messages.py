@@ -375,7 +375,7 @@ SCHEMAS: dict[str, tuple[dict[str, Callable], dict[str, Callable]]] = {
     "ac_estimate": ({**_COMMON_AIRCRAFT, "t_s": _num, "pos_m": _vec3, "cov_m2": _cov33,
                      "algo": _name},
                     {"vel_m_s": _vec3, "vel_cov": _cov33, "n_updates": _count, "extra": _extra,
-                     # integrity (issue 14, aircraft/fde.py): protection levels, excluded station ids
+                     # integrity (issue 14, aircraft/navigator/radio/fde.py): protection levels, excluded station ids
                      "hpl_m": _nonneg, "vpl_m": _nonneg, "excluded": _members}),
     "ac_truth": ({**_COMMON_AIRCRAFT, "t_s": _num, "pos_m": _vec3},
                  {"vel_m_s": _vec3, "extra": _extra}),

@@ -78,17 +78,19 @@ def test_package_dependency_direction(pkg):
     assert not bad, f"{pkg} may depend on {sorted(ALLOWED[pkg]) or 'nothing of ours'} only:\n" + "\n".join(bad)
 
 
+# what a navigator may never reach: the truth (``world/``) and, in the aircraft, the Monte Carlo drivers
+# that draw worlds and run navigators in batch (``montecarlo/``: they import the world)
+OUTSIDE_NAVIGATOR = {"aircraft": ("aircraft.world", "aircraft.montecarlo"), "vehicle": ("vehicle.world",)}
+
+
 @pytest.mark.parametrize("pkg", ["aircraft", "vehicle"])
 def test_navigator_never_imports_the_world(pkg):
-    """Truth never reaches an estimator: ``navigator/`` does not import ``world/``."""
+    """Truth never reaches an estimator: ``navigator/`` does not import ``world/`` (nor ``montecarlo/``)."""
     assert any(m.startswith(f"{pkg}.navigator.") for m in GRAPH)
+    assert all(any(m.startswith(out) for m in GRAPH) for out in OUTSIDE_NAVIGATOR[pkg])
     bad = [f"{f}:{line} imports {name}" for mod, edges in GRAPH.items() if mod.startswith(f"{pkg}.navigator")
-           for f, line, name in edges if name.startswith(f"{pkg}.world")]
+           for f, line, name in edges if name.startswith(OUTSIDE_NAVIGATOR[pkg])]
     assert not bad, "\n".join(bad)
-
-
-# modules that hold truth besides ``world/`` (the flat radio trajectory until it moves into world/)
-TRUTH_MODULES = {"aircraft": ("aircraft.world", "aircraft.trajectory"), "vehicle": ("vehicle.world",)}
 
 
 def _owner(name: str, graph) -> str:
@@ -112,12 +114,13 @@ def reaches(start: str, graph) -> dict[str, str]:
     return via
 
 
-def truth_paths(pkg: str, graph) -> list[str]:
-    """Every import chain from a module of ``pkg.navigator`` to a truth module, as ``a -> b -> c``."""
+def truth_paths(pkg: str, graph, starts: list[str] | None = None) -> list[str]:
+    """Every import chain from a module of ``pkg.navigator`` (or of ``starts``) to a module outside the
+    navigator's reach (:data:`OUTSIDE_NAVIGATOR`), as ``a -> b -> c``."""
     out = []
-    for start in sorted(m for m in graph if m.startswith(f"{pkg}.navigator")):
+    for start in starts or sorted(m for m in graph if m.startswith(f"{pkg}.navigator")):
         via = reaches(start, graph)
-        for bad in sorted(m for m in via if m.startswith(TRUTH_MODULES[pkg])):
+        for bad in sorted(m for m in via if m.startswith(OUTSIDE_NAVIGATOR[pkg])):
             chain = [bad]
             while chain[-1] != start:
                 chain.append(via[chain[-1]])
@@ -128,8 +131,32 @@ def truth_paths(pkg: str, graph) -> list[str]:
 @pytest.mark.parametrize("pkg", ["aircraft", "vehicle"])
 def test_navigator_never_reaches_the_world_transitively(pkg):
     """Not through any chain of imports either: a navigator module that imports a flat module that
-    imports ``world/`` (or the flat truth trajectory) fails here."""
+    imports ``world/`` (or ``montecarlo/``) fails here."""
     assert not truth_paths(pkg, GRAPH), "\n".join(truth_paths(pkg, GRAPH))
+
+
+# issue 29: the flat estimation modules moved into the radio navigator, the truth trajectory into world/,
+# the Monte Carlo drivers into montecarlo/ (no old names left behind)
+MOVED = {"aircraft.fde": "aircraft.navigator.radio.fde", "aircraft.raim": "aircraft.navigator.radio.raim",
+         "aircraft.initializer": "aircraft.navigator.radio.initializer",
+         "aircraft.coords": "aircraft.navigator.radio.coords", "aircraft.models": "aircraft.navigator.radio.models",
+         "aircraft.trajectory": "aircraft.world.trajectory", "aircraft.sim": "aircraft.montecarlo.radio",
+         "aircraft.ins_sim": "aircraft.montecarlo.ins", "aircraft.triad_sim": "aircraft.montecarlo.triad",
+         "aircraft.estimators": None}
+
+
+@pytest.mark.parametrize("old", sorted(MOVED))
+def test_the_split_left_no_old_module(old):
+    assert old not in GRAPH
+    assert MOVED[old] is None or MOVED[old] in GRAPH
+
+
+@pytest.mark.parametrize("mod", sorted(m for m in MOVED.values() if m and m.startswith("aircraft.navigator.")))
+def test_every_moved_navigator_module_stays_clear_of_world_and_montecarlo(mod):
+    """Each module moved into the navigator, on its own: its whole import closure reaches neither
+    ``world/`` nor ``montecarlo/`` (the receiver's true clock went to ``world/clock.py``)."""
+    assert mod in GRAPH
+    assert not truth_paths("aircraft", GRAPH, [mod]), "\n".join(truth_paths("aircraft", GRAPH, [mod]))
 
 
 def test_a_planted_transitive_violation_is_found():
@@ -139,6 +166,11 @@ def test_a_planted_transitive_violation_is_found():
     graph["aircraft.navigator.receiver"] = graph["aircraft.navigator.receiver"] + [("r.py", 2, "aircraft.helper")]
     graph["aircraft.helper"] = [("h.py", 3, "aircraft.world.imu.ImuModel")]
     assert "aircraft.navigator.planted -> aircraft.navigator.receiver -> aircraft.helper -> aircraft.world.imu" \
+        in truth_paths("aircraft", graph)
+    # and a navigator module that reaches a Monte Carlo driver (through a flat helper) fails as well
+    graph["aircraft.navigator.radio.planted"] = [("q.py", 1, "aircraft.helper2.f")]
+    graph["aircraft.helper2"] = [("h2.py", 4, "aircraft.montecarlo.radio.run_algo")]
+    assert "aircraft.navigator.radio.planted -> aircraft.helper2 -> aircraft.montecarlo.radio" \
         in truth_paths("aircraft", graph)
     assert not truth_paths("aircraft", GRAPH)
 

@@ -6,7 +6,7 @@ covariance, pseudorange, variance) and its IMU increments, and then starts its e
 the window's end ``t_e`` with a mean and a covariance built from those inputs alone:
 
 1. **Radio fix with motion** (position, velocity, clock). A first guess from the broadcast-only
-   initializer (:func:`aircraft.initializer.snapshot_fix`: multi-start LSQ on the window's first
+   initializer (:func:`aircraft.navigator.radio.initializer.snapshot_fix`: multi-start LSQ on the window's first
    cycle), then a Gauss-Newton batch fit of every pseudorange of the window to a constant-acceleration
    track and a two-state clock referenced at ``t_e``:
    ``rho_i = |p_e + v_e tau_i + a tau_i^2 / 2 - s_i| + b_e + d tau_i + noise``, ``tau_i = t_i - t_e``
@@ -48,7 +48,7 @@ from nav import errorstate as es
 from nav.rotations import exp_so3, skew
 from nav.strapdown import G0_M_S2
 
-from ..initializer import snapshot_fix
+from .radio.initializer import snapshot_fix
 from .ins_ekf import InsTuning, tilt_attitude_jacobian
 
 NX = 11  # fit parameters: p (3), v (3), a (3), b, d

@@ -3,7 +3,7 @@ broadcast is checked against the field's physical bounds (``net/plausible.py``: 
 the field's extent plus a margin, a positive semi-definite covariance, the clock correction within
 the oscillator class, the transmit time near the reception) before the channel layer or any filter
 takes it in. One outside its bounds is dropped and counted (``implausible_<reason>`` in the core's
-``stats``, shown in ``ac_status``), never down-weighted; the filters' integrity (``aircraft/fde.py``)
+``stats``, shown in ``ac_status``), never down-weighted; the filters' integrity (``aircraft/navigator/radio/fde.py``)
 then judges what passes. Pure: the radio (``AircraftCore``), inertial and triad cores call
 :func:`refuse` first thing in their ``on_nav``.
 """

@@ -111,7 +111,7 @@ class DivergenceMonitor:
     """Windowed, leave-one-out NIS test of a running filter (rule 3).
 
     ``push(q, dof, w)`` takes one update's NIS ``q`` with ``dof`` degrees of freedom and each station's
-    normalized innovation ``w`` {station id: w_i} (aircraft/fde.py ``snooping``). Over the last
+    normalized innovation ``w`` {station id: w_i} (aircraft/navigator/radio/fde.py ``snooping``). Over the last
     ``window`` updates, ``Q - W_i`` (the NIS with station ``i``'s bias estimated, chi-square with
     ``D - N_i`` dof, ``N_i`` its measurements in the window) is tested for the station ``i`` with the
     largest ``W_i``: a single faulty station passes (the integrity monitor excludes it), a filter

@@ -4,6 +4,9 @@
 frequency noise ``q_b`` (m^2/s) and random-walk frequency noise ``q_d`` (m^2/s^3) (TCXO defaults of
 the seed spec sec. 1.4: ``q_b = c^2 h0 / 2``, ``q_d = 2 pi^2 c^2 h_-2``). Sampled exactly at the given
 times (the discrete process has covariance ``[[q_b T + q_d T^3/3, q_d T^2/2], [q_d T^2/2, q_d T]]``).
+
+:class:`ReceiverClock`: the deterministic clock of seed 001 (a constant frequency offset), the radio
+aircraft's true clock (``[aircraft]`` ``df_hz``, ``lambda_m``, ``tau0_s``; the live node and the Monte Carlo).
 """
 
 from __future__ import annotations
@@ -46,3 +49,24 @@ def sample(model: ClockModel, t_s: np.ndarray, runs: int, rng: np.random.Generat
         out[k] = x
         tp = t
     return out
+
+
+@dataclass(frozen=True)
+class ReceiverClock:
+    """Receiver clock model of seed 001: ``dtau(t) = df * lambda * t / c + tau0``.
+
+    ``df_hz`` carrier frequency offset, ``lambda_m`` carrier wavelength, ``tau0_s`` initial offset.
+    The paper's values ``df = 20 Hz``, ``lambda = 0.03 m``, ``tau0 = 0`` give 0.6 m/s of range drift.
+    """
+
+    df_hz: float = 20.0
+    lambda_m: float = 0.03
+    tau0_s: float = 0.0
+
+    @property
+    def drift_m_s(self) -> float:
+        return self.df_hz * self.lambda_m
+
+    def bias_m(self, t_s: np.ndarray | float) -> np.ndarray:
+        """Clock offset in range units ``c * dtau(t)``; same shape as ``t_s``."""
+        return self.drift_m_s * np.asarray(t_s, dtype=float) + SPEED_OF_LIGHT_M_S * self.tau0_s

@@ -203,11 +203,11 @@ def aircraft_crlb(truth: dict, stations_m: dict[int, Any], slots: dict[int, int]
 
 def aircraft_pcrb(truth: dict, navs: Sequence[tuple[float, Any]], tuning) -> tuple[np.ndarray, np.ndarray] | None:
     """Posterior CRLB (``nav.pcrb.pcrb_step``, Tichavsky et al. 1998 in covariance form) of the
-    pseudorange filters' own model (CV + clock offset/drift, ``aircraft.estimators.Tuning``) for the
+    pseudorange filters' own model (CV + clock offset/drift, ``aircraft.navigator.radio.tuning.Tuning``) for the
     sequential TDMA measurements: one scalar pseudorange per nav broadcast ``(t_true_s, sender
     pos_m)`` from the sender's true position, along the true track. Returns (times, sqrt of the
     position-bound trace)."""
-    from aircraft import models as mdl
+    from aircraft.navigator.radio import models as mdl
     from nav.pcrb import pcrb_step
 
     navs = [n for n in navs if truth is not None and truth["t_s"][0] - 1.0 <= n[0] <= truth["t_s"][-1]]

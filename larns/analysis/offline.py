@@ -198,7 +198,7 @@ def run_offline(paths: Sequence[str | Path], output: str | Path | None = None, e
     estimates replaced by the re-estimated ones)."""
     import time
 
-    from aircraft.models import ALGOS
+    from aircraft.navigator.radio.models import ALGOS
 
     bad = [a for a in (algos or ()) if a not in ALGOS + ("ins-ekf", "triad")]
     if bad:

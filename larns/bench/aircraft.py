@@ -51,7 +51,7 @@ def register(sub) -> None:
     p.add_argument("--no-sweep", action="store_true", help="skip the height sweep")
     p.add_argument("--no-speed", action="store_true", help="skip the filterpy speed comparison")
     p.add_argument("--no-fde", action="store_true",
-                   help="filters without the integrity gate/exclusion (aircraft/fde.py; default: on)")
+                   help="filters without the integrity gate/exclusion (aircraft/navigator/radio/fde.py; default: on)")
     p.add_argument("--sync-ns", type=float, default=None, metavar="NS",
                    help="station clocks on: residual sync error of each station after the broadcast correction "
                         "(1 sigma, ns), broadcast to the aircraft as its clock variance (default 0; --clocks: 0.7)")
@@ -75,7 +75,7 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-# the radio filters' linearization rules (aircraft/estimators.py Tuning) and the setting that switches
+# the radio filters' linearization rules (aircraft/navigator/radio/tuning.py Tuning) and the setting that switches
 # each off: `larns bench aircraft --envelope --without RULE` measures what each one holds
 RULES = {
     "floor": ("height-floor truncation", {"floor_z_m": None}),
@@ -138,9 +138,10 @@ def run_point(ac, kind: str, dist_m: float, runs: int, duration_s: float, warmup
     ``clock_bias`` (``clock_bias`` overrides it) and the world's correlation time, the PCRB is that of
     the world (augmented with one bias per station). NEES: navigation states (n dof), mean over the
     window, with its 95 % chi-square band treating the runs as independent. ``fde``: the filters gate,
-    test and exclude stations (aircraft/fde.py, the default; on clean data a gated measurement is rare)."""
-    from aircraft import sim, trajectory
-    from aircraft.fde import FdeConfig
+    test and exclude stations (aircraft/navigator/radio/fde.py, the default; on clean data a gated measurement is rare)."""
+    from aircraft.montecarlo import radio as sim
+    from aircraft.navigator.radio.fde import FdeConfig
+    from aircraft.world import trajectory
 
     dt = 1.0 / ac.rate_hz
     t = np.arange(0.0, duration_s, dt)
@@ -206,9 +207,10 @@ def speed_vs_filterpy(ac, steps: int = 400, runs: int = 64) -> dict:
 
     from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 
-    from aircraft import models as mdl
-    from aircraft import sim, trajectory
-    from aircraft.estimators import CvTracker
+    from aircraft.montecarlo import radio as sim
+    from aircraft.navigator.radio import models as mdl
+    from aircraft.navigator.radio.tracker import CvTracker
+    from aircraft.world import trajectory
 
     # filterpy's UKF is the plain one: compare the same algorithm (no iterated update, no repeated
     # linearization term in R)
@@ -291,7 +293,7 @@ def _grid(args, b: dict):
 
 def _clock_settings(args):
     """``(clocks, sync_ns, sync_tau_s)``: station clocks on and their residual sync error."""
-    from aircraft.estimators import CLOCK_BIAS_TAU_S
+    from aircraft.navigator.radio.tuning import CLOCK_BIAS_TAU_S
 
     clocks = bool(getattr(args, "clocks", False))
     sync_ns = args.sync_ns if args.sync_ns is not None else (CLOCKS_SYNC_NS if clocks else 0.0)

@@ -53,7 +53,7 @@ def points(heights=HEIGHTS_M, dists=DISTANCES_M, bearings=BEARINGS_DEG, trajs=TR
 
 
 def _tracks(ac, pts: list[Point], t: np.ndarray):
-    from aircraft import trajectory
+    from aircraft.world import trajectory
 
     out = []
     for p in pts:
@@ -64,8 +64,8 @@ def _tracks(ac, pts: list[Point], t: np.ndarray):
 
 def _pcrb(model: str, tracks, ac, win: np.ndarray) -> np.ndarray:
     """RMS over the window of the position PCRB of the filter's own model, one value per track (K,)."""
-    from aircraft import models as mdl
-    from aircraft import sim
+    from aircraft.montecarlo import radio as sim
+    from aircraft.navigator.radio import models as mdl
     from nav.pcrb import pcrb_linear_gaussian, prior_before_first_step
 
     tu = ac.tuning
@@ -124,9 +124,9 @@ def run_chunk(ac, pts: list[Point], runs: int, duration_s: float, warmup_s: floa
 
     Returns one dict per (point, algo) with the envelope's fields.
     """
-    from aircraft import models as mdl
-    from aircraft import sim
-    from aircraft.estimators import CvTracker
+    from aircraft.montecarlo import radio as sim
+    from aircraft.navigator.radio import models as mdl
+    from aircraft.navigator.radio.tracker import CvTracker
     dt = 1.0 / ac.rate_hz
     t = np.arange(0.0, duration_s, dt)
     win = t >= warmup_s

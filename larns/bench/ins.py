@@ -84,7 +84,7 @@ def paper_curves(scenario: str, heights, slot_s: float, sigma_m: float) -> dict:
 
 
 def ins_mc(scenario, h, preset, runs, duration, seed, outages=(), tilt="estimate", pcrb=True):
-    from aircraft.ins_sim import InsRun, simulate
+    from aircraft.montecarlo.ins import InsRun, simulate
 
     sc, fld, mo = world(scenario, h)
     cfg = InsRun(runs=runs, duration_s=duration or mo.lap_s, slot_s=sc.tdma.slot_s, cycle_s=sc.tdma.cycle_s,
@@ -164,7 +164,7 @@ def run(args) -> int:
     doc["mc_flight_s"] = mc_flight
     doc["mc_wall_s"] = mc_wall
     # 3. outages ----------------------------------------------------------------------------------
-    from aircraft.ins_sim import open_loop_drift
+    from aircraft.montecarlo.ins import open_loop_drift
 
     h_out = 1000.0
     dur = duration or mo0.lap_s

@@ -7,8 +7,8 @@ clean centralized CRLB of the same realized links, their mean NEES (3 dof), and 
 after the fault's onset, and the false exclusions (a non-faulty station excluding a non-faulty one)
 per station-hour.
 
-``--aircraft``: snapshot RAIM/FDE (``aircraft/raim.py``) and the aircraft filters' integrity
-(``aircraft/fde.py``: gate, windowed test, exclusion, HPL/VPL) on the seed001/seed003 worlds with one
+``--aircraft``: snapshot RAIM/FDE (``aircraft/navigator/radio/raim.py``) and the aircraft filters' integrity
+(``aircraft/navigator/radio/fde.py``: gate, windowed test, exclusion, HPL/VPL) on the seed001/seed003 worlds with one
 station biased by 30 m from t = 20 s (JSON ``aircraft[*].filter_integrity``).
 """
 
@@ -63,7 +63,7 @@ def register(sub) -> None:
                    help="aircraft Monte Carlo runs per world (default 400: a run that drifts out of its HPL stays out for "
                         "many epochs, so the 1e-3 per-epoch rates need hundreds of runs)")
     p.add_argument("--ac-filters", nargs="*", default=list(AC_FILTERS), metavar="ALGO",
-                   help=f"aircraft filters with integrity monitoring (aircraft/fde.py) on the same worlds at the "
+                   help=f"aircraft filters with integrity monitoring (aircraft/navigator/radio/fde.py) on the same worlds at the "
                         f"scenario's epoch rate, {AC_FILTER_DURATION_S:g} s (default: {' '.join(AC_FILTERS)}; "
                         "none: snapshot RAIM only)")
     p.add_argument("--recovery", action="store_true",
@@ -81,12 +81,13 @@ AC_P_MD = 1e-3
 
 
 def aircraft_raim(scenario: str, runs: int, seed: int, duration_s: float = 40.0) -> dict:
-    """Snapshot RAIM/FDE (``aircraft/raim.py``) along the scenario's aircraft track, one station's
+    """Snapshot RAIM/FDE (``aircraft/navigator/radio/raim.py``) along the scenario's aircraft track, one station's
     pseudoranges biased by ``AC_BIAS_M`` from ``AC_ONSET_S``; the same epochs without the fault for the
     false-alarm and protection-level statistics. Station positions are the true ones (seed 001 setup)."""
-    from aircraft import sim, trajectory
     from aircraft.config import from_scenario
-    from aircraft.raim import raim_fde
+    from aircraft.montecarlo import radio as sim
+    from aircraft.navigator.radio.raim import raim_fde
+    from aircraft.world import trajectory
     from net.scenario import load
 
     sc = load(scenario)
@@ -162,7 +163,7 @@ def run_bootstrap_rate_ci(counts, epochs_per_run: int, rng: np.random.Generator,
 
 def _filter_case(algo, track, ac, rho, bias, fde, onset_s, bad_id, seed):
     """One filter over the runs with the fault ``bias`` (T, m) or clean (None): detection, errors, PLs."""
-    from aircraft import sim
+    from aircraft.montecarlo import radio as sim
 
     r = sim.run_algo(algo, track, ac.stations_m, rho, ac.tuning, ac.clock, np.random.default_rng([seed, 15]),
                      fde=fde, bias_m=bias)
@@ -200,14 +201,15 @@ def _filter_case(algo, track, ac, rho, bias, fde, onset_s, bad_id, seed):
 
 def aircraft_filters(scenario: str, runs: int, seed: int, algos=AC_FILTERS,
                      duration_s: float = AC_FILTER_DURATION_S) -> dict:
-    """The aircraft filters' integrity (aircraft/fde.py) on the scenario's track at its epoch rate:
+    """The aircraft filters' integrity (aircraft/navigator/radio/fde.py) on the scenario's track at its epoch rate:
     one station's pseudoranges biased by ``AC_BIAS_M`` from ``AC_ONSET_S`` (detection and exclusion,
     RMSE from onset + 5 s against the PCRB without that station from the onset), and the same draws
     without the fault (false alarms per tested epoch, HPL/VPL exceedances). Filters start like the
     seed-001 bench (truth + a draw from their prior); station positions are the true ones."""
-    from aircraft import sim, trajectory
     from aircraft.config import from_scenario
-    from aircraft.fde import FdeConfig
+    from aircraft.montecarlo import radio as sim
+    from aircraft.navigator.radio.fde import FdeConfig
+    from aircraft.world import trajectory
     from net.scenario import load
 
     sc = load(scenario)
@@ -484,7 +486,7 @@ def plot_recovery(rows: list[dict], png_dir: Path) -> Path:
 def print_filter_table(ac_rows: list[dict]) -> None:
     """The aircraft filters' integrity table (one row per world and filter)."""
     f0 = ac_rows[0]["filter_integrity"]
-    print(f"\naircraft filters with integrity monitoring (aircraft/fde.py: gate p = {f0['p_gate']:g} per measurement, "
+    print(f"\naircraft filters with integrity monitoring (aircraft/navigator/radio/fde.py: gate p = {f0['p_gate']:g} per measurement, "
           f"window test p_fa = {f0['p_fa']:g} per epoch over {f0['window']} epochs, HPL/VPL for integrity risk "
           f"{f0['integrity_risk']:g} per epoch; station biased {AC_BIAS_M:g} m from t = {AC_ONSET_S:g} s; "
           f"RMSE from onset + {AC_SETTLE_S:g} s vs the PCRB without that station)")

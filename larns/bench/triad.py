@@ -95,7 +95,7 @@ def sweep_layouts(half_sides_m) -> list[tuple[str, float, np.ndarray]]:
 
 
 def run(args) -> int:
-    from aircraft.triad_sim import DEFAULT_STATIONS_M, TriadCase, simulate
+    from aircraft.montecarlo.triad import DEFAULT_STATIONS_M, TriadCase, simulate
 
     runs = 10 if args.quick else args.runs
     scale = 0.2 if args.quick else 1.0
@@ -174,7 +174,7 @@ def _ratio(doc, results, same) -> None:
 
 def _sweep(doc, args, scale, rms_4sv_same) -> None:
     """2 satellites + k LARNS stations in the :func:`sweep_layouts` (the default corners tie the field)."""
-    from aircraft.triad_sim import DEFAULT_STATIONS_M, TriadCase, simulate
+    from aircraft.montecarlo.triad import DEFAULT_STATIONS_M, TriadCase, simulate
 
     sr = 6 if args.quick else args.sweep_runs
     sizes = (30e3,) if args.quick else (10e3, 30e3, 100e3)

@@ -515,7 +515,7 @@ def _aircraft_figures(d: dict, logs, out: Path, res: dict, figs: list, scenario:
     else:
         from dataclasses import replace
 
-        from aircraft.estimators import Tuning
+        from aircraft.navigator.radio.tuning import Tuning
 
         tuning = replace(Tuning(), sigma_m=float(sig or 0.5))
     res["aircraft"] = fig_aircraft(d, out / "aircraft_errors.png", sig, tuning)

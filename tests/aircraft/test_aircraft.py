@@ -9,11 +9,16 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from aircraft import models as mdl
-from aircraft import sim, trajectory
 from aircraft.config import from_scenario
-from aircraft.estimators import AircraftEstimator, CvTracker, EstimatorConfig, Tuning, lsq_pr, lsq_tdoa
+from aircraft.montecarlo import radio as sim
 from aircraft.navigator import receiver as rx
+from aircraft.navigator.radio import models as mdl
+from aircraft.navigator.radio.estimator import AircraftEstimator, EstimatorConfig
+from aircraft.navigator.radio.lsq import lsq_pr, lsq_tdoa
+from aircraft.navigator.radio.tracker import CvTracker
+from aircraft.navigator.radio.tuning import Tuning
+from aircraft.world import trajectory
+from aircraft.world.clock import ReceiverClock
 from nav.kalman import ekf_update, kf_predict, kf_update, ukf_predict, ukf_update
 from nav.pcrb import crlb_cycle, fisher_cycle, pcrb_linear_gaussian
 from nav.ut import SigmaParams
@@ -78,7 +83,7 @@ def test_station_covariance_enters_the_range_variance():
 
 
 def test_clock_model_seed001():
-    c = mdl.ReceiverClock()
+    c = ReceiverClock()
     assert c.drift_m_s == pytest.approx(0.6)
     assert c.bias_m(10.0) == pytest.approx(6.0)
 
@@ -596,8 +601,9 @@ def test_tdma_far_field_start_from_a_wide_prior_converges():
     for 30 s (docs/aircraft.md, "Linearization error counted as repeating")."""
     from dataclasses import replace
 
-    from aircraft import models as mdl
-    from aircraft.estimators import CvTracker, Tuning
+    from aircraft.navigator.radio import models as mdl
+    from aircraft.navigator.radio.tracker import CvTracker
+    from aircraft.navigator.radio.tuning import Tuning
 
     S = np.array([[0, 0, 0], [1800, 0, 5], [900, 1500, 0], [800, 500, 60], [300, 1200, 20]], float)
     truth = S.mean(axis=0) + np.array([1500.0, 0.0, 0.0])
@@ -621,8 +627,8 @@ def test_tdma_far_field_start_from_a_wide_prior_converges():
 
 def _ekf_pr_over(ac, track, xt, t, tun, runs: int, seed: int):
     """An EKF-PR (8 states) over ``track`` from the prior around the truth, seeded; returns it."""
-    from aircraft import models as mdl
-    from aircraft import sim
+    from aircraft.montecarlo import radio as sim
+    from aircraft.navigator.radio import models as mdl
 
     rng = np.random.default_rng(seed)
     rho = sim.pseudoranges(track, ac.stations_m, ac.clock, ac.sigma_m, runs, rng)
@@ -641,8 +647,8 @@ def test_hover_overhead_height_does_not_drift_with_the_lagged_height_column():
     horizontal position (``height_jacobian_lag_s``, default) the mean stays small (+4 m)."""
     from dataclasses import replace
 
-    from aircraft import models as mdl
-    from aircraft import sim
+    from aircraft.montecarlo import radio as sim
+    from aircraft.navigator.radio import models as mdl
     from larns.bench import envelope as env
 
     ac = from_scenario(load("seed001"))
@@ -665,8 +671,8 @@ def test_symmetry_plane_no_drift_along_the_unobservable_direction():
     (``lag_direction = "weakest"``, default) keeps it small. Seeded, 48 runs."""
     from dataclasses import replace
 
-    from aircraft import models as mdl
-    from aircraft import sim
+    from aircraft.montecarlo import radio as sim
+    from aircraft.navigator.radio import models as mdl
     from larns.bench import envelope as env
 
     ac = from_scenario(load("seed001"))
@@ -691,14 +697,14 @@ def test_initializer_never_reads_the_world():
     import subprocess
     import sys
 
-    code = ("import sys, aircraft.initializer; bad = [m for m in ('aircraft.trajectory', 'aircraft.sim', "
-            "'aircraft.node', 'aircraft.config', 'net.scenario') if m in sys.modules]; print(bad); "
-            "sys.exit(1 if bad else 0)")
+    code = ("import sys, aircraft.navigator.radio.initializer; bad = [m for m in sys.modules if m.startswith(("
+            "'aircraft.world', 'aircraft.montecarlo', 'aircraft.node', 'aircraft.config', 'net.scenario'))]; "
+            "print(bad); sys.exit(1 if bad else 0)")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert r.returncode == 0, r.stdout + r.stderr
     import inspect
 
-    from aircraft import initializer
+    from aircraft.navigator.radio import initializer
 
     params = set(inspect.signature(initializer.initial_state).parameters)
     assert params == {"model", "tuning", "pos_m", "cov_m2", "rho_m", "config"}
@@ -729,7 +735,7 @@ def test_estimator_start_does_not_depend_on_a_guess_and_node_ignores_the_truth()
 
 
 def test_initializer_snapshot_where_geometry_allows_wide_prior_where_not():
-    from aircraft.initializer import InitConfig, initial_state
+    from aircraft.navigator.radio.initializer import InitConfig, initial_state
 
     rng = np.random.default_rng(8)
     for stations, p, snap in ((S001, np.array([60.0, 20.0, 40.0]), True),
@@ -759,7 +765,7 @@ def test_start_waits_for_a_batch_with_redundancy():
     (InitConfig.defer_batches) until the fifth station is heard; a world of only 4 stations still
     starts after that many batches. (The receiver's rule 5, which holds the start while a station is
     known to worse than 3 m, is off here: ``test_start_waits_for_a_surveyed_field`` tests it.)"""
-    from aircraft.initializer import InitConfig
+    from aircraft.navigator.radio.initializer import InitConfig
 
     ids0 = [5, 1, 2, 3]
     pos0 = np.array([[297.8, 1200.781, 18.469], [0.0, 0.0, 0.0], [1800.077, 0.0, 0.0], [896.059, 1495.421, 0.0]])

@@ -11,9 +11,11 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from aircraft import models as mdl
-from aircraft import sim
-from aircraft.estimators import CvTracker, Tuning
+from aircraft.montecarlo import radio as sim
+from aircraft.navigator.radio import models as mdl
+from aircraft.navigator.radio.tracker import CvTracker
+from aircraft.navigator.radio.tuning import Tuning
+from aircraft.world.clock import ReceiverClock
 from nav.pcrb import augment_biases, gauss_markov_block, pcrb_linear_gaussian, prior_before_first_step
 
 # first-order, one pass, Cartesian: the EKF is then exactly the textbook EKF
@@ -177,11 +179,11 @@ def _nees_run(clock_bias, runs=24, seconds=12.0):
                    [500.0, -3000.0, 0.0]])
     dt = 0.1
     t = np.arange(0.0, seconds, dt)
-    from aircraft.trajectory import Track
+    from aircraft.world.trajectory import Track
 
     pos = np.array([2000.0, 1500.0, 1000.0]) + np.outer(t, [20.0, -10.0, 0.0])
     track = Track(t_s=t, pos_m=pos, vel_m_s=np.broadcast_to([20.0, -10.0, 0.0], pos.shape).copy())
-    clock = mdl.ReceiverClock()
+    clock = ReceiverClock()
     tu = replace(Tuning(coords="cartesian"), clock_bias=clock_bias, clock_bias_tau_s=5.0)
     sync_m = 1.0  # 3.3 ns: the bias dominates the 0.5 m timing noise
     rho = sim.pseudoranges(track, st, clock, tu.sigma_m, runs, rng)
@@ -207,9 +209,9 @@ def test_nees_with_correlated_station_biases_inside_band_and_white_model_overcon
 def test_message_api_carries_one_bias_per_station_heard_on_tdma_slots(algo):
     """The node's path: one TDMA slot at a time with the broadcast clock variance; the filter adds a
     bias state per station as it is heard, and the final error is within its covariance."""
-    from aircraft import trajectory
     from aircraft.config import from_scenario
-    from aircraft.estimators import AircraftEstimator, EstimatorConfig
+    from aircraft.navigator.radio.estimator import AircraftEstimator, EstimatorConfig
+    from aircraft.world import trajectory
     from net.scenario import load
 
     ac = from_scenario(load("seed003"))

@@ -66,7 +66,7 @@ def test_aircraft_process_in_a_fleet_from_mcap(fleet_run):
             # converged from the 30 m start and within 3 of its own sigma (ekf-tdoa's vertical is weak
             # here: sigma ~ 3.7 / 0.5 / 6.3 m at 30 s, so a fixed 15 m would be a 2-sigma test)
             assert sig < 10.0 and np.linalg.norm(err) < 3.0 * sig + 1.0, (algo, err, sig)
-            # integrity (issue 14, aircraft/fde.py): protection levels on every filter estimate, and no
+            # integrity (issue 14, aircraft/navigator/radio/fde.py): protection levels on every filter estimate, and no
             # station excluded in a clean fleet
             assert all(m["hpl_m"] > 0 and m["vpl_m"] > 0 for m in ms), algo
             assert all(not m["excluded"] for m in ms), (algo, [m["excluded"] for m in ms if m["excluded"]][:3])

@@ -1,4 +1,4 @@
-"""Issue 14: integrity of the aircraft filters (aircraft/fde.py): the innovation tests, exclusion of the
+"""Issue 14: integrity of the aircraft filters (aircraft/navigator/radio/fde.py): the innovation tests, exclusion of the
 right station by the filter (4 stations: no snapshot redundancy), the clean false-alarm rate, the
 protection levels, and the ``ac_estimate`` integrity fields."""
 
@@ -7,12 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aircraft import models as mdl
-from aircraft import sim
-from aircraft.estimators import AircraftEstimator, EstimatorConfig, Tuning
-from aircraft.fde import FdeConfig, fault_vectors, protection_levels, snooping
+from aircraft.montecarlo import radio as sim
+from aircraft.navigator.radio.estimator import AircraftEstimator, EstimatorConfig
+from aircraft.navigator.radio.fde import FdeConfig, fault_vectors, protection_levels, snooping
+from aircraft.navigator.radio.tuning import Tuning
 from aircraft.node import integrity_fields
-from aircraft.trajectory import Track
+from aircraft.world.clock import ReceiverClock
+from aircraft.world.trajectory import Track
 from net import messages as M
 
 STATIONS = np.array([[0.0, 0.0, 0.0], [3000.0, 0.0, 20.0], [1500.0, 2500.0, 40.0], [1500.0, -2500.0, 10.0]])
@@ -28,7 +29,7 @@ def _track(T: int, rate_hz: float = 10.0) -> Track:
 
 def _run(algo, T, runs, bias_from=None, bad=2, fde=FdeConfig(), seed=0, stations=STATIONS):
     track = _track(T)
-    clock = mdl.ReceiverClock()
+    clock = ReceiverClock()
     rng = np.random.default_rng(seed)
     rho = sim.pseudoranges(track, stations, clock, TUNING.sigma_m, runs, rng)
     B = None
@@ -127,7 +128,7 @@ def test_protection_levels_k_sigma():
 def test_estimator_publishes_integrity_fields_and_they_round_trip():
     rng = np.random.default_rng(3)
     track = _track(120)
-    clock = mdl.ReceiverClock()
+    clock = ReceiverClock()
     rho = sim.pseudoranges(track, STATIONS, clock, 0.5, 1, rng)[:, 0]
     rho[60:, 1] += 30.0
     est = AircraftEstimator("ekf-pr", EstimatorConfig(tuning=TUNING), x0_guess_m=track.pos_m[0] + 30.0)
@@ -156,7 +157,7 @@ def test_tdma_slots_exclude_the_biased_station():
     slot_s = 0.025
     t = np.arange(480) * slot_s
     track = _track(480, rate_hz=1.0 / slot_s)
-    clock = mdl.ReceiverClock()
+    clock = ReceiverClock()
     ids = [11, 12, 13, 14]
     est = AircraftEstimator("ukf-pr", EstimatorConfig(tuning=TUNING), x0_guess_m=track.pos_m[0] + 30.0)
     for k in range(t.size):
@@ -183,7 +184,7 @@ def test_a_gated_measurement_is_dropped_not_down_weighted(algo):
 
     truth = np.array([1500.0, -800.0, 1200.0])
     rng = np.random.default_rng(4)
-    clock = mdl.ReceiverClock()
+    clock = ReceiverClock()
     est = AircraftEstimator(algo, EstimatorConfig(tuning=TUNING))
 
     def rho(j, t):
@@ -214,7 +215,7 @@ def test_an_excluded_stations_absurd_measurements_do_not_reach_the_window_test()
     now the tests see only the measurements in use: 3 stays excluded alone, no alarm is raised by it."""
     truth = np.array([1500.0, -800.0, 1200.0])
     rng = np.random.default_rng(5)
-    clock = mdl.ReceiverClock()
+    clock = ReceiverClock()
     est = AircraftEstimator("ukf-pr", EstimatorConfig(tuning=TUNING))
 
     def rho(j, t):

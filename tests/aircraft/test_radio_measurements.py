@@ -4,7 +4,7 @@ Jacobian, noise) and the ranges' second-order terms, each against an independent
 import numpy as np
 import pytest
 
-from aircraft import models as mdl
+from aircraft.navigator.radio import models as mdl
 from aircraft.navigator.radio.measurements import make_model, second_order
 
 ST = np.array([[50.0, 0.0, 0.0], [0.0, 50.0, 2.0], [-50.0, 0.0, 5.0], [0.0, -50.0, 0.0], [30.0, 30.0, 40.0]])

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.stats import truncnorm
 
-from aircraft import models as mdl
+from aircraft.navigator.radio import models as mdl
 from aircraft.navigator.radio.chart import InverseChart
 from aircraft.navigator.radio.floor import HeightFloor, truncated_normal
 from aircraft.navigator.radio.snapshot import TrackerSnapshot

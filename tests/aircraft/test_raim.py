@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from aircraft.raim import raim_fde
+from aircraft.navigator.radio.raim import raim_fde
 
 STATIONS = np.array([[0, 0, 0], [2000, 0, 10], [300, 1900, 40], [1800, 1700, 80], [900, 900, 20],
                      [100, 1000, 60], [1500, 500, 30], [600, 300, 50.0]])

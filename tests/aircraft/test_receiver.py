@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aircraft.estimators import AircraftEstimator, EstimatorConfig
 from aircraft.navigator import receiver as rx
+from aircraft.navigator.radio.estimator import AircraftEstimator, EstimatorConfig
 from aircraft.node import AircraftCore
 from net import messages as M
 

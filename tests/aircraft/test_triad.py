@@ -222,7 +222,7 @@ def test_triad_nees_seeded():
     """4 satellites + baro, 24 runs, 120 s: the run-mean position NEES (3 dof), averaged over time, is
     inside a band of the chi-square mean (time-correlated: a looser band than one epoch's) and the
     RMS radial error is within 1.3x the posterior CRLB."""
-    from aircraft.triad_sim import TriadCase, simulate
+    from aircraft.montecarlo.triad import TriadCase, simulate
 
     r = simulate(TriadCase(n_sv=4, duration_s=120.0, runs=24, seed=11, paper_filter=True))
     nees = r.nees_pos[:, 20:].mean()
@@ -274,7 +274,7 @@ def test_triad_navigator_never_imports_world():
             elif isinstance(node, ast.Import):
                 mods = [a.name for a in node.names]
             for nm in mods:
-                assert "world" not in nm and "triad_sim" not in nm, (name, nm)
+                assert "world" not in nm and "montecarlo" not in nm, (name, nm)
 
 
 def test_station_state_jacobian_and_injection():

@@ -121,8 +121,8 @@ def test_convergence_time_is_when_the_mean_stays_below():
 
 def test_aircraft_pcrb_is_the_nav_pcrb_recursion():
     """With equal steps the report's bound is nav.pcrb's posterior CRLB of the same model."""
-    from aircraft import models as mdl
-    from aircraft.estimators import Tuning
+    from aircraft.navigator.radio import models as mdl
+    from aircraft.navigator.radio.tuning import Tuning
     from nav.pcrb import pcrb_linear_gaussian
 
     tuning = Tuning()

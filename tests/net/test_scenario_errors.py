@@ -139,7 +139,7 @@ def test_a_missing_scenario_lists_the_packaged_ones():
 
 def test_the_name_lists_match_the_estimators_and_algorithms():
     """net may not import stations or aircraft: its copies of their names must stay equal."""
-    from aircraft.models import ALGOS
+    from aircraft.navigator.radio.models import ALGOS
     from stations.estimators import ESTIMATORS
 
     assert set(SURVEY_ESTIMATORS) == set(ESTIMATORS)

@@ -1,5 +1,5 @@
 """The inverse-range chart of the radio filters: which runs carry their position inverted through
-the unit sphere about the broadcast station centroid (aircraft/coords.py), and the conversions.
+the unit sphere about the broadcast station centroid (aircraft/navigator/radio/coords.py), and the conversions.
 
 A run is in inverse coordinates while its position is known well relative to its distance from the
 reference point and it is far from the array (``Tuning.inverse_max_rel``, ``Tuning.inverse_min_radii``);
@@ -12,7 +12,7 @@ import numpy as np
 
 from nav.kalman import symmetrize
 
-from ... import coords as crd
+from . import coords as crd
 from .state import POS
 
 

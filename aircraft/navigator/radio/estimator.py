@@ -7,33 +7,24 @@ from __future__ import annotations
 
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ... import coords as crd
-from ... import models as mdl
-from ...fde import FdeConfig, FilterFde, fault_vectors, protection_levels, snooping
 from .. import receiver as rx
+from . import coords as crd
+from . import models as mdl
+from .fde import FdeConfig, FilterFde, fault_vectors, protection_levels, snooping
+from .initializer import InitConfig, initial_state
 from .lsq import lsq_cov, lsq_pr, lsq_tdoa
 from .start import consistent_start
 from .state import CLOCK, POS, VEL, StateLayout
 from .tracker import CvTracker
 from .tuning import Tuning
 
-if TYPE_CHECKING:  # aircraft.initializer imports aircraft.estimators: annotation only, no import cycle
-    from ...initializer import InitConfig
-
 ALGOS = mdl.ALGOS
 
 
 # --------------------------------------------------------------------------- message-level API
-def _init_config():
-    from ...initializer import InitConfig  # the initializer imports this module
-
-    return InitConfig()
-
-
 @dataclass
 class EstimatorConfig:
     """Configuration of one :class:`AircraftEstimator` (defaults = the bench's shared tuning)."""
@@ -45,9 +36,9 @@ class EstimatorConfig:
     # where one epoch's fix is off by kilometres)
     guess_sigma_m: float | None = None
     max_batch_age_s: float = 5.0  # TDMA: measurements older than this are dropped from a batch
-    # start from the broadcasts alone (aircraft/initializer.py): snapshot fix or wide prior
+    # start from the broadcasts alone (aircraft/navigator/radio/initializer.py): snapshot fix or wide prior
     init: InitConfig | None = None
-    # filters: innovation gate, windowed residual test, exclusion, HPL/VPL (aircraft/fde.py); None = off
+    # filters: innovation gate, windowed residual test, exclusion, HPL/VPL (aircraft/navigator/radio/fde.py); None = off
     fde: FdeConfig | None = field(default_factory=FdeConfig)
     # the receiver rules (aircraft/navigator/receiver.py): usable broadcasts, consistent start,
     # divergence restart, publishable estimates; None = off (the benches feed synthetic epochs)
@@ -165,7 +156,7 @@ class AircraftEstimator:
         if self.method == "lsq" and self.cfg.receiver is not None and dt is not None and np.any(dt):
             # a snapshot of a TDMA batch: the aircraft's unknown motion over each member's dt is noise
             # to it (the start's velocity prior), in its weights and in the covariance it reports
-            v_sig = (self.cfg.init or _init_config()).vel_sigma_m_s
+            v_sig = (self.cfg.init or InitConfig()).vel_sigma_m_s
             cov = (np.zeros((m, 3, 3)) if cov is None else cov) + ((v_sig * np.asarray(dt, float)) ** 2)[:, None, None] * np.eye(3)
         self._last_geom = (pos, cov)
         if m < self.cfg.min_stations:
@@ -204,7 +195,7 @@ class AircraftEstimator:
     def _watch(self, nu, S, ids) -> None:
         """Feed one update's innovation ``nu`` (d,) and covariance ``S`` (d, d), or its diagonal (d,) for
         sequential scalar updates, to the divergence monitor with each station's normalized innovation
-        (aircraft/fde.py ``snooping``); a lost filter restarts."""
+        (aircraft/navigator/radio/fde.py ``snooping``); a lost filter restarts."""
         if self.monitor is None:
             return
         nu = np.atleast_1d(np.asarray(nu, dtype=float))
@@ -272,8 +263,6 @@ class AircraftEstimator:
     def _start_from_broadcasts(self, t_s, pos, cov, rho, dt=None) -> None:
         """Start from the broadcasts alone: multi-start snapshot fix (or a wide prior), from a batch that
         passes the start test when the receiver rules are on."""
-        from ...initializer import InitConfig, initial_state
-
         tu = self.cfg.tuning
         init = initial_state(self.model, tu, pos, cov, rho, self.cfg.init)
         if self.cfg.receiver is not None:
@@ -346,7 +335,7 @@ class AircraftEstimator:
     def estimate(self) -> dict | None:
         """Latest estimate: ``t_s``, ``pos_m`` [3], ``cov_m2`` [3][3] (LSQ: its ``(H^T W H)^-1``), ``vel_m_s``,
         ``clock_m``, ``n_updates``; filters with integrity monitoring (``config.fde``) add ``hpl_m``,
-        ``vpl_m`` (aircraft/fde.py) and ``excluded`` (station ids)."""
+        ``vpl_m`` (aircraft/navigator/radio/fde.py) and ``excluded`` (station ids)."""
         if self.t_s is None:
             return None
         if self.tracker is None:

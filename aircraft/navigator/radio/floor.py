@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import erfcx
 
-from ... import coords as crd
+from . import coords as crd
 from .state import POS, Z
 
 

@@ -10,7 +10,7 @@ import numpy as np
 
 from nav.kalman import chol_solve, symmetrize
 
-from ... import models as mdl
+from . import models as mdl
 from .state import POS, StateLayout
 
 _PR_COLS = StateLayout("pr").pos_clock  # the snapshot pseudorange unknowns [x y z b] of the filter state

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ... import models as mdl
+from . import models as mdl
 from .state import POS, VEL
 
 

@@ -1,5 +1,5 @@
 """A radio filter's saved state (:meth:`CvTracker.save` / :meth:`CvTracker.restore`): what an update
-changes, so that the integrity monitor (aircraft/fde.py) can re-run an update with other measurements."""
+changes, so that the integrity monitor (aircraft/navigator/radio/fde.py) can re-run an update with other measurements."""
 
 from __future__ import annotations
 

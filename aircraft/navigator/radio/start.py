@@ -8,6 +8,7 @@ from collections import Counter
 import numpy as np
 
 from .. import receiver as rx
+from .initializer import InitConfig, batch_cost, initial_state
 
 
 def consistent_start(model: str, cfg, stats: Counter, init, pos, cov, rho, dt=None):
@@ -22,8 +23,6 @@ def consistent_start(model: str, cfg, stats: Counter, init, pos, cov, rho, dt=No
     ``InitResult`` of the whole batch; pos (m, 3), cov (m, 3, 3) or None, rho (m,), dt (m,) or None.
     Returns the start to use, or None.
     """
-    from ...initializer import InitConfig, batch_cost, initial_state  # the initializer imports us
-
     rcfg, m = cfg.receiver, len(rho)
     cov_t = cov
     if dt is not None and np.any(dt):

@@ -16,8 +16,8 @@ import numpy as np
 from nav.kalman import kf_predict, symmetrize
 from nav.ut import SigmaParams
 
-from ... import coords as crd
-from ... import models as mdl
+from . import coords as crd
+from . import models as mdl
 from .biases import ClockBiases
 from .chart import InverseChart
 from .floor import HeightFloor

@@ -58,7 +58,7 @@ class Tuning:
     # filters from reading curvature as information (docs/aircraft.md, "Linearization error").
     linearization_corr_s: float = 10.0
     # filter coordinates: "inverse" = position inverted through the unit sphere about the broadcast
-    # station centroid and the clock carried as b + range to it (aircraft/coords.py: straightens the
+    # station centroid and the clock carried as b + range to it (aircraft/navigator/radio/coords.py: straightens the
     # height/clock and range/clock ridges of a small-base system); "cartesian" = [p, v, b, bdot]
     coords: str = "inverse"
     # ... per run, only while the position is known well relative to its distance from the reference:

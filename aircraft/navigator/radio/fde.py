@@ -1,7 +1,7 @@
 """Integrity of the aircraft filters: innovation gating, a windowed residual test with leave-one-out
 exclusion, and protection levels from the filter covariance (issue 14, sans-I/O, batched over runs).
 
-Every batch update of a :class:`aircraft.estimators.CvTracker` returns its innovation ``nu`` (..., d)
+Every batch update of a :class:`aircraft.navigator.radio.tracker.CvTracker` returns its innovation ``nu`` (..., d)
 and covariance ``S`` (..., d, d) about the prior (pseudoranges: ``d = m``; range differences against
 the base: ``d = m - 1``). A fault on station ``i`` moves the innovation along ``f_i`` (pseudoranges:
 the unit vector ``e_i``; differences: column ``i`` of ``G``). Per epoch (Teunissen's DIA / Baarda's

@@ -16,7 +16,7 @@ enters linearly. This is the Cartesian counterpart of the modified-spherical / i
 coordinates of bearings-only tracking and monocular SLAM, without the zenith and horizon
 singularities of angles (the inversion is smooth everywhere except at ``c``).
 
-State layouts follow :class:`aircraft.models.StateLayout`: ``[q (3), v (3) (, beta (, bdot))]`` in
+State layouts follow :class:`aircraft.navigator.radio.models.StateLayout`: ``[q (3), v (3) (, beta (, bdot))]`` in
 place of ``[p, v (, b (, bdot))]``; velocity and clock rate stay Cartesian. The length ``L``
 (:data:`SCALE_M`) only keeps ``q`` in metres-like magnitudes (``L^2 / r``), so that covariances mixing
 it with velocity and clock stay well conditioned.
@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .navigator.radio.state import CLOCK, POS
+from .state import CLOCK, POS
 
 SCALE_M = 1000.0  # L: q = L^2 (p - c) / |p - c|^2 has |q| = L^2 / r (20 km at 50 m, 333 m at 3 km)
 

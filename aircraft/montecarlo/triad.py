@@ -19,7 +19,7 @@ the mean specific force and the fix's track (:func:`aircraft.navigator.triad_ekf
 Earth tie: each run draws the stations' self-survey errors (network frame) and the geodetic survey
 errors of the tie stations; the navigator fits the tie (:mod:`aircraft.navigator.field_tie`).
 
-The posterior CRLB comes from one extra run appended to the batch (as :mod:`aircraft.ins_sim`): perfect
+The posterior CRLB comes from one extra run appended to the batch (as :mod:`aircraft.montecarlo.ins`): perfect
 IMU, clock, baro, noise-free measurements, exact start and stations with the tie covariance of run 0,
 so its covariance is the recursion along the true trajectory.
 """
@@ -34,14 +34,14 @@ import numpy as np
 from nav.constellation import gps_like, tropo_delay_m
 from nav.geometry import SPEED_OF_LIGHT_M_S, to_network_frame
 
-from .navigator import field_tie as ft
-from .navigator.ins_ekf import InsTuning
-from .navigator.triad_ekf import (Epoch, PaperFilter, PaperTuning, TriadEkf, TriadFrame, initial_fix,
+from ..navigator import field_tie as ft
+from ..navigator.ins_ekf import InsTuning
+from ..navigator.triad_ekf import (Epoch, PaperFilter, PaperTuning, TriadEkf, TriadFrame, initial_fix,
                                   paper_p0, satellite_elevation_deg, start_from_window)
-from .world import baro as wbaro
-from .world import clock as wclock
-from .world.imu import ImuEmulator, preset as imu_preset
-from .world.motion import Straight
+from ..world import baro as wbaro
+from ..world import clock as wclock
+from ..world.imu import ImuEmulator, preset as imu_preset
+from ..world.motion import Straight
 
 DEFAULT_STATIONS_M = np.array([[50e3, 50e3, 30.0], [-50e3, -50e3, 10.0], [50e3, -50e3, 50.0], [-50e3, 50e3, 20.0]])
 

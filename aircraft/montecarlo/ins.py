@@ -27,12 +27,12 @@ import numpy as np
 from nav import errorstate as es
 from nav.rotations import log_so3
 
-from .navigator.ins_ekf import JAC_FORCE_TC_S, InsEkf, InsTuning
-from .navigator.ins_start import SideTest, StartConfig, moved_on, radio_fix, start
-from .world import clock as wclock
-from .world.field import Field
-from .world.imu import ImuEmulator, ImuPreset
-from .world.motion import Motion
+from ..navigator.ins_ekf import JAC_FORCE_TC_S, InsEkf, InsTuning
+from ..navigator.ins_start import SideTest, StartConfig, moved_on, radio_fix, start
+from ..world import clock as wclock
+from ..world.field import Field
+from ..world.imu import ImuEmulator, ImuPreset
+from ..world.motion import Motion
 
 
 @dataclass

@@ -22,14 +22,10 @@ weighted with ``G R G^T`` (seed 001 eq. 18), ``G`` = identity with a ``-1`` colu
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from nav.geometry import SPEED_OF_LIGHT_M_S
-
-from .navigator.radio.state import CLOCK, CLOCK_RATE, POS, VEL
-from .navigator.radio.state import StateLayout  # noqa: F401  (the layout with named blocks lives there)
+from .state import CLOCK, CLOCK_RATE, POS, VEL
+from .state import StateLayout  # noqa: F401  (the layout with named blocks lives there)
 
 ALGOS = ("lsq-pr", "lsq-tdoa", "ekf-pr", "ekf-tdoa", "ukf-pr", "ukf-tdoa")
 
@@ -162,26 +158,3 @@ def cv_noise(n: int, dt_s: float, q_acc: float, q_clock: float, q_drift: float,
         Q[CLOCK, CLOCK_RATE] = Q[CLOCK_RATE, CLOCK] = q_drift * dt_s**2 / 2.0
         Q[CLOCK_RATE, CLOCK_RATE] = q_drift * dt_s
     return Q
-
-
-@dataclass(frozen=True)
-class ReceiverClock:
-    """Receiver clock model of seed 001: ``dtau(t) = df * lambda * t / c + tau0``.
-
-    ``df_hz`` carrier frequency offset, ``lambda_m`` carrier wavelength, ``tau0_s`` initial offset.
-    The paper's values ``df = 20 Hz``, ``lambda = 0.03 m``, ``tau0 = 0`` give 0.6 m/s of range drift.
-    """
-
-    df_hz: float = 20.0
-    lambda_m: float = 0.03
-    tau0_s: float = 0.0
-
-    @property
-    def drift_m_s(self) -> float:
-        return self.df_hz * self.lambda_m
-
-    def bias_m(self, t_s: np.ndarray | float) -> np.ndarray:
-        """Clock offset in range units ``c * dtau(t)``; same shape as ``t_s``."""
-        return self.drift_m_s * np.asarray(t_s, dtype=float) + SPEED_OF_LIGHT_M_S * self.tau0_s
-
-

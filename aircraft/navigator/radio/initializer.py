@@ -20,7 +20,7 @@ covariance.
 Velocity: one snapshot does not measure it; the start is zero with ``vel_sigma_m_s``. The clock rate
 starts at zero with the tuning's ``p0_drift_m_s``.
 
-This module must never import the world side (``aircraft.trajectory``, ``aircraft.sim``, scenarios):
+This module must never import the world side (``aircraft.world``, ``aircraft.montecarlo``, scenarios):
 tests check the import boundary.
 """
 
@@ -31,7 +31,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import models as mdl
-from .estimators import Tuning, lsq_cov, lsq_pr, lsq_tdoa
+from .lsq import lsq_cov, lsq_pr, lsq_tdoa
+from .tuning import Tuning
 
 
 @dataclass(frozen=True)
@@ -164,7 +165,7 @@ def initial_state(
 
     Parameters
     ----------
-    model : "pr" or "tdoa". tuning : the filter's :class:`~aircraft.estimators.Tuning` (noise,
+    model : "pr" or "tdoa". tuning : the filter's :class:`~aircraft.navigator.radio.tuning.Tuning` (noise,
         drift state, clock-rate prior, floor). pos_m : (m, 3) broadcast station positions.
     cov_m2 : (m, 3, 3) their broadcast covariances or None. rho_m : (m,) pseudoranges of the batch.
     """

@@ -12,10 +12,13 @@ import numpy as np
 
 from nav.pcrb import augment_biases, pcrb_linear_gaussian, prior_before_first_step
 
-from . import models as mdl
-from .estimators import CvTracker, Tuning, lsq_pr, lsq_tdoa
-from .fde import FilterFde, protection_levels
-from .trajectory import Track
+from ..navigator.radio import models as mdl
+from ..navigator.radio.fde import FilterFde, protection_levels
+from ..navigator.radio.lsq import lsq_pr, lsq_tdoa
+from ..navigator.radio.tracker import CvTracker
+from ..navigator.radio.tuning import Tuning
+from ..world.clock import ReceiverClock
+from ..world.trajectory import Track
 
 
 @dataclass
@@ -29,11 +32,11 @@ class RunResult:
     P_pos: np.ndarray | None = None  # (M, T, 3, 3) filter position covariance (filters only)
     hpl_m: np.ndarray | None = None  # (M, T) protection levels (filters with ``fde``)
     vpl_m: np.ndarray | None = None
-    fde: object | None = None  # the aircraft.fde.FilterFde (gate/exclusion record)
+    fde: object | None = None  # the aircraft.navigator.radio.fde.FilterFde (gate/exclusion record)
 
 
 def pseudoranges(
-    track: Track, stations_m: np.ndarray, clock: mdl.ReceiverClock, sigma_m: float, runs: int,
+    track: Track, stations_m: np.ndarray, clock: ReceiverClock, sigma_m: float, runs: int,
     rng: np.random.Generator,
 ) -> np.ndarray:
     """Noisy pseudoranges (T, M, m): ``|p(t) - s_j| + c dtau(t) + N(0, sigma^2)`` (seed 001 eq. 5)."""
@@ -42,7 +45,7 @@ def pseudoranges(
     return rho[:, None, :] + sigma_m * rng.standard_normal((track.t_s.size, runs, stations_m.shape[0]))
 
 
-def true_state(track: Track, clock: mdl.ReceiverClock, layout: mdl.StateLayout) -> np.ndarray:
+def true_state(track: Track, clock: ReceiverClock, layout: mdl.StateLayout) -> np.ndarray:
     """True filter states (T, n) along the track."""
     cols = [track.pos_m, track.vel_m_s]
     if layout.kind == "pr":
@@ -53,7 +56,7 @@ def true_state(track: Track, clock: mdl.ReceiverClock, layout: mdl.StateLayout) 
 
 
 def run_algo(
-    algo: str, track: Track, stations_m: np.ndarray, rho: np.ndarray, tuning: Tuning, clock: mdl.ReceiverClock,
+    algo: str, track: Track, stations_m: np.ndarray, rho: np.ndarray, tuning: Tuning, clock: ReceiverClock,
     rng: np.random.Generator, station_cov_m2: np.ndarray | None = None, keep_cov: bool = False,
     lsq_stride: int = 1, clock_var_m2: np.ndarray | float | None = None, fde=None,
     bias_m: np.ndarray | None = None,
@@ -71,7 +74,7 @@ def run_algo(
     residual once; stations independent). NEES is that of the navigation states (the filter's first
     ``n`` states), the bias states' marginal excluded.
 
-    ``fde`` (:class:`aircraft.fde.FdeConfig`): filters gate, test and exclude stations (ids 0..m-1) and
+    ``fde`` (:class:`aircraft.navigator.radio.fde.FdeConfig`): filters gate, test and exclude stations (ids 0..m-1) and
     report HPL/VPL. ``bias_m`` (T, m): a fault added to the ranges (the estimators never see it apart).
     """
     method, model = algo.split("-")
@@ -139,7 +142,7 @@ def run_algo(
 
 
 def pcrb_track(
-    model: str, track: Track, stations_m: np.ndarray, tuning: Tuning, clock: mdl.ReceiverClock,
+    model: str, track: Track, stations_m: np.ndarray, tuning: Tuning, clock: ReceiverClock,
     station_cov_m2: np.ndarray | None = None, clock_var_m2: np.ndarray | float | None = None,
     clock_tau_s: float = 0.0, lost: np.ndarray | None = None,
 ) -> np.ndarray:
