@@ -124,7 +124,7 @@ def _ukf_update_one(x, P, z, h, R, params):
     if info != 0:
         raise np.linalg.LinAlgError(f"potrs info {info}")
     nu = z - y
-    P_new = P - Kt.T @ (S @ Kt)
+    P_new = P - Kt.T @ Pxz.T  # K S K^T = K Pxz^T (S K^T = Pxz^T)
     return x + nu @ Kt, 0.5 * (P_new + P_new.T), nu, S
 
 

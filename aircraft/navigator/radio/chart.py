@@ -31,12 +31,24 @@ class InverseChart:
         self.inv = np.zeros(lead_shape, dtype=bool)
         self.radius = 0.0
 
+    @property
+    def inv(self) -> np.ndarray:
+        return self._inv
+
+    @inv.setter
+    def inv(self, value: np.ndarray) -> None:
+        # whether any run is inverted is read at every predict and update: kept as a Python bool beside
+        # the mask, which is therefore read-only (assign a new mask, never change it in place)
+        self._inv = np.array(value, dtype=bool)
+        self._inv.setflags(write=False)
+        self._any = bool(self._inv.any())
+
     def set_reference(self, ref_m, radius_m) -> None:
         self.ref = np.asarray(ref_m, dtype=float)
         self.radius = float(radius_m) if radius_m is not None else 0.0
 
     def any(self) -> bool:
-        return bool(self.inv.any())
+        return self._any
 
     def mask(self, X: np.ndarray, extra: int) -> np.ndarray:
         """The run mask shaped to broadcast against X (runs[, sigma], n[, n])."""
@@ -44,14 +56,14 @@ class InverseChart:
 
     def cart(self, X: np.ndarray) -> np.ndarray:
         """Internal-coordinate states X (runs[, sigma points], n) -> Cartesian."""
-        if not self.inv.any():
+        if not self._any:
             return X
         with np.errstate(all="ignore"):
             return np.where(self.mask(X, 1), crd.to_cartesian(X, self.ref, self.clock), X)
 
     def T(self, X: np.ndarray) -> np.ndarray | None:
         """dx/ds at internal-coordinate states X (..., n, n); None = identity for every run."""
-        if not self.inv.any():
+        if not self._any:
             return None
         with np.errstate(all="ignore"):
             return np.where(self.mask(X, 2), crd.jac_to_cartesian(X, self.clock), np.eye(X.shape[-1]))

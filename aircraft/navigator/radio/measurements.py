@@ -1,5 +1,5 @@
 """Measurement models of the radio filters: one batch of pseudoranges or range differences, each with
-value, Jacobian and noise (the formulas are :mod:`aircraft.models`'; seed 001 eqs. 10, 13, 15-18).
+value, Jacobian and noise (the formulas are :mod:`.models`'; seed 001 eqs. 10, 13, 15-18).
 
 States are Cartesian ``[x (n), beta (nb)]`` (..., n + nb): the base state of :class:`.state.StateLayout`
 and the stations' clock-bias states; ``D`` (m, nb) maps those to the stations of the batch (None: no

@@ -30,6 +30,10 @@ def scaled(S2: np.ndarray, k) -> np.ndarray:
     return S2 * q[..., :, None] * q[..., None, :]
 
 
+# every error counted once (no bookkeeping); shared, read-only
+_ONCE = np.ones(())
+_ONCE.setflags(write=False)
+
 class RepeatCount:
     """``memory``: updates the filter averages over (per run), from the latest update; ``last_seen``:
     station key (``("id", id)``, or ``("pos", x, y, z)`` to 0.1 m) -> time of its latest measurement;
@@ -58,7 +62,7 @@ class RepeatCount:
         ``tdoa_base``: rows are differences against that station (its own key dropped)."""
         corr = self.corr_s
         if corr <= 0 or step_s <= 0:
-            return np.ones(())
+            return _ONCE
         t, step = t_s, step_s
         # a station not heard within the window (or never) counts once: its error has not repeated
         dtj = np.array([max(step, t - self.last_seen.get(key, -np.inf)) for key in keys])

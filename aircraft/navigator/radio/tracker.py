@@ -39,9 +39,9 @@ class CvTracker:
     tuning : :class:`Tuning`. t0_s : time of ``x0``. base : TDOA base station index within each batch.
     P0 : (n, n) or (M, n, n) initial covariance; None = the tuning's prior ``tuning.p0``.
     ref_m : (3,) reference point of the inverse-range coordinates (``tuning.coords == "inverse"``):
-        :func:`aircraft.coords.reference_point` of the broadcast stations; None = that of the first
+        :func:`aircraft.navigator.radio.coords.reference_point` of the broadcast stations; None = that of the first
         update's stations. ref_radius_m : RMS distance of the stations from ``ref_m``
-        (:func:`aircraft.coords.array_radius`).
+        (:func:`aircraft.navigator.radio.coords.array_radius`).
 
     ``x`` and ``P`` are always Cartesian (``[p, v (, b (, bdot))]`` and the clock biases); with inverse
     coordinates the filter works on ``(q, v, beta, bdot)`` internally and converts on access
@@ -199,7 +199,7 @@ class CvTracker:
                                lag.info, lag.dir, lag.comp, lag.dir_t_s)
 
     def restore(self, s: TrackerSnapshot) -> None:
-        """Back to a :meth:`save`d state (an update re-run with other measurements: aircraft/fde.py)."""
+        """Back to a :meth:`save`d state (an update re-run with other measurements: aircraft/navigator/radio/fde.py)."""
         self._x, self._P, self.t_s = s.x, s.P, s.t_s
         self.chart.inv, self.chart.ref, self.chart.radius = s.inverse, s.ref_m, s.radius_m
         self.repeats.memory, self.repeats.last_seen = s.memory, dict(s.last_seen)
@@ -273,7 +273,7 @@ class CvTracker:
     def _noise(self, model, station_cov_m2, sig) -> np.ndarray:
         """The batch's noise covariance; cached while it does not depend on the state (pseudoranges
         without station covariances, one sigma)."""
-        if model.kind == "pr" and station_cov_m2 is None and np.ndim(sig) == 0:
+        if model.kind == "pr" and station_cov_m2 is None and (isinstance(sig, float) or np.ndim(sig) == 0):
             key = (model.stations_m.shape[0], float(sig), self._x.shape[:-1])
             if self._r_key != key:
                 self._r_key, self._r = key, model.noise(self._x, None, sig)
