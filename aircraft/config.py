@@ -56,6 +56,10 @@ def from_scenario(sc) -> AircraftConfig:
     if set(tk) - names:
         raise ValueError(f"unknown keys in [aircraft.tuning]: {sorted(set(tk) - names)}")
     tk.setdefault("sigma_m", sigma)
+    try:
+        tuning = Tuning(**tk)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"[aircraft.tuning] {e}") from None
     h = a.get("height_m")
     traj = dict(a.get("trajectory", {"kind": "hover", "distance_m": 1000.0}))
     return AircraftConfig(
@@ -70,7 +74,7 @@ def from_scenario(sc) -> AircraftConfig:
         height_m=None if h is None else float(h),
         trajectory=traj,
         trajectories={"turn": dict(a.get("turn", {})), "hover": dict(a.get("hover", {}))},
-        tuning=Tuning(**tk),
+        tuning=tuning,
         bench=dict(a.get("bench", {})),
         crlb=dict(a.get("crlb", {})),
         init_sigma_m=None if a.get("init_sigma_m") is None else float(a["init_sigma_m"]),

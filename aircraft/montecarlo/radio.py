@@ -82,9 +82,9 @@ def run_algo(
         rho = rho + bias_m[:, None, :]
     T, M, m = rho.shape
     err = np.empty((M, T, 3))
-    layout = mdl.StateLayout(model, drift=tuning.drift_state and model == "pr")
+    layout = mdl.StateLayout(model, drift=model == "pr")
     xt = true_state(track, clock, layout)
-    P0 = tuning.p0(layout)
+    P0 = tuning.prior_cov(layout)
     x0 = xt[0] + rng.standard_normal((M, layout.n)) @ np.linalg.cholesky(P0).T
     var = tuning.sigma_m**2
     m = stations_m.shape[0]
@@ -120,9 +120,6 @@ def run_algo(
         trk.predict_to(float(track.t_s[k]))
         if mon is not None:
             nu, S = mon.update(trk, stations_m, rho[k], list(range(m)), station_cov_m2, **kw)
-        elif tuning.sequential and model == "pr":
-            nu, s_diag = trk.update_sequential(stations_m, rho[k], station_cov_m2, **kw)
-            S = s_diag[..., :, None] * np.eye(s_diag.shape[-1])  # NIS of the sequential innovations
         else:
             nu, S = trk.update(stations_m, rho[k], station_cov_m2, **kw)
         x, P = trk.x, trk.P
@@ -154,11 +151,11 @@ def pcrb_track(
     with station clocks. ``clock_tau_s == 0``: white, added to the range variance. ``lost`` (T, m) bool:
     measurements not available (their information is left out: e.g. a station from its exclusion on).
     """
-    layout = mdl.StateLayout(model, drift=tuning.drift_state and model == "pr")
+    layout = mdl.StateLayout(model, drift=model == "pr")
     xt = true_state(track, clock, layout)
     dt = float(np.median(np.diff(track.t_s)))
     F = mdl.cv_transition(layout.n, dt)
-    Q = mdl.cv_noise(layout.n, dt, tuning.q_acc, tuning.q_clock, tuning.q_drift, tuning.q_acc_z)
+    Q = mdl.cv_noise(layout.n, dt, tuning.q_acc, tuning.q_clock, tuning.q_drift)
     m = stations_m.shape[0]
     white = clock_var_m2 is not None and not clock_tau_s > 0
     sig = np.sqrt(tuning.sigma_m**2 + (np.broadcast_to(clock_var_m2, (m,)) if white else 0.0))
@@ -173,7 +170,7 @@ def pcrb_track(
         H = mdl.jac_tdoa(xt, stations_m, 0)
         R = mdl.r_tdoa(var, 0)
         D = mdl.g_matrix(m, 0)
-    P0 = tuning.p0(layout)
+    P0 = tuning.prior_cov(layout)
     if clock_var_m2 is not None and not white:
         P0, F, Q, H = augment_biases(P0, F, Q, H, D, clock_var_m2, clock_tau_s, dt)
     # the first batch is measured at t0 without a preceding prediction: start one step earlier

@@ -213,9 +213,9 @@ def aircraft_pcrb(truth: dict, navs: Sequence[tuple[float, Any]], tuning) -> tup
     navs = [n for n in navs if truth is not None and truth["t_s"][0] - 1.0 <= n[0] <= truth["t_s"][-1]]
     if truth is None or len(navs) < 8:
         return None
-    layout = mdl.StateLayout("pr", drift=tuning.drift_state)
+    layout = mdl.StateLayout("pr", drift=True)
     n = layout.n
-    P = tuning.p0(layout)
+    P = tuning.prior_cov(layout)
     t_prev = navs[0][0]
     ts, out = [], []
     for t, pos in navs:
@@ -224,8 +224,8 @@ def aircraft_pcrb(truth: dict, navs: Sequence[tuple[float, Any]], tuning) -> tup
         X = np.zeros(n)
         X[:3] = interp_truth(truth, np.array([t]))[0]
         H = mdl.jac_pr(X, np.asarray(pos, float)[None])  # (1, n)
-        F, Q = (mdl.cv_transition(n, dt), mdl.cv_noise(n, dt, tuning.q_acc, tuning.q_clock, tuning.q_drift,
-                                                       tuning.q_acc_z)) if dt > 0 else (None, None)
+        F, Q = ((mdl.cv_transition(n, dt), mdl.cv_noise(n, dt, tuning.q_acc, tuning.q_clock, tuning.q_drift))
+                if dt > 0 else (None, None))
         P = pcrb_step(P, H.T @ H / tuning.sigma_m**2, F, Q)
         ts.append(t)
         out.append(sigma_m(P))

@@ -15,7 +15,7 @@ import json
 import sys
 import time
 
-from dataclasses import replace
+from dataclasses import asdict, replace
 
 import numpy as np
 
@@ -71,31 +71,30 @@ def register(sub) -> None:
                         "so that their second moment is exactly the prior the PCRB starts from)")
     p.add_argument("--without", action="append", default=[], choices=sorted(RULES), metavar="RULE",
                    help="switch one linearization rule of the radio filters off (repeatable), to show which "
-                        "cells it holds: " + ", ".join(f"{k} ({v[0]})" for k, v in sorted(RULES.items())))
+                        "cells it holds: " + ", ".join(f"{k} ({v})" for k, v in sorted(RULES.items())))
     p.set_defaults(func=run)
 
 
-# the radio filters' linearization rules (aircraft/navigator/radio/tuning.py Tuning) and the setting that switches
-# each off: `larns bench aircraft --envelope --without RULE` measures what each one holds
+# the radio filters' linearization rules (aircraft/navigator/radio/tuning.py: RULES) and the height
+# floor: `larns bench aircraft --envelope --without RULE` measures what each one holds
 RULES = {
-    "floor": ("height-floor truncation", {"floor_z_m": None}),
-    "iterate": ("iterated update", {"iterations": 1}),
-    "second-order": ("EKF second-order range terms", {"ekf_second_order": False}),
-    "repeats": ("linearization error counted as repeating", {"linearization_corr_s": 0.0}),
-    "inverse": ("inverse-range coordinates far out", {"coords": "cartesian"}),
-    "lag": ("lagged Jacobian near the array", {"height_jacobian_lag_s": 0.0}),
-    "weakest": ("lag along the weakest direction (else the height)", {"lag_direction": "height"}),
+    "floor": "height-floor truncation",
+    "iterate": "iterated update",
+    "second-order": "EKF second-order range terms",
+    "repeats": "linearization error counted as repeating",
+    "inverse": "inverse-range coordinates far out",
+    "lag": "lagged Jacobian near the array",
+    "weakest": "lag along the weakest direction (else the height)",
 }
 
 
 def without(tuning, rules) -> object:
-    """``tuning`` with each rule named in ``rules`` switched off (:data:`RULES`)."""
-    from dataclasses import replace
-
-    changes = {}
-    for rule in rules:
-        changes.update(RULES[rule][1])
-    return replace(tuning, **changes) if changes else tuning
+    """``tuning`` with each rule named in ``rules`` switched off (:data:`RULES`; "floor": no floor)."""
+    rules = list(rules)
+    if not rules:
+        return tuning
+    out = tuning.without(*rules)
+    return replace(out, floor_z_m=None) if "floor" in rules else out
 
 
 def _progress(msg: str) -> None:
@@ -142,6 +141,7 @@ def run_point(ac, kind: str, dist_m: float, runs: int, duration_s: float, warmup
     from aircraft.montecarlo import radio as sim
     from aircraft.navigator.radio.fde import FdeConfig
     from aircraft.world import trajectory
+    from aircraft.navigator.radio.tuning import CLOCK_BIAS_TAU_S
 
     dt = 1.0 / ac.rate_hz
     t = np.arange(0.0, duration_s, dt)
@@ -153,11 +153,12 @@ def run_point(ac, kind: str, dist_m: float, runs: int, duration_s: float, warmup
     if sync_m > 0:
         rho = rho + sync_errors_m(rho.shape, sync_m, sync_tau_s, dt, rng)
         cvar = sync_m**2
-        # the filters' model of the residual: the world's correlation time (white world: white)
-        tuning = replace(tuning, clock_bias=tuning.clock_bias if sync_tau_s > 0 else "white",
-                         clock_bias_tau_s=sync_tau_s if sync_tau_s > 0 else tuning.clock_bias_tau_s)
-        if clock_bias is not None:
-            tuning = replace(tuning, clock_bias=clock_bias)
+        # the filters' model of the residual: the world's correlation time (white world: white), unless
+        # ``clock_bias`` says otherwise ("states" in a white world: the tuning's own time)
+        tau = sync_tau_s if clock_bias != "white" else 0.0
+        if clock_bias == "states" and tau <= 0:
+            tau = ac.tuning.clock_bias_tau_s or CLOCK_BIAS_TAU_S
+        tuning = replace(tuning, clock_bias_tau_s=tau)
     win = t >= warmup_s
     out = {"height_m": float(track.pos_m[0, 2] - ac.centre_m[2]), "samples": int(runs * win.sum()),
            "rmse_m": {}, "pcrb_m": {}, "nees": {}, "nis": {}, "sec_per_update_run": {}, "samples_by_algo": {},
@@ -186,7 +187,7 @@ def run_point(ac, kind: str, dist_m: float, runs: int, duration_s: float, warmup
                 pc_cache[model] = float(np.sqrt(np.mean(np.trace(P[win], axis1=1, axis2=2))))
             out["pcrb_m"][algo] = pc_cache[model]
             out["nees"][algo] = float(np.mean(res.nees[:, win]))
-            n_dof = 6 + (2 if model == "pr" and tuning.drift_state else 1 if model == "pr" else 0)
+            n_dof = 6 + (2 if model == "pr" else 0)
             from scipy import stats
 
             band = stats.chi2.ppf([0.025, 0.975], runs * n_dof) / runs
@@ -214,24 +215,23 @@ def speed_vs_filterpy(ac, steps: int = 400, runs: int = 64) -> dict:
 
     # filterpy's UKF is the plain one: compare the same algorithm (no iterated update, no repeated
     # linearization term in R)
-    tun = replace(ac.tuning, floor_z_m=None, iterations=1, coords="cartesian", linearization_corr_s=0.0,
-                  height_jacobian_lag_s=0.0)
+    tun = without(ac.tuning, RULES)
     dt = 1.0 / ac.rate_hz
     t = np.arange(steps) * dt
     track = trajectory.from_config({"kind": "hover", "distance_m": 1000.0}, t, ac.centre_m)
     rng = np.random.default_rng(7)
     rho = sim.pseudoranges(track, ac.stations_m, ac.clock, ac.sigma_m, runs, rng)
-    layout = mdl.StateLayout("pr", drift=tun.drift_state)
+    layout = mdl.StateLayout("pr", drift=True)
     x0 = sim.true_state(track, ac.clock, layout)[0] + 5.0
     S = ac.stations_m
     F = mdl.cv_transition(layout.n, dt)
-    Q = mdl.cv_noise(layout.n, dt, tun.q_acc, tun.q_clock, tun.q_drift, tun.q_acc_z)
+    Q = mdl.cv_noise(layout.n, dt, tun.q_acc, tun.q_clock, tun.q_drift)
 
     pts = MerweScaledSigmaPoints(layout.n, alpha=tun.alpha, beta=2.0, kappa=0.0)
     fp = UnscentedKalmanFilter(dim_x=layout.n, dim_z=S.shape[0], dt=dt, points=pts,
                                fx=lambda x, dt_: F @ x, hx=lambda x: mdl.h_pr(x, S))
     fp.x = x0.copy()
-    fp.P = tun.p0(layout).copy()
+    fp.P = tun.prior_cov(layout).copy()
     fp.Q = Q
     fp.R = np.eye(S.shape[0]) * tun.sigma_m**2
     ours = CvTracker("ukf", "pr", x0, tun)  # one run: (n,) state, small-matrix path
@@ -416,7 +416,7 @@ def _assemble(res, sweep, speed, runs, duration, warmup, args, ac, wall, bar: fl
         "scenario": args.scenario, "runs": runs, "duration_s": duration, "warmup_s": warmup, "seed": args.seed,
         "rate_hz": ac.rate_hz, "sigma_m": ac.sigma_m, "clock_drift_m_s": ac.clock.drift_m_s,
         "height": "fixed %g m" % args.height if args.height is not None else "3 deg glide path",
-        "tuning": {k: getattr(tu, k) for k in tu.__dataclass_fields__},
+        "tuning": asdict(tu),
         "quick": bool(args.quick), "wall_s": wall,
         "samples_note": "samples = runs x epochs after warm-up; epochs within a run are correlated",
     }

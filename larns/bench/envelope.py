@@ -17,7 +17,7 @@ from __future__ import annotations
 import os
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 from scipy import stats
@@ -69,17 +69,17 @@ def _pcrb(model: str, tracks, ac, win: np.ndarray) -> np.ndarray:
     from nav.pcrb import pcrb_linear_gaussian, prior_before_first_step
 
     tu = ac.tuning
-    layout = mdl.StateLayout(model, drift=tu.drift_state and model == "pr")
+    layout = mdl.StateLayout(model, drift=model == "pr")
     xt = np.stack([sim.true_state(tr, ac.clock, layout) for tr in tracks], axis=1)  # (T, K, n)
     dt = float(np.median(np.diff(tracks[0].t_s)))
     F = mdl.cv_transition(layout.n, dt)
-    Q = mdl.cv_noise(layout.n, dt, tu.q_acc, tu.q_clock, tu.q_drift, tu.q_acc_z)
+    Q = mdl.cv_noise(layout.n, dt, tu.q_acc, tu.q_clock, tu.q_drift)
     var = mdl.range_var(xt, ac.stations_m, None, tu.sigma_m)
     if model == "pr":
         H, R = mdl.jac_pr(xt, ac.stations_m), mdl.r_pr(var)
     else:
         H, R = mdl.jac_tdoa(xt, ac.stations_m, 0), mdl.r_tdoa(var, 0)
-    P = pcrb_linear_gaussian(prior_before_first_step(tu.p0(layout), F, Q), F, Q, H, R)
+    P = pcrb_linear_gaussian(prior_before_first_step(tu.prior_cov(layout), F, Q), F, Q, H, R)
     tr = np.trace(P[win, :, :3, :3], axis1=-2, axis2=-1)  # (Tw, K)
     return np.sqrt(np.mean(tr, axis=0))
 
@@ -140,9 +140,9 @@ def run_chunk(ac, pts: list[Point], runs: int, duration_s: float, warmup_s: floa
     out = []
     for algo in algos:
         method, model = algo.split("-")
-        layout = mdl.StateLayout(model, drift=ac.tuning.drift_state and model == "pr")
+        layout = mdl.StateLayout(model, drift=model == "pr")
         xt = np.stack([sim.true_state(tr, ac.clock, layout) for tr in tracks], axis=0)[idx]  # (M, T, n)
-        P0 = ac.tuning.p0(layout)
+        P0 = ac.tuning.prior_cov(layout)
         x0 = xt[:, 0] + z0[:, : layout.n] @ np.linalg.cholesky(P0).T
         trk = CvTracker(method, model, x0, ac.tuning, t0_s=float(t[0]))
         sse = np.zeros(K * runs)
@@ -215,7 +215,7 @@ def run_envelope(ac, runs: int, duration_s: float, warmup_s: float, seed: int, h
             "settings": {"runs": runs, "duration_s": duration_s, "warmup_s": warmup_s, "seed": seed,
                          "heights_m": list(heights), "dists_m": list(dists), "bearings_deg": list(bearings),
                          "trajs": list(trajs), "algos": list(algos), "rate_hz": ac.rate_hz, "sigma_m": ac.sigma_m,
-                         "tuning": {k: getattr(ac.tuning, k) for k in ac.tuning.__dataclass_fields__},
+                         "tuning": asdict(ac.tuning),
                          "wall_s": wall, "points": len(pts),
                          "prior_draws": "matched" if matched_prior and runs > 8 else "iid",
                          "ratio_ci": "95 % from the run-to-run spread (delta method on per-run MSE); with "

@@ -16,7 +16,7 @@ from aircraft.navigator.radio import models as mdl
 from aircraft.navigator.radio.estimator import AircraftEstimator, EstimatorConfig
 from aircraft.navigator.radio.lsq import lsq_pr, lsq_tdoa
 from aircraft.navigator.radio.tracker import CvTracker
-from aircraft.navigator.radio.tuning import Tuning
+from aircraft.navigator.radio.tuning import Prior, Tuning
 from aircraft.world import trajectory
 from aircraft.world.clock import ReceiverClock
 from nav.kalman import ekf_update, kf_predict, kf_update, ukf_predict, ukf_update
@@ -161,7 +161,7 @@ def test_ekf_and_ukf_equal_linear_kf_on_linear_models():
 
 
 def test_tracker_prediction_is_the_cv_model_and_ekf_matches_ukf_when_nearly_linear():
-    tun = Tuning(p0_pos_m=1e-3, p0_vel_m_s=1e-3, p0_clock_m=1e-3, p0_drift_m_s=1e-3, floor_z_m=None)
+    tun = Tuning(p0=Prior(1e-3, 1e-3, 1e-3, 1e-3), floor_z_m=None)
     x0 = np.array([[800.0, 300.0, 60.0, 10.0, -5.0, 0.0, 3.0, 0.6]])
     e = CvTracker("ekf", "pr", x0, tun)
     u = CvTracker("ukf", "pr", x0, tun)
@@ -177,8 +177,8 @@ def test_tracker_prediction_is_the_cv_model_and_ekf_matches_ukf_when_nearly_line
 
 def _simulate_own_model(rng, model, M, T, dt, kind):
     """Truth drawn from the filter's own model (CV + clock random walks), pseudoranges from it."""
-    tun = Tuning(q_acc=1.0, q_clock=0.01, q_drift=0.01, p0_pos_m=5.0, p0_vel_m_s=1.0, p0_clock_m=5.0,
-                 p0_drift_m_s=0.5, floor_z_m=None)
+    tun = Tuning(q_acc=1.0, q_clock=0.01, q_drift=0.01, p0=Prior(pos_m=5.0, vel_m_s=1.0, clock_m=5.0, drift_m_s=0.5),
+                 floor_z_m=None)
     lay = mdl.StateLayout(model, drift=model == "pr")
     F, Q = mdl.cv_transition(lay.n, dt), mdl.cv_noise(lay.n, dt, tun.q_acc, tun.q_clock, tun.q_drift)
     LQ = np.linalg.cholesky(Q + 1e-15 * np.eye(lay.n))
@@ -186,7 +186,7 @@ def _simulate_own_model(rng, model, M, T, dt, kind):
     xt[:, :3] = [300.0, 200.0, 150.0]
     if model == "pr":
         xt[:, 7] = 0.6
-    x0 = xt + rng.standard_normal((M, lay.n)) @ np.linalg.cholesky(tun.p0(lay)).T
+    x0 = xt + rng.standard_normal((M, lay.n)) @ np.linalg.cholesky(tun.prior_cov(lay)).T
     trk = CvTracker(kind, model, x0, tun)
     for k in range(T):
         if k:
@@ -433,21 +433,6 @@ def test_estimator_resets_a_broken_filter_instead_of_raising():
     assert np.linalg.norm(np.array(est["pos_m"]) - p) < 30.0
 
 
-def test_sequential_scalar_updates_equal_the_batch_update_when_nearly_linear():
-    tun = Tuning(p0_pos_m=1e-3, p0_vel_m_s=1e-3, p0_clock_m=1e-3, p0_drift_m_s=1e-3, floor_z_m=None)
-    x0 = np.array([[800.0, 300.0, 60.0, 10.0, -5.0, 0.0, 3.0, 0.6]])
-    z = mdl.h_pr(x0, S001) + np.array([[3e-4, -2e-4, 1e-4, 0.0]])
-    for kind in ("ekf", "ukf"):
-        a = CvTracker(kind, "pr", x0, tun)
-        b = CvTracker(kind, "pr", x0, tun)
-        a.update(S001, z)
-        b.update_sequential(S001, z)
-        np.testing.assert_allclose(b.x, a.x, atol=1e-8)
-        np.testing.assert_allclose(b.P, a.P, rtol=1e-5, atol=1e-13)
-    with pytest.raises(ValueError):
-        CvTracker("ekf", "tdoa", x0[:, :6], tun).update_sequential(S001, z)
-
-
 def test_one_run_fast_paths_equal_the_batched_nav_steps():
     """The small-matrix (n,) path of nav.kalman / nav.ut gives the batched (1, n) result."""
     from nav.kalman import chol_solve
@@ -609,8 +594,8 @@ def test_tdma_far_field_start_from_a_wide_prior_converges():
     truth = S.mean(axis=0) + np.array([1500.0, 0.0, 0.0])
     truth[2] = 300.0
     rng = np.random.default_rng(3)
-    tun = replace(Tuning(), p0_pos_m=100.0, p0_clock_m=100.0)
-    P0 = tun.p0(mdl.StateLayout("pr", drift=True))
+    tun = replace(Tuning(), p0=Prior(pos_m=100.0, clock_m=100.0))
+    P0 = tun.prior_cov(mdl.StateLayout("pr", drift=True))
     xt = np.r_[truth, 0.0, 0.0, 0.0, 50.0, 0.0]
     x0 = xt + rng.standard_normal((12, 8)) @ np.linalg.cholesky(P0).T
     for kind in ("ekf", "ukf"):
@@ -632,7 +617,7 @@ def _ekf_pr_over(ac, track, xt, t, tun, runs: int, seed: int):
 
     rng = np.random.default_rng(seed)
     rho = sim.pseudoranges(track, ac.stations_m, ac.clock, ac.sigma_m, runs, rng)
-    x0 = xt[0] + rng.standard_normal((runs, 8)) @ np.linalg.cholesky(tun.p0(mdl.StateLayout("pr", drift=True))).T
+    x0 = xt[0] + rng.standard_normal((runs, 8)) @ np.linalg.cholesky(tun.prior_cov(mdl.StateLayout("pr", drift=True))).T
     trk = CvTracker("ekf", "pr", x0, tun)
     for k in range(t.size):
         trk.predict_to(float(t[k]))
@@ -658,7 +643,7 @@ def test_hover_overhead_height_does_not_drift_with_the_lagged_height_column():
     xt = sim.true_state(track, ac.clock, lay)
     out = {}
     for lag in (2.0, 0.0):
-        trk = _ekf_pr_over(ac, track, xt, t, replace(ac.tuning, height_jacobian_lag_s=lag), 24, 2)
+        trk = _ekf_pr_over(ac, track, xt, t, ac.tuning if lag else ac.tuning.without("lag"), 24, 2)
         out[lag] = float(np.mean(trk.x[:, 2] - xt[-1, 2]))
     assert abs(out[2.0]) < 8.0 and out[0.0] > 15.0, out
 
@@ -685,7 +670,7 @@ def test_symmetry_plane_no_drift_along_the_unobservable_direction():
     assert np.linalg.norm(Hpb @ null) < 1e-9
     out = {}
     for mode in ("weakest", "height"):
-        trk = _ekf_pr_over(ac, track, xt, t, replace(ac.tuning, lag_direction=mode), 48, 5)
+        trk = _ekf_pr_over(ac, track, xt, t, ac.tuning if mode == "weakest" else ac.tuning.without("weakest"), 48, 5)
         e = (trk.x - xt[-1])[:, [0, 1, 2, 6]] @ null
         out[mode] = abs(float(np.mean(e)))
     assert out["weakest"] < 0.5 * out["height"] and out["height"] > 10.0, out
@@ -752,7 +737,7 @@ def test_initializer_snapshot_where_geometry_allows_wide_prior_where_not():
             if not snap:
                 assert np.sqrt(np.trace(C)) >= np.sqrt(3) * InitConfig().wide_sigma_m - 1e-6
             if model == "pr":
-                assert r.x0.size == 8 and r.P0[7, 7] == pytest.approx(ac_tu.p0_drift_m_s**2)
+                assert r.x0.size == 8 and r.P0[7, 7] == pytest.approx(ac_tu.p0.drift_m_s**2)
 
 
 

@@ -14,13 +14,12 @@ from scipy import stats
 from aircraft.montecarlo import radio as sim
 from aircraft.navigator.radio import models as mdl
 from aircraft.navigator.radio.tracker import CvTracker
-from aircraft.navigator.radio.tuning import Tuning
+from aircraft.navigator.radio.tuning import Prior, Tuning
 from aircraft.world.clock import ReceiverClock
 from nav.pcrb import augment_biases, gauss_markov_block, pcrb_linear_gaussian, prior_before_first_step
 
 # first-order, one pass, Cartesian: the EKF is then exactly the textbook EKF
-PLAIN = Tuning(coords="cartesian", ekf_second_order=False, iterations=1, floor_z_m=None, clock_bias_tau_s=4.0,
-               height_jacobian_lag_s=0.0)
+PLAIN = Tuning(rules=(), floor_z_m=None, clock_bias_tau_s=4.0)
 
 
 def _stations(m, rng, spread_m=20_000.0):
@@ -55,7 +54,7 @@ def test_bias_states_equal_a_textbook_kf_as_stations_appear_and_variances_change
     x_true = np.array([1000.0, 2000.0, 1500.0, 30.0, -20.0, 0.0, 50.0, 0.6])[:n]
     x0 = x_true + rng.normal(0, 5.0, n)
     trk = CvTracker("ekf", model, x0, PLAIN)
-    x, P = x0.copy(), PLAIN.p0(mdl.StateLayout(model, drift=model == "pr"))
+    x, P = x0.copy(), PLAIN.prior_cov(mdl.StateLayout(model, drift=model == "pr"))
     ids: list[int] = []
     var_of = {}
     dt = 0.1
@@ -66,7 +65,7 @@ def test_bias_states_equal_a_textbook_kf_as_stations_appear_and_variances_change
         st = st_all[batch]
         # reference: predict with the stationary variances of the previous broadcasts, then add states
         F = mdl.cv_transition(n, dt)
-        Q = mdl.cv_noise(n, dt, PLAIN.q_acc, PLAIN.q_clock, PLAIN.q_drift, PLAIN.q_acc_z)
+        Q = mdl.cv_noise(n, dt, PLAIN.q_acc, PLAIN.q_clock, PLAIN.q_drift)
         if ids:
             A, Qb = gauss_markov_block(len(ids), [var_of[i] for i in ids], PLAIN.clock_bias_tau_s, dt)
             F = np.block([[F, np.zeros((n, len(ids)))], [np.zeros((len(ids), n)), A]])
@@ -95,8 +94,9 @@ def test_bias_states_equal_a_textbook_kf_as_stations_appear_and_variances_change
 def test_unheard_station_bias_is_marginalized():
     rng = np.random.default_rng(4)
     st = _stations(5, rng)
-    tu = replace(PLAIN, clock_bias_drop_s=1.0)
+    tu = PLAIN
     trk = CvTracker("ekf", "pr", np.array([1000.0, 2000.0, 1500.0, 0, 0, 0, 0, 0]), tu)
+    trk.biases.drop_s = 1.0  # (the tuning's is a minute)
     for k in range(1, 6):
         trk.predict_to(0.1 * k)
         trk.update(st, rng.normal(0, 1, 5) + 3000.0, bias_ids=[1, 2, 3, 4, 5], bias_var_m2=0.04)
@@ -126,7 +126,7 @@ def test_measurement_model_jacobian_with_bias_states(model, coords):
     st = _stations(5, rng, 100.0)
     n = 8 if model == "pr" else 6
     x0 = np.array([900.0, 700.0, 300.0, 40.0, -10.0, 2.0, 30.0, 0.6])[:n]
-    trk = CvTracker("ekf", model, x0, replace(PLAIN, coords=coords))
+    trk = CvTracker("ekf", model, x0, replace(PLAIN, rules=("inverse",) if coords == "inverse" else ()))
     dt = np.array([-0.04, -0.03, -0.02, -0.01, 0.0])
     D = np.zeros((5, 3))
     D[[0, 2, 4], [0, 1, 2]] = 1.0
@@ -151,7 +151,7 @@ def test_filter_covariance_equals_the_augmented_pcrb_on_a_linear_problem(kind):
     dirs[:, 2] = -np.abs(dirs[:, 2])
     st = 1e6 * dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
     x_true = np.array([0.0, 0.0, 1000.0, 0.0, 0.0, 0.0, 10.0, 0.6])
-    tu = replace(PLAIN, p0_pos_m=5.0, p0_clock_m=5.0)
+    tu = replace(PLAIN, p0=Prior(pos_m=5.0, clock_m=5.0))
     trk = CvTracker(kind, "pr", x_true, tu)
     var = np.array([0.1, 0.2, 0.15, 0.3, 0.25]) ** 2
     dt, T = 0.1, 40
@@ -163,8 +163,8 @@ def test_filter_covariance_equals_the_augmented_pcrb_on_a_linear_problem(kind):
         trk.update(st, mdl.h_pr(xt, st), bias_ids=list(range(m)), bias_var_m2=var)
         H.append(mdl.jac_pr(xt, st))
     F = mdl.cv_transition(8, dt)
-    Q = mdl.cv_noise(8, dt, tu.q_acc, tu.q_clock, tu.q_drift, tu.q_acc_z)
-    P0a, Fa, Qa, Ha = augment_biases(tu.p0(mdl.StateLayout("pr", True)), F, Q, np.array(H), np.eye(m), var,
+    Q = mdl.cv_noise(8, dt, tu.q_acc, tu.q_clock, tu.q_drift)
+    P0a, Fa, Qa, Ha = augment_biases(tu.prior_cov(mdl.StateLayout("pr", True)), F, Q, np.array(H), np.eye(m), var,
                                      tu.clock_bias_tau_s, dt)
     # the filter's prior is at t = 0, its first step a prediction: the recursion from P0a as is
     Pb = pcrb_linear_gaussian(P0a, Fa, Qa, Ha, tu.sigma_m**2 * np.eye(m))[-1]
@@ -184,10 +184,11 @@ def _nees_run(clock_bias, runs=24, seconds=12.0):
     pos = np.array([2000.0, 1500.0, 1000.0]) + np.outer(t, [20.0, -10.0, 0.0])
     track = Track(t_s=t, pos_m=pos, vel_m_s=np.broadcast_to([20.0, -10.0, 0.0], pos.shape).copy())
     clock = ReceiverClock()
-    tu = replace(Tuning(coords="cartesian"), clock_bias=clock_bias, clock_bias_tau_s=5.0)
+    tau_s = 5.0  # the world's; the filter models it ("states") or takes it as white (tau 0)
+    tu = replace(Tuning().without("inverse"), clock_bias_tau_s=tau_s if clock_bias == "states" else 0.0)
     sync_m = 1.0  # 3.3 ns: the bias dominates the 0.5 m timing noise
     rho = sim.pseudoranges(track, st, clock, tu.sigma_m, runs, rng)
-    a = np.exp(-dt / tu.clock_bias_tau_s)
+    a = np.exp(-dt / tau_s)
     b = np.empty(rho.shape)
     b[0] = rng.standard_normal(rho.shape[1:])
     for k in range(1, len(t)):
@@ -311,7 +312,7 @@ def test_linearization_error_counted_as_repeated_near_a_transmitter():
     sync_m = 0.7 * 0.299792458
     out = {}
     for corr in (10.0, 0.0):
-        a = replace(ac, tuning=replace(ac.tuning, linearization_corr_s=corr))
+        a = replace(ac, tuning=ac.tuning if corr else ac.tuning.without("repeats"))
         r = run_point(a, "hover", 50.0, 8, 24.0, 10.0, None, np.random.default_rng(3), algos=("ekf-pr",),
                       sync_m=sync_m, sync_tau_s=6.0, fde=False)
         out[corr] = (r["rmse_m"]["ekf-pr"] / r["pcrb_m"]["ekf-pr"], r["nees"]["ekf-pr"], r["nees_band"]["ekf-pr"])

@@ -10,14 +10,14 @@ import pytest
 from aircraft.montecarlo import radio as sim
 from aircraft.navigator.radio.estimator import AircraftEstimator, EstimatorConfig
 from aircraft.navigator.radio.fde import FdeConfig, fault_vectors, protection_levels, snooping
-from aircraft.navigator.radio.tuning import Tuning
+from aircraft.navigator.radio.tuning import Prior, Tuning
 from aircraft.node import integrity_fields
 from aircraft.world.clock import ReceiverClock
 from aircraft.world.trajectory import Track
 from net import messages as M
 
 STATIONS = np.array([[0.0, 0.0, 0.0], [3000.0, 0.0, 20.0], [1500.0, 2500.0, 40.0], [1500.0, -2500.0, 10.0]])
-TUNING = Tuning(sigma_m=0.5, p0_pos_m=20.0, p0_vel_m_s=5.0, q_acc=1.0)
+TUNING = Tuning(sigma_m=0.5, p0=Prior(pos_m=20.0, vel_m_s=5.0), q_acc=1.0)
 
 
 def _track(T: int, rate_hz: float = 10.0) -> Track:

@@ -1,6 +1,8 @@
 """aircraft/navigator/radio/update.py: the EKF and UKF strategies (plain and iterated) reduce to the
 linear Kalman update on a linear measurement model."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -27,12 +29,26 @@ class LinearModel:
         return c2, S2
 
 
+@dataclasses.dataclass(frozen=True)
+class _EveryRunIterated(Tuning):
+    """The textbook filters iterated ``passes`` times on every run (no threshold)."""
+
+    passes: int = 3
+
+    @property
+    def iterations(self) -> int:
+        return self.passes
+
+    @property
+    def iterate_threshold(self) -> float:
+        return 0.0
+
+
 @pytest.mark.parametrize("kind", ["ekf", "ukf"])
 @pytest.mark.parametrize("iterations", [1, 3])
 def test_strategy_is_the_linear_kalman_update_on_a_linear_model(kind, iterations):
     rng = np.random.default_rng(8)
-    tu = Tuning(coords="cartesian", floor_z_m=None, height_jacobian_lag_s=0.0, ekf_second_order=False,
-                linearization_corr_s=0.0, iterations=iterations, iterate_threshold=0.0)
+    tu = _EveryRunIterated(rules=(), floor_z_m=None, passes=iterations)
     x0 = rng.normal(0, 10, (4, 8))
     A = rng.normal(0, 1, (4, 8, 8))
     P0 = A @ np.swapaxes(A, -1, -2) + np.eye(8)

@@ -132,13 +132,13 @@ def test_aircraft_pcrb_is_the_nav_pcrb_recursion():
     senders = np.array([[5000.0, 0, 0], [0, 5000.0, 0], [-5000.0, 0, 0], [0, -5000.0, 0], [0, 0, 100.0]])
     navs = [(float(tk), senders[k % 5]) for k, tk in enumerate(t)]
     ts, bound = MT.aircraft_pcrb(truth, navs, tuning)
-    layout = mdl.StateLayout("pr", drift=tuning.drift_state)
+    layout = mdl.StateLayout("pr", drift=True)
     n = layout.n
     H = np.stack([mdl.jac_pr(np.r_[truth["pos_m"][k], np.zeros(n - 3)], senders[k % 5][None]) for k in range(40)])
     F = mdl.cv_transition(n, dt)
-    Q = mdl.cv_noise(n, dt, tuning.q_acc, tuning.q_clock, tuning.q_drift, tuning.q_acc_z)
+    Q = mdl.cv_noise(n, dt, tuning.q_acc, tuning.q_clock, tuning.q_drift)
     # the report measures the first broadcast without a prediction: start nav.pcrb one step earlier
-    P = pcrb_linear_gaussian(np.linalg.solve(F, np.linalg.solve(F, (tuning.p0(layout) - Q).T).T), F, Q, H,
+    P = pcrb_linear_gaussian(np.linalg.solve(F, np.linalg.solve(F, (tuning.prior_cov(layout) - Q).T).T), F, Q, H,
                              np.full((40, 1, 1), tuning.sigma_m**2))
     ref = np.sqrt(np.trace(P[:, :3, :3], axis1=-2, axis2=-1))
     assert ts.tolist() == t.tolist() and np.allclose(bound, ref, rtol=1e-6)

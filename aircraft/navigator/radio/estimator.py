@@ -167,10 +167,7 @@ class AircraftEstimator:
             return
         try:
             self.tracker.predict_to(t_s)
-            if self.cfg.tuning.sequential and self.model == "pr" and not np.any(dt):
-                self._watch(*self.tracker.update_sequential(pos, rho, cov_trk, **bias_kw), ids)
-            else:
-                self._update(pos, rho, cov_trk, dt if np.any(dt) else None, ids, **bias_kw)
+            self._update(pos, rho, cov_trk, dt if np.any(dt) else None, ids, **bias_kw)
         except np.linalg.LinAlgError:
             self._reset()
             return
@@ -193,14 +190,14 @@ class AircraftEstimator:
         self._watch(nu, S, ids)
 
     def _watch(self, nu, S, ids) -> None:
-        """Feed one update's innovation ``nu`` (d,) and covariance ``S`` (d, d), or its diagonal (d,) for
-        sequential scalar updates, to the divergence monitor with each station's normalized innovation
+        """Feed one update's innovation ``nu`` (d,) and covariance ``S`` (d, d) to the divergence monitor
+        with each station's normalized innovation
         (aircraft/navigator/radio/fde.py ``snooping``); a lost filter restarts."""
         if self.monitor is None:
             return
         nu = np.atleast_1d(np.asarray(nu, dtype=float))
         S = np.asarray(S, dtype=float)
-        S = np.diag(S) if S.ndim == 1 else np.atleast_2d(S)
+        S = np.atleast_2d(S)
         ids = list(range(nu.size + (self.model != "pr"))) if ids is None else list(ids)
         try:
             q, w = snooping(nu, S, fault_vectors(self.model, len(ids), self.tracker.base))
@@ -296,23 +293,21 @@ class AircraftEstimator:
         tu = self.cfg.tuning
         gs = self.cfg.guess_sigma_m
         self.fix[:3] = self.guess
-        C = np.diag([gs**2] * 3 + ([(tu.p0_clock_m + gs) ** 2] if self.model == "pr" else []))
+        C = np.diag([gs**2] * 3 + ([(tu.p0.clock_m + gs) ** 2] if self.model == "pr" else []))
         if self.model == "pr":
             self.fix[3] = float(np.mean(rho - np.linalg.norm(self.guess - pos, axis=1)))
         x0 = np.concatenate([self.fix[:3], np.zeros(3)])
         if self.model == "pr":
-            x0 = np.append(x0, self.fix[3])
-            if tu.drift_state:
-                x0 = np.append(x0, 0.0)
+            x0 = np.append(x0, [self.fix[3], 0.0])
         layout = self.tracker_layout()
-        P0 = tu.p0(layout)
+        P0 = tu.prior_cov(layout)
         idx = layout.pos_clock
         P0[np.ix_(idx, idx)] = C
         self.tracker = CvTracker(self.method, self.model, x0, tu, t0_s=t_s, P0=P0, ref_m=crd.reference_point(pos),
                                  ref_radius_m=crd.array_radius(pos))
 
     def tracker_layout(self) -> StateLayout:
-        return StateLayout(self.model, drift=self.cfg.tuning.drift_state and self.model == "pr")
+        return StateLayout(self.model, drift=self.model == "pr")
 
     def _reset(self) -> None:
         """A filter whose covariance lost positive definiteness restarts from the next batch's fix."""

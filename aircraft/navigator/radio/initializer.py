@@ -18,7 +18,7 @@ covariance.
   position and the clock.
 
 Velocity: one snapshot does not measure it; the start is zero with ``vel_sigma_m_s``. The clock rate
-starts at zero with the tuning's ``p0_drift_m_s``.
+starts at zero with the tuning's ``p0.drift_m_s``.
 
 This module must never import the world side (``aircraft.world``, ``aircraft.montecarlo``, scenarios):
 tests check the import boundary.
@@ -170,7 +170,7 @@ def initial_state(
     cov_m2 : (m, 3, 3) their broadcast covariances or None. rho_m : (m,) pseudoranges of the batch.
     """
     cfg = config or InitConfig()
-    layout = mdl.StateLayout(model, drift=tuning.drift_state and model == "pr")
+    layout = mdl.StateLayout(model, drift=model == "pr")
     fix, C, cost, amb = snapshot_fix(model, pos_m, cov_m2, rho_m, tuning.sigma_m, tuning.floor_z_m)
     sig = float(np.sqrt(np.trace(C[:3, :3]))) if np.all(np.isfinite(C)) else np.inf
     snapshot = bool(np.isfinite(sig) and sig <= cfg.max_fix_sigma_m) and \
@@ -190,5 +190,5 @@ def initial_state(
     P0[np.ix_(idx, idx)] = C
     P0[3:6, 3:6] = np.eye(3) * cfg.vel_sigma_m_s**2
     if layout.drift:
-        P0[7, 7] = tuning.p0_drift_m_s**2
+        P0[7, 7] = tuning.p0.drift_m_s**2
     return InitResult(x0, 0.5 * (P0 + P0.T), snapshot, fix, sig, cost)

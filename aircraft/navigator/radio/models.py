@@ -137,20 +137,17 @@ def cv_transition(n: int, dt_s: float) -> np.ndarray:
     return F
 
 
-def cv_noise(n: int, dt_s: float, q_acc: float, q_clock: float, q_drift: float,
-             q_acc_z: float | None = None) -> np.ndarray:
+def cv_noise(n: int, dt_s: float, q_acc: float, q_clock: float, q_drift: float) -> np.ndarray:
     """Process noise (n, n) of the discretized continuous white-noise models.
 
     Position/velocity per axis: white acceleration of spectral density ``q_acc`` (m^2/s^3):
     ``q [[dt^3/3, dt^2/2], [dt^2/2, dt]]``. Clock offset: random walk ``q_clock`` (m^2/s); clock rate
-    (if ``n == 8``): random walk ``q_drift`` (m^2/s^3) integrated into the offset. ``q_acc_z``: a
-    separate vertical density (aircraft manoeuvre far less vertically); None = ``q_acc``.
+    (if ``n == 8``): random walk ``q_drift`` (m^2/s^3) integrated into the offset.
     """
     Q = np.zeros((n, n))
     base = np.array([[dt_s**3 / 3.0, dt_s**2 / 2.0], [dt_s**2 / 2.0, dt_s]])
     for i in range(3):
-        q = q_acc if (i < 2 or q_acc_z is None) else q_acc_z
-        Q[np.ix_([i, i + 3], [i, i + 3])] = q * base
+        Q[np.ix_([i, i + 3], [i, i + 3])] = q_acc * base
     if n >= 7:
         Q[CLOCK, CLOCK] = q_clock * dt_s
     if n == 8:

@@ -54,21 +54,15 @@ class CvTracker:
         if kind not in ("ekf", "ukf"):
             raise ValueError(f"unknown filter {kind!r} (ekf or ukf)")
         self.kind = kind
-        self.layout = StateLayout(model, drift=tuning.drift_state and model == "pr")
+        self.layout = StateLayout(model, drift=model == "pr")
         self.tuning = tuning
         x0 = np.asarray(x0, dtype=float)  # (M, n) batched, or (n,) for one run (faster small-matrix path)
         if x0.shape[-1] != self.layout.n:
             raise ValueError(f"x0 must have {self.layout.n} states for {model}, got {x0.shape}")
-        if tuning.coords not in ("inverse", "cartesian"):
-            raise ValueError(f"unknown coords {tuning.coords!r} (inverse or cartesian)")
-        if tuning.lag_direction not in ("weakest", "height"):
-            raise ValueError(f"unknown lag_direction {tuning.lag_direction!r} (weakest or height)")
-        if tuning.clock_bias not in ("states", "white"):
-            raise ValueError(f"unknown clock_bias {tuning.clock_bias!r} (states or white)")
         self.n_base = self.layout.n  # states after these: the stations' clock biases (bias_ids order)
         self.biases = ClockBiases(self.n_base, tuning.clock_bias_tau_s, tuning.clock_bias_drop_s)
         self._x = x0.copy()
-        P0 = tuning.p0(self.layout) if P0 is None else np.asarray(P0, dtype=float)
+        P0 = tuning.prior_cov(self.layout) if P0 is None else np.asarray(P0, dtype=float)
         self._P = np.broadcast_to(P0, x0.shape[:-1] + (self.layout.n,) * 2).copy()
         self.chart = InverseChart(x0.shape[:-1], clock=self.layout.has_clock)
         self.floor = HeightFloor(tuning.floor_z_m, tuning.trunc_sigma)
@@ -168,7 +162,7 @@ class CvTracker:
             if len(self._fq) > 64:
                 self._fq.clear()
             F = mdl.cv_transition(n, dt)
-            Q = mdl.cv_noise(n, dt, tu.q_acc, tu.q_clock, tu.q_drift, tu.q_acc_z)
+            Q = mdl.cv_noise(n, dt, tu.q_acc, tu.q_clock, tu.q_drift)
             self._fq[key] = self.biases.process(F, Q, dt)
         self._last_dt, self._last_fq = dt, self._fq[key]
         return self._last_fq
@@ -289,24 +283,3 @@ class CvTracker:
         if T is not None:  # Cartesian moments (the inverse-coordinate runs converted)
             X, P = self._cart(X), symmetrize(T @ P @ np.swapaxes(T, -1, -2))
         return second_order(stations_m, dt_s, X, P)
-
-    def update_sequential(
-        self, stations_m: np.ndarray, rho_m: np.ndarray, station_cov_m2: np.ndarray | None = None,
-        bias_ids=None, bias_var_m2: np.ndarray | float | None = None,
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Pseudorange epoch as sequential scalar updates (re-linearized / sigma points redrawn after
-        each). Equivalent to the batch update for a linear model; for ranges it reduces the EKF's
-        linearization error close to a transmitter. Returns the stacked (nu (..., m), S diag (..., m))."""
-        if self.layout.kind != "pr":
-            raise ValueError("sequential scalar updates need independent pseudoranges (pr model)")
-        nus, Ss = [], []
-        m = stations_m.shape[0]
-        bv = None if bias_var_m2 is None else np.broadcast_to(np.asarray(bias_var_m2, dtype=float), (m,))
-        for j in range(m):
-            c = None if station_cov_m2 is None else station_cov_m2[j : j + 1]
-            kw = ({} if bias_ids is None or bv is None
-                  else {"bias_ids": [list(bias_ids)[j]], "bias_var_m2": bv[j : j + 1]})
-            nu, S = self.update(stations_m[j : j + 1], rho_m[..., j : j + 1], c, **kw)
-            nus.append(nu[..., 0])
-            Ss.append(S[..., 0, 0])
-        return np.stack(nus, axis=-1), np.stack(Ss, axis=-1)

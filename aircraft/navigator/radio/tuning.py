@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
@@ -13,87 +13,155 @@ from .state import StateLayout
 CLOCK_BIAS_TAU_S = 6.0
 
 
+# The linearization rules of the radio filters, each switched off by leaving it out of
+# ``Tuning.rules`` (``larns bench aircraft --without RULE``; which cells of the envelope each one holds:
+# docs/aircraft.md, "Which cells each rule holds"). With none of them the filters are the textbook
+# EKF / UKF. The constants each rule uses are stated here, not tuned per scenario.
+RULES = ("inverse", "iterate", "lag", "repeats", "second-order", "weakest")
+
+ITERATIONS = 2  # "iterate": update passes (one more re-linearization about the latest posterior) ...
+ITERATE_THRESHOLD = 1.0  # ... for runs whose linearization error over the prior is large: tr(R^-1 Omega) > this
+LINEARIZATION_CORR_S = 10.0  # "repeats": the second-order covariance counted as repeating over at most this
+INVERSE_MAX_REL = 0.15  # "inverse": per run while sqrt(tr P_pos) < this x |p - c| (back above twice it) ...
+INVERSE_MIN_RADII = 3.0  # ... and beyond this many array radii from the reference point
+JACOBIAN_LAG_S = 2.0  # "lag": the Jacobian along one direction at the position low-passed over this
+TRUNC_SIGMA = 6.0  # the height floor: truncate while the mean is < this many sigma above the floor
+UKF_ALPHA = 0.1  # scaled sigma points (beta = 2, kappa = 0; seed 001)
+CLOCK_BIAS_DROP_S = 60.0  # a station's clock-bias state is dropped after this long unheard
+
+
+@dataclass(frozen=True)
+class Prior:
+    """Initial standard deviations of the filter state (diagonal): position (m, each axis), velocity
+    (m/s), receiver clock offset (m) and rate (m/s)."""
+
+    pos_m: float = 20.0
+    vel_m_s: float = 5.0
+    clock_m: float = 20.0
+    drift_m_s: float = 1.0
+
+
 @dataclass(frozen=True)
 class Tuning:
-    """One filter tuning (shared by all trajectories).
+    """One filter tuning (shared by all trajectories); eight knobs.
 
-    ``q_acc`` white-acceleration density (m^2/s^3), ``q_acc_z`` its vertical one; ``q_clock`` clock random walk (m^2/s);
-    ``q_drift`` clock-rate random walk (m^2/s^3, drift state only); ``alpha`` UKF spread;
-    ``sigma_m`` nominal pseudorange noise; ``p0_*`` initial standard deviations.
+    ``q_acc`` white-acceleration density (m^2/s^3, every axis); ``q_clock`` receiver clock offset random
+    walk (m^2/s); ``q_drift`` its rate random walk (m^2/s^3); ``sigma_m`` nominal pseudorange noise (m);
+    ``p0`` the initial standard deviations (:class:`Prior`; a dict in TOML and in records);
+    ``floor_z_m`` the station plane (LSQ mirrors below it, the filters truncate their density to above
+    it; None: no floor); ``clock_bias_tau_s`` the correlation time of the stations' residual clock
+    errors after the broadcast correction (docs/sync.md): each station heard gets a first-order
+    Gauss-Markov range-bias state of stationary variance ``c^2 P_theta`` (its broadcast clock variance),
+    0 = that variance added to each range as white noise instead (wrong for a slowly varying sync
+    error: 4-8 x the bound, docs/sync.md); ``rules`` the linearization rules on (:data:`RULES`).
+
+    The settings the rules imply are read-only properties below (``iterations``, ``coords``, ...).
     """
 
     q_acc: float = 1.0
-    q_acc_z: float | None = None  # vertical white-acceleration density; None = q_acc
     q_clock: float = 1e-4
     q_drift: float = 1e-4
-    drift_state: bool = True
-    alpha: float = 1e-1
     sigma_m: float = 0.5
-    p0_pos_m: float = 20.0
-    p0_vel_m_s: float = 5.0
-    p0_clock_m: float = 20.0
-    p0_drift_m_s: float = 1.0
-    floor_z_m: float | None = 0.0  # station plane: LSQ mirrors below it, filters truncate (None: off)
-    trunc_sigma: float = 6.0
-    sequential: bool = False  # pseudorange epochs as sequential scalar updates (else one vector update)
-    # iterated measurement update: 1 = plain EKF/UKF; k > 1 re-linearizes k - 1 more times about the
-    # latest posterior (EKF: Gauss-Newton IEKF; UKF: iterated posterior linearization, the statistical
-    # linear regression of h over the latest posterior's sigma points)
-    iterations: int = 2
-    # ... only for runs whose linearization error over the prior is large: tr(R^-1 Omega) > this, with
-    # Omega the statistical-linearization error covariance of h over the prior (UKF: Py - Pxz^T P^-1 Pxz;
-    # EKF: its second-order term 0.5 tr(M_i P M_j P), with R already including that term when
-    # ekf_second_order is on). 0 = always iterate.
-    iterate_threshold: float = 1.0
-    # EKF: Gaussian second-order terms of the range (Hessian (I - u u^T) / r): mean correction
-    # 0.5 tr(M_j P) and innovation covariance 0.5 tr(M_i P M_j P). Close to a transmitter the range's
-    # curvature biases a first-order EKF (the UKF captures it through its sigma points).
-    ekf_second_order: bool = True
-    # ... and that term's covariance is not white: it is a function of the state error, which changes
-    # slowly (the stations' clock biases, the hover), so the same linearization error repeats at every
-    # update. It enters R scaled by the number of times it repeats: the longer of the filter's memory
-    # time and the time since its start, at most this long, over the station's own measurement interval
-    # (navigator/radio/repeats.py; 0 = white, the textbook second-order EKF); the UKF gets the same term.
-    # Far from the transmitters it is negligible; 2.6 m above one (seed001 hover 50 m) it keeps the
-    # filters from reading curvature as information (docs/aircraft.md, "Linearization error").
-    linearization_corr_s: float = 10.0
-    # filter coordinates: "inverse" = position inverted through the unit sphere about the broadcast
-    # station centroid and the clock carried as b + range to it (aircraft/navigator/radio/coords.py: straightens the
-    # height/clock and range/clock ridges of a small-base system); "cartesian" = [p, v, b, bdot]
-    coords: str = "inverse"
-    # ... per run, only while the position is known well relative to its distance from the reference:
-    # sqrt(tr P_pos) < inverse_max_rel * |p - c| (back to Cartesian above twice that; near the
-    # array the inversion of a wide Gaussian is itself far from Gaussian). Checked after every update.
-    inverse_max_rel: float = 0.15
-    # ... and only beyond this many array radii (RMS station distance from the centroid) from the
-    # reference: close to the array the ranges to single stations dominate the nonlinearity
-    inverse_min_radii: float = 3.0
-    # runs in Cartesian coordinates (near the array): the Jacobian (EKF) or the sigma points'
-    # regression slope (UKF) along one direction is taken at the position low-passed over this many
-    # seconds (restarted at the estimate beyond 4 sigma: a moving aircraft). Where a direction is not
-    # observable (right above the array: the height; on a mirror plane of the square: x, z and the
-    # clock) the Jacobian along it, taken at the estimate, is proportional to the estimate's own error
-    # across it, which the innovation also carries, and the noise-driven product drove the estimate
-    # along the ridge (~2 m/s up at hover 100 m overhead, docs/aircraft.md). 0 = at the estimate.
-    height_jacobian_lag_s: float = 2.0
-    # ... which direction: "weakest" (the least observable position direction from the filter's own
-    # information, low-passed; the position lagged across it, current along it) or "height" (the
-    # height column at the low-passed horizontal position; docs/aircraft.md, "History of the rules")
-    lag_direction: str = "weakest"
-    # residual station clock errors after the broadcast clock correction (docs/sync.md): "states" = one
-    # first-order Gauss-Markov range bias per station heard, stationary variance = the broadcast clock
-    # variance c^2 P_theta, correlation time ``clock_bias_tau_s`` (added as a station is first heard,
-    # dropped after ``clock_bias_drop_s`` without a measurement); "white" = the broadcast variance added
-    # to each range's variance as if independent between measurements (wrong for a slowly varying
-    # sync error: 4-8 x the bound, docs/sync.md)
-    clock_bias: str = "states"
+    p0: Prior = field(default_factory=Prior)
+    floor_z_m: float | None = 0.0
     clock_bias_tau_s: float = CLOCK_BIAS_TAU_S
-    clock_bias_drop_s: float = 60.0
+    rules: tuple[str, ...] = RULES
 
-    def p0(self, layout: StateLayout) -> np.ndarray:
-        d = [self.p0_pos_m] * 3 + [self.p0_vel_m_s] * 3
+    def __post_init__(self):
+        if isinstance(self.p0, dict):
+            bad = set(self.p0) - {f.name for f in fields(Prior)}
+            if bad:
+                raise ValueError(f"p0: unknown keys {sorted(bad)}: expected some of pos_m, vel_m_s, clock_m, drift_m_s")
+            object.__setattr__(self, "p0", Prior(**{k: float(v) for k, v in self.p0.items()}))
+        rules = tuple(sorted(set(self.rules)))
+        unknown = set(rules) - set(RULES)
+        if unknown:
+            raise ValueError(f"unknown rules {sorted(unknown)}: expected some of {list(RULES)}")
+        object.__setattr__(self, "rules", rules)
+
+    def without(self, *rules: str) -> "Tuning":
+        """This tuning with the named rules switched off."""
+        return replace(self, rules=tuple(r for r in self.rules if r not in rules))
+
+    # -- what the rules imply
+    @property
+    def iterations(self) -> int:
+        """Measurement-update passes: 1 = plain EKF / UKF; 2 re-linearizes once more about the latest
+        posterior (EKF: Gauss-Newton IEKF; UKF: iterated posterior linearization)."""
+        return ITERATIONS if "iterate" in self.rules else 1
+
+    @property
+    def iterate_threshold(self) -> float:
+        """Iterate only runs whose linearization error over the prior is large: ``tr(R^-1 Omega) >`` this,
+        ``Omega`` the statistical-linearization error covariance of h over the prior (UKF:
+        ``Py - Pxz^T P^-1 Pxz``; EKF: its second-order term ``0.5 tr(M_i P M_j P)``)."""
+        return ITERATE_THRESHOLD
+
+    @property
+    def ekf_second_order(self) -> bool:
+        """EKF: Gaussian second-order terms of the range (Hessian ``(I - u u^T) / r``): mean correction
+        ``0.5 tr(M_j P)`` and innovation covariance ``0.5 tr(M_i P M_j P)``."""
+        return "second-order" in self.rules
+
+    @property
+    def linearization_corr_s(self) -> float:
+        """The second-order covariance is a function of the state error, which changes slowly, so the
+        same linearization error repeats at every update: it enters R scaled by the number of times it
+        repeats, over at most this long (navigator/radio/repeats.py; 0 = white); the UKF gets the same
+        term."""
+        return LINEARIZATION_CORR_S if "repeats" in self.rules else 0.0
+
+    @property
+    def coords(self) -> str:
+        """Filter coordinates: "inverse" (per run far out: the position inverted through the unit sphere
+        about the broadcast station centroid, the clock carried as b + range to it:
+        navigator/radio/coords.py) or "cartesian" ``[p, v, b, bdot]``."""
+        return "inverse" if "inverse" in self.rules else "cartesian"
+
+    @property
+    def inverse_max_rel(self) -> float:
+        return INVERSE_MAX_REL
+
+    @property
+    def inverse_min_radii(self) -> float:
+        return INVERSE_MIN_RADII
+
+    @property
+    def height_jacobian_lag_s(self) -> float:
+        """Runs in Cartesian coordinates: the Jacobian (EKF) or the sigma points' regression slope (UKF)
+        along one direction taken at the position low-passed over this many seconds (restarted at the
+        estimate beyond 4 sigma); 0 = at the estimate (docs/aircraft.md)."""
+        return JACOBIAN_LAG_S if "lag" in self.rules else 0.0
+
+    @property
+    def lag_direction(self) -> str:
+        """Which direction is lagged: "weakest" (the least observable position direction from the
+        filter's own information, low-passed) or "height" (the height column)."""
+        return "weakest" if "weakest" in self.rules else "height"
+
+    @property
+    def trunc_sigma(self) -> float:
+        return TRUNC_SIGMA
+
+    @property
+    def alpha(self) -> float:
+        return UKF_ALPHA
+
+    @property
+    def clock_bias(self) -> str:
+        """"states" (a Gauss-Markov bias state per station) or "white" (``clock_bias_tau_s`` = 0)."""
+        return "states" if self.clock_bias_tau_s > 0 else "white"
+
+    @property
+    def clock_bias_drop_s(self) -> float:
+        return CLOCK_BIAS_DROP_S
+
+    def prior_cov(self, layout: StateLayout) -> np.ndarray:
+        """The initial covariance (n, n) of ``layout``'s states from :attr:`p0`."""
+        p = self.p0
+        d = [p.pos_m] * 3 + [p.vel_m_s] * 3
         if layout.kind == "pr":
-            d.append(self.p0_clock_m)
+            d.append(p.clock_m)
             if layout.drift:
-                d.append(self.p0_drift_m_s)
+                d.append(p.drift_m_s)
         return np.diag(np.square(d))
