@@ -140,8 +140,18 @@ class DivergenceMonitor:
                 N[i] = N.get(i, 0) + 1
         if W:
             i = max(W, key=W.get)
-            Q, D = Q - W[i], D - N[i]
+            # Q - W_i update by update: the part of an update's NIS left once station i's bias is
+            # estimated, known only to the rounding of that NIS (a measurement 1e12 m off leaves 1e8 of
+            # rounding in a difference of two 1e24 sums, which would read as a lost filter)
+            Q = sum(_rest(q, ws.get(i, 0.0)) for q, _, ws in self.win)
+            D = D - N[i]
         return D > 0 and Q > chi2_upper(self.cfg.p_diverge, D)
+
+
+def _rest(q: float, w: float) -> float:
+    """``q - w`` (``0 <= w <= q``: a station's share of an NIS), 0 within the rounding of ``q``."""
+    r = q - float(w)
+    return r if r > 1e-9 * q else 0.0
 
 
 def nis(nu: np.ndarray, S: np.ndarray) -> tuple[float, int]:
