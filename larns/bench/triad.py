@@ -23,7 +23,7 @@ import sys
 
 import numpy as np
 
-from .ins import nees_band  # the benches' chi-square band of a run-mean NEES
+from larns.analysis.metrics import nees_band  # the chi-square band of a run-mean NEES
 
 BAR_RATIO_PCRB = 1.15
 BAR_IMPROVEMENT = 2.0
@@ -99,7 +99,7 @@ def run(args) -> int:
 
     runs = 10 if args.quick else args.runs
     scale = 0.2 if args.quick else 1.0
-    lo, hi = nees_band(3, runs)
+    lo, hi = nees_band(runs, 3)
     doc: dict = {"runs": runs, "seed": args.seed, "imu": args.imu, "window_s": WINDOW_S,
                  "stations_m": DEFAULT_STATIONS_M.tolist(), "nees_band_3dof": [lo, hi],
                  "paper_m": PAPER_M, "paper_note": PAPER_NOTE, "cases": {}}
@@ -186,7 +186,7 @@ def _sweep(doc, args, scale, rms_4sv_same) -> None:
                                duration_s=500.0 * scale, runs=sr, seed=args.seed + 7, imu=args.imu,
                                stations_m=field, tie_idx=(k, k + 1, k + 2), paper_filter=False), progress=_progress)
         w = r.t_s > r.t_s[-1] - WINDOW_S * scale
-        s = _summary(r, w, nees_band(3, sr)[1])
+        s = _summary(r, w, nees_band(sr, 3)[1])
         doc["sweep"]["rows"].append({"layout": label, "half_side_m": D, "stations": k, "stations_m": st.tolist(),
                                      "rms_radial_m": s["rms_radial_m"], "pcrb_m": s["pcrb_m"],
                                      "mean_nees": s["mean_nees"], "matches_4sv": s["rms_radial_m"] <= rms_4sv_same})
