@@ -41,10 +41,12 @@ from net.clock import broadcast_clock_var_m2
 from net.nettime import pseudorange_time_error_s
 from net.radio import link_var_m2, reception_sigma_m
 
+from .core import InertialCore
 from .journal import AcJournal
 from .navigator import receiver as rx
 from .navigator.ins_ekf import JAC_FORCE_TC_S, InsEkf, InsTuning
 from .navigator.ins_start import SideTest, StartConfig, enough, moved_on, radio_fix, start
+from .radio_core import radio_record
 from .world import clock as wclock
 from .world.field import Field
 from .world.imu import ImuBlocks, ImuEmulator, preset
@@ -64,22 +66,16 @@ def motion_from_config(cfg: dict, height_m: float | None = None) -> Motion:
     raise ValueError(f"trajectory kind {kind!r} has no 6-DOF model for --imu (ellipse, hover)")
 
 
-class InsAircraftCore:
-    """Pure apart from its own seeded generator: ``advance_to(t)`` and ``on_nav(msg, phy)``.
-
-    ``lag_s``: the node integrates the IMU this far behind fleet time, so that a broadcast delayed by
-    the network (up to ``lag_s``) still falls into an IMU step not yet integrated; later ones are
-    counted (``nav_bad_or_late``) and dropped.
+class InsAircraftCore(InertialCore):
+    """Pure apart from its own seeded generator: ``advance_to(t)`` and ``on_nav(msg, phy)``; the node's
+    side (``lag_s``, ``tick``, ``status_line``, ``summary``) in :class:`aircraft.core.InertialCore`.
     """
 
-    lag_s = 0.25
-
+    algo = "ins-ekf"
     BLOCK = 100
 
     def __init__(self, sc, ac, name: str, rng: np.random.Generator, imu: str = "adis16480",
                  height_m: float | None = None, seed: int | None = None, t0_s: float = 0.0, net_clock=None):
-        from .node import radio_record
-
         # --- world: motion, field, IMU emulator, channel ---------------------------------------------
         self.net_clock = net_clock  # station 1's oscillator: network time (None: perfect clocks)
         self.ac = ac

@@ -1,6 +1,6 @@
 """The aircraft navigator's journal: everything the navigator consumed, in order, for exact replay.
 
-Each aircraft core (radio :class:`aircraft.node.AircraftCore`, inertial
+Each aircraft core (radio :class:`aircraft.radio_core.RadioAircraftCore`, inertial
 :class:`aircraft.ins_core.InsAircraftCore`, triad :class:`aircraft.triad_core.TriadAircraftCore`)
 splits into a world side (truth, IMU / satellite / baro emulation, the channel layer) and a navigator
 side that sees only what a receiver sees. The world hands the navigator:
@@ -138,15 +138,16 @@ class Inputs:
 
 def navigator_from_record(record: dict[str, Any], name: str, algos: Iterable[str] | None = None,
                           inputs: Inputs | None = None):
-    """The navigator of an init record, without a world: ``radio`` -> an :class:`aircraft.node.AircraftCore`
-    running ``algos`` (default: the recorded ones), ``ins`` / ``triad`` -> the inertial cores fed from
-    ``inputs``. Radio algorithms also run on an inertial journal's measurements (its ``m`` entries)."""
+    """The navigator of an init record, without a world: ``radio`` -> a
+    :class:`aircraft.radio_core.RadioAircraftCore` running ``algos`` (default: the recorded ones),
+    ``ins`` / ``triad`` -> the inertial cores fed from ``inputs``. Radio algorithms also run on an
+    inertial journal's measurements (its ``m`` entries)."""
     kind = record["kind"]
     radio = [a for a in (algos or ()) if a not in ("ins-ekf", "triad")]
     if kind == "radio" or radio:
-        from .node import AircraftCore
+        from .radio_core import RadioAircraftCore
 
-        return AircraftCore.from_record(record, name, tuple(radio or record.get("algos", ())))
+        return RadioAircraftCore.from_record(record, name, tuple(radio or record.get("algos", ())))
     if kind == "ins":
         from .ins_core import InsAircraftCore
 

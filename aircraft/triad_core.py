@@ -50,12 +50,14 @@ from net.clock import broadcast_clock_var_m2
 from net.nettime import pseudorange_time_error_s
 from net.radio import link_var_m2, reception_sigma_m
 
+from .core import InertialCore
 from .journal import AcJournal
 from .navigator import receiver as rx
 from .navigator import field_tie as ft
 from .navigator.ins_ekf import InsTuning
 from .navigator.triad_ekf import (Epoch, TriadEkf, TriadFrame, initial_fix, satellite_elevation_deg,
                                   start_from_window, turn_corrected)
+from .radio_core import radio_record
 from .world import baro as wbaro
 from .world import clock as wclock
 from .world.field import Field
@@ -65,11 +67,11 @@ ORIGIN = (55.75, 37.62, 0.0)  # geodetic origin of the physical frame (deg, deg,
 DEFAULT_IMU = "navigation"
 
 
-class TriadAircraftCore:
-    """Pure apart from its seeded generators: ``advance_to(t)`` and ``on_nav(msg, phy)`` (module doc)."""
+class TriadAircraftCore(InertialCore):
+    """Pure apart from its seeded generators: ``advance_to(t)`` and ``on_nav(msg, phy)`` (module doc); the
+    node's side (``lag_s``, ``tick``, ``status_line``, ``summary``) in :class:`aircraft.core.InertialCore`."""
 
     algo = "triad"
-    lag_s = 0.25
     BLOCK = 100
     INIT_WINDOW_S = 10.0
     EPOCH_S = 1.0
@@ -79,8 +81,6 @@ class TriadAircraftCore:
                  height_m: float | None = None, seed: int | None = None, t0_s: float = 0.0, net_clock=None,
                  sigma_sat_m: float = 3.0, mask_deg: float = 10.0, baro: wbaro.BaroModel | None = None,
                  sigma_tie_m: tuple = (0.05, 0.05, 0.1)):
-        from .node import radio_record
-
         if n_sv < 0:
             raise ValueError("--satellites must be >= 0")
         self.ac, self.net_clock = ac, net_clock

@@ -4,7 +4,7 @@ the field's extent plus a margin, a positive semi-definite covariance, the clock
 the oscillator class, the transmit time near the reception) before the channel layer or any filter
 takes it in. One outside its bounds is dropped and counted (``implausible_<reason>`` in the core's
 ``stats``, shown in ``ac_status``), never down-weighted; the filters' integrity (``aircraft/navigator/radio/fde.py``)
-then judges what passes. Pure: the radio (``AircraftCore``), inertial and triad cores call
+then judges what passes. Pure: the radio (``RadioAircraftCore``), inertial and triad cores call
 :func:`refuse` first thing in their ``on_nav``.
 """
 

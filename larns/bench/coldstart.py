@@ -78,9 +78,9 @@ def refly(record: dict, name: str, entries: list[list], algo: str, t0_s: float, 
     on, with the receiver rules changed by ``changes`` (ReceiverConfig fields)."""
     from aircraft.navigator.radio.estimator import AircraftEstimator
     from aircraft.navigator.receiver import ReceiverConfig
-    from aircraft.node import AircraftCore, estimator_config
+    from aircraft.radio_core import RadioAircraftCore, estimator_config
 
-    core = AircraftCore.from_record(record, name, (algo,))
+    core = RadioAircraftCore.from_record(record, name, (algo,))
     if changes:
         cfg = estimator_config(record)
         cfg = replace(cfg, receiver=replace(cfg.receiver or ReceiverConfig(), **changes))

@@ -683,7 +683,8 @@ def test_initializer_never_reads_the_world():
     import sys
 
     code = ("import sys, aircraft.navigator.radio.initializer; bad = [m for m in sys.modules if m.startswith(("
-            "'aircraft.world', 'aircraft.montecarlo', 'aircraft.node', 'aircraft.config', 'net.scenario'))]; "
+            "'aircraft.world', 'aircraft.montecarlo', 'aircraft.node', 'aircraft.core', 'aircraft.radio_core', "
+            "'aircraft.config', 'net.scenario'))]; "
             "print(bad); sys.exit(1 if bad else 0)")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert r.returncode == 0, r.stdout + r.stderr
@@ -712,9 +713,9 @@ def test_estimator_start_does_not_depend_on_a_guess_and_node_ignores_the_truth()
         assert e.init is not None and e.init.snapshot
     assert outs[0] == outs[1]
     assert np.linalg.norm(np.array(outs[0]) - p) < 5.0
-    from aircraft.node import AircraftCore
+    from aircraft.radio_core import RadioAircraftCore
 
-    core = AircraftCore(ac, ["ukf-pr", "lsq-pr"], "ac1", np.random.default_rng(1))
+    core = RadioAircraftCore(ac, ["ukf-pr", "lsq-pr"], "ac1", np.random.default_rng(1))
     for est in core.estimators.values():
         assert est.cfg.guess_sigma_m is None  # no external fix (it was the truth plus noise)
 

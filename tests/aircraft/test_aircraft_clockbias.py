@@ -243,15 +243,15 @@ def test_message_api_carries_one_bias_per_station_heard_on_tdma_slots(algo):
 
 
 def test_live_aircraft_core_models_each_station_clock_from_its_broadcast():
-    """AircraftCore (the process's sans-I/O core): navs whose broadcast clock correction is off by a
+    """RadioAircraftCore (the process's sans-I/O core): navs whose broadcast clock correction is off by a
     slowly varying residual; the filters hold one bias state per station with the broadcast variance."""
     from aircraft.config import from_scenario
-    from aircraft.node import AircraftCore
+    from aircraft.radio_core import RadioAircraftCore
     from net.scenario import load
 
     scn = load("seed003", clock={"model": "perfect"})
     ac = from_scenario(scn)
-    core = AircraftCore(ac, ("ekf-pr", "ukf-pr"), "ac1", np.random.default_rng(2), horizon_s=60.0)
+    core = RadioAircraftCore(ac, ("ekf-pr", "ukf-pr"), "ac1", np.random.default_rng(2), horizon_s=60.0)
     rng = np.random.default_rng(3)
     ids = list(scn.ids)
     sync_s = 1e-9

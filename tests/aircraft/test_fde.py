@@ -11,7 +11,7 @@ from aircraft.montecarlo import radio as sim
 from aircraft.navigator.radio.estimator import AircraftEstimator, EstimatorConfig
 from aircraft.navigator.radio.fde import FdeConfig, fault_vectors, protection_levels, snooping
 from aircraft.navigator.radio.tuning import Prior, Tuning
-from aircraft.node import integrity_fields
+from aircraft.radio_core import integrity_fields
 from aircraft.world.clock import ReceiverClock
 from aircraft.world.trajectory import Track
 from net import messages as M

@@ -33,9 +33,10 @@ def _fly(kind: str, loop_step_s: float = 0.37):
 
         core = TriadAircraftCore(sc, ac, "ac1", n_sv=4, seed=5)
     else:
-        from aircraft.node import AircraftCore
+        from aircraft.radio_core import RadioAircraftCore
 
-        core = AircraftCore(ac, ("ukf-pr", "lsq-pr", "ekf-tdoa"), "ac1", np.random.default_rng(3), horizon_s=60.0)
+        core = RadioAircraftCore(ac, ("ukf-pr", "lsq-pr", "ekf-tdoa"), "ac1", np.random.default_rng(3),
+                                 horizon_s=60.0)
     rng = np.random.default_rng(2)
     out, seq, t_loop = [], {}, 0.0
     for k in range(int(SECONDS / sc.tdma.slot_s)):

@@ -1,7 +1,7 @@
 """Issue 32's fuzz bar for the navigators: wire-valid navs from station 2 (its key stolen) with every
 field at its schema limits (larns/adversary/insider.py ``absurd_message``: numbers at +-1e12, 0, -1,
 tiny; non-positive-definite covariances; clock frequency -1; lists of up to 1,024) through the
-radio aircraft (AircraftCore's message entry, filters and snapshot), the inertial aircraft, the triad
+radio aircraft (RadioAircraftCore's message entry, filters and snapshot), the inertial aircraft, the triad
 and the vehicle, interleaved with the field's honest broadcasts. Each navigator runs beside a twin
 that hears only the honest broadcasts: no exception escapes, and no estimate moves away from its
 twin's by more than 3 sigma (the twin's covariance, per axis), at every honest broadcast.
@@ -39,17 +39,17 @@ def _absurd(rng, seq: int, t: float) -> dict:
 
 
 class Radio:
-    """AircraftCore (seed000) with the filters and the snapshot LSQ."""
+    """RadioAircraftCore (seed000) with the filters and the snapshot LSQ."""
 
     algos = ("ukf-pr", "ekf-pr", "ukf-tdoa", "lsq-pr")
 
     def __init__(self):
         from aircraft.config import from_scenario
-        from aircraft.node import AircraftCore
+        from aircraft.radio_core import RadioAircraftCore
 
         self.scn = load("seed000")
-        self.core = AircraftCore(from_scenario(self.scn), self.algos, "ac1", np.random.default_rng(1),
-                                 horizon_s=200.0)
+        self.core = RadioAircraftCore(from_scenario(self.scn), self.algos, "ac1", np.random.default_rng(1),
+                                      horizon_s=200.0)
         self.pos = {i: self.scn.true_pos(i) for i in self.scn.ids}
         self.slot_s, self.ids = self.scn.tdma.slot_s, list(self.scn.ids)
 

@@ -18,11 +18,11 @@ RADIO = {"tx_power_dbm": 10.0}
 @pytest.fixture(scope="module")
 def radio_core():
     from aircraft.config import from_scenario
-    from aircraft.node import AircraftCore
+    from aircraft.radio_core import RadioAircraftCore
 
     scn = load("seed003", radio=RADIO)
     ac = from_scenario(scn)
-    return scn, ac, AircraftCore(ac, ("ekf-pr",), "ac1", np.random.default_rng(3), horizon_s=120.0)
+    return scn, ac, RadioAircraftCore(ac, ("ekf-pr",), "ac1", np.random.default_rng(3), horizon_s=120.0)
 
 
 def test_the_aircraft_hears_exactly_the_links_the_radio_allows(radio_core):

@@ -12,7 +12,7 @@ import pytest
 
 from aircraft.navigator import receiver as rx
 from aircraft.navigator.radio.estimator import AircraftEstimator, EstimatorConfig
-from aircraft.node import AircraftCore
+from aircraft.radio_core import RadioAircraftCore
 from net import messages as M
 
 RNG_STATIONS = np.random.default_rng(7)
@@ -127,8 +127,8 @@ def test_no_published_estimate_is_ever_invalid_over_random_broadcast_sets(seed):
 
     rng = np.random.default_rng(100 + seed)
     ac = from_scenario(load("seed000"))
-    core = AircraftCore(ac, ("ekf-pr", "ukf-pr", "ukf-tdoa", "lsq-pr"), "ac1", np.random.default_rng(seed),
-                        horizon_s=120.0)
+    core = RadioAircraftCore(ac, ("ekf-pr", "ukf-pr", "ukf-tdoa", "lsq-pr"), "ac1", np.random.default_rng(seed),
+                             horizon_s=120.0)
     t_s, kinds = 0.0, set()
     for k in range(600):
         j = int(rng.integers(0, 8))
@@ -154,8 +154,8 @@ def test_live_core_says_why_it_publishes_nothing():
     from aircraft.config import from_scenario
     from net.scenario import load
 
-    core = AircraftCore(from_scenario(load("seed000")), ("ukf-pr",), "ac1", np.random.default_rng(0),
-                        horizon_s=60.0)
+    core = RadioAircraftCore(from_scenario(load("seed000")), ("ukf-pr",), "ac1", np.random.default_rng(0),
+                             horizon_s=60.0)
     outs = []
     for k in range(16):
         j = k % 8

@@ -364,7 +364,7 @@ def test_station_with_clock_ahead_or_behind_completes_all_its_exchanges(offset_s
 
 def test_aircraft_pseudorange_error_equals_the_station_sync_error_times_c():
     from aircraft.config import from_scenario
-    from aircraft.node import AircraftCore
+    from aircraft.radio_core import RadioAircraftCore
     from net.channel import draw_clock, station_rng
 
     scn = load("seed003", aircraft={"sigma_m": 0.0})
@@ -374,7 +374,7 @@ def test_aircraft_pseudorange_error_equals_the_station_sync_error_times_c():
     from net.nettime import network_time
 
     # the receiver's network time as the field realizes it; no station nav observed: the founder's clock
-    core = AircraftCore(ac, ("ekf-pr",), "ac1", np.random.default_rng(0), net_clock=network_time(scn, scn.seed))
+    core = RadioAircraftCore(ac, ("ekf-pr",), "ac1", np.random.default_rng(0), net_clock=network_time(scn, scn.seed))
     rng = np.random.default_rng(1)
     for tau_tx in (3.0, 40.0, 400.0):
         t_tx = st_clock.to_local(tau_tx)

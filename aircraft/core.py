@@ -1,0 +1,145 @@
+"""One live core shape (issue 29 item 4): what the Zenoh shell (:mod:`aircraft.node`) needs of an aircraft.
+
+Three sans-I/O cores hold world + navigator + journal each: the radio aircraft
+(:class:`aircraft.radio_core.RadioAircraftCore`), the inertial one (``--imu``,
+:class:`aircraft.ins_core.InsAircraftCore`) and the triad (``--satellites``,
+:class:`aircraft.triad_core.TriadAircraftCore`). :func:`make_core` picks one by configuration; the
+node holds exactly one and never asks which kind it is. What a core returns are the wire's message
+dicts (``ac_truth``, ``ac_estimate``, ``ac_status``, the journal's ``ac_init`` / ``ac_input``).
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from typing import Any, Protocol
+
+import numpy as np
+
+from .journal import AcJournal
+
+
+class AircraftCore(Protocol):
+    """A live aircraft core as the node drives it.
+
+    * ``on_nav(msg, phy)``: one decoded station broadcast (with its true ``phy`` from the channel) ->
+      the messages to publish (``ac_truth``, ``ac_estimate``, ``ac_status``; not the journal's);
+    * ``tick(t_s)``: between broadcasts, at fleet time ``t_s`` (already ``lag_s`` behind): integrate
+      up to it and return the messages due (an inertial core's journal; the radio core: none);
+    * ``journal``: the navigator's pending journal (``ac_init`` / ``ac_input``; ``None``: none), which
+      the node publishes after each broadcast's messages and closes at exit;
+    * ``status_line(t_s)``: the body of the periodic status line (``None``: nothing to say yet);
+      ``summary()``: ``{"measurements", "estimates": {algo: {...}}}`` against the core's own truth.
+    """
+
+    name: str
+    seq: Counter[str]
+    stats: Counter[str]
+    journal: AcJournal | None
+
+    @property
+    def algos(self) -> tuple[str, ...]: ...  # what it runs (the start line)
+
+    @property
+    def lag_s(self) -> float: ...  # wall seconds (x speed) behind fleet time the node ticks it
+
+    @property
+    def step_s(self) -> float: ...  # the node's inbox wait, s
+
+    def on_nav(self, msg: dict, phy: dict) -> list[dict]: ...
+
+    def tick(self, t_s: float) -> list[dict]: ...
+
+    def status_line(self, t_s: float) -> str | None: ...
+
+    def summary(self) -> dict[str, Any]: ...
+
+
+class InertialCore:
+    """The shell side the inertial and triad cores share (both integrate an IMU on a fixed grid).
+
+    ``lag_s``: the node integrates the IMU this far behind fleet time, so that a broadcast delayed by
+    the network (up to ``lag_s``) still falls into an IMU step not yet integrated; later ones are
+    counted (``nav_bad_or_late``) and dropped. A subclass has ``algo``, ``tn`` (its tuning, ``dt_s``),
+    ``ekf`` (``None`` until the start), ``preset``, ``imu_steps``, ``t0_s``, ``journal``, ``stats``,
+    ``advance_to(t_s)`` and ``truth_n(t_s)``.
+    """
+
+    algo: str
+    lag_s = 0.25
+
+    @property
+    def algos(self) -> tuple[str, ...]:
+        return (self.algo,)
+
+    @property
+    def step_s(self) -> float:
+        return self.tn.dt_s
+
+    def tick(self, t_s: float) -> list[dict]:
+        """Integrate every IMU step that ends by ``t_s``; the journal's messages now due."""
+        self.advance_to(t_s)
+        return self.journal.take()
+
+    def status_line(self, t_s: float) -> str | None:
+        """IMU, steps and, once started, the navigator's time, the true position and the error."""
+        head = f"imu={self.preset.name} steps={self.imu_steps}"
+        e = self.ekf
+        if e is None:  # still in its start window (aircraft/navigator/ins_start.py; the triad's window fix)
+            buffered = self.stats.get("start_buffered")
+            return None if buffered is None else f"{head} starting: {buffered} broadcasts"
+        pt = self.truth_n(e.t_s)[0]
+        return (f"{head} t_ins={e.t_s:.2f}s pos=({pt[0]:.0f},{pt[1]:.0f},{pt[2]:.0f}) "
+                f"meas={self.stats['measurements']} err {self.algo}={np.linalg.norm(e.p[0] - pt):.1f}m "
+                f"late={self.stats['nav_bad_or_late']}")
+
+    def summary(self) -> dict[str, Any]:
+        """Measurements and, once started, the estimate against the truth with the IMU steps run and due."""
+        out: dict[str, Any] = {"measurements": int(self.stats["measurements"]), "estimates": {}}
+        e = self.ekf
+        if e is not None:
+            pt = self.truth_n(e.t_s)[0]
+            due = int(np.floor((e.t_s - self.t0_s) * self.preset.rate_hz + 1e-9))
+            out["estimates"][self.algo] = {"t_s": e.t_s, "err_m": float(np.linalg.norm(e.p[0] - pt)),
+                                           "n_updates": e.n_updates, "imu_steps": self.imu_steps,
+                                           "imu_steps_expected": due}
+        return out
+
+
+def split_ins(algos: tuple[str, ...], imu: str | None) -> tuple[tuple[str, ...], tuple[str, ...], str | None]:
+    """(inertial algorithms, the others, the IMU preset). ``--imu`` without ``ins-ekf`` adds it;
+    ``ins-ekf`` without ``--imu`` uses the adis16480 preset."""
+    ins = tuple(a for a in algos if a == "ins-ekf")
+    if imu and not ins:
+        ins = ("ins-ekf",)
+    if ins and not imu:
+        imu = "adis16480"
+    rest = tuple(a for a in algos if a != "ins-ekf")
+    if ins and rest:  # one world per aircraft: the 6-DOF one of --imu (its own truth and channel)
+        raise ValueError(f"ins-ekf runs alone in its 6-DOF world; drop {list(rest)} or run another aircraft")
+    return ins, rest, imu
+
+
+def make_core(scn, ac, opts, seed: int, t0_s: float, net_clock=None) -> AircraftCore:
+    """The live core of ``opts`` (:class:`aircraft.node.AircraftOptions`): the triad with
+    ``satellites`` or algorithm ``triad``, the inertial aircraft with ``imu`` or ``ins-ekf``, else the
+    radio aircraft running ``algos``. ``seed``: the world's; ``t0_s``: the inertial cores' start on the
+    fleet axis; ``net_clock``: network time as the field realizes it. Each core draws from its own
+    streams of ``(seed, kind, name)``, as the node always did."""
+    tag = sum(map(ord, opts.name))
+    if opts.satellites is not None or "triad" in opts.algos:  # the triad: aircraft/triad_core.py
+        if set(opts.algos) - {"triad"}:
+            raise ValueError(f"triad runs alone in its 6-DOF world; drop {sorted(set(opts.algos) - {'triad'})}")
+        from .triad_core import TriadAircraftCore
+
+        return TriadAircraftCore(scn, ac, opts.name, n_sv=4 if opts.satellites is None else opts.satellites,
+                                 imu=opts.imu, height_m=opts.height_m, seed=seed, t0_s=t0_s, net_clock=net_clock)
+    ins, rest, imu = split_ins(tuple(opts.algos), opts.imu)
+    if ins:  # the inertial aircraft: own world (6-DOF, IMU) and ins-ekf (aircraft/ins_core.py)
+        from .ins_core import InsAircraftCore
+
+        return InsAircraftCore(scn, ac, opts.name, np.random.default_rng([seed, 0x1A5, tag]), imu=imu,
+                               height_m=opts.height_m, seed=seed, t0_s=t0_s, net_clock=net_clock)
+    from .radio_core import RadioAircraftCore
+
+    return RadioAircraftCore(ac, rest, opts.name, np.random.default_rng([seed, 0xA1C, tag]), opts.height_m,
+                             horizon_s=(opts.duration_s or 7200.0) + 10.0, net_clock=net_clock)

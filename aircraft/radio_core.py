@@ -1,0 +1,236 @@
+"""Sans-I/O radio aircraft for the live process (algorithms ``ukf-pr``, ``ekf-pr``, ``lsq-pr``, ``*-tdoa``).
+
+World side: the true trajectory (:mod:`aircraft.world.trajectory`, from the scenario's
+``[aircraft.trajectory]``) and the channel layer: reception at ``t_rx = t_true_tx + |r(t_rx) - p_tx| / c``
+(the sender's true position and transmit time, as the node's :class:`net.channel.UserIntake` hands
+them over) read on the aircraft's receiver clock, which runs on network time (station 1's
+oscillator) plus ``c dtau(t) = df lambda t + c tau0`` (seed 001) and timing noise ``sigma_m``;
+pseudorange ``rho = c (t_rx_local - (t_tx - theta_hat(t_tx)))`` from the *station-stamped* transmit
+time ``t_tx`` corrected by the broadcast clock correction ``theta_hat`` (``msg.clock``). Each station's
+residual sync error reaches the aircraft as in reality; the filters carry it as one Gauss-Markov bias
+state per station whose stationary variance is the broadcast clock variance ``c^2 P_theta``
+(``tuning.clock_bias``; snapshot LSQ and the filter start add it to the range variance; docs/sync.md).
+
+Navigator side: one :class:`aircraft.navigator.radio.estimator.AircraftEstimator` per algorithm; it sees
+the broadcast's *estimated* station position and covariance (``msg.pos_m``, ``msg.cov_m2``), never
+``phy``. Journal (aircraft/journal.py): every measured broadcast as an ``m`` entry;
+:meth:`RadioAircraftCore.from_record` rebuilds the navigator without a world for a re-flight.
+
+One of the three live cores (:class:`aircraft.core.AircraftCore`); it integrates nothing between
+broadcasts (``lag_s = 0``, :meth:`tick` a no-op): its journal goes out with its broadcasts.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from typing import Any
+
+import numpy as np
+
+from nav.geometry import SPEED_OF_LIGHT_M_S
+
+from net.clock import broadcast_clock_var_m2
+from net.nettime import pseudorange_time_error_s
+from net.radio import link_var_m2, reception_sigma_m
+
+from .journal import AcJournal
+from .navigator import receiver as rx
+
+USABLE_STATES = ("frame", "surveying")
+
+
+class RadioAircraftCore:
+    """Sans-I/O radio aircraft: channel layer + estimators. ``on_nav(msg, phy)`` returns messages to publish.
+
+    Pure apart from its own seeded generator; the node and tests drive it with decoded messages.
+    """
+
+    lag_s = 0.0  # nothing to integrate behind fleet time
+    step_s = 0.1  # the node's inbox wait, s
+
+    def __init__(self, ac, algos, name: str, rng: np.random.Generator,
+                 height_m: float | None = None, horizon_s: float = 7200.0, net_clock=None):
+        from .world import trajectory
+
+        self.ac = ac
+        self.rng = rng
+        dt = 1.0 / max(ac.rate_hz, 10.0)
+        t = np.arange(0.0, horizon_s + dt, dt)
+        h = height_m if height_m is not None else ac.height_m
+        self.track = trajectory.from_config(dict(ac.trajectories.get(ac.trajectory.get("kind"), {}), **ac.trajectory),
+                                            t, ac.centre_m, h)
+        self.net_clock = net_clock  # station 1's oscillator: network time (None: perfect clocks)
+        self._navigator(radio_record(ac, algos), name, tuple(algos))
+        # the navigator's journal (aircraft/journal.py); none without an algorithm
+        self.journal = AcJournal(name, radio_record(ac, algos)) if algos else None
+
+    def _navigator(self, record: dict, name: str, algos: tuple[str, ...]) -> None:
+        """The navigator side: the estimators of ``algos`` configured by the init record."""
+        from .navigator.radio.estimator import AircraftEstimator
+
+        self.name = name
+        self.algos = tuple(algos)
+        self.estimators = {a: AircraftEstimator(a, estimator_config(record)) for a in algos}
+        self.seq: Counter[str] = Counter()
+        self.stats: Counter[str] = Counter()
+        self._pacer = rx.StatusPacer()
+
+    @classmethod
+    def from_record(cls, record: dict, name: str, algos: tuple[str, ...]) -> "RadioAircraftCore":
+        """The navigator alone (no world, no journal) for a replay of ``ac_input`` entries
+        (:func:`aircraft.journal.replay`; :meth:`measurement`)."""
+        core = cls.__new__(cls)
+        core.journal = None
+        core._navigator(record, name, algos)
+        return core
+
+    def measure(self, phy: dict, msg: dict | None = None) -> tuple[float, float, np.ndarray, float] | None:
+        """Channel layer: (t_rx true, pseudorange, true aircraft position at reception, one-way
+        timing sigma in m), or ``None`` where the scenario's ``[radio]`` has no link.
+
+        ``rho = c (t_rx_ac - T_tx)``: ``t_rx_ac`` the receiver clock (network time at the true reception
+        plus the seed-001 receiver clock), ``T_tx`` the station's stamped transmit time ``msg.t_tx_s``
+        minus its broadcast offset ``msg.clock`` (without ``msg``: the true transmit time); timing
+        noise of sigma ``sigma_m`` in quadrature with the link's TOA CRLB (:func:`net.radio.reception_sigma_m`)."""
+        p_tx = np.asarray(phy["pos_m"], float)
+        t_tx = float(phy["t_true_s"])
+        p, _ = self.track.at(t_tx)
+        t_rx = t_tx + np.linalg.norm(p - p_tx) / SPEED_OF_LIGHT_M_S
+        p, _ = self.track.at(t_rx)  # one fixed-point step is exact to micrometres at aircraft speeds
+        sigma = reception_sigma_m(p_tx, p, self.ac.radio, self.ac.sigma_m)
+        if sigma is None:
+            return None
+        r = float(np.linalg.norm(p - p_tx))
+        dt_s = pseudorange_time_error_s(msg, t_tx, t_rx, self.net_clock)
+        rho = r + SPEED_OF_LIGHT_M_S * dt_s + float(self.ac.clock.bias_m(t_rx)) \
+            + sigma * float(self.rng.standard_normal())
+        return t_rx, rho, p, sigma
+
+    @staticmethod
+    def clock_var_m2(msg: dict) -> float:
+        """Broadcast clock variance at the transmit time as a range variance, m^2."""
+        return broadcast_clock_var_m2(msg)
+
+    def on_nav(self, msg: dict, phy: dict) -> list[dict]:
+        """One station nav broadcast -> ``ac_truth`` + one ``ac_estimate`` per algorithm that has one."""
+        if msg.get("state") not in USABLE_STATES:
+            self.stats["nav_unusable_state"] += 1
+            return []
+        from .navigator import plausible  # issue 32: an implausible nav never reaches the channel or a filter
+
+        if plausible.refuse(msg, float(phy["t_true_s"]), self.ac, self.stats):
+            return []
+        got = self.measure(phy, msg)
+        if got is None:
+            self.stats["no_link"] += 1  # [radio]: beyond the horizon or the link budget
+            return []
+        t_rx, rho, p_true, sigma = got
+        # the link's timing variance above the nominal sigma_m, known to the receiver from its SNR,
+        # as an isotropic part of the transmitter's covariance: the radio filters weight a range by
+        # sigma_m^2 + u^T C u, and u^T (C + s^2 I) u = u^T C u + s^2 (their clock variance feeds the
+        # stations' clock-bias states, which are not white)
+        st_cov = np.asarray(msg["cov_m2"], float) + link_var_m2(sigma, self.ac.sigma_m) * np.eye(3)
+        cvar = self.clock_var_m2(msg)
+        if not (np.all(np.isfinite(msg["pos_m"])) and math.isfinite(t_rx)):
+            self.stats["nav_bad"] += 1
+            return []
+        self.stats["measurements"] += 1
+        out = [self._msg("ac_truth", t_s=t_rx, pos_m=p_true.tolist(), vel_m_s=self.track.at(t_rx)[1].tolist())]
+        if self.journal is not None:
+            self.journal.m(t_rx, int(msg["src"]), msg["pos_m"], st_cov, cvar, rho)
+        return out + self.measurement(t_rx, int(msg["src"]), msg["pos_m"], st_cov, cvar, rho)
+
+    def measurement(self, t_rx: float, src: int, pos_m, st_cov, cvar: float, rho: float) -> list[dict]:
+        """Navigator side: one measured broadcast (a journal ``m`` entry) -> ``ac_estimate`` /
+        ``ac_status`` messages."""
+        out: list[dict] = []
+        st_cov = np.asarray(st_cov, float)
+        for algo, est in self.estimators.items():
+            n = est.n_updates
+            est.on_measurement(t_rx, src, pos_m, st_cov, rho, clock_var_m2=cvar)
+            e = est.estimate() if est.n_updates != n and est.tracker_or_fix() else None
+            state = est.status
+            if e is not None and not rx.publishable(e["pos_m"], e["cov_m2"], est.cfg.receiver or rx.ReceiverConfig()):
+                e, state = None, rx.NO_FIX
+            out.extend(self._status_msgs(algo, t_rx, state, est))
+            if e is None:
+                continue
+            m = self._msg("ac_estimate", t_s=float(e["t_s"]), pos_m=e["pos_m"], cov_m2=np.asarray(e["cov_m2"]).tolist(),
+                          algo=algo, n_updates=int(e["n_updates"]))
+            if e["vel_m_s"] is not None:
+                m["vel_m_s"] = e["vel_m_s"]
+            m.update(integrity_fields(e))
+            out.append(m)
+        return out
+
+    def _status_msgs(self, algo: str, t_s: float, state: str, est) -> list[dict]:
+        """An ``ac_status`` when an algorithm's state changes, and once per second of fleet time: what
+        the navigator is doing when it publishes no estimate (docs/aircraft.md "Cold start")."""
+        if not self._pacer.due(algo, state, t_s):
+            return []
+        return [rx.status_msg(self.name, self.seq, algo, t_s, state, {**self.stats, **est.stats})]
+
+    def tick(self, t_s: float) -> list[dict]:
+        """Nothing to do between broadcasts (the journal goes out with them)."""
+        return []
+
+    def status_line(self, t_s: float) -> str:
+        """The status line's body at fleet time ``t_s``: true position, measurements, each algorithm's error."""
+        p, _ = self.track.at(max(t_s, 0.0))
+        parts = []
+        for a, est in self.estimators.items():
+            e = est.estimate()
+            if e is None:
+                parts.append(f"{a}=init")
+            else:
+                pt, _ = self.track.at(e["t_s"])
+                parts.append(f"{a}={np.linalg.norm(np.asarray(e['pos_m']) - pt):.1f}m")
+        return f"pos=({p[0]:.0f},{p[1]:.0f},{p[2]:.0f}) meas={self.stats['measurements']} err {' '.join(parts)}"
+
+    def summary(self) -> dict[str, Any]:
+        """Measurements and each algorithm's last estimate against the truth (the process's report)."""
+        out: dict[str, Any] = {"measurements": int(self.stats["measurements"]), "estimates": {}}
+        for a, est in self.estimators.items():
+            e = est.estimate()
+            if e is not None:
+                pt, _ = self.track.at(e["t_s"])
+                out["estimates"][a] = {"t_s": e["t_s"], "err_m": float(np.linalg.norm(np.asarray(e["pos_m"]) - pt)),
+                                       "n_updates": e["n_updates"], **({"excluded": e["excluded"]}
+                                                                       if e.get("excluded") else {})}
+        return out
+
+    def _msg(self, kind: str, **fields: Any) -> dict:
+        self.seq[kind] += 1
+        return {"kind": kind, "src": self.name, "seq": self.seq[kind], "stamp_s": float(fields["t_s"]), **fields}
+
+
+def radio_record(ac, algos) -> dict:
+    """The radio navigator's init record (``ac_init``): the algorithms, the scenario's filter tuning
+    and the start's wide prior. Every aircraft journal carries the tuning, so the radio filters can
+    re-run on any aircraft's measurements."""
+    from dataclasses import asdict
+
+    return {"kind": "radio", "algos": list(algos), "tuning": asdict(ac.tuning),
+            "init_sigma_m": None if not ac.init_sigma_m else float(ac.init_sigma_m)}
+
+
+def estimator_config(record: dict):
+    """The :class:`aircraft.navigator.radio.estimator.EstimatorConfig` of an init record. The filters start from the
+    broadcasts alone (aircraft/navigator/radio/initializer.py), never from the truth or the scenario's station
+    positions; ``init_sigma_m`` only widens the wide prior."""
+    from .navigator.radio.estimator import EstimatorConfig, Tuning
+    from .navigator.radio.initializer import InitConfig
+
+    s = record.get("init_sigma_m")
+    init = InitConfig() if not s else InitConfig(wide_sigma_m=max(InitConfig.wide_sigma_m, float(s)))
+    return EstimatorConfig(tuning=Tuning(**record["tuning"]), init=init)
+
+
+def integrity_fields(e: dict) -> dict:
+    """The optional ``ac_estimate`` integrity fields of an estimate: ``hpl_m``, ``vpl_m`` (finite only),
+    ``excluded`` (station ids)."""
+    out = {k: float(e[k]) for k in ("hpl_m", "vpl_m") if e.get(k) is not None and math.isfinite(e[k])}
+    if e.get("excluded") is not None:
+        out["excluded"] = [int(i) for i in e["excluded"]]
+    return out
