@@ -79,5 +79,5 @@ distance_m = 1500.0
 height_m = 300.0
 [aircraft.tuning]
 q_acc = 1.0
-p0 = { pos_m = 30.0 }
+p0 = {{ pos_m = 30.0 }}
 """.replace("'", '"')
