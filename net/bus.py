@@ -294,9 +294,12 @@ class Bus:
         self.revoked: frozenset[str] = frozenset()  # names whose access rules the session left out
         self.reopened = 0
         self.dropped_in_reopen = 0
+        self._watch: threading.Thread | None = None
         if self.security is not None:  # certificates and the revocation list on the bus (net/trust.py)
             self.security.attach(self)
-            threading.Thread(target=self._watch_revocations, name="larns-bus-revocations", daemon=True).start()
+            self._watch = threading.Thread(target=self._watch_revocations, name="larns-bus-revocations",
+                                           daemon=True)
+            self._watch.start()
 
     # ------------------------------------------------------------------ publish
     def publish(self, key: str, data: bytes, block: bool = False) -> None:
@@ -488,6 +491,11 @@ class Bus:
         if self.closed:
             return True
         self.closed = True
+        # The revocation watch ends within a tick once closed; waited for, so that no thread of ours is
+        # inside a native call (the keystore's certificates, a reopen) while the interpreter finalizes:
+        # a thread stopped there aborts the process ("FATAL: exception not rethrown", seen once).
+        if self._watch is not None and self._watch is not threading.current_thread():
+            self._watch.join(timeout_s)
 
         def _close() -> None:
             if self.security is not None:
