@@ -255,7 +255,8 @@ class AircraftEstimator:
         self.n_updates += 1
         if self.method == "lsq":
             return
-        self._start_from_guess(t_s, pos, rho)
+        self.fix, self.tracker = start_from_guess(self.method, self.model, tu, self.guess, self.cfg.guess_sigma_m,
+                                                  self.fix, t_s, pos, rho)
 
     def _start_from_broadcasts(self, t_s, pos, cov, rho, dt=None) -> None:
         """Start from the broadcasts alone: multi-start snapshot fix (or a wide prior), from a batch that
@@ -286,28 +287,6 @@ class AircraftEstimator:
             self.tracker = CvTracker(self.method, self.model, init.x0, tu, t0_s=t_s, P0=init.P0,
                                      ref_m=crd.reference_point(pos),
                                      ref_radius_m=crd.array_radius(pos))
-
-    def _start_from_guess(self, t_s, pos, rho) -> None:
-        """External coarse fix (``guess_sigma_m``): the filter starts from the guess with that sigma; the
-        clock from the ranges to the guessed position."""
-        tu = self.cfg.tuning
-        gs = self.cfg.guess_sigma_m
-        self.fix[:3] = self.guess
-        C = np.diag([gs**2] * 3 + ([(tu.p0.clock_m + gs) ** 2] if self.model == "pr" else []))
-        if self.model == "pr":
-            self.fix[3] = float(np.mean(rho - np.linalg.norm(self.guess - pos, axis=1)))
-        x0 = np.concatenate([self.fix[:3], np.zeros(3)])
-        if self.model == "pr":
-            x0 = np.append(x0, [self.fix[3], 0.0])
-        layout = self.tracker_layout()
-        P0 = tu.prior_cov(layout)
-        idx = layout.pos_clock
-        P0[np.ix_(idx, idx)] = C
-        self.tracker = CvTracker(self.method, self.model, x0, tu, t0_s=t_s, P0=P0, ref_m=crd.reference_point(pos),
-                                 ref_radius_m=crd.array_radius(pos))
-
-    def tracker_layout(self) -> StateLayout:
-        return StateLayout(self.model, drift=self.model == "pr")
 
     def _reset(self) -> None:
         """A filter whose covariance lost positive definiteness restarts from the next batch's fix."""
@@ -353,3 +332,25 @@ class AircraftEstimator:
             hpl, vpl = protection_levels(P[POS, POS], self.fde.cfg.integrity_risk)
             out.update(hpl_m=float(hpl), vpl_m=float(vpl), excluded=self.fde.excluded())
         return out
+
+
+def start_from_guess(method: str, model: str, tu: Tuning, guess_m: np.ndarray, guess_sigma_m: float,
+                     fix: np.ndarray, t_s: float, pos: np.ndarray, rho: np.ndarray) -> tuple[np.ndarray, CvTracker]:
+    """A filter started from an external coarse fix ``guess_m`` (3,) with position sigma ``guess_sigma_m``
+    (``EstimatorConfig.guess_sigma_m``): the snapshot ``fix`` (4,) or (3,) takes the guessed position and,
+    for pseudoranges, the clock from the ranges ``rho`` (m,) to it from the stations ``pos`` (m, 3).
+    Returns the fix and the tracker; the rest of the prior is the tuning's ``prior_cov``."""
+    fix = np.array(fix, dtype=float)
+    fix[:3] = guess_m
+    C = np.diag([guess_sigma_m**2] * 3 + ([(tu.p0.clock_m + guess_sigma_m) ** 2] if model == "pr" else []))
+    if model == "pr":
+        fix[3] = float(np.mean(rho - np.linalg.norm(guess_m - pos, axis=1)))
+    x0 = np.concatenate([fix[:3], np.zeros(3)])
+    if model == "pr":
+        x0 = np.append(x0, [fix[3], 0.0])
+    layout = StateLayout(model, drift=model == "pr")
+    P0 = tu.prior_cov(layout)
+    idx = layout.pos_clock
+    P0[np.ix_(idx, idx)] = C
+    return fix, CvTracker(method, model, x0, tu, t0_s=t_s, P0=P0, ref_m=crd.reference_point(pos),
+                          ref_radius_m=crd.array_radius(pos))
