@@ -34,11 +34,9 @@ from typing import Any
 import numpy as np
 
 from nav import errorstate as es
-from nav.geometry import SPEED_OF_LIGHT_M_S
 from nav.rotations import euler_from_dcm
 
 from net.clock import broadcast_clock_var_m2
-from net.nettime import pseudorange_time_error_s
 from net.radio import link_var_m2, reception_sigma_m
 
 from .core import InertialCore
@@ -48,6 +46,7 @@ from .navigator.ins_ekf import JAC_FORCE_TC_S, InsEkf, InsTuning
 from .navigator.ins_start import SideTest, StartConfig, enough, moved_on, radio_fix, start
 from .radio_core import radio_record
 from .world import clock as wclock
+from .world import radio as wradio
 from .world.field import Field
 from .world.imu import ImuBlocks, ImuEmulator, preset
 from .world.motion import Ellipse, Hover, Motion
@@ -207,17 +206,11 @@ class InsAircraftCore(InertialCore):
         the re-flight, consumes no draw)."""
         p_tx = np.asarray(phy["pos_m"], float)
         t_tx = float(phy["t_true_s"])
-        t_rx = t_tx
-        for _ in range(2):
-            p, _, _ = self.truth_n(t_rx)
-            t_rx = t_tx + float(np.linalg.norm(p - p_tx)) / SPEED_OF_LIGHT_M_S
-        p, _, _ = self.truth_n(t_rx)
+        t_rx, p = wradio.heard(lambda t: self.truth_n(t)[0], p_tx, t_tx)
         sigma = reception_sigma_m(p_tx, p, self.ac.radio, self.ac.sigma_m)
         if sigma is None:
             return None
-        rho = float(np.linalg.norm(p - p_tx)) \
-            + SPEED_OF_LIGHT_M_S * pseudorange_time_error_s(msg, t_tx, t_rx, self.net_clock) \
-            + float(self.ac.clock.bias_m(t_rx))
+        rho = wradio.pseudorange_m(p, p_tx, t_tx, t_rx, msg, self.ac.clock, self.net_clock)
         return t_rx, rho + (self.noise_m(sigma) if noise else 0.0), sigma
 
     def noise_m(self, sigma_m: float) -> float:

@@ -28,14 +28,12 @@ from typing import Any
 
 import numpy as np
 
-from nav.geometry import SPEED_OF_LIGHT_M_S
-
 from net.clock import broadcast_clock_var_m2
-from net.nettime import pseudorange_time_error_s
 from net.radio import link_var_m2, reception_sigma_m
 
 from .journal import AcJournal
 from .navigator import receiver as rx
+from .world import radio as wradio
 
 USABLE_STATES = ("frame", "surveying")
 
@@ -95,15 +93,11 @@ class RadioAircraftCore:
         noise of sigma ``sigma_m`` in quadrature with the link's TOA CRLB (:func:`net.radio.reception_sigma_m`)."""
         p_tx = np.asarray(phy["pos_m"], float)
         t_tx = float(phy["t_true_s"])
-        p, _ = self.track.at(t_tx)
-        t_rx = t_tx + np.linalg.norm(p - p_tx) / SPEED_OF_LIGHT_M_S
-        p, _ = self.track.at(t_rx)  # one fixed-point step is exact to micrometres at aircraft speeds
+        t_rx, p = wradio.heard(lambda t: self.track.at(t)[0], p_tx, t_tx)
         sigma = reception_sigma_m(p_tx, p, self.ac.radio, self.ac.sigma_m)
         if sigma is None:
             return None
-        r = float(np.linalg.norm(p - p_tx))
-        dt_s = pseudorange_time_error_s(msg, t_tx, t_rx, self.net_clock)
-        rho = r + SPEED_OF_LIGHT_M_S * dt_s + float(self.ac.clock.bias_m(t_rx)) \
+        rho = wradio.pseudorange_m(p, p_tx, t_tx, t_rx, msg, self.ac.clock, self.net_clock) \
             + sigma * float(self.rng.standard_normal())
         return t_rx, rho, p, sigma
 

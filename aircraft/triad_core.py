@@ -1,18 +1,13 @@
 """Sans-I/O triad aircraft for the live process (``--satellites N``, algorithm ``triad``, seed 002).
 
-World side (truth, inside the process): the scenario's physical coordinates are taken as the ENU
-frame :class:`aircraft.navigator.triad_ekf.TriadFrame` at a geodetic origin (``ORIGIN``, the triad
-benchmark's); the 6-DOF motion of ``[aircraft.trajectory]`` in it; the GPS-like almanac's sky
-(:func:`nav.constellation.gps_like`, almanac time = fleet time); the receiver clock of the scenario
-(``[aircraft]``, the same one the station pseudoranges carry); the IMU (fixed, separately seeded
-blocks as :class:`aircraft.ins_core.InsAircraftCore`); the baro (Gauss-Markov bias,
-:mod:`aircraft.world.baro`); the geodetic survey of the tie stations (the first three by id).
-
+World (truth): :class:`aircraft.world.triad.TriadWorld`, its own object held as ``world`` - the
+scenario's physical coordinates as the ENU frame :class:`nav.constellation.EnuFrame` at ``ORIGIN``
+(the triad benchmark's), the 6-DOF motion of ``[aircraft.trajectory]``, the GPS-like sky (one model
+with :mod:`aircraft.montecarlo.triad`: :mod:`aircraft.world.sky`), the scenario's receiver clock, the
+IMU, the baro, the tie stations' geodetic survey and the station radio channel (as the INS core's).
 Measurements: every whole second of the IMU grid, the pseudoranges of the ``N`` satellites highest
-at the start that are above the mask (``|p - s(t_tx)| + b + tropo(el) - c dt_sat + n``, as
-:mod:`aircraft.montecarlo.triad`) and the baro altitude; every station nav broadcast, a pseudorange formed
-as the INS core forms it (reception time from the sender's true position and transmit time,
-broadcast clock correction residual, receiver clock, timing noise).
+at the start that are above the mask and the baro altitude; every station nav broadcast, a
+pseudorange.
 
 Navigator side (no truth): :class:`aircraft.navigator.triad_ekf.TriadEkf` (24 states). Start: a
 constant-velocity window fix over the first ``INIT_WINDOW_S`` from every satellite above the mask
@@ -31,7 +26,7 @@ IMU preset and rate, the baro model); the world hands it the IMU increments, eac
 pseudoranges and baro height and each broadcast received in time, journaled in the order consumed;
 :meth:`from_record` rebuilds the navigator without a world. The IMU blocks, each satellite epoch and
 each station measurement draw from their own generators keyed by the world seed and the block, epoch
-or (station, broadcast seq).
+or (station, broadcast seq) (the world's doc).
 """
 
 from __future__ import annotations
@@ -41,27 +36,23 @@ from typing import Any
 
 import numpy as np
 
-from nav.constellation import gps_like, tropo_delay_m
-from nav.geometry import SPEED_OF_LIGHT_M_S
+from nav.constellation import EnuFrame, gps_like
 from nav.rotations import euler_from_dcm
-
-from .ins_core import motion_from_config
 from net.clock import broadcast_clock_var_m2
-from net.nettime import pseudorange_time_error_s
-from net.radio import link_var_m2, reception_sigma_m
+from net.radio import link_var_m2
 
 from .core import InertialCore
+from .ins_core import motion_from_config
 from .journal import AcJournal
-from .navigator import receiver as rx
 from .navigator import field_tie as ft
+from .navigator import receiver as rx
 from .navigator.ins_ekf import InsTuning
-from .navigator.triad_ekf import (Epoch, TriadEkf, TriadFrame, initial_fix, satellite_elevation_deg,
-                                  start_from_window, turn_corrected)
+from .navigator.triad_ekf import Epoch, TriadEkf, initial_fix, start_from_window, turn_corrected
 from .radio_core import radio_record
 from .world import baro as wbaro
 from .world import clock as wclock
-from .world.field import Field
-from .world.imu import PRESETS, ImuBlocks, ImuEmulator, preset
+from .world.imu import PRESETS, preset
+from .world.triad import TriadWorld
 
 ORIGIN = (55.75, 37.62, 0.0)  # geodetic origin of the physical frame (deg, deg, m): the triad bench's
 DEFAULT_IMU = "navigation"
@@ -83,39 +74,26 @@ class TriadAircraftCore(InertialCore):
                  sigma_tie_m: tuple = (0.05, 0.05, 0.1)):
         if n_sv < 0:
             raise ValueError("--satellites must be >= 0")
-        self.ac, self.net_clock = ac, net_clock
-        self.seed = int(sc.seed if seed is None else seed)
-        self._key = [self.seed, 0x7A1, sum(map(ord, name))]
-        self.field = Field.from_scenario(sc)
-        self.frame = TriadFrame(*ORIGIN)
-        self.alm = gps_like()
-        self.motion = motion_from_config(ac.trajectory, height_m if height_m is not None else ac.height_m)
-        self.baro_model = baro or wbaro.BaroModel()
+        self.ac = ac
+        seed = int(sc.seed if seed is None else seed)
         pre = preset(imu or DEFAULT_IMU).with_(rate_hz=float(imu_rate_hz))
-        self.imu = ImuEmulator(pre, 1, np.random.default_rng(self._key + [1]))
-        self._imu_blocks = ImuBlocks(self.imu, self.motion, self._key + [1], self.BLOCK)
-        # --- world: the sky at the start, the tie stations' geodetic survey, the baro bias --------
-        p0 = self.motion.pva(np.array([0.0]))[0][0]
-        s0 = self.frame.from_ecef(self.alm.ecef(float(t0_s))[0])
-        el0 = satellite_elevation_deg(s0, p0[None, :])
-        vis = np.flatnonzero(el0 >= float(mask_deg))
-        visible = vis[np.argsort(-el0[vis])]  # the full sky of the start window, highest first
+        motion = motion_from_config(ac.trajectory, height_m if height_m is not None else ac.height_m)
+        self.world = TriadWorld(sc, ac, [seed, 0x7A1, sum(map(ord, name))], EnuFrame(*ORIGIN), motion, pre,
+                                self.BLOCK, t0_s, self.EPOCH_S, net_clock, sigma_sat_m, mask_deg,
+                                baro or wbaro.BaroModel(), sigma_tie_m)
+        visible = self.world.visible  # the full sky of the start window, highest first
         if int(n_sv) > visible.size:
             raise ValueError(f"--satellites {n_sv}: only {visible.size} above the mask at the start")
         station_ids = [int(s["id"]) for s in sorted(sc.raw["stations"], key=lambda s: int(s["id"]))]
-        rng_s = np.random.default_rng(self._key + [2])
-        true_l = self.to_local(self.field.stations_n[:3])
-        surveyed = true_l + np.asarray(sigma_tie_m, float) * rng_s.standard_normal((3, 3))  # navigator's database
-        self._baro_b = float(np.random.default_rng(self._key + [3]).normal(0.0, self.baro_model.sigma_bias_m))
-        self._baro_t = float(t0_s)
         # --- navigator: what a receiver knows (its init record, aircraft/journal.py) ---------------
-        b = self.baro_model
+        b = self.world.baro_model
         record = dict(radio_record(ac, ()), kind="triad", n_sv=int(n_sv), imu=imu or DEFAULT_IMU,
                       imu_rate_hz=float(imu_rate_hz), sigma_range_m=float(ac.sigma_m), t0_s=float(t0_s),
                       sigma_sat_m=float(sigma_sat_m), mask_deg=float(mask_deg),
                       baro=[float(b.sigma_m), float(b.sigma_bias_m), float(b.tc_s)],
                       visible=[int(i) for i in visible], tie_ids=station_ids[:3],
-                      sigma_tie_m=[float(x) for x in sigma_tie_m], tie_surveyed_m=surveyed.tolist())
+                      sigma_tie_m=[float(x) for x in sigma_tie_m],
+                      tie_surveyed_m=self.world.tie_surveyed_m.tolist())
         self._inputs = None  # the replay's samples and epochs (from_record); None: the world above
         self.journal = AcJournal(name, record)
         self._navigator(record, name)
@@ -124,9 +102,8 @@ class TriadAircraftCore(InertialCore):
         self.name = name
         self.n_sv = int(record["n_sv"])
         self.t0_s = float(record["t0_s"])
-        if not hasattr(self, "frame"):
-            self.frame = TriadFrame(*ORIGIN)
-            self.alm = gps_like()
+        self.frame = EnuFrame(*ORIGIN)  # the receiver's: the field's geodetic origin and the almanac
+        self.alm = gps_like()
         self.imu_name = record["imu"]
         self.preset = preset(self.imu_name).with_(rate_hz=float(record["imu_rate_hz"]))
         self.sigma_sat_m, self.mask_deg = float(record["sigma_sat_m"]), float(record["mask_deg"])
@@ -159,64 +136,13 @@ class TriadAircraftCore(InertialCore):
         """The navigator alone, fed the IMU samples and epochs of a journal (:class:`aircraft.journal.Inputs`)."""
         core = cls.__new__(cls)
         core._inputs = inputs
-        core.journal = None
+        core.journal, core.world = None, None
         core._navigator(record, name)
         return core
 
-    # ---------------------------------------------------------------------------- world
-    def to_local(self, p_n: np.ndarray) -> np.ndarray:
-        """Network-frame truth (..., 3) -> the physical (Earth-tied) frame (world side)."""
-        return np.asarray(p_n, float) @ self.field.R + self.field.t
-
     def truth_n(self, t_s: float):
-        """True position, velocity, attitude in the Earth-tied frame at fleet time ``t_s``."""
-        p, v, _ = self.motion.pva(np.array([t_s - self.t0_s]))
-        return p[0], v[0], self.motion.attitude(np.array([t_s - self.t0_s]))[0]
-
-    def _sky(self, k: int, ids: np.ndarray) -> np.ndarray:
-        """World: pseudoranges (len(ids),) at epoch ``k`` (NaN below the mask)."""
-        t = self.t0_s + k * self.EPOCH_S
-        p = self.truth_n(t)[0]
-        t_tx = np.full(ids.size, t)
-        for _ in range(3):
-            s = self.frame.from_ecef(self.alm.ecef(t_tx)[0][np.arange(ids.size), ids])
-            r = np.linalg.norm(p - s, axis=-1)
-            t_tx = t - r / SPEED_OF_LIGHT_M_S
-        el = satellite_elevation_deg(s, p[None, :])
-        rng = np.random.default_rng(self._key + [4, k])
-        rho = (r + tropo_delay_m(el) - SPEED_OF_LIGHT_M_S * (self.alm.af0_s[ids] + self.alm.af1[ids] * t_tx)
-               + float(self.ac.clock.bias_m(t)) + self.sigma_sat_m * rng.standard_normal(ids.size))
-        return np.where(el >= self.mask_deg, rho, np.nan)
-
-    def _baro(self, k: int) -> float:
-        t = self.t0_s + k * self.EPOCH_S
-        m = self.baro_model
-        a = np.exp(-(t - self._baro_t) / m.tc_s)
-        rng = np.random.default_rng(self._key + [5, k])
-        self._baro_b = a * self._baro_b + m.sigma_bias_m * np.sqrt(1.0 - a * a) * rng.standard_normal()
-        self._baro_t = t
-        return float(self.truth_n(t)[0][2] + self.frame.h_m + self._baro_b + m.sigma_m * rng.standard_normal())
-
-    def measure(self, phy: dict, msg: dict) -> tuple[float, float, float] | None:
-        """Station pseudorange on the receiver clock and its one-way timing sigma (as
-        :meth:`InsAircraftCore.measure`; ``None`` where ``[radio]`` has no link), its noise drawn from
-        the generator of (station, broadcast seq)."""
-        p_tx = self.to_local(np.asarray(phy["pos_m"], float))
-        t_tx = float(phy["t_true_s"])
-        t_rx = t_tx
-        for _ in range(2):
-            t_rx = t_tx + float(np.linalg.norm(self.truth_n(t_rx)[0] - p_tx)) / SPEED_OF_LIGHT_M_S
-        p_rx = self.truth_n(t_rx)[0]
-        # the radio's parameters are in the network frame: the receiver back there (p_n = R (p - t))
-        sigma = reception_sigma_m(np.asarray(phy["pos_m"], float), (p_rx - self.field.t) @ self.field.R.T,
-                                  self.ac.radio, self.ac.sigma_m)
-        if sigma is None:
-            return None
-        rng = np.random.default_rng(self._key + [6, sum(map(ord, str(msg.get("src")))), int(msg.get("seq", 0))])
-        rho = float(np.linalg.norm(p_rx - p_tx)) \
-            + SPEED_OF_LIGHT_M_S * pseudorange_time_error_s(msg, t_tx, t_rx, self.net_clock) \
-            + float(self.ac.clock.bias_m(t_rx)) + sigma * float(rng.standard_normal())
-        return t_rx, rho, sigma
+        """The world's truth (position, velocity, attitude) at ``t_s``, for the status line and summary."""
+        return self.world.truth_n(t_s)
 
     # ---------------------------------------------------------------------------- navigator
     def _epoch(self, k: int) -> None:
@@ -240,8 +166,8 @@ class TriadAircraftCore(InertialCore):
         the baro height: from the world (journaled) or, in a replay, from the journal."""
         if self._inputs is not None:
             return self._inputs.epoch(k)
-        z = self._sky(k, ids)
-        baro = self._baro(k) if with_baro else None
+        z = self.world.sky(k, ids)
+        baro = self.world.baro(k) if with_baro else None
         self.journal.sv(k, self.t0_s + k * self.EPOCH_S, z, baro)
         return z, baro
 
@@ -258,7 +184,7 @@ class TriadAircraftCore(InertialCore):
                             self.mask_deg, t_ref)
         self.init_sigma_m = float(np.sqrt(np.trace(cov[0, :3, :3])))
         if self._inputs is None:  # world: the baro bias walks from the start
-            self._baro(int(round((t_ref - self.t0_s) / self.EPOCH_S)))
+            self.world.baro(int(round((t_ref - self.t0_s) / self.EPOCH_S)))
 
     def advance_to(self, t_s: float) -> int:
         """Integrate every IMU step that ends at or before ``t_s`` (with the epochs on whole seconds)."""
@@ -270,7 +196,7 @@ class TriadAircraftCore(InertialCore):
         """IMU step ``k`` (gyro, accel) (1, 3) each: emulated in blocks (world; journaled) or the journal's."""
         if self._inputs is not None:
             return self._inputs.sample(k)
-        g, a = self._imu_blocks.sample(k, self.tn.dt_s)
+        g, a = self.world.imu_sample(k, self.tn.dt_s)
         self.journal.imu(k, self.t0_s + (k + 1) * self.tn.dt_s, g, a)
         return g, a
 
@@ -314,7 +240,7 @@ class TriadAircraftCore(InertialCore):
         if not (np.all(np.isfinite(s_n)) and np.all(np.isfinite(np.asarray(cov_l, dtype=float)))):
             self.stats["nav_bad"] += 1
             return []
-        got = self.measure(phy, msg)
+        got = self.world.measure(phy, msg)
         if got is None:
             self.stats["no_link"] += 1  # [radio]: beyond the horizon or the link budget
             return []
@@ -327,7 +253,7 @@ class TriadAircraftCore(InertialCore):
         # variance above the nominal sigma_m (known to the receiver from its SNR)
         cvar = broadcast_clock_var_m2(msg) + link_var_m2(sigma, self.ac.sigma_m)
         self.journal.m(t_rx, src, msg["pos_m"], cov_l, cvar, rho)
-        pt, vt, _ = self.truth_n(t_rx)
+        pt, vt, _ = self.world.truth_n(t_rx)
         self.seq["ac_truth"] += 1
         out = [{"kind": "ac_truth", "src": self.name, "seq": self.seq["ac_truth"], "stamp_s": t_rx, "t_s": t_rx,
                 "pos_m": pt.tolist(), "vel_m_s": vt.tolist()}]

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .geometry import SPEED_OF_LIGHT_M_S
-from .orbits import WGS84_A_M, eci_to_ecef, elevation_deg, kepler_eci
+from .orbits import WGS84_A_M, eci_to_ecef, elevation_deg, enu_rotation, kepler_eci
 
 
 @dataclass(frozen=True)
@@ -100,3 +100,53 @@ CONSTELLATIONS = {"glonass": glonass_like, "gps": gps_like}
 def tropo_delay_m(el_deg: np.ndarray, zenith_m: float = 2.4) -> np.ndarray:
     """Simple troposphere: ``zenith / sin(el)`` (el clipped at 3 deg)."""
     return zenith_m / np.sin(np.radians(np.maximum(np.asarray(el_deg, float), 3.0)))
+
+
+# --------------------------------------------------------------------------- the local frame of a sky
+@dataclass(frozen=True)
+class EnuFrame:
+    """ENU frame at a WGS-84 origin (deg, deg, m): ``p_L = R (p_ecef - o)`` (pymap3d for the origin)."""
+
+    lat_deg: float
+    lon_deg: float
+    h_m: float = 0.0
+
+    @property
+    def R(self) -> np.ndarray:
+        return enu_rotation(self.lat_deg, self.lon_deg)
+
+    @property
+    def origin_ecef(self) -> np.ndarray:
+        import pymap3d
+
+        return np.array(pymap3d.geodetic2ecef(self.lat_deg, self.lon_deg, self.h_m), dtype=float)
+
+    def from_ecef(self, p_ecef: np.ndarray) -> np.ndarray:
+        """ECEF points (..., 3) -> local (..., 3)."""
+        return (np.asarray(p_ecef, float) - self.origin_ecef) @ self.R.T
+
+    def from_geodetic(self, lat_deg, lon_deg, h_m) -> np.ndarray:
+        """Geodetic points (...,) -> local (..., 3) (pymap3d)."""
+        import pymap3d
+
+        e, n, u = pymap3d.geodetic2enu(lat_deg, lon_deg, h_m, self.lat_deg, self.lon_deg, self.h_m)
+        return np.stack([np.asarray(e, float), np.asarray(n, float), np.asarray(u, float)], axis=-1)
+
+    def to_geodetic(self, p_m: np.ndarray):
+        import pymap3d
+
+        p = np.asarray(p_m, float)
+        return pymap3d.enu2geodetic(p[..., 0], p[..., 1], p[..., 2], self.lat_deg, self.lon_deg, self.h_m)
+
+
+def local_up(frame_p_m: np.ndarray) -> np.ndarray:
+    """Approximate local vertical (..., 3) at local positions (spherical Earth of the WGS-84 radius)."""
+    c = np.asarray(frame_p_m, float) + np.array([0.0, 0.0, WGS84_A_M])
+    return c / np.linalg.norm(c, axis=-1, keepdims=True)
+
+
+def satellite_elevation_deg(sat_m: np.ndarray, p_m: np.ndarray) -> np.ndarray:
+    """Elevation (deg) of satellites (..., 3) seen from ``p_m`` (..., 3), both local."""
+    d = np.asarray(sat_m, float) - np.asarray(p_m, float)
+    u = d / np.linalg.norm(d, axis=-1, keepdims=True)
+    return np.degrees(np.arcsin(np.clip(np.sum(u * local_up(p_m), axis=-1), -1.0, 1.0)))

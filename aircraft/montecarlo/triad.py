@@ -1,7 +1,7 @@
 """Monte Carlo of the triad (seed 002), vectorized over runs: world and navigator joined here only.
 
 World (truth): a flat, non-rotating level frame ``L`` which is the ENU frame at a geodetic origin
-(:class:`aircraft.navigator.triad_ekf.TriadFrame`), straight and level flight (spec sec. 1.8:
+(:class:`nav.constellation.EnuFrame`), straight and level flight (spec sec. 1.8:
 10 km, 200 m/s), the GPS-like almanac's satellites (ECEF, rotated into ``L``), LARNS ground stations
 with a network frame of their own (:func:`nav.geometry.to_network_frame`), the IMU emulator, the
 receiver clock (:mod:`aircraft.world.clock`), the baro (:mod:`aircraft.world.baro`).
@@ -31,15 +31,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from nav.constellation import gps_like, tropo_delay_m
-from nav.geometry import SPEED_OF_LIGHT_M_S, to_network_frame
+from nav.constellation import EnuFrame, gps_like, satellite_elevation_deg
+from nav.geometry import to_network_frame
 
 from ..navigator import field_tie as ft
 from ..navigator.ins_ekf import InsTuning
-from ..navigator.triad_ekf import (Epoch, PaperFilter, PaperTuning, TriadEkf, TriadFrame, initial_fix,
-                                  paper_p0, satellite_elevation_deg, start_from_window)
+from ..navigator.triad_ekf import (Epoch, PaperFilter, PaperTuning, TriadEkf, initial_fix, paper_p0,
+                                  start_from_window)
 from ..world import baro as wbaro
 from ..world import clock as wclock
+from ..world import sky
 from ..world.imu import ImuEmulator, preset as imu_preset
 from ..world.motion import Straight
 
@@ -103,18 +104,6 @@ class TriadResult:
         return np.sqrt(np.mean(np.sum(e**2, axis=-1), axis=0))
 
 
-def _truth_sat(alm, frame, motion, t_s, ids):
-    """True local satellite positions at transmission (K, N, 3), ranges (K, N), elevations (K, N)."""
-    p = motion.pva(t_s)[0]
-    t_tx = np.repeat(t_s[:, None], len(ids), axis=1)
-    for _ in range(3):
-        e, _ = alm.ecef(t_tx)  # (K, N, N_all, 3)
-        s = frame.from_ecef(np.take_along_axis(e, np.asarray(ids)[None, :, None, None], axis=2)[:, :, 0])
-        r = np.linalg.norm(p[:, None, :] - s, axis=-1)
-        t_tx = t_s[:, None] - r / SPEED_OF_LIGHT_M_S
-    return s, r, satellite_elevation_deg(s, p[:, None, :]), t_tx
-
-
 def _world_sky(case, alm, frame, motion, t_ep, p_tr, M, rng):
     """The sky: visible satellites (N,), the case's satellites, receiver clocks (K, M, 2) and pseudoranges
     (K, MM, N), NaN when below the mask; the last run noise-free when ``case.pcrb``."""
@@ -124,10 +113,9 @@ def _world_sky(case, alm, frame, motion, t_ep, p_tr, M, rng):
     el0 = satellite_elevation_deg(frame.from_ecef(e0), p_tr[int(W)][None, :])
     visible = np.flatnonzero(el0 >= case.mask_deg)
     case_ids = visible[np.argsort(-el0[visible])][: case.n_sv]
-    s_all, r_all, el_all, ttx_all = _truth_sat(alm, frame, motion, t_ep, visible)
+    _, r_all, el_all, ttx_all = sky.satellites_seen(alm, frame, motion.pva(t_ep)[0], t_ep, visible)
     clk = wclock.sample(case.clock, t_ep, M, rng)  # (K, M, 2)
-    sat_clk = (SPEED_OF_LIGHT_M_S * (alm.af0_s[visible] + alm.af1[visible] * ttx_all))  # (K, N)
-    clean = r_all + tropo_delay_m(el_all) - sat_clk
+    clean = sky.clean_pseudorange_m(alm, visible, r_all, el_all, ttx_all)  # (K, N)
     rho_sat = clean[:, None, :] + clk[:, :, 0:1] + case.sigma_sat_m * rng.standard_normal((K, M, visible.size))
     tracked = el_all >= case.mask_deg
     if case.pcrb:
@@ -213,7 +201,7 @@ def simulate(case: TriadCase, progress=None) -> TriadResult:
     pre = imu_preset(case.imu).with_(rate_hz=case.imu_rate_hz)
     dt = 1.0 / case.imu_rate_hz
     steps_per_epoch = int(round(case.imu_rate_hz))
-    frame = TriadFrame(case.lat_deg, case.lon_deg, 0.0)
+    frame = EnuFrame(case.lat_deg, case.lon_deg, 0.0)
     alm = gps_like()
     hd = np.radians(case.heading_deg)
     T0 = case.epoch_t0_s

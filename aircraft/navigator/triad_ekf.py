@@ -2,7 +2,7 @@
 tightly coupled error-state filter with one receiver clock (navigator side: no truth, no world).
 
 Frame: the navigation frame is a local level frame tied to the Earth, ENU at a chosen geodetic origin
-(:class:`TriadFrame`); satellites come from the broadcast almanac (:mod:`nav.constellation`) in ECEF
+(:class:`EnuFrame`); satellites come from the broadcast almanac (:mod:`nav.constellation`) in ECEF
 and are rotated/translated into it, ground stations come from the field's Earth tie
 (:mod:`aircraft.navigator.field_tie`). A pseudorange is invariant under that rigid transform, so the
 flat-frame mechanization of :mod:`nav.strapdown` serves as is (docs/triad.md lists what the
@@ -35,10 +35,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from nav import errorstate as es
-from nav.constellation import Almanac, tropo_delay_m
+from nav.constellation import Almanac, EnuFrame, satellite_elevation_deg, tropo_delay_m
 from nav.geometry import SPEED_OF_LIGHT_M_S
 from nav.kalman import chol_solve, symmetrize
-from nav.orbits import enu_rotation
 from nav.rotations import dcm_from_euler, euler_from_dcm
 from nav.strapdown import G0_M_S2
 
@@ -68,58 +67,7 @@ class TriadLayout(es.ErrorLayout):
 UP = np.array([0.0, 0.0, 1.0])
 
 
-@dataclass(frozen=True)
-class TriadFrame:
-    """ENU frame at a WGS-84 origin (deg, deg, m): ``p_L = R (p_ecef - o)`` (pymap3d for the origin)."""
-
-    lat_deg: float
-    lon_deg: float
-    h_m: float = 0.0
-
-    @property
-    def R(self) -> np.ndarray:
-        return enu_rotation(self.lat_deg, self.lon_deg)
-
-    @property
-    def origin_ecef(self) -> np.ndarray:
-        import pymap3d
-
-        return np.array(pymap3d.geodetic2ecef(self.lat_deg, self.lon_deg, self.h_m), dtype=float)
-
-    def from_ecef(self, p_ecef: np.ndarray) -> np.ndarray:
-        """ECEF points (..., 3) -> local (..., 3)."""
-        return (np.asarray(p_ecef, float) - self.origin_ecef) @ self.R.T
-
-    def from_geodetic(self, lat_deg, lon_deg, h_m) -> np.ndarray:
-        """Geodetic points (...,) -> local (..., 3) (pymap3d)."""
-        import pymap3d
-
-        e, n, u = pymap3d.geodetic2enu(lat_deg, lon_deg, h_m, self.lat_deg, self.lon_deg, self.h_m)
-        return np.stack([np.asarray(e, float), np.asarray(n, float), np.asarray(u, float)], axis=-1)
-
-    def to_geodetic(self, p_m: np.ndarray):
-        import pymap3d
-
-        p = np.asarray(p_m, float)
-        return pymap3d.enu2geodetic(p[..., 0], p[..., 1], p[..., 2], self.lat_deg, self.lon_deg, self.h_m)
-
-
-def local_up(frame_p_m: np.ndarray) -> np.ndarray:
-    """Approximate local vertical (..., 3) at local positions (spherical Earth of the WGS-84 radius)."""
-    from nav.orbits import WGS84_A_M
-
-    c = np.asarray(frame_p_m, float) + np.array([0.0, 0.0, WGS84_A_M])
-    return c / np.linalg.norm(c, axis=-1, keepdims=True)
-
-
-def satellite_elevation_deg(sat_m: np.ndarray, p_m: np.ndarray) -> np.ndarray:
-    """Elevation (deg) of satellites (..., 3) seen from ``p_m`` (..., 3), both local."""
-    d = np.asarray(sat_m, float) - np.asarray(p_m, float)
-    u = d / np.linalg.norm(d, axis=-1, keepdims=True)
-    return np.degrees(np.arcsin(np.clip(np.sum(u * local_up(p_m), axis=-1), -1.0, 1.0)))
-
-
-def satellites_at_transmission(alm: Almanac, frame: TriadFrame, ids: np.ndarray, t_rx_s: float,
+def satellites_at_transmission(alm: Almanac, frame: EnuFrame, ids: np.ndarray, t_rx_s: float,
                                rho_m: np.ndarray, clock_m: np.ndarray) -> np.ndarray:
     """Local satellite positions (M, k, 3) at their transmission times ``t_rx - (rho - b^) / c``.
 
@@ -161,7 +109,7 @@ class TriadMixin:
     """The epoch update shared by both filters (they differ in state and dynamics, not in measurements)."""
 
     alm: Almanac
-    frame: TriadFrame
+    frame: EnuFrame
     sigma_sat_m: float
     mask_deg: float
 
@@ -197,7 +145,7 @@ class TriadMixin:
 
 
 class TriadEkf(TriadMixin, InsEkf):
-    """Our triad filter (module doc): :class:`InsEkf` on :data:`TRIAD_LAYOUT` in a :class:`TriadFrame`.
+    """Our triad filter (module doc): :class:`InsEkf` on :data:`TRIAD_LAYOUT` in a :class:`EnuFrame`.
 
     Parameters as :class:`InsEkf` (``tau`` zero and ``sign`` +1: the ENU frame is level by
     construction; ``P0`` over :data:`TRIAD_LAYOUT`) plus the almanac, frame, satellite pseudorange
@@ -206,7 +154,7 @@ class TriadEkf(TriadMixin, InsEkf):
     become states with the tie's joint covariance as the prior (the epoch's ground pseudoranges are in
     this order). Without it the ground stations are taken from each epoch with the white treatment."""
 
-    def __init__(self, tn: InsTuning, alm: Almanac, frame: TriadFrame, p_m, v_m_s, C_nb, clock, P0,
+    def __init__(self, tn: InsTuning, alm: Almanac, frame: EnuFrame, p_m, v_m_s, C_nb, clock, P0,
                  sigma_sat_m: float = 3.0, mask_deg: float = 10.0, t0_s: float = 0.0, stations=None):
         M = np.asarray(p_m).shape[0]
         j = 0 if stations is None else stations.stations_m.shape[-2]
@@ -292,7 +240,7 @@ class PaperFilter(TriadMixin, InsEkf):
 
     ``P0`` (M, 12, 12) or (12, 12) in :class:`PaperLayout` order."""
 
-    def __init__(self, tn: InsTuning, pt: PaperTuning, alm: Almanac, frame: TriadFrame, p_m, v_m_s, C_nb,
+    def __init__(self, tn: InsTuning, pt: PaperTuning, alm: Almanac, frame: EnuFrame, p_m, v_m_s, C_nb,
                  clock, P0, sigma_sat_m: float = 3.0, mask_deg: float = 10.0, t0_s: float = 0.0):
         M = np.asarray(p_m).shape[0]
         L0 = es.ErrorLayout(turn_on=False, tilt=False, clock=True, baro=True)
@@ -459,7 +407,7 @@ def turn_corrected(st: TriadStart, w_z_rad_s: float, window_s: float, att_sigma_
     return st
 
 
-def initial_fix(alm: Almanac, frame: TriadFrame, t_s: np.ndarray, ids: np.ndarray, rho_m: np.ndarray,
+def initial_fix(alm: Almanac, frame: EnuFrame, t_s: np.ndarray, ids: np.ndarray, rho_m: np.ndarray,
                 sigma_m: float, t_ref_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`window_fix` from raw pseudoranges (M, K, N) of satellites ``ids`` (N,) (NaN: not tracked):
     satellite positions at transmission, broadcast clock removed; a first fix, then the troposphere

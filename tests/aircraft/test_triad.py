@@ -11,18 +11,17 @@ import pytest
 
 from aircraft.navigator import field_tie as ft
 from aircraft.navigator.ins_ekf import BaroAltitude, InsTuning, PositionComponent, Pseudorange
-from aircraft.navigator.triad_ekf import (TRIAD_LAYOUT, Epoch, PaperFilter, PaperTuning, TriadEkf, TriadFrame,
-                                          paper_p0, satellite_elevation_deg)
+from aircraft.navigator.triad_ekf import TRIAD_LAYOUT, Epoch, PaperFilter, PaperTuning, TriadEkf, paper_p0
 from aircraft.world import baro as wbaro
 from aircraft.world.imu import preset
 from nav import errorstate as es
 from nav import orbits
-from nav.constellation import gps_like
+from nav.constellation import EnuFrame, gps_like, satellite_elevation_deg
 from nav.kalman import kf_update
 from nav.strapdown import G0_M_S2
 
 ROOT = Path(__file__).resolve().parents[2]
-FRAME = TriadFrame(55.75, 37.62, 0.0)
+FRAME = EnuFrame(55.75, 37.62, 0.0)
 
 
 def _tuning(**kw):
