@@ -18,6 +18,17 @@ def ranges(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.sqrt(np.einsum("...i,...i->...", d, d))
 
 
+def line_of_sight(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``|a - b|`` (...) and its gradient in ``a``, the unit vector ``(a - b)/|a - b|`` (..., 3), at once.
+
+    The geometry of every pseudorange model of the tree, ``rho = |p(t) - s| + b(t)`` (seed 001 eqs.
+    13, 15; seed 002 eq. 6): each filter composes it with its own kinematics (``p(t)`` from its state at
+    the reception time) and clock columns."""
+    d = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
+    r = np.sqrt(np.einsum("...i,...i->...", d, d))
+    return r, d / r[..., None]
+
+
 def range_jacobian(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Gradient of ``|a - b|`` with respect to ``a``: the unit vector ``(a - b)/|a - b|``; (..., 3)."""
     d = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)

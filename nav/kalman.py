@@ -129,10 +129,13 @@ def _ukf_update_one(x, P, z, h, R, params):
 
 
 def nis(nu: np.ndarray, S: np.ndarray) -> np.ndarray:
-    """Normalized innovation squared ``nu^T S^-1 nu``; (...,)."""
-    return np.einsum("...i,...i->...", nu, chol_solve(S, nu[..., None])[..., 0])
+    """Normalized innovation squared ``nu^T S^-1 nu`` (...,) of ``nu`` (..., m), ``S`` (..., m, m): the
+    squared norm of the whitened innovation ``L^-1 nu`` (``S = L L^T``; raises ``LinAlgError`` unless
+    ``S`` is positive definite). The one NIS / NEES of the tree."""
+    w = np.linalg.solve(np.linalg.cholesky(S), nu[..., None])[..., 0]
+    return np.einsum("...i,...i->...", w, w)
 
 
 def nees(err: np.ndarray, P: np.ndarray) -> np.ndarray:
-    """Normalized estimation error squared ``e^T P^-1 e``; (...,)."""
+    """Normalized estimation error squared ``e^T P^-1 e`` (...,) of ``err`` (..., n), ``P`` (..., n, n)."""
     return nis(err, P)

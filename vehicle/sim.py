@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from nav import kalman as kf
 from nav.constellation import CONSTELLATIONS
 from nav.orbits import OMEGA_VEC_G, earth_rotation
 from vehicle.navigator.cdekf import FreeFilter, Intensities, MapFilter, xi_matrix
@@ -252,7 +253,5 @@ def _record(filt, case: Case, tr, k: int, out: dict, nees: np.ndarray, vpr: np.n
         err = np.concatenate([e_I, dx], axis=1)
         sel = list(range(3 + dx.shape[1]))
     Ps = Pe[:, sel][:, :, sel]
-    L = np.linalg.cholesky(Ps + 1e-30 * np.eye(len(sel)))
-    y = np.linalg.solve(L, err[..., None])[..., 0]
-    nees[:, k] = np.where(ok, np.einsum("mi,mi->m", y, y), np.nan)
+    nees[:, k] = np.where(ok, kf.nees(err, Ps + 1e-30 * np.eye(len(sel))), np.nan)
 

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from nav import kalman as kf
 from nav import errorstate as es
 from nav.rotations import log_so3
 
@@ -98,7 +99,7 @@ def _record(ekf: InsEkf, fld: Field, motion: Motion, t: float, M: int, i_rec: in
     d = np.concatenate([-e_p, vt - ekf.v[:M], log_so3(Ct @ np.swapaxes(ekf.C[:M], -1, -2))], axis=-1)
     sl9 = np.r_[0:9]
     P9 = ekf.P[:M][:, sl9][:, :, sl9]
-    nees[:, i_rec] = np.einsum("mi,mi->m", d, np.linalg.solve(P9, d[..., None])[..., 0])
+    nees[:, i_rec] = kf.nees(d, P9)
     var9[:, i_rec] = np.einsum("mii->mi", P9)
     d8 = d[:, :8]
     nees8[:, i_rec] = np.einsum("mi,mi->m", d8, np.linalg.solve(P9[:, :8, :8], d8[..., None])[..., 0])

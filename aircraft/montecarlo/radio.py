@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from nav import kalman as kf
 from nav.pcrb import augment_biases, pcrb_linear_gaussian, prior_before_first_step
 
 from ..navigator.radio import models as mdl
@@ -125,12 +126,8 @@ def run_algo(
         x, P = trk.x, trk.P
         e = x[:, :n] - xt[k]
         err[:, k] = e[:, :3]
-        L = np.linalg.cholesky(P[:, :n, :n])
-        w = np.linalg.solve(L, e[..., None])[..., 0]
-        nees[:, k] = np.einsum("...i,...i->...", w, w)
-        Ls = np.linalg.cholesky(S)
-        ws = np.linalg.solve(Ls, nu[..., None])[..., 0]
-        nis[:, k] = np.einsum("...i,...i->...", ws, ws)
+        nees[:, k] = kf.nees(e, P[:, :n, :n])
+        nis[:, k] = kf.nis(nu, S)
         if keep_cov:
             P_pos[:, k] = P[:, :3, :3]
         if mon is not None:

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from nav import kalman as kf
 from nav.constellation import EnuFrame, gps_like, satellite_elevation_deg
 from nav.geometry import to_network_frame
 
@@ -191,7 +192,7 @@ def _record(f, pt, M, i, err, Pp, nees) -> None:
     e = f.p[:M] - pt
     err[:, i] = e
     Pp[:, i] = f.P[:M, :3, :3]
-    nees[:, i] = np.einsum("mi,mi->m", e, np.linalg.solve(Pp[:, i], e[..., None])[..., 0])
+    nees[:, i] = kf.nees(e, Pp[:, i])
 
 
 def simulate(case: TriadCase, progress=None) -> TriadResult:

@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from nav.geometry import range_jacobian
+
 
 def kabsch(a_m: np.ndarray, b_m: np.ndarray, w: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Rigid ``R`` (3, 3), ``t`` (3,) minimizing ``sum w_i |R a_i + t - b_i|^2`` over points (k, 3), k >= 3
@@ -46,8 +48,7 @@ class FieldTie:
 
     def range_var_m2(self, p_m: np.ndarray, sigma_m: float | np.ndarray) -> np.ndarray:
         """Pseudorange variances (M, m) seen from positions (M, 3): ``sigma^2 + u^T Sigma_j u``."""
-        d = np.asarray(p_m, float)[:, None, :] - self.stations_m
-        u = d / np.linalg.norm(d, axis=-1, keepdims=True)
+        u = range_jacobian(np.asarray(p_m, float)[:, None, :], self.stations_m)
         return np.asarray(sigma_m, float) ** 2 + np.einsum("...ji,...jik,...jk->...j", u, self.cov_m2, u)
 
     def subset(self, idx) -> "FieldTie":

@@ -31,6 +31,7 @@ import numpy as np
 
 from nav import errorstate as es
 from nav import strapdown as sd
+from nav.geometry import line_of_sight
 from nav.rotations import exp_so3, skew
 
 
@@ -287,9 +288,7 @@ class Pseudorange:
     def predict(self, ekf: "InsEkf") -> tuple[np.ndarray, np.ndarray]:
         L = ekf.L
         T = ekf.t_s - self.t_rx_s
-        d = ekf.position_at(self.t_rx_s) - self.station_m
-        r = np.sqrt(np.einsum("...i,...i->...", d, d))
-        u = d / r[:, None]
+        r, u = line_of_sight(ekf.position_at(self.t_rx_s), self.station_m)
         H = np.zeros((ekf.M, L.n))
         H[:, L.P] = u
         H[:, L.V] = -T * u

@@ -45,6 +45,7 @@ import numpy as np
 from scipy.linalg import solve_triangular
 
 from nav import errorstate as es
+from nav.geometry import line_of_sight
 from nav.rotations import exp_so3, skew
 from nav.strapdown import G0_M_S2
 
@@ -146,9 +147,7 @@ def _gauss_newton(x, tau, s, cov, rho, var, Rclk, cfg: StartConfig):
     Lr = None
     for it in range(cfg.gn_iters + 1):
         pos = x[:, None, 0:3] + x[:, None, 3:6] * tau[:, None] + x[:, None, 6:9] * t2[:, None]
-        d = pos - s
-        r = np.linalg.norm(d, axis=-1)
-        u = d / r[..., None]
+        r, u = line_of_sight(pos, s)
         H = np.concatenate([u, u * tau[:, None], u * t2[:, None], np.ones((M, K, 1)),
                             np.broadcast_to(tau[None, :, None], (M, K, 1))], axis=-1)
         nu = rho - (r + x[:, 9:10] + x[:, 10:11] * tau)

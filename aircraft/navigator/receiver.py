@@ -38,6 +38,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from nav import kalman as kf
+
 
 # statuses a navigator reports (``ac_status.state``)
 WAITING = "waiting"  # no usable set of broadcasts yet (unsynchronized / too few stations)
@@ -159,11 +161,9 @@ def nis(nu: np.ndarray, S: np.ndarray) -> tuple[float, int]:
     nu = np.atleast_1d(np.asarray(nu, dtype=float))
     S = np.atleast_2d(np.asarray(S, dtype=float))
     try:
-        L = np.linalg.cholesky(0.5 * (S + S.T))
+        return float(kf.nis(nu, 0.5 * (S + S.T))), nu.size
     except np.linalg.LinAlgError:
         return float("inf"), nu.size
-    y = np.linalg.solve(L, nu)
-    return float(y @ y), nu.size
 
 
 def start_members(range_sigma_m: np.ndarray, t_s: float, t_first_s: float, min_kept: int,

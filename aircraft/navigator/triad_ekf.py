@@ -36,7 +36,7 @@ import numpy as np
 
 from nav import errorstate as es
 from nav.constellation import Almanac, EnuFrame, satellite_elevation_deg, tropo_delay_m
-from nav.geometry import SPEED_OF_LIGHT_M_S
+from nav.geometry import SPEED_OF_LIGHT_M_S, line_of_sight
 from nav.kalman import chol_solve, symmetrize
 from nav.rotations import dcm_from_euler, euler_from_dcm
 from nav.strapdown import G0_M_S2
@@ -330,9 +330,7 @@ def window_fix(t_s: np.ndarray, sat_m: np.ndarray, z_m: np.ndarray, sigma_m: flo
     x[:, 2] = 1e4  # above the ground: the far root is at the satellites' side of the Earth
     for _ in range(iters):
         p = x[:, None, None, :3] + x[:, None, None, 3:6] * dt
-        d = p - sat_m
-        r = np.linalg.norm(d, axis=-1)
-        u = d / r[..., None]
+        r, u = line_of_sight(p, sat_m)
         G = np.concatenate([u, u * dt, np.ones_like(r)[..., None], dt[..., 0][..., None] * np.ones_like(r)[..., None]],
                            axis=-1)  # (M, K, N, 8)
         res = np.where(ok, z - (r + x[:, None, None, 6:7][..., 0] + x[:, None, None, 7:8][..., 0] * dt[..., 0]), 0.0)

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from nav.geometry import line_of_sight
 from nav.kalman import gain, symmetrize
 from nav.orbits import OMEGA_VEC_G, earth_rotation, gravity, gravity_gradient
 from vehicle.navigator.fused import rk4_fused, speed_factor_one
@@ -210,9 +211,7 @@ class _Base:
         x, P = self.x, self.P
         M, n = x.shape
         pos, vel, Jp, Jv = self.geometry(t, x)
-        d = np.asarray(src_pos, float) - pos[:, None, :]
-        r = np.linalg.norm(d, axis=-1)
-        u = d / r[..., None]
+        r, u = line_of_sight(src_pos, pos[:, None, :])  # u: receiver -> emitter
         wv = np.asarray(src_vel, float) - vel[:, None, :]
         rr = np.einsum("mni,mni->mn", u, wv)
         H_rho = -u @ Jp

@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from nav.geometry import line_of_sight, ranges
+
 from .state import CLOCK, CLOCK_RATE, POS, VEL
 from .state import StateLayout  # noqa: F401  (the layout with named blocks lives there)
 
@@ -49,15 +51,12 @@ def _positions(X: np.ndarray, dt: np.ndarray | None) -> np.ndarray:
 
 def los(X: np.ndarray, stations_m: np.ndarray, dt: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Ranges (..., m) and unit line-of-sight vectors station->aircraft (..., m, 3)."""
-    d = _positions(X, dt) - stations_m
-    r = np.sqrt(np.einsum("...i,...i->...", d, d))
-    return r, d / r[..., None]
+    return line_of_sight(_positions(X, dt), stations_m)
 
 
 def _ranges(X: np.ndarray, stations_m: np.ndarray, dt: np.ndarray | None = None) -> np.ndarray:
     """Ranges (..., m) only (no line-of-sight vectors)."""
-    d = _positions(X, dt) - stations_m
-    return np.sqrt(np.einsum("...i,...i->...", d, d))
+    return ranges(_positions(X, dt), stations_m)
 
 
 def h_pr(X: np.ndarray, stations_m: np.ndarray, dt: np.ndarray | None = None) -> np.ndarray:

@@ -28,6 +28,8 @@ import numpy as np
 from scipy.optimize import brentq
 from scipy.stats import chi2, ncx2
 
+from nav.geometry import line_of_sight
+
 
 @dataclass
 class RaimResult:
@@ -47,18 +49,16 @@ def _wls(S: np.ndarray, rho: np.ndarray, w: np.ndarray, x0: np.ndarray, iters: i
     """Gauss-Newton WLS for ``[p, b]``. S (m, 3), rho (m,), w (m,) = 1/sigma^2, x0 (4,)."""
     x = x0.astype(float).copy()
     for _ in range(iters):
-        d = x[:3] - S
-        r = np.linalg.norm(d, axis=1)
-        H = np.hstack([d / r[:, None], np.ones((len(S), 1))])
+        r, u = line_of_sight(x[:3], S)
+        H = np.hstack([u, np.ones((len(S), 1))])
         res = rho - (r + x[3])
         sw = np.sqrt(w)[:, None]
         dx = np.linalg.lstsq(H * sw, res * sw[:, 0], rcond=None)[0]  # QR/SVD: safe on poor geometry
         x += dx
         if np.max(np.abs(dx)) < 1e-4:
             break
-    d = x[:3] - S
-    r = np.linalg.norm(d, axis=1)
-    H = np.hstack([d / r[:, None], np.ones((len(S), 1))])
+    r, u = line_of_sight(x[:3], S)
+    H = np.hstack([u, np.ones((len(S), 1))])
     res = rho - (r + x[3])
     return x, H, res
 
