@@ -36,7 +36,7 @@ import numpy as np
 from scipy.special import chdtri  # chi-square inverse survival (scipy.stats costs ~0.5 s of start-up)
 
 from nav.geometry import SPEED_OF_LIGHT_M_S
-
+from nav.kalman import nees
 from net.radio import radio_from_dict, range_var_m2
 
 from .admission import Admission, Bounds
@@ -655,13 +655,11 @@ def _moved_beyond(d_m: np.ndarray, cov_m2: np.ndarray, free: np.ndarray) -> bool
     f = free & (np.diag(cov_m2) > 0.0)
     if not f.any():
         return False
-    d = d_m[f]
     try:
-        L = np.linalg.cholesky(cov_m2[np.ix_(f, f)])
+        q = float(nees(d_m[f], cov_m2[np.ix_(f, f)]))
     except np.linalg.LinAlgError:
         return False
-    y = np.linalg.solve(L, d)
-    return bool(y @ y > chdtri(int(f.sum()), ROLLBACK_P))
+    return bool(q > chdtri(int(f.sum()), ROLLBACK_P))
 
 
 FOUNDERS = (1, 2, 3)  # the stations whose estimates define the frame until one of them is gone
