@@ -243,7 +243,7 @@ TABLE: dict[str, Run | Skip] = {
             expect=r"wrote crlb.png"),
     "larns bench aircraft [--trials 32] [--duration 40] [--warmup 10] [--height H] [--seed 1]": Skip(SYNOPSIS, concrete=False),
     "larns bench aircraft --seed 2 --no-sweep": Skip(BENCH),
-    "larns bench aircraft --quick --no-speed": Skip("a minute of Monte Carlo; its smaller twin runs in tests/aircraft/test_aircraft.py::test_bench_aircraft_quick_smoke"),
+    "larns bench aircraft --quick --no-speed": Skip("a minute of Monte Carlo; its smaller twin runs in tests/larns/test_bench_aircraft.py::test_bench_aircraft_quick_smoke"),
     "larns bench aircraft --clocks": Skip(BENCH),
     "larns bench aircraft --clocks --clock-bias white": Skip(BENCH),
     "larns bench aircraft --envelope": Skip(BENCH),

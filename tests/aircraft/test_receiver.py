@@ -2,7 +2,8 @@
 
 Synthetic field: 8 stations on a 2 km square with 80 m of height spread, an aircraft hovering 1.5 km
 out at 60 m, pseudoranges every 10 ms slot (one station per slot, one 80 ms cycle per 8 slots), each
-station's broadcast clock error drawn from the covariance it broadcasts.
+station's broadcast clock error drawn from the covariance it broadcasts. Rule 5's start on a surveyed
+field and rule 3's floor test fly over the five stations of tests/scenario_text.py (and a sixth) instead.
 """
 
 from __future__ import annotations
@@ -168,3 +169,72 @@ def test_live_core_says_why_it_publishes_nothing():
     assert status and status[0]["state"] == rx.WAITING and status[-1]["counts"]["nav_unsynchronized"] >= 1
     assert M.key_for(status[0]) == "larns/aircraft/ac1/status/ukf-pr"
     assert M.decode(M.encode(status[0]))[0]["detail"] == "waiting for synchronized stations"
+
+
+def test_start_waits_for_a_surveyed_field():
+    """Receiver rule 5 (aircraft/navigator/receiver.py): a filter does not start while a station of the
+    batch is known to worse than ``start_station_sigma_m`` (one station 6 m) and the others are too few
+    for a snapshot with redundancy; it starts from the first batch of surveyed stations, from the
+    surveyed ones alone where there are enough, or from whatever it has once ``start_wait_s`` have
+    passed; a snapshot LSQ does not wait. Stations of tests/scenario_text.py (and a sixth), the
+    aircraft hovering 1.5 km out."""
+    st = np.array([[0.0, 0.0, 0.0], [1800.0, 0.0, 5.0], [900.0, 1500.0, 0.0], [800.0, 500.0, 60.0],
+                   [300.0, 1200.0, 20.0], [1500.0, 1300.0, 30.0]])
+    p_ac = np.array([2260.0, 640.0, 316.0])
+    cfg = rx.ReceiverConfig()
+    rng = np.random.default_rng(5)
+
+    def run(algo, sigma_5_m, n_cycles, n_st=5):
+        e = AircraftEstimator(algo, EstimatorConfig(fde=None))
+        for c in range(n_cycles):
+            for k in range(n_st):
+                s = sigma_5_m if k == 4 else 0.3
+                rho = np.linalg.norm(p_ac - st[k]) + 0.5 * rng.standard_normal()
+                e.on_measurement(0.25 * c + 0.05 * k, k + 1, st[k], np.eye(3) * s**2, rho)
+        return e
+
+    held = run("ukf-pr", 6.0, 20)                     # 5 s: held all along
+    assert held.tracker is None and held.status == rx.WAITING and held.stats["start_wait_survey"] >= 18
+    surveyed = run("ukf-pr", 2.0, 3)                  # every station within 3 m: starts at once
+    assert surveyed.tracker is not None and surveyed.stats["start_wait_survey"] == 0
+    subset = run("ukf-pr", 6.0, 3, n_st=6)            # five surveyed of six: starts from those five
+    assert subset.tracker is not None and subset.stats["start_surveyed_subset"] == 1
+    assert subset.stats["start_wait_survey"] == 0
+    late = run("ekf-pr", 6.0, int(cfg.start_wait_s / 0.25) + 3)   # never surveyed: starts after the wait
+    assert late.tracker is not None and late.t_first_batch_s is not None
+    assert late.tracker.t_s - late.t_first_batch_s > cfg.start_wait_s
+    lsq = run("lsq-pr", 6.0, 3)
+    assert lsq.fix is not None and lsq.stats["start_wait_survey"] == 0
+
+
+def test_a_filter_under_the_floor_restarts():
+    """Receiver rule 3's floor test: a filter whose own Gaussian has gone more than ``floor_lost_sigma``
+    under the height floor (its truncated moments confident on the station plane, as a starved fleet's
+    ukf-pr at a true 316 m: docs/aircraft.md "Cold start") restarts; a filter above it runs on. The
+    innovation test is held off (a window it never fills) so that the floor test alone is seen."""
+    st = np.array([[0.0, 0.0, 0.0], [1800.0, 0.0, 5.0], [900.0, 1500.0, 0.0], [800.0, 500.0, 60.0],
+                   [300.0, 1200.0, 20.0]])
+    p_ac = np.array([2260.0, 640.0, 316.0])
+    rng = np.random.default_rng(9)
+
+    def cycles(e, c0, n):
+        for c in range(c0, c0 + n):
+            for k in range(5):
+                rho = np.linalg.norm(p_ac - st[k]) + 0.5 * rng.standard_normal()
+                e.on_measurement(0.25 * c + 0.05 * k, k + 1, st[k], np.eye(3) * 0.01, rho)
+
+    for algo in ("ukf-pr", "ekf-pr"):
+        e = AircraftEstimator(algo, EstimatorConfig(fde=None, receiver=rx.ReceiverConfig(window=10**6)))
+        cycles(e, 0, 8)
+        assert e.tracker is not None and e.stats["under_floor"] == 0 and not e._under_floor(), algo
+        trk = e.tracker
+        x, P = trk.x.copy(), trk.P.copy()
+        x[2] = -150.0                      # planted: 150 m under the floor at sigma 20 m
+        P[2, :], P[:, 2] = 0.0, 0.0
+        P[2, 2] = 400.0
+        trk.x, trk.P = x, P
+        assert trk.x[2] > -1.0 and e._under_floor()   # its truncated moments: on the floor
+        cycles(e, 8, 1)
+        assert e.stats["under_floor"] == 1 and e.n_resets == 1, (algo, dict(e.stats))
+        cycles(e, 9, 12)                   # restarts from the next consistent batch
+        assert e.tracker is not None and abs(e.estimate()["pos_m"][2] - p_ac[2]) < 100.0, algo
