@@ -15,6 +15,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from net import streams
+
 from .journal import AcJournal
 
 
@@ -125,7 +127,7 @@ def make_core(scn, ac, opts, seed: int, t0_s: float, net_clock=None) -> Aircraft
     radio aircraft running ``algos``. ``seed``: the world's; ``t0_s``: the inertial cores' start on the
     fleet axis; ``net_clock``: network time as the field realizes it. Each core draws from its own
     streams of ``(seed, kind, name)``, as the node always did."""
-    tag = sum(map(ord, opts.name))
+    tag = streams.name_key(opts.name)
     if opts.satellites is not None or "triad" in opts.algos:  # the triad: aircraft/triad_core.py
         if set(opts.algos) - {"triad"}:
             raise ValueError(f"triad runs alone in its 6-DOF world; drop {sorted(set(opts.algos) - {'triad'})}")
@@ -137,9 +139,9 @@ def make_core(scn, ac, opts, seed: int, t0_s: float, net_clock=None) -> Aircraft
     if ins:  # the inertial aircraft: own world (6-DOF, IMU) and ins-ekf (aircraft/ins_core.py)
         from .ins_core import InsAircraftCore
 
-        return InsAircraftCore(scn, ac, opts.name, np.random.default_rng([seed, 0x1A5, tag]), imu=imu,
+        return InsAircraftCore(scn, ac, opts.name, streams.rng(seed, streams.AIRCRAFT_INS, tag), imu=imu,
                                height_m=opts.height_m, seed=seed, t0_s=t0_s, net_clock=net_clock)
     from .radio_core import RadioAircraftCore
 
-    return RadioAircraftCore(ac, rest, opts.name, np.random.default_rng([seed, 0xA1C, tag]), opts.height_m,
+    return RadioAircraftCore(ac, rest, opts.name, streams.rng(seed, streams.AIRCRAFT_RADIO, tag), opts.height_m,
                              horizon_s=(opts.duration_s or 7200.0) + 10.0, net_clock=net_clock)

@@ -36,6 +36,7 @@ import numpy as np
 from nav import errorstate as es
 from nav.rotations import euler_from_dcm
 
+from net import streams
 from net.clock import broadcast_clock_var_m2
 from net.radio import link_var_m2, reception_sigma_m
 
@@ -82,8 +83,9 @@ class InsAircraftCore(InertialCore):
         self.motion = motion_from_config(ac.trajectory, height_m if height_m is not None else ac.height_m)
         self.rng = rng
         self.imu = ImuEmulator(preset(imu), 1, rng)
-        self._imu_blocks = ImuBlocks(self.imu, self.motion, [int(sc.seed if seed is None else seed), 0x1B0,
-                                                             sum(map(ord, name))], self.BLOCK)
+        self._imu_blocks = ImuBlocks(self.imu, self.motion, streams.key(sc.seed if seed is None else seed,
+                                                                        streams.AIRCRAFT_INS_IMU,
+                                                                        streams.name_key(name)), self.BLOCK)
         # --- navigator: what a receiver knows (its init record, aircraft/journal.py) -----------------
         record = dict(radio_record(ac, ()), kind="ins", imu=imu, sigma_range_m=float(ac.sigma_m), t0_s=float(t0_s))
         self._navigator(record, name)

@@ -38,6 +38,7 @@ import numpy as np
 
 from nav.constellation import EnuFrame, gps_like
 from nav.rotations import euler_from_dcm
+from net import streams
 from net.clock import broadcast_clock_var_m2
 from net.radio import link_var_m2
 
@@ -78,7 +79,7 @@ class TriadAircraftCore(InertialCore):
         seed = int(sc.seed if seed is None else seed)
         pre = preset(imu or DEFAULT_IMU).with_(rate_hz=float(imu_rate_hz))
         motion = motion_from_config(ac.trajectory, height_m if height_m is not None else ac.height_m)
-        self.world = TriadWorld(sc, ac, [seed, 0x7A1, sum(map(ord, name))], EnuFrame(*ORIGIN), motion, pre,
+        self.world = TriadWorld(sc, ac, streams.key(seed, streams.AIRCRAFT_TRIAD, streams.name_key(name)), EnuFrame(*ORIGIN), motion, pre,
                                 self.BLOCK, t0_s, self.EPOCH_S, net_clock, sigma_sat_m, mask_deg,
                                 baro or wbaro.BaroModel(), sigma_tie_m)
         visible = self.world.visible  # the full sky of the start window, highest first

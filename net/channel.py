@@ -25,6 +25,7 @@ from nav.geometry import SPEED_OF_LIGHT_M_S, frame_free_mask
 
 from .clock import ClockParams, OscillatorClock
 from .radio import link
+from . import streams
 from .scenario import ChannelParams
 
 
@@ -82,10 +83,11 @@ def with_clock_faults(clock, faults, station_id: int):
 def station_rng(seed: int, station_id: int, purpose: int) -> np.random.Generator:
     """Independent, reproducible stream per (world seed, station, purpose).
 
-    Purposes: 0 clock, 1 coarse initial fix, 2 air channel at this receiver, 3 wire faults.
-    The simulator and the Zenoh node derive the same streams, so they draw the same world.
+    Purposes (:mod:`net.streams`): ``CLOCK`` 0, ``COARSE_FIX`` 1 (coarse initial fix), ``AIR`` 2 (air
+    channel at this receiver), ``WIRE`` 3 (wire faults). The simulator and the Zenoh node derive the
+    same streams, so they draw the same world.
     """
-    return np.random.default_rng([int(seed), int(station_id), int(purpose)])
+    return streams.rng(seed, station_id, purpose)
 
 
 def draw_clock(params: ChannelParams | ClockParams, rng: np.random.Generator) -> Clock | OscillatorClock:

@@ -4,7 +4,7 @@ World (truth, inside the process, never handed to the navigator): the vehicle dr
 route (:mod:`vehicle.world.truth`: speed plan, attitude along the track, analytic angular rate and
 specific force) from its start at fleet time ``t0_s``; its IMU and odometer
 (:mod:`vehicle.world.sensors`, seed 004's white noises, per-sample reading at the process's IMU step)
-draw one block per second of vehicle time from the generator ``[seed, 0x7E1, name, 1, block]``;
+draw one block per second of vehicle time from the generator ``[seed, net.streams.VEHICLE, name, 1, block]``;
 its receiver clock is seed 001's (``c dtau = df lambda t + c tau0``, the scenario's ``[vehicle]`` or
 ``[aircraft]`` ``df_hz``, ``lambda_m``, ``tau0_s``) on network time (station 1's oscillator), as the
 aircraft's.
@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from nav.geometry import SPEED_OF_LIGHT_M_S
+from net import streams
 from net.clock import broadcast_clock_var_m2
 from net.nettime import pseudorange_time_error_s
 from net.radio import link_var_m2, reception_sigma_m
@@ -102,7 +103,7 @@ class VehicleCore:
                  outage_s: tuple[float, float] | None = None, sigma_rho_m: float = 0.5, sigma_rate_m_s: float = 0.15):
         self.name = name
         self.seed = int(scn.seed if seed is None else seed)
-        self._key = [self.seed, 0x7E1, sum(map(ord, name))]
+        self._key = streams.key(self.seed, streams.VEHICLE, streams.name_key(name))
         self.t0_s = float(t0_s)
         self.net_clock = net_clock
         self.outage_s = outage_s
