@@ -264,7 +264,7 @@ def scenario_senders(scn, seed: int, base_clock=None) -> SenderTruth:
     outside it, at :func:`net.scenario.joiner_position`."""
     if base_clock is None:
         def base_clock(sid: int):
-            return draw_clock(scn.clock, station_rng(seed, sid, 0))
+            return draw_clock(scn.clock, station_rng(seed, sid, streams.CLOCK))
     from .scenario import WorldPositions
 
     senders = SenderTruth({i: scn.true_pos(i) for i in scn.ids},

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 
+from . import streams
 from .channel import draw_clock, station_rng
 from .clock import broadcast_time_error_s
 
@@ -40,7 +41,7 @@ class RealizedNetworkTime:
         """Station ``sid``'s true oscillator (the draw its own process makes: ``station_rng(seed, sid, 0)``)."""
         c = self._clocks.get(sid)
         if c is None:
-            c = self._clocks[sid] = draw_clock(self.params, station_rng(self.seed, sid, 0))
+            c = self._clocks[sid] = draw_clock(self.params, station_rng(self.seed, sid, streams.CLOCK))
         return c
 
     def observe(self, msg: dict | None) -> None:

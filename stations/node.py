@@ -47,6 +47,7 @@ from typing import Any
 import numpy as np
 
 from net import messages as M
+from net import streams
 from net.channel import AirChannel, scenario_senders, station_rng
 from net.faults import WireFaults, merge_faults
 from net.procsched import add_sched_args, apply_sched_args
@@ -109,7 +110,7 @@ class StationNode:
         self._make_core = make_core
         self.core = None
         self.clock = None
-        self.air = AirChannel(scn.channel, station_rng(self.seed, self.id, 2), (self.seed, self.id))
+        self.air = AirChannel(scn.channel, station_rng(self.seed, self.id, streams.AIR), (self.seed, self.id))
         from .sim import station_clock
 
         self.senders = scenario_senders(scn, self.seed, self._true_clock)  # the channel's truth of each sender
@@ -117,7 +118,7 @@ class StationNode:
         self.true_clocks = {i: station_clock(scn, i, self.seed) for i in scn.ids}  # network time's truth side
         self._last_input_s = -math.inf  # local time of the core's latest input
         self.shell = ShellFaults(scn, self.id)  # per-link channel, [[faults]] (as in the simulator)
-        self.wire = WireFaults(scn.net, station_rng(self.seed, self.id, 3))
+        self.wire = WireFaults(scn.net, station_rng(self.seed, self.id, streams.WIRE))
         self.slot_s = scn.tdma.slot_s
         self.cycle_s = scn.tdma.cycle_s
         self.drops = M.DropCounter(f"station {self.id}")

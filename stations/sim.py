@@ -16,6 +16,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from net import streams
 from net.channel import AirChannel, Clock, coarse_fix, draw_clock, station_rng
 from net.clock import true_network_offset_s
 from net.radio import radio_dict
@@ -50,7 +51,7 @@ class SimResult:
 def station_clock(scn: Scenario, station_id: int, seed: int | None = None):
     """The station's oscillator, from its own stream of the world seed (simulator and node alike)."""
     seed = scn.seed if seed is None else seed
-    return draw_clock(scn.clock, station_rng(seed, station_id, 0))
+    return draw_clock(scn.clock, station_rng(seed, station_id, streams.CLOCK))
 
 
 def network_offset_s(clock, ref_clock, t_true_s: float) -> float:
@@ -69,7 +70,7 @@ def make_core(scn: Scenario, station_id: int, *, estimator: str | None = None, j
         # a founder joining a running field (a restart) is an ordinary station: its coarse fix is
         # off in all three coordinates (station id 4 stands for "no frame constraint")
         pos0, cov0 = coarse_fix(scn.true_pos(station_id), station_id if not join else max(station_id, 4),
-                                scn.sigma0_m, station_rng(seed, station_id, 1))
+                                scn.sigma0_m, station_rng(seed, station_id, streams.COARSE_FIX))
     elif station_id == 1 and not join:
         pos0, cov0 = np.zeros(3), np.zeros((3, 3))
     else:
@@ -143,7 +144,8 @@ class Simulator:
         self.cores: list[StationCore | None] = [None] * n
         self.clocks: list[Clock] = [Clock()] * n
         self.ref_clock = station_clock(scn, scn.ids[0], self.seed)  # network time = station 1's clock
-        self.air = [AirChannel(scn.channel, station_rng(self.seed, i, 2), (self.seed, i)) for i in scn.ids]
+        self.air = [AirChannel(scn.channel, station_rng(self.seed, i, streams.AIR), (self.seed, i))
+                    for i in scn.ids]
         self.shell = [ShellFaults(scn, i) for i in scn.ids]  # per-link channel, [[faults]]
         self.net_rng = np.random.default_rng([self.seed, 0, 3])
         self.links = np.zeros((n, n), dtype=np.int64)
