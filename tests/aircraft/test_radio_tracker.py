@@ -255,8 +255,6 @@ def test_hover_overhead_height_does_not_drift_with_the_lagged_height_column():
     Jacobian's height column is taken at its own (noisy) horizontal estimate pushed the height up
     (+17 m mean after 10 s at 100 m, 24 runs; docs/aircraft.md). With the column at the low-passed
     horizontal position (``height_jacobian_lag_s``, default) the mean stays small (+4 m)."""
-    from dataclasses import replace
-
     from aircraft.montecarlo import radio as sim
     from aircraft.navigator.radio import models as mdl
     from larns.bench import envelope as env
@@ -279,8 +277,6 @@ def test_symmetry_plane_no_drift_along_the_unobservable_direction():
     a curved ridge. Lagging only the height column left the estimate drifting along it (mean +15 m
     after 10 s, 96 runs); lagging the filter's own least observable direction
     (``lag_direction = "weakest"``, default) keeps it small. Seeded, 48 runs."""
-    from dataclasses import replace
-
     from aircraft.montecarlo import radio as sim
     from aircraft.navigator.radio import models as mdl
     from larns.bench import envelope as env
