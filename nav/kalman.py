@@ -70,9 +70,17 @@ def kf_update(x, P, z, H, R):
     S = symmetrize(H @ P @ Ht + R)
     K = gain(P @ Ht, S)
     x_new = x + np.einsum("...ij,...j->...i", K, nu)
-    IKH = np.eye(x.shape[-1]) - K @ H
-    P_new = IKH @ P @ np.swapaxes(IKH, -1, -2) + K @ R @ np.swapaxes(K, -1, -2)
-    return x_new, symmetrize(P_new), nu, S
+    return x_new, joseph(P, K, H, R), nu, S
+
+
+def joseph(P: np.ndarray, K: np.ndarray, H: np.ndarray, R: np.ndarray, diagonal: bool = False) -> np.ndarray:
+    """Joseph-form posterior covariance ``(I - K H) P (I - K H)^T + K R K^T`` (symmetrized), valid for any
+    gain ``K`` (..., n, m); ``H`` (..., m, n); ``R`` (..., m, m), or with ``diagonal`` its diagonal
+    (..., m) (independent measurements). The covariance update of every linear(ized) filter of the
+    tree; the scalar error-state updates use its rank-one form (:func:`nav.errorstate.scalar_update`)."""
+    IKH = np.eye(P.shape[-1]) - K @ H
+    KR = K * R[..., None, :] if diagonal else K @ R
+    return symmetrize(IKH @ P @ np.swapaxes(IKH, -1, -2) + KR @ np.swapaxes(K, -1, -2))
 
 
 def ekf_update(x, P, z, h: Callable, H: np.ndarray, R):

@@ -176,3 +176,30 @@ def test_nees_is_chi_square_for_true_covariance():
     P = _spd(rng, 3, (4000,))
     e = np.einsum("kij,kj->ki", np.linalg.cholesky(P), rng.normal(size=(4000, 3)))
     assert nees(e, P).mean() == pytest.approx(3.0, abs=0.15)
+
+
+def test_the_scalar_error_state_update_is_the_joseph_update_of_one_measurement():
+    """nav.errorstate.scalar_update (rank-one terms, O(n^2)) equals nav.kalman's Joseph-form update
+    (kf_update, joseph) for one scalar measurement, batched over runs, and joseph's diagonal form equals
+    its full form."""
+    from nav.errorstate import scalar_update
+    from nav.kalman import joseph
+
+    rng = np.random.default_rng(11)
+    M, n = 4, 6
+    A = rng.normal(size=(M, n, n))
+    P = A @ np.swapaxes(A, -1, -2) + n * np.eye(n)
+    h = rng.normal(size=(M, n))
+    r = rng.uniform(0.5, 2.0, M)
+    nu = rng.normal(size=M)
+    dx, Pn, s = scalar_update(P, h, r, nu)
+    H = h[:, None, :]
+    x1, P1, nu1, S1 = kf_update(np.zeros((M, n)), P, nu[:, None], H, r[:, None, None])
+    np.testing.assert_allclose(dx, x1, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(Pn, P1, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(s, S1[:, 0, 0], rtol=1e-13)
+    K = rng.normal(size=(M, n, 3))  # any gain: the Joseph form holds for it
+    H3 = rng.normal(size=(M, 3, n))
+    rd = rng.uniform(0.5, 2.0, (M, 3))
+    np.testing.assert_allclose(joseph(P, K, H3, rd, diagonal=True),
+                               joseph(P, K, H3, rd[..., None] * np.eye(3)), rtol=1e-12, atol=1e-9)

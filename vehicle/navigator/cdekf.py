@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from nav.geometry import line_of_sight
-from nav.kalman import gain, symmetrize
+from nav.kalman import gain, joseph, nis, symmetrize
 from nav.orbits import OMEGA_VEC_G, earth_rotation, gravity, gravity_gradient
 from vehicle.navigator.fused import rk4_fused, speed_factor_one
 from vehicle.route import Route
@@ -244,15 +244,11 @@ class _Base:
         self.x = x + np.einsum("mij,mj->mi", K, nu)
         if c:  # Schmidt: zero gain rows for the consider parameters, Joseph form on the augmented P
             K = np.concatenate([K, np.zeros((M, c, K.shape[2]))], axis=1)
-        IKH = np.eye(n + c) - K @ H
-        KR = K * Rd[:, None, :]
-        Pn = symmetrize(IKH @ P @ np.swapaxes(IKH, 1, 2) + KR @ np.swapaxes(K, 1, 2))
+        Pn = joseph(P, K, H, Rd, diagonal=True)
         self.P = Pn[:, :n, :n] if c else Pn
         if c:
             self.Pxc = Pn[:, :n, n:]
-        Ls = np.linalg.cholesky(S)
-        y = np.linalg.solve(Ls, nu[..., None])[..., 0]
-        self.last_nis = np.einsum("mi,mi->m", y, y)
+        self.last_nis = nis(nu, S)
         self.last_nis_dof = nu.shape[1]
         self.orthonormalize()
 
