@@ -1,4 +1,4 @@
-"""One live core shape (issue 29 item 4): what the Zenoh shell (:mod:`aircraft.node`) needs of an aircraft.
+"""One live core shape: what the Zenoh shell (:mod:`aircraft.node`) needs of an aircraft.
 
 Three sans-I/O cores hold world + navigator + journal each: the radio aircraft
 (:class:`aircraft.radio_core.RadioAircraftCore`), the inertial one (``--imu``,

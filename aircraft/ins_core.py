@@ -226,7 +226,7 @@ class InsAircraftCore(InertialCore):
         if msg.get("state") not in ("frame", "surveying"):
             self.stats["nav_unusable_state"] += 1
             return []
-        from .navigator import plausible  # issue 32: an implausible nav never reaches the channel or a filter
+        from .navigator import plausible  # an implausible nav never reaches the channel or a filter
 
         if plausible.refuse(msg, float(phy["t_true_s"]), self.ac, self.stats):
             return []

@@ -88,7 +88,7 @@ class AircraftNode:
         sec = getattr(bus, "security", None)
         decode = (lambda key, data: M.decode(data)) if sec is None else \
             sec.aircraft_guard(scn.tdma.cycle_s, self.fleet_now, opts.speed).decode  # (limiter: monotonic clock)
-        # the channel owns physics (issue 32): each sender's true position and clock, never its phy claims
+        # the channel owns physics: each sender's true position and clock, never its phy claims
         self.intake = UserIntake(scn, seed, net_clock, decode, self.drops)
 
     def fleet_now(self) -> float:

@@ -1,4 +1,4 @@
-"""Plausibility before trust in the aircraft's navigators (issue 32 item 1): a station's nav
+"""Plausibility before trust in the aircraft's navigators: a station's nav
 broadcast is checked against the field's physical bounds (``net/plausible.py``: position within
 the field's extent plus a margin, a positive semi-definite covariance, the clock correction within
 the oscillator class, the transmit time near the reception) before the channel layer or any filter

@@ -1,5 +1,5 @@
 """Integrity of the aircraft filters: innovation gating, a windowed residual test with leave-one-out
-exclusion, and protection levels from the filter covariance (issue 14, sans-I/O, batched over runs).
+exclusion, and protection levels from the filter covariance (sans-I/O, batched over runs).
 
 Every batch update of a :class:`aircraft.navigator.radio.tracker.CvTracker` returns its innovation ``nu`` (..., d)
 and covariance ``S`` (..., d, d) about the prior (pseudoranges: ``d = m``; range differences against
@@ -46,7 +46,7 @@ is not covered by them (the test's own false-alarm / detection figures are measu
 
 Implementation: an unbatched filter (the live aircraft) re-runs the update from the saved prior
 without its masked measurements - a gated or excluded measurement is *dropped*, however far off it
-is (issue 32). A batch of Monte Carlo runs, whose masks differ per run, gives the masked
+is. A batch of Monte Carlo runs, whose masks differ per run, gives the masked
 measurements a range sigma of ``sigma_out_m`` (1e5 m) instead, which removes their information (for
 differences too: an inflated base variance leaves the others' differences) up to ``nu / sigma_out``
 of an absurd value; a gated epoch is re-run from the saved prior with the gated station masked. The
@@ -127,8 +127,8 @@ def kept_part(nu: np.ndarray, S: np.ndarray, keep: np.ndarray) -> tuple[np.ndarr
     ``keep`` (..., m) bool: the others' innovation set to 0 and their rows and columns to those of the
     identity, so that ``nu^T S^-1 nu`` and every ``w_i`` are those of the kept measurements alone (the
     marginal of a Gaussian). A masked measurement's innovation - with ``sigma_out_m`` an absurd value
-    still adds ``nu^2 / sigma_out^2``, 29 for 540 km - never reaches the window test (issue 32: the
-    insider's copies of station 2's navs, once 2 was excluded, had the test exclude station 1 too)."""
+    still adds ``nu^2 / sigma_out^2``, 29 for 540 km - never reaches the window test (else copies of
+    an excluded station's navs, replayed by an insider, would have the test exclude a healthy one)."""
     k = keep.astype(float)
     m = nu.shape[-1]
     Sk = S * (k[..., :, None] * k[..., None, :]) + np.eye(m) * (1.0 - k)[..., None, :]
@@ -178,8 +178,8 @@ class FilterFde:
 
     def _apply(self, trk, masked, stations_m, rho_m, station_cov_m2, dt_s, bias_kw) -> None:
         """The update that counts. An unbatched filter (the live aircraft) *drops* its masked
-        measurements: they are left out of the update, so a value however far off moves nothing
-        (issue 32: a 1e12 m position given ``sigma_out_m`` still moved the aircraft 581 m). A batch of
+        measurements: they are left out of the update, so a value however far off moves nothing (a
+        1e12 m position given ``sigma_out_m`` would still move the aircraft hundreds of metres). A batch of
         Monte Carlo runs (``shape``), whose masks differ per run, gives them ``sigma_out_m`` instead."""
         if self.shape or not masked.any():
             trk.update(stations_m, rho_m, station_cov_m2, dt_s, sigma_m=self._sigma(trk.tuning, masked), **bias_kw)
