@@ -15,9 +15,11 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from nav.geometry import range_jacobian
 from net import streams
 
 from .journal import AcJournal
+from .navigator import receiver as rx
 
 
 class AircraftCore(Protocol):
@@ -93,6 +95,36 @@ class InertialCore:
         return (f"{head} t_ins={e.t_s:.2f}s pos=({pt[0]:.0f},{pt[1]:.0f},{pt[2]:.0f}) "
                 f"meas={self.stats['measurements']} err {self.algo}={np.linalg.norm(e.p[0] - pt):.1f}m "
                 f"late={self.stats['nav_bad_or_late']}")
+
+    def station_update(self, t_rx: float, s_m: np.ndarray, cov_m2: np.ndarray, cvar: float, rho: float) -> list[dict]:
+        """The navigator's update with one station pseudorange ``rho`` received at ``t_rx`` (IMU
+        integrated into the step that contains it) from ``s_m`` (3,) with covariance ``cov_m2`` (3, 3):
+        its variance the nominal range variance, the station's along the line of sight and ``cvar``
+        (the broadcast clock's and the link's); -> ``ac_estimate`` (when publishable) and
+        ``ac_status`` when due."""
+        if self.ekf.t_s < t_rx:
+            self.advance_to(self.ekf.t_s + self.tn.dt_s)
+        u = range_jacobian(self.ekf.position_at(t_rx)[0], s_m)
+        var = self.tn.sigma_range_m**2 + float(u @ cov_m2 @ u) + cvar
+        self.ekf.pseudorange(t_rx, s_m, np.array([rho]), var)
+        self.stats["measurements"] += 1
+        est = self.estimate_msg()
+        if not rx.publishable(est["pos_m"], est["cov_m2"], rx.ReceiverConfig()):
+            return self.status(t_rx, rx.NO_FIX)
+        return [est] + self.status(t_rx, rx.TRACKING)
+
+    def status(self, t_s: float, state: str, detail: str | None = None) -> list[dict]:
+        """The navigator's ``ac_status`` when due (aircraft/navigator/receiver.py StatusPacer)."""
+        if not self._pacer.due(self.algo, state, t_s):
+            return []
+        return [rx.status_msg(self.name, self.seq, self.algo, t_s, state, self.stats, detail)]
+
+    def truth_msg(self, t_rx: float) -> dict[str, Any]:
+        """World side: the ``ac_truth`` record of a measured broadcast (identifies it for re-flight)."""
+        pt, vt, _ = self.truth_n(t_rx)
+        self.seq["ac_truth"] += 1
+        return {"kind": "ac_truth", "src": self.name, "seq": self.seq["ac_truth"], "stamp_s": t_rx, "t_s": t_rx,
+                "pos_m": pt.tolist(), "vel_m_s": vt.tolist()}
 
     def summary(self) -> dict[str, Any]:
         """Measurements and, once started, the estimate against the truth with the IMU steps run and due."""

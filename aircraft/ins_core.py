@@ -246,7 +246,7 @@ class InsAircraftCore(InertialCore):
         # variance above the nominal sigma_m (known to the receiver from its SNR)
         cvar = broadcast_clock_var_m2(msg) + link_var_m2(sigma, self.ac.sigma_m)
         self.journal.m(t_rx, int(msg["src"]), msg["pos_m"], cov, cvar, rho)
-        return [self._truth_msg(t_rx)] + self.measurement(float(t_rx), int(msg["src"]), msg["pos_m"], cov, cvar,
+        return [self.truth_msg(t_rx)] + self.measurement(float(t_rx), int(msg["src"]), msg["pos_m"], cov, cvar,
                                                            float(rho))
 
     def measurement(self, t_rx: float, src: int, pos_m, cov_m2, cvar: float, rho: float) -> list[dict]:
@@ -256,32 +256,9 @@ class InsAircraftCore(InertialCore):
         if self.ekf is None and not self._try_start(t_rx):  # still listening: keep it for the start
             self._win.append((t_rx, s, cov, rho, self.tn.sigma_range_m**2 + cvar, str(src)))
             self.stats["start_buffered"] += 1
-            return self._status(t_rx, rx.WAITING, "starting: collecting broadcasts")
+            return self.status(t_rx, rx.WAITING, "starting: collecting broadcasts")
         self.advance_to(t_rx + self.tn.dt_s)  # the step that contains t_rx
-        if self.ekf.t_s < t_rx:
-            self.advance_to(self.ekf.t_s + self.tn.dt_s)
-        d = self.ekf.position_at(t_rx)[0] - s
-        u = d / np.linalg.norm(d)
-        var = self.tn.sigma_range_m**2 + float(u @ cov @ u) + cvar
-        self.ekf.pseudorange(t_rx, s, np.array([rho]), var)
-        self.stats["measurements"] += 1
-        est = self.estimate_msg()
-        if not rx.publishable(est["pos_m"], est["cov_m2"], rx.ReceiverConfig()):
-            return self._status(t_rx, rx.NO_FIX)
-        return [est] + self._status(t_rx, rx.TRACKING)
-
-    def _status(self, t_s: float, state: str, detail: str | None = None) -> list[dict]:
-        """The navigator's ``ac_status`` when due (aircraft/navigator/receiver.py StatusPacer)."""
-        if not self._pacer.due("ins-ekf", state, t_s):
-            return []
-        return [rx.status_msg(self.name, self.seq, "ins-ekf", t_s, state, self.stats, detail)]
-
-    def _truth_msg(self, t_rx: float) -> dict[str, Any]:
-        """World side: the ``ac_truth`` record of a measured broadcast (identifies it for re-flight)."""
-        pt, vt, _ = self.truth_n(t_rx)
-        self.seq["ac_truth"] += 1
-        return {"kind": "ac_truth", "src": self.name, "seq": self.seq["ac_truth"], "stamp_s": t_rx, "t_s": t_rx,
-                "pos_m": pt.tolist(), "vel_m_s": vt.tolist()}
+        return self.station_update(t_rx, s, cov, cvar, rho)
 
     def estimate_msg(self) -> dict[str, Any]:
         e = self.ekf

@@ -254,11 +254,7 @@ class TriadAircraftCore(InertialCore):
         # variance above the nominal sigma_m (known to the receiver from its SNR)
         cvar = broadcast_clock_var_m2(msg) + link_var_m2(sigma, self.ac.sigma_m)
         self.journal.m(t_rx, src, msg["pos_m"], cov_l, cvar, rho)
-        pt, vt, _ = self.world.truth_n(t_rx)
-        self.seq["ac_truth"] += 1
-        out = [{"kind": "ac_truth", "src": self.name, "seq": self.seq["ac_truth"], "stamp_s": t_rx, "t_s": t_rx,
-                "pos_m": pt.tolist(), "vel_m_s": vt.tolist()}]
-        return out + self.measurement(float(t_rx), src, msg["pos_m"], cov_l, cvar, float(rho))
+        return [self.truth_msg(t_rx)] + self.measurement(float(t_rx), src, msg["pos_m"], cov_l, cvar, float(rho))
 
     def measurement(self, t_rx: float, src: int, pos_m, cov_m2, cvar: float, rho: float) -> list[dict]:
         """Navigator side: one measured broadcast (a journal ``m`` entry) -> ``ac_estimate`` / ``ac_status``."""
@@ -266,29 +262,14 @@ class TriadAircraftCore(InertialCore):
         self.advance_to(t_rx + self.tn.dt_s)  # the step that contains t_rx
         if self.ekf is None:
             self.stats["nav_before_start"] += 1
-            return self._status(t_rx, rx.WAITING, "starting: window fix")
+            return self.status(t_rx, rx.WAITING, "starting: window fix")
         if self.ekf.t_s < t_rx:
             self.advance_to(self.ekf.t_s + self.tn.dt_s)
         loc = self._station_local(src)
         if loc is None:
             self.stats["nav_no_tie"] += 1
             return []
-        s, cov = loc
-        d = self.ekf.position_at(t_rx)[0] - s
-        u = d / np.linalg.norm(d)
-        var = self.tn.sigma_range_m**2 + float(u @ cov @ u) + cvar
-        self.ekf.pseudorange(t_rx, s, np.array([rho]), var)
-        self.stats["measurements"] += 1
-        est = self.estimate_msg()
-        if not rx.publishable(est["pos_m"], est["cov_m2"], rx.ReceiverConfig()):
-            return self._status(t_rx, rx.NO_FIX)
-        return [est] + self._status(t_rx, rx.TRACKING)
-
-    def _status(self, t_s: float, state: str, detail: str | None = None) -> list[dict]:
-        """The navigator's ``ac_status`` when due (aircraft/navigator/receiver.py StatusPacer)."""
-        if not self._pacer.due("triad", state, t_s):
-            return []
-        return [rx.status_msg(self.name, self.seq, "triad", t_s, state, self.stats, detail)]
+        return self.station_update(t_rx, *loc, cvar, rho)
 
     def estimate_msg(self) -> dict[str, Any]:
         e = self.ekf
