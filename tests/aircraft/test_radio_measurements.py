@@ -6,17 +6,9 @@ import pytest
 
 from aircraft.navigator.radio import models as mdl
 from aircraft.navigator.radio.measurements import make_model, second_order
+from radio_support import fd_jac
 
 ST = np.array([[50.0, 0.0, 0.0], [0.0, 50.0, 2.0], [-50.0, 0.0, 5.0], [0.0, -50.0, 0.0], [30.0, 30.0, 40.0]])
-
-
-def _num_jac(f, X, h=1e-5):
-    cols = []
-    for i in range(X.shape[-1]):
-        e = np.zeros_like(X)
-        e[..., i] = h
-        cols.append((f(X + e) - f(X - e)) / (2 * h))
-    return np.stack(cols, axis=-1)
 
 
 @pytest.mark.parametrize("kind", ["pr", "tdoa"])
@@ -33,7 +25,7 @@ def test_jacobian_matches_central_differences(kind, tdma):
     mod = make_model(kind, ST, n0, base=1, dt_s=dt, D=D)
     J = mod.jacobian(X)
     assert J.shape == (4, 5 if kind == "pr" else 4, n0 + nb)
-    np.testing.assert_allclose(J, _num_jac(mod.value, X), atol=1e-7)
+    np.testing.assert_allclose(J, fd_jac(mod.value, X), atol=1e-7)
     # the value itself: ranges at the measurement times, clock and biases added (differences: cancelled)
     p = X[:, None, :3] + (0 if dt is None else X[:, None, 3:6] * dt[:, None])
     r = np.linalg.norm(p - ST, axis=-1) + X[:, n0:] @ D.T
@@ -72,7 +64,7 @@ def test_second_order_mean_is_half_the_trace_of_the_range_hessian_times_P():
     for j in range(5):
         def rj(Z):
             return mdl.h_pr(Z, ST, dt)[..., j] - Z[..., 6]
-        H = _num_jac(lambda Z: _num_jac(rj, Z, 1e-3), X, 1e-3)[0]  # (7, 7) Hessian
+        H = fd_jac(lambda Z: fd_jac(rj, Z, 1e-3), X, 1e-3)[0]  # (7, 7) Hessian
         np.testing.assert_allclose(c2[0, j], 0.5 * np.trace(H @ P[0]), rtol=1e-5)
         np.testing.assert_allclose(S2[0, j, j], 0.5 * np.trace(H @ P[0] @ H @ P[0]), rtol=1e-5)
     np.testing.assert_allclose(S2, np.swapaxes(S2, -1, -2), rtol=1e-12)
