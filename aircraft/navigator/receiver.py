@@ -38,8 +38,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nav import kalman as kf
-
 
 # statuses a navigator reports (``ac_status.state``)
 WAITING = "waiting"  # no usable set of broadcasts yet (unsynchronized / too few stations)
@@ -158,10 +156,12 @@ def _rest(q: float, w: float) -> float:
 
 def nis(nu: np.ndarray, S: np.ndarray) -> tuple[float, int]:
     """``(nu^T S^-1 nu, dim)`` of one innovation ``nu`` (d,) with covariance ``S`` (d, d) (Cholesky)."""
+    from nav.kalman import nis as nis_of  # (it imports scipy: kept out of the command line's start)
+
     nu = np.atleast_1d(np.asarray(nu, dtype=float))
     S = np.atleast_2d(np.asarray(S, dtype=float))
     try:
-        return float(kf.nis(nu, 0.5 * (S + S.T))), nu.size
+        return float(nis_of(nu, 0.5 * (S + S.T))), nu.size
     except np.linalg.LinAlgError:
         return float("inf"), nu.size
 
