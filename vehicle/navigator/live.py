@@ -36,6 +36,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
+from nav.geometry import line_of_sight
 from nav.orbits import enu_to_ecef, greenwich_from_ecef
 from vehicle.navigator.cdekf import Intensities, MapFilter, xi_matrix
 from vehicle.route import Route, straight_route
@@ -206,9 +207,8 @@ class VehicleNavigator:
         s_g = self.tie.to_greenwich(np.asarray(pos_n, float))
         cov_g = self.tie.cov_to_greenwich(np.asarray(cov_n, float))
         p, _, Jp, _ = f.geometry(tau, f.x)
-        d = s_g - p[0]
-        r = float(np.linalg.norm(d))
-        u = d / r
+        r, u = line_of_sight(s_g, p[0])  # u: receiver -> station
+        r = float(r)
         rec = self.rec
         var_rho = float(rec["sigma_rho_m"]) ** 2 + float(u @ cov_g @ u) + float(clock_var_m2)
         var_rate = float(rec["sigma_rate_m_s"]) ** 2
