@@ -109,7 +109,7 @@ class InertialCore:
         self.ekf.pseudorange(t_rx, s_m, np.array([rho]), var)
         self.stats["measurements"] += 1
         est = self.estimate_msg()
-        if not rx.publishable(est["pos_m"], est["cov_m2"], rx.ReceiverConfig()):
+        if not rx.publishable(est["pos_m"], est["cov_m2"]):
             return self.status(t_rx, rx.NO_FIX)
         return [est] + self.status(t_rx, rx.TRACKING)
 

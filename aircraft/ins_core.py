@@ -223,12 +223,9 @@ class InsAircraftCore(InertialCore):
         """One nav broadcast -> ``ac_truth`` + the ``ac_estimate`` of ``ins-ekf`` (with attitude in
         ``extra``). World side: the channel layer; the navigator gets (and the journal records) only
         the broadcasts it can still use (not late for its IMU time)."""
-        if msg.get("state") not in ("frame", "surveying"):
-            self.stats["nav_unusable_state"] += 1
-            return []
         from .navigator import plausible  # an implausible nav never reaches the channel or a filter
 
-        if plausible.refuse(msg, float(phy["t_true_s"]), self.ac, self.stats):
+        if plausible.unusable(msg, float(phy["t_true_s"]), self.ac, self.stats):
             return []
         got = self.measure(phy, msg, noise=False)
         if got is None:

@@ -35,9 +35,6 @@ from .journal import AcJournal
 from .navigator import receiver as rx
 from .world import radio as wradio
 
-USABLE_STATES = ("frame", "surveying")
-
-
 class RadioAircraftCore:
     """Sans-I/O radio aircraft: channel layer + estimators. ``on_nav(msg, phy)`` returns messages to publish.
 
@@ -59,9 +56,10 @@ class RadioAircraftCore:
         self.track = trajectory.from_config(dict(ac.trajectories.get(ac.trajectory.get("kind"), {}), **ac.trajectory),
                                             t, ac.centre_m, h)
         self.net_clock = net_clock  # station 1's oscillator: network time (None: perfect clocks)
-        self._navigator(radio_record(ac, algos), name, tuple(algos))
+        record = radio_record(ac, algos)
+        self._navigator(record, name, tuple(algos))
         # the navigator's journal (aircraft/journal.py); none without an algorithm
-        self.journal = AcJournal(name, radio_record(ac, algos)) if algos else None
+        self.journal = AcJournal(name, record) if algos else None
 
     def _navigator(self, record: dict, name: str, algos: tuple[str, ...]) -> None:
         """The navigator side: the estimators of ``algos`` configured by the init record."""
@@ -108,12 +106,9 @@ class RadioAircraftCore:
 
     def on_nav(self, msg: dict, phy: dict) -> list[dict]:
         """One station nav broadcast -> ``ac_truth`` + one ``ac_estimate`` per algorithm that has one."""
-        if msg.get("state") not in USABLE_STATES:
-            self.stats["nav_unusable_state"] += 1
-            return []
         from .navigator import plausible  # an implausible nav never reaches the channel or a filter
 
-        if plausible.refuse(msg, float(phy["t_true_s"]), self.ac, self.stats):
+        if plausible.unusable(msg, float(phy["t_true_s"]), self.ac, self.stats):
             return []
         got = self.measure(phy, msg)
         if got is None:
@@ -145,7 +140,7 @@ class RadioAircraftCore:
             est.on_measurement(t_rx, src, pos_m, st_cov, rho, clock_var_m2=cvar)
             e = est.estimate() if est.n_updates != n and est.tracker_or_fix() else None
             state = est.status
-            if e is not None and not rx.publishable(e["pos_m"], e["cov_m2"], est.cfg.receiver or rx.ReceiverConfig()):
+            if e is not None and not rx.publishable(e["pos_m"], e["cov_m2"], est.cfg.receiver or rx.DEFAULT_RECEIVER):
                 e, state = None, rx.NO_FIX
             out.extend(self._status_msgs(algo, t_rx, state, est))
             if e is None:

@@ -79,9 +79,9 @@ class TriadAircraftCore(InertialCore):
         seed = int(sc.seed if seed is None else seed)
         pre = preset(imu or DEFAULT_IMU).with_(rate_hz=float(imu_rate_hz))
         motion = motion_from_config(ac.trajectory, height_m if height_m is not None else ac.height_m)
-        self.world = TriadWorld(sc, ac, streams.key(seed, streams.AIRCRAFT_TRIAD, streams.name_key(name)), EnuFrame(*ORIGIN), motion, pre,
-                                self.BLOCK, t0_s, self.EPOCH_S, net_clock, sigma_sat_m, mask_deg,
-                                baro or wbaro.BaroModel(), sigma_tie_m)
+        key = streams.key(seed, streams.AIRCRAFT_TRIAD, streams.name_key(name))
+        self.world = TriadWorld(sc, ac, key, EnuFrame(*ORIGIN), motion, pre, self.BLOCK, t0_s, self.EPOCH_S, net_clock,
+                                sigma_sat_m, mask_deg, baro or wbaro.BaroModel(), sigma_tie_m)
         visible = self.world.visible  # the full sky of the start window, highest first
         if int(n_sv) > visible.size:
             raise ValueError(f"--satellites {n_sv}: only {visible.size} above the mask at the start")
@@ -228,12 +228,9 @@ class TriadAircraftCore(InertialCore):
 
     def on_nav(self, msg: dict, phy: dict) -> list[dict]:
         """One nav broadcast -> ``ac_truth`` + the ``ac_estimate`` of ``triad``."""
-        if msg.get("state") not in ("frame", "surveying"):
-            self.stats["nav_unusable_state"] += 1
-            return []
         from .navigator import plausible  # an implausible nav never reaches the channel or a filter
 
-        if plausible.refuse(msg, float(phy["t_true_s"]), self.ac, self.stats):
+        if plausible.unusable(msg, float(phy["t_true_s"]), self.ac, self.stats):
             return []
         src = int(msg["src"])
         s_n = np.asarray(msg["pos_m"], dtype=float)

@@ -5,7 +5,7 @@ the oscillator class, the transmit time near the reception) before the channel l
 takes it in. One outside its bounds is dropped and counted (``implausible_<reason>`` in the core's
 ``stats``, shown in ``ac_status``), never down-weighted; the filters' integrity (``aircraft/navigator/radio/fde.py``)
 then judges what passes. Pure: the radio (``RadioAircraftCore``), inertial and triad cores call
-:func:`refuse` first thing in their ``on_nav``.
+:func:`unusable` (a station's state, then :func:`refuse`) first thing in their ``on_nav``.
 """
 
 from __future__ import annotations
@@ -14,7 +14,9 @@ from collections import Counter
 
 from net.plausible import NavBounds, bounds_for, nav_reason
 
-__all__ = ["NavBounds", "bounds_of", "nav_reason", "refuse"]
+__all__ = ["NavBounds", "USABLE_STATES", "bounds_of", "nav_reason", "refuse", "unusable"]
+
+USABLE_STATES = ("frame", "surveying")  # a station's states whose broadcasts a receiver navigates on
 
 
 def bounds_of(ac, clock=None) -> NavBounds:
@@ -33,3 +35,12 @@ def refuse(msg: dict, t_now_s: float, ac, stats: Counter, clock=None) -> bool:
         return False
     stats["implausible_" + why] += 1
     return True
+
+
+def unusable(msg: dict, t_now_s: float, ac, stats: Counter) -> bool:
+    """True if a nav is not one to navigate on: its station not in a :data:`USABLE_STATES` state
+    (counted ``nav_unusable_state``) or the nav implausible (:func:`refuse`)."""
+    if msg.get("state") not in USABLE_STATES:
+        stats["nav_unusable_state"] += 1
+        return True
+    return refuse(msg, t_now_s, ac, stats)

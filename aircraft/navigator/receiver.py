@@ -180,7 +180,10 @@ def start_members(range_sigma_m: np.ndarray, t_s: float, t_first_s: float, min_k
     return ok if int(ok.sum()) >= min_kept else None
 
 
-def publishable(pos_m, cov_m2, cfg: ReceiverConfig) -> bool:
+DEFAULT_RECEIVER = ReceiverConfig()
+
+
+def publishable(pos_m, cov_m2, cfg: ReceiverConfig = DEFAULT_RECEIVER) -> bool:
     """A finite position with a finite, symmetric PSD covariance whose ``sqrt(tr P)`` is at most
     ``max_publish_sigma_m``."""
     p = np.asarray(pos_m, dtype=float)
