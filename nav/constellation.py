@@ -14,6 +14,7 @@ Error terms offered to the world (the estimators never call them with truth):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -111,15 +112,20 @@ class EnuFrame:
     lon_deg: float
     h_m: float = 0.0
 
-    @property
+    @cached_property
     def R(self) -> np.ndarray:
-        return enu_rotation(self.lat_deg, self.lon_deg)
+        """ECEF -> ENU rotation (3, 3) at the origin (computed once per frame, read-only)."""
+        r = enu_rotation(self.lat_deg, self.lon_deg)
+        r.setflags(write=False)
+        return r
 
-    @property
+    @cached_property
     def origin_ecef(self) -> np.ndarray:
         import pymap3d
 
-        return np.array(pymap3d.geodetic2ecef(self.lat_deg, self.lon_deg, self.h_m), dtype=float)
+        o = np.array(pymap3d.geodetic2ecef(self.lat_deg, self.lon_deg, self.h_m), dtype=float)
+        o.setflags(write=False)
+        return o
 
     def from_ecef(self, p_ecef: np.ndarray) -> np.ndarray:
         """ECEF points (..., 3) -> local (..., 3)."""

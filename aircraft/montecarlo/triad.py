@@ -105,7 +105,7 @@ class TriadResult:
         return np.sqrt(np.mean(np.sum(e**2, axis=-1), axis=0))
 
 
-def _world_sky(case, alm, frame, motion, t_ep, p_tr, M, rng):
+def _world_sky(case, alm, frame, t_ep, p_tr, M, rng):
     """The sky: visible satellites (N,), the case's satellites, receiver clocks (K, M, 2) and pseudoranges
     (K, MM, N), NaN when below the mask; the last run noise-free when ``case.pcrb``."""
     T0, W = case.epoch_t0_s, case.init_window_s
@@ -114,7 +114,7 @@ def _world_sky(case, alm, frame, motion, t_ep, p_tr, M, rng):
     el0 = satellite_elevation_deg(frame.from_ecef(e0), p_tr[int(W)][None, :])
     visible = np.flatnonzero(el0 >= case.mask_deg)
     case_ids = visible[np.argsort(-el0[visible])][: case.n_sv]
-    _, r_all, el_all, ttx_all = sky.satellites_seen(alm, frame, motion.pva(t_ep)[0], t_ep, visible)
+    _, r_all, el_all, ttx_all = sky.satellites_seen(alm, frame, p_tr, t_ep, visible)
     clk = wclock.sample(case.clock, t_ep, M, rng)  # (K, M, 2)
     clean = sky.clean_pseudorange_m(alm, visible, r_all, el_all, ttx_all)  # (K, N)
     rho_sat = clean[:, None, :] + clk[:, :, 0:1] + case.sigma_sat_m * rng.standard_normal((K, M, visible.size))
@@ -212,7 +212,7 @@ def simulate(case: TriadCase, progress=None) -> TriadResult:
     t_end = W + case.duration_s
     t_ep = T0 + np.arange(0.0, t_end + 1e-9, 1.0)  # epochs
     p_tr = motion.pva(t_ep)[0]
-    visible, case_ids, clk, rho_sat = _world_sky(case, alm, frame, motion, t_ep, p_tr, M, rng)
+    visible, case_ids, clk, rho_sat = _world_sky(case, alm, frame, t_ep, p_tr, M, rng)
     gidx, rho_gs = _world_ground_ranges(case, p_tr, clk, M, rng)
     tie_all = _world_ties(case, frame, M, rng).subset(gidx)
     # --- world: baro, IMU ------------------------------------------------------------------------

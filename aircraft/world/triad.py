@@ -40,7 +40,7 @@ class TriadWorld:
         self.sigma_sat_m, self.mask_deg = float(sigma_sat_m), float(mask_deg)
         self.imu = ImuEmulator(pre, 1, np.random.default_rng(self.key + [1]))
         self.imu_blocks = ImuBlocks(self.imu, self.motion, self.key + [1], block)
-        p0 = self.motion.pva(np.array([0.0]))[0][0]
+        p0 = self.position(self.t0_s)
         s0 = self.frame.from_ecef(self.alm.ecef(float(t0_s))[0])
         el0 = satellite_elevation_deg(s0, p0[None, :])
         vis = np.flatnonzero(el0 >= self.mask_deg)
@@ -61,6 +61,10 @@ class TriadWorld:
         p, v, _ = self.motion.pva(np.array([t_s - self.t0_s]))
         return p[0], v[0], self.motion.attitude(np.array([t_s - self.t0_s]))[0]
 
+    def position(self, t_s: float) -> np.ndarray:
+        """True position (3,) in the Earth-tied frame at fleet time ``t_s`` (no attitude)."""
+        return self.motion.pva(np.array([t_s - self.t0_s]))[0][0]
+
     def imu_sample(self, k: int, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
         """IMU step ``k``: (gyro, accel) increments (1, 3) each."""
         return self.imu_blocks.sample(k, dt_s)
@@ -68,7 +72,7 @@ class TriadWorld:
     def sky(self, k: int, ids: np.ndarray) -> np.ndarray:
         """Pseudoranges (len(ids),) of epoch ``k`` (NaN below the mask), on the receiver clock."""
         t = self.t0_s + k * self.epoch_s
-        _, r, el, t_tx = sky.satellites_seen(self.alm, self.frame, self.truth_n(t)[0][None], np.array([t]), ids)
+        _, r, el, t_tx = sky.satellites_seen(self.alm, self.frame, self.position(t)[None], np.array([t]), ids)
         rng = np.random.default_rng(self.key + [4, k])
         rho = (sky.clean_pseudorange_m(self.alm, ids, r[0], el[0], t_tx[0]) + float(self.ac.clock.bias_m(t))
                + self.sigma_sat_m * rng.standard_normal(ids.size))
@@ -82,7 +86,7 @@ class TriadWorld:
         rng = np.random.default_rng(self.key + [5, k])
         self._baro_b = a * self._baro_b + m.sigma_bias_m * np.sqrt(1.0 - a * a) * rng.standard_normal()
         self._baro_t = t
-        return float(self.truth_n(t)[0][2] + self.frame.h_m + self._baro_b + m.sigma_m * rng.standard_normal())
+        return float(self.position(t)[2] + self.frame.h_m + self._baro_b + m.sigma_m * rng.standard_normal())
 
     def measure(self, phy: dict, msg: dict) -> tuple[float, float, float] | None:
         """A station broadcast's pseudorange on the receiver clock: (true reception time, pseudorange,
@@ -91,7 +95,7 @@ class TriadWorld:
         (:func:`net.nettime.pseudorange_time_error_s`), the noise from the generator of (station, seq)."""
         p_tx = self.to_local(np.asarray(phy["pos_m"], float))
         t_tx = float(phy["t_true_s"])
-        t_rx, p_rx = radio.heard(lambda t: self.truth_n(t)[0], p_tx, t_tx)
+        t_rx, p_rx = radio.heard(self.position, p_tx, t_tx)
         # the radio's parameters are in the network frame: the receiver back there (p_n = R (p - t))
         sigma = reception_sigma_m(np.asarray(phy["pos_m"], float), (p_rx - self.field.t) @ self.field.R.T,
                                   self.ac.radio, self.ac.sigma_m)
