@@ -31,8 +31,7 @@ def line_of_sight(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 
 def range_jacobian(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Gradient of ``|a - b|`` with respect to ``a``: the unit vector ``(a - b)/|a - b|``; (..., 3)."""
-    d = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
-    return d / np.sqrt(np.einsum("...i,...i->...", d, d))[..., None]
+    return line_of_sight(a, b)[1]
 
 
 def frame_free_mask(n_stations: int) -> np.ndarray:

@@ -493,7 +493,7 @@ class Bus:
         self.closed = True
         # The revocation watch ends within a tick once closed; waited for, so that no thread of ours is
         # inside a native call (the keystore's certificates, a reopen) while the interpreter finalizes:
-        # a thread stopped there aborts the process ("FATAL: exception not rethrown", seen once).
+        # a thread stopped there aborts the process ("FATAL: exception not rethrown").
         if self._watch is not None and self._watch is not threading.current_thread():
             self._watch.join(timeout_s)
 

@@ -23,9 +23,9 @@ import numpy as np
 
 from nav.geometry import SPEED_OF_LIGHT_M_S, frame_free_mask
 
+from . import streams
 from .clock import ClockParams, OscillatorClock
 from .radio import link
-from . import streams
 from .scenario import ChannelParams
 
 
