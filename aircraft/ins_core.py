@@ -78,16 +78,18 @@ class InsAircraftCore(InertialCore):
                  height_m: float | None = None, seed: int | None = None, t0_s: float = 0.0, net_clock=None):
         # --- world: motion, field, IMU emulator, channel ---------------------------------------------
         self.net_clock = net_clock  # station 1's oscillator: network time (None: perfect clocks)
-        self.ac = ac
+        self.ac = ac  # aircraft.config.AircraftConfig: the world reads ac.world, the navigator gets ac.nav
         self.field = Field.from_scenario(sc)
-        self.motion = motion_from_config(ac.trajectory, height_m if height_m is not None else ac.height_m)
+        self.motion = motion_from_config(ac.world.trajectory, height_m if height_m is not None else ac.world.height_m)
         self.rng = rng
         self.imu = ImuEmulator(preset(imu), 1, rng)
         self._imu_blocks = ImuBlocks(self.imu, self.motion, streams.key(sc.seed if seed is None else seed,
                                                                         streams.AIRCRAFT_INS_IMU,
                                                                         streams.name_key(name)), self.BLOCK)
         # --- navigator: what a receiver knows (its init record, aircraft/journal.py) -----------------
-        record = dict(radio_record(ac, ()), kind="ins", imu=imu, sigma_range_m=float(ac.sigma_m), t0_s=float(t0_s))
+        self.bounds = ac.nav.field_bounds  # the deployment plan's plausibility bounds
+        record = dict(radio_record(ac.nav, ()), kind="ins", imu=imu, sigma_range_m=float(ac.nav.sigma_range_m),
+                      t0_s=float(t0_s))
         self._navigator(record, name)
         self._inputs = None  # the replay's samples (from_record); None: the emulator above
         self.journal = AcJournal(name, record)
@@ -209,10 +211,11 @@ class InsAircraftCore(InertialCore):
         p_tx = np.asarray(phy["pos_m"], float)
         t_tx = float(phy["t_true_s"])
         t_rx, p = wradio.heard(lambda t: self.truth_n(t)[0], p_tx, t_tx)
-        sigma = reception_sigma_m(p_tx, p, self.ac.radio, self.ac.sigma_m)
+        w = self.ac.world
+        sigma = reception_sigma_m(p_tx, p, w.radio, w.sigma_m)
         if sigma is None:
             return None
-        rho = wradio.pseudorange_m(p, p_tx, t_tx, t_rx, msg, self.ac.clock, self.net_clock)
+        rho = wradio.pseudorange_m(p, p_tx, t_tx, t_rx, msg, w.clock, self.net_clock)
         return t_rx, rho + (self.noise_m(sigma) if noise else 0.0), sigma
 
     def noise_m(self, sigma_m: float) -> float:
@@ -225,7 +228,7 @@ class InsAircraftCore(InertialCore):
         the broadcasts it can still use (not late for its IMU time)."""
         from .navigator import plausible  # an implausible nav never reaches the channel or a filter
 
-        if plausible.unusable(msg, float(phy["t_true_s"]), self.ac, self.stats):
+        if plausible.unusable(msg, float(phy["t_true_s"]), self.bounds, self.stats):
             return []
         got = self.measure(phy, msg, noise=False)
         if got is None:
@@ -241,7 +244,7 @@ class InsAircraftCore(InertialCore):
         cov = msg.get("cov_m2", [[0.0] * 3] * 3)
         # white range variance beside the nominal sigma: the broadcast clock's and the link's timing
         # variance above the nominal sigma_m (known to the receiver from its SNR)
-        cvar = broadcast_clock_var_m2(msg) + link_var_m2(sigma, self.ac.sigma_m)
+        cvar = broadcast_clock_var_m2(msg) + link_var_m2(sigma, self.ac.nav.sigma_range_m)
         self.journal.m(t_rx, int(msg["src"]), msg["pos_m"], cov, cvar, rho)
         return [self.truth_msg(t_rx)] + self.measurement(float(t_rx), int(msg["src"]), msg["pos_m"], cov, cvar,
                                                            float(rho))

@@ -145,7 +145,7 @@ class AircraftNode:
         end = math.inf if self.opts.duration_s is None else self.opts.duration_s
         if not self.opts.quiet:
             print(f"[aircraft {self.opts.name}] algos {','.join(self.core.algos)}, trajectory "
-                  f"{self.ac.trajectory.get('kind')}, speed={self.opts.speed}, epoch={self.epoch:.3f}",
+                  f"{self.ac.world.trajectory.get('kind')}, speed={self.opts.speed}, epoch={self.epoch:.3f}",
                   file=sys.stderr, flush=True)
         lag = self.core.lag_s * self.opts.speed  # ticked behind fleet time so delayed broadcasts still fit
         while not self._stop.is_set():
@@ -204,13 +204,14 @@ def main_args(args: argparse.Namespace) -> int:
     cli.setup_logging()
     scn = load_cli(args.scenario, args.n_stations)
     ac = from_scenario(scn)
-    algos = args.algo or (("triad",) if (args.satellites if args.satellites is not None else ac.satellites)
-                          is not None else ("ins-ekf",) if args.imu else ac.algos)
+    nav = ac.nav  # the navigator's defaults: algorithms, IMU, satellites
+    algos = args.algo or (("triad",) if (args.satellites if args.satellites is not None else nav.satellites)
+                          is not None else ("ins-ekf",) if args.imu else nav.algos)
     opts = AircraftOptions(name=args.name or ac.name, algos=tuple(algos), speed=args.speed,
                            epoch_unix_s=args.epoch, duration_s=args.duration, seed=args.seed,
                            height_m=args.height, status_every_s=args.status_every, quiet=args.quiet,
-                           imu=args.imu or ac.imu,
-                           satellites=args.satellites if args.satellites is not None else ac.satellites)
+                           imu=args.imu or nav.imu,
+                           satellites=args.satellites if args.satellites is not None else nav.satellites)
     args.secure_cn = f"aircraft-{opts.name}"
     bus = cli.open_bus(f"aircraft {opts.name}", lambda: Bus(**bus_kwargs(args)))
     # larns fleet's start barrier (--epoch-from): the epoch once every process is up

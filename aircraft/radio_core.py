@@ -48,15 +48,17 @@ class RadioAircraftCore:
                  height_m: float | None = None, horizon_s: float = 7200.0, net_clock=None):
         from .world import trajectory
 
-        self.ac = ac
+        self.ac = ac  # aircraft.config.AircraftConfig: the world reads ac.world, the navigator gets ac.nav
         self.rng = rng
-        dt = 1.0 / max(ac.rate_hz, 10.0)
+        w = ac.world
+        dt = 1.0 / max(w.rate_hz, 10.0)
         t = np.arange(0.0, horizon_s + dt, dt)
-        h = height_m if height_m is not None else ac.height_m
-        self.track = trajectory.from_config(dict(ac.trajectories.get(ac.trajectory.get("kind"), {}), **ac.trajectory),
-                                            t, ac.centre_m, h)
+        h = height_m if height_m is not None else w.height_m
+        self.track = trajectory.from_config(dict(w.trajectories.get(w.trajectory.get("kind"), {}), **w.trajectory),
+                                            t, w.centre_m, h)
         self.net_clock = net_clock  # station 1's oscillator: network time (None: perfect clocks)
-        record = radio_record(ac, algos)
+        self.bounds = ac.nav.field_bounds  # the deployment plan's plausibility bounds
+        record = radio_record(ac.nav, algos)
         self._navigator(record, name, tuple(algos))
         # the navigator's journal (aircraft/journal.py); none without an algorithm
         self.journal = AcJournal(name, record) if algos else None
@@ -92,10 +94,11 @@ class RadioAircraftCore:
         p_tx = np.asarray(phy["pos_m"], float)
         t_tx = float(phy["t_true_s"])
         t_rx, p = wradio.heard(lambda t: self.track.at(t)[0], p_tx, t_tx)
-        sigma = reception_sigma_m(p_tx, p, self.ac.radio, self.ac.sigma_m)
+        w = self.ac.world
+        sigma = reception_sigma_m(p_tx, p, w.radio, w.sigma_m)
         if sigma is None:
             return None
-        rho = wradio.pseudorange_m(p, p_tx, t_tx, t_rx, msg, self.ac.clock, self.net_clock) \
+        rho = wradio.pseudorange_m(p, p_tx, t_tx, t_rx, msg, w.clock, self.net_clock) \
             + sigma * float(self.rng.standard_normal())
         return t_rx, rho, p, sigma
 
@@ -108,7 +111,7 @@ class RadioAircraftCore:
         """One station nav broadcast -> ``ac_truth`` + one ``ac_estimate`` per algorithm that has one."""
         from .navigator import plausible  # an implausible nav never reaches the channel or a filter
 
-        if plausible.unusable(msg, float(phy["t_true_s"]), self.ac, self.stats):
+        if plausible.unusable(msg, float(phy["t_true_s"]), self.bounds, self.stats):
             return []
         got = self.measure(phy, msg)
         if got is None:
@@ -119,7 +122,7 @@ class RadioAircraftCore:
         # as an isotropic part of the transmitter's covariance: the radio filters weight a range by
         # sigma_m^2 + u^T C u, and u^T (C + s^2 I) u = u^T C u + s^2 (their clock variance feeds the
         # stations' clock-bias states, which are not white)
-        st_cov = np.asarray(msg["cov_m2"], float) + link_var_m2(sigma, self.ac.sigma_m) * np.eye(3)
+        st_cov = np.asarray(msg["cov_m2"], float) + link_var_m2(sigma, self.ac.nav.sigma_range_m) * np.eye(3)
         cvar = self.clock_var_m2(msg)
         if not (np.all(np.isfinite(msg["pos_m"])) and math.isfinite(t_rx)):
             self.stats["nav_bad"] += 1
@@ -194,14 +197,15 @@ class RadioAircraftCore:
         return {"kind": kind, "src": self.name, "seq": self.seq[kind], "stamp_s": float(fields["t_s"]), **fields}
 
 
-def radio_record(ac, algos) -> dict:
-    """The radio navigator's init record (``ac_init``): the algorithms, the scenario's filter tuning
-    and the start's wide prior. Every aircraft journal carries the tuning, so the radio filters can
-    re-run on any aircraft's measurements."""
+def radio_record(nav, algos) -> dict:
+    """The radio navigator's init record (``ac_init``) from its configuration ``nav``
+    (:class:`aircraft.config.NavigatorConfig`): the algorithms, the filter tuning and the start's wide
+    prior. Every aircraft journal carries the tuning, so the radio filters can re-run on any
+    aircraft's measurements."""
     from dataclasses import asdict
 
-    return {"kind": "radio", "algos": list(algos), "tuning": asdict(ac.tuning),
-            "init_sigma_m": None if not ac.init_sigma_m else float(ac.init_sigma_m)}
+    return {"kind": "radio", "algos": list(algos), "tuning": asdict(nav.tuning),
+            "init_sigma_m": None if not nav.init_sigma_m else float(nav.init_sigma_m)}
 
 
 def estimator_config(record: dict):

@@ -75,21 +75,22 @@ class TriadAircraftCore(InertialCore):
                  sigma_tie_m: tuple = (0.05, 0.05, 0.1)):
         if n_sv < 0:
             raise ValueError("--satellites must be >= 0")
-        self.ac = ac
+        self.ac = ac  # aircraft.config.AircraftConfig: the world reads ac.world, the navigator gets ac.nav
         seed = int(sc.seed if seed is None else seed)
         pre = preset(imu or DEFAULT_IMU).with_(rate_hz=float(imu_rate_hz))
-        motion = motion_from_config(ac.trajectory, height_m if height_m is not None else ac.height_m)
+        motion = motion_from_config(ac.world.trajectory, height_m if height_m is not None else ac.world.height_m)
         key = streams.key(seed, streams.AIRCRAFT_TRIAD, streams.name_key(name))
-        self.world = TriadWorld(sc, ac, key, EnuFrame(*ORIGIN), motion, pre, self.BLOCK, t0_s, self.EPOCH_S, net_clock,
-                                sigma_sat_m, mask_deg, baro or wbaro.BaroModel(), sigma_tie_m)
+        self.world = TriadWorld(sc, ac.world, key, EnuFrame(*ORIGIN), motion, pre, self.BLOCK, t0_s, self.EPOCH_S,
+                                net_clock, sigma_sat_m, mask_deg, baro or wbaro.BaroModel(), sigma_tie_m)
         visible = self.world.visible  # the full sky of the start window, highest first
         if int(n_sv) > visible.size:
             raise ValueError(f"--satellites {n_sv}: only {visible.size} above the mask at the start")
         station_ids = [int(s["id"]) for s in sorted(sc.raw["stations"], key=lambda s: int(s["id"]))]
         # --- navigator: what a receiver knows (its init record, aircraft/journal.py) ---------------
+        self.bounds = ac.nav.field_bounds  # the deployment plan's plausibility bounds
         b = self.world.baro_model
-        record = dict(radio_record(ac, ()), kind="triad", n_sv=int(n_sv), imu=imu or DEFAULT_IMU,
-                      imu_rate_hz=float(imu_rate_hz), sigma_range_m=float(ac.sigma_m), t0_s=float(t0_s),
+        record = dict(radio_record(ac.nav, ()), kind="triad", n_sv=int(n_sv), imu=imu or DEFAULT_IMU,
+                      imu_rate_hz=float(imu_rate_hz), sigma_range_m=float(ac.nav.sigma_range_m), t0_s=float(t0_s),
                       sigma_sat_m=float(sigma_sat_m), mask_deg=float(mask_deg),
                       baro=[float(b.sigma_m), float(b.sigma_bias_m), float(b.tc_s)],
                       visible=[int(i) for i in visible], tie_ids=station_ids[:3],
@@ -230,7 +231,7 @@ class TriadAircraftCore(InertialCore):
         """One nav broadcast -> ``ac_truth`` + the ``ac_estimate`` of ``triad``."""
         from .navigator import plausible  # an implausible nav never reaches the channel or a filter
 
-        if plausible.unusable(msg, float(phy["t_true_s"]), self.ac, self.stats):
+        if plausible.unusable(msg, float(phy["t_true_s"]), self.bounds, self.stats):
             return []
         src = int(msg["src"])
         s_n = np.asarray(msg["pos_m"], dtype=float)
@@ -249,7 +250,7 @@ class TriadAircraftCore(InertialCore):
         # received: it enters the navigator's state (the tie's broadcast positions) whatever follows
         # white range variance beside the nominal sigma: the broadcast clock's and the link's timing
         # variance above the nominal sigma_m (known to the receiver from its SNR)
-        cvar = broadcast_clock_var_m2(msg) + link_var_m2(sigma, self.ac.sigma_m)
+        cvar = broadcast_clock_var_m2(msg) + link_var_m2(sigma, self.ac.nav.sigma_range_m)
         self.journal.m(t_rx, src, msg["pos_m"], cov_l, cvar, rho)
         return [self.truth_msg(t_rx)] + self.measurement(float(t_rx), src, msg["pos_m"], cov_l, cvar, float(rho))
 

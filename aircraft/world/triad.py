@@ -30,10 +30,10 @@ class TriadWorld:
     ``tie_surveyed_m`` (3, 3): the first three stations' geodetic survey (what a receiver's database
     holds, with ``sigma_tie_m`` errors)."""
 
-    def __init__(self, sc, ac, key: list[int], frame: EnuFrame, motion, pre, block: int, t0_s: float,
+    def __init__(self, sc, world, key: list[int], frame: EnuFrame, motion, pre, block: int, t0_s: float,
                  epoch_s: float, net_clock, sigma_sat_m: float, mask_deg: float, baro: wbaro.BaroModel,
                  sigma_tie_m) -> None:
-        self.ac, self.net_clock, self.key = ac, net_clock, list(key)
+        self.cfg, self.net_clock, self.key = world, net_clock, list(key)  # aircraft.config.AircraftWorldConfig
         self.field = Field.from_scenario(sc)
         self.frame, self.alm, self.motion = frame, gps_like(), motion
         self.t0_s, self.epoch_s = float(t0_s), float(epoch_s)
@@ -74,7 +74,7 @@ class TriadWorld:
         t = self.t0_s + k * self.epoch_s
         _, r, el, t_tx = sky.satellites_seen(self.alm, self.frame, self.position(t)[None], np.array([t]), ids)
         rng = np.random.default_rng(self.key + [4, k])
-        rho = (sky.clean_pseudorange_m(self.alm, ids, r[0], el[0], t_tx[0]) + float(self.ac.clock.bias_m(t))
+        rho = (sky.clean_pseudorange_m(self.alm, ids, r[0], el[0], t_tx[0]) + float(self.cfg.clock.bias_m(t))
                + self.sigma_sat_m * rng.standard_normal(ids.size))
         return np.where(el[0] >= self.mask_deg, rho, np.nan)
 
@@ -98,10 +98,10 @@ class TriadWorld:
         t_rx, p_rx = radio.heard(self.position, p_tx, t_tx)
         # the radio's parameters are in the network frame: the receiver back there (p_n = R (p - t))
         sigma = reception_sigma_m(np.asarray(phy["pos_m"], float), (p_rx - self.field.t) @ self.field.R.T,
-                                  self.ac.radio, self.ac.sigma_m)
+                                  self.cfg.radio, self.cfg.sigma_m)
         if sigma is None:
             return None
         rng = np.random.default_rng(self.key + [6, sum(map(ord, str(msg.get("src")))), int(msg.get("seq", 0))])
-        rho = radio.pseudorange_m(p_rx, p_tx, t_tx, t_rx, msg, self.ac.clock, self.net_clock) \
+        rho = radio.pseudorange_m(p_rx, p_tx, t_tx, t_rx, msg, self.cfg.clock, self.net_clock) \
             + sigma * float(rng.standard_normal())
         return t_rx, rho, sigma

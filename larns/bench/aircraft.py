@@ -143,13 +143,13 @@ def run_point(ac, kind: str, dist_m: float, runs: int, duration_s: float, warmup
     from aircraft.world import trajectory
     from aircraft.navigator.radio.tuning import CLOCK_BIAS_TAU_S
 
-    dt = 1.0 / ac.rate_hz
+    dt = 1.0 / ac.world.rate_hz
     t = np.arange(0.0, duration_s, dt)
-    cfg = dict(ac.trajectories.get(kind, {}), kind=kind, distance_m=dist_m)
-    track = trajectory.from_config(cfg, t, ac.centre_m, height_m)
-    rho = sim.pseudoranges(track, ac.stations_m, ac.clock, ac.sigma_m, runs, rng)
+    cfg = dict(ac.world.trajectories.get(kind, {}), kind=kind, distance_m=dist_m)
+    track = trajectory.from_config(cfg, t, ac.world.centre_m, height_m)
+    rho = sim.pseudoranges(track, ac.world.stations_m, ac.world.clock, ac.world.sigma_m, runs, rng)
     cvar = None  # the broadcast clock variance c^2 P_theta of every station
-    tuning = ac.tuning
+    tuning = ac.nav.tuning
     if sync_m > 0:
         rho = rho + sync_errors_m(rho.shape, sync_m, sync_tau_s, dt, rng)
         cvar = sync_m**2
@@ -157,10 +157,10 @@ def run_point(ac, kind: str, dist_m: float, runs: int, duration_s: float, warmup
         # ``clock_bias`` says otherwise ("states" in a white world: the tuning's own time)
         tau = sync_tau_s if clock_bias != "white" else 0.0
         if clock_bias == "states" and tau <= 0:
-            tau = ac.tuning.clock_bias_tau_s or CLOCK_BIAS_TAU_S
+            tau = ac.nav.tuning.clock_bias_tau_s or CLOCK_BIAS_TAU_S
         tuning = replace(tuning, clock_bias_tau_s=tau)
     win = t >= warmup_s
-    out = {"height_m": float(track.pos_m[0, 2] - ac.centre_m[2]), "samples": int(runs * win.sum()),
+    out = {"height_m": float(track.pos_m[0, 2] - ac.world.centre_m[2]), "samples": int(runs * win.sum()),
            "rmse_m": {}, "pcrb_m": {}, "nees": {}, "nis": {}, "sec_per_update_run": {}, "samples_by_algo": {},
            "median_m": {}, "rmse_se_m": {}}
     pc_cache = {}
@@ -168,7 +168,7 @@ def run_point(ac, kind: str, dist_m: float, runs: int, duration_s: float, warmup
         method, model = algo.split("-")
         t0 = time.perf_counter()
         stride = lsq_stride if method == "lsq" else 1
-        res = sim.run_algo(algo, track, ac.stations_m, rho, tuning, ac.clock, rng, lsq_stride=stride,
+        res = sim.run_algo(algo, track, ac.world.stations_m, rho, tuning, ac.world.clock, rng, lsq_stride=stride,
                            clock_var_m2=cvar, fde=FdeConfig() if fde and method != "lsq" else None)
         el = time.perf_counter() - t0
         w = win[::stride]
@@ -182,7 +182,7 @@ def run_point(ac, kind: str, dist_m: float, runs: int, duration_s: float, warmup
         out["sec_per_update_run"][algo] = el / (res.err_m.shape[1] * runs)
         if method != "lsq":
             if model not in pc_cache:
-                P = sim.pcrb_track(model, track, ac.stations_m, tuning, ac.clock, clock_var_m2=cvar,
+                P = sim.pcrb_track(model, track, ac.world.stations_m, tuning, ac.world.clock, clock_var_m2=cvar,
                                    clock_tau_s=sync_tau_s)
                 pc_cache[model] = float(np.sqrt(np.mean(np.trace(P[win], axis1=1, axis2=2))))
             out["pcrb_m"][algo] = pc_cache[model]
@@ -215,15 +215,15 @@ def speed_vs_filterpy(ac, steps: int = 400, runs: int = 64) -> dict:
 
     # filterpy's UKF is the plain one: compare the same algorithm (no iterated update, no repeated
     # linearization term in R)
-    tun = without(ac.tuning, RULES)
-    dt = 1.0 / ac.rate_hz
+    tun = without(ac.nav.tuning, RULES)
+    dt = 1.0 / ac.world.rate_hz
     t = np.arange(steps) * dt
-    track = trajectory.from_config({"kind": "hover", "distance_m": 1000.0}, t, ac.centre_m)
+    track = trajectory.from_config({"kind": "hover", "distance_m": 1000.0}, t, ac.world.centre_m)
     rng = np.random.default_rng(7)
-    rho = sim.pseudoranges(track, ac.stations_m, ac.clock, ac.sigma_m, runs, rng)
+    rho = sim.pseudoranges(track, ac.world.stations_m, ac.world.clock, ac.world.sigma_m, runs, rng)
     layout = mdl.StateLayout("pr", drift=True)
-    x0 = sim.true_state(track, ac.clock, layout)[0] + 5.0
-    S = ac.stations_m
+    x0 = sim.true_state(track, ac.world.clock, layout)[0] + 5.0
+    S = ac.world.stations_m
     F = mdl.cv_transition(layout.n, dt)
     Q = mdl.cv_noise(layout.n, dt, tun.q_acc, tun.q_clock, tun.q_drift)
 
@@ -254,7 +254,7 @@ def speed_vs_filterpy(ac, steps: int = 400, runs: int = 64) -> dict:
         diff = max(diff, float(np.max(np.abs(ours.x - fp.x))))
         scale = max(scale, float(np.max(np.abs(fp.x))))
     # the bench's own tuning (iterated update, ``iterations`` passes) on one run, for reference
-    tun_it = replace(ac.tuning, floor_z_m=None)
+    tun_it = replace(ac.nav.tuning, floor_z_m=None)
     own = CvTracker("ukf", "pr", x0, tun_it)
     a = time.perf_counter()
     for k in range(steps):
@@ -313,7 +313,7 @@ def _height_sweep(ac, sweep_h, runs, duration, warmup, rng, fde: bool = True) ->
 
 def run(args) -> int:
     sc, ac = setup(args.scenario)
-    ac.tuning = without(ac.tuning, getattr(args, "without", []))
+    ac = ac.with_tuning(without(ac.nav.tuning, getattr(args, "without", [])))
     if getattr(args, "envelope", False):
         from . import envelope as bench_aircraft_envelope
 
@@ -348,7 +348,7 @@ def run(args) -> int:
     out = _assemble(res, sweep, speed, runs, duration, warmup, args, ac, wall,
                     bar=BAR_CLOCKS if sync_ns > 0 else BAR)
     out["settings"]["sync_ns"], out["settings"]["sync_tau_s"] = sync_ns, sync_tau
-    out["settings"]["clock_bias"] = getattr(args, "clock_bias", None) or ac.tuning.clock_bias
+    out["settings"]["clock_bias"] = getattr(args, "clock_bias", None) or ac.nav.tuning.clock_bias
     out["settings"]["fde"] = fde
     if clocks:
         out["perfect_clocks"] = _assemble(res_perfect, {}, None, runs, duration, warmup, args, ac, wall)
@@ -411,10 +411,10 @@ def _assemble(res, sweep, speed, runs, duration, warmup, args, ac, wall, bar: fl
         "pcrb_m": {h: p["pcrb_m"] for h, p in sweep.items()},
     }
     out["speed"] = speed
-    tu = ac.tuning
+    tu = ac.nav.tuning
     out["settings"] = {
         "scenario": args.scenario, "runs": runs, "duration_s": duration, "warmup_s": warmup, "seed": args.seed,
-        "rate_hz": ac.rate_hz, "sigma_m": ac.sigma_m, "clock_drift_m_s": ac.clock.drift_m_s,
+        "rate_hz": ac.world.rate_hz, "sigma_m": ac.world.sigma_m, "clock_drift_m_s": ac.world.clock.drift_m_s,
         "height": "fixed %g m" % args.height if args.height is not None else "3 deg glide path",
         "tuning": asdict(tu),
         "quick": bool(args.quick), "wall_s": wall,

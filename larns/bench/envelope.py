@@ -57,8 +57,8 @@ def _tracks(ac, pts: list[Point], t: np.ndarray):
 
     out = []
     for p in pts:
-        cfg = dict(ac.trajectories.get(p.traj, {}), kind=p.traj, distance_m=p.dist_m, azimuth_deg=p.bearing_deg)
-        out.append(trajectory.from_config(cfg, t, ac.centre_m, p.height_m))
+        cfg = dict(ac.world.trajectories.get(p.traj, {}), kind=p.traj, distance_m=p.dist_m, azimuth_deg=p.bearing_deg)
+        out.append(trajectory.from_config(cfg, t, ac.world.centre_m, p.height_m))
     return out
 
 
@@ -68,17 +68,17 @@ def _pcrb(model: str, tracks, ac, win: np.ndarray) -> np.ndarray:
     from aircraft.navigator.radio import models as mdl
     from nav.pcrb import pcrb_linear_gaussian, prior_before_first_step
 
-    tu = ac.tuning
+    tu = ac.nav.tuning
     layout = mdl.StateLayout(model, drift=model == "pr")
-    xt = np.stack([sim.true_state(tr, ac.clock, layout) for tr in tracks], axis=1)  # (T, K, n)
+    xt = np.stack([sim.true_state(tr, ac.world.clock, layout) for tr in tracks], axis=1)  # (T, K, n)
     dt = float(np.median(np.diff(tracks[0].t_s)))
     F = mdl.cv_transition(layout.n, dt)
     Q = mdl.cv_noise(layout.n, dt, tu.q_acc, tu.q_clock, tu.q_drift)
-    var = mdl.range_var(xt, ac.stations_m, None, tu.sigma_m)
+    var = mdl.range_var(xt, ac.world.stations_m, None, tu.sigma_m)
     if model == "pr":
-        H, R = mdl.jac_pr(xt, ac.stations_m), mdl.r_pr(var)
+        H, R = mdl.jac_pr(xt, ac.world.stations_m), mdl.r_pr(var)
     else:
-        H, R = mdl.jac_tdoa(xt, ac.stations_m, 0), mdl.r_tdoa(var, 0)
+        H, R = mdl.jac_tdoa(xt, ac.world.stations_m, 0), mdl.r_tdoa(var, 0)
     P = pcrb_linear_gaussian(prior_before_first_step(tu.prior_cov(layout), F, Q), F, Q, H, R)
     tr = np.trace(P[win, :, :3, :3], axis1=-2, axis2=-1)  # (Tw, K)
     return np.sqrt(np.mean(tr, axis=0))
@@ -127,13 +127,14 @@ def run_chunk(ac, pts: list[Point], runs: int, duration_s: float, warmup_s: floa
     from aircraft.montecarlo import radio as sim
     from aircraft.navigator.radio import models as mdl
     from aircraft.navigator.radio.tracker import CvTracker
-    dt = 1.0 / ac.rate_hz
+    dt = 1.0 / ac.world.rate_hz
     t = np.arange(0.0, duration_s, dt)
     win = t >= warmup_s
-    K, T, S = len(pts), t.size, ac.stations_m
+    K, T, S = len(pts), t.size, ac.world.stations_m
     tracks = _tracks(ac, pts, t)
     # pseudoranges (T, K*runs, m), point-major on the run axis
-    rho = np.concatenate([sim.pseudoranges(tr, S, ac.clock, ac.sigma_m, runs, rng) for tr in tracks], axis=1)
+    rho = np.concatenate([sim.pseudoranges(tr, S, ac.world.clock, ac.world.sigma_m, runs, rng) for tr in tracks],
+                         axis=1)
     idx = np.repeat(np.arange(K), runs)
     z0 = prior_draws(rng, K, runs, 8, matched_prior)  # common random numbers for the filters' initial errors
     pc = {m: _pcrb(m, tracks, ac, win) for m in sorted({a.split("-")[1] for a in algos})}
@@ -141,10 +142,10 @@ def run_chunk(ac, pts: list[Point], runs: int, duration_s: float, warmup_s: floa
     for algo in algos:
         method, model = algo.split("-")
         layout = mdl.StateLayout(model, drift=model == "pr")
-        xt = np.stack([sim.true_state(tr, ac.clock, layout) for tr in tracks], axis=0)[idx]  # (M, T, n)
-        P0 = ac.tuning.prior_cov(layout)
+        xt = np.stack([sim.true_state(tr, ac.world.clock, layout) for tr in tracks], axis=0)[idx]  # (M, T, n)
+        P0 = ac.nav.tuning.prior_cov(layout)
         x0 = xt[:, 0] + z0[:, : layout.n] @ np.linalg.cholesky(P0).T
-        trk = CvTracker(method, model, x0, ac.tuning, t0_s=float(t[0]))
+        trk = CvTracker(method, model, x0, ac.nav.tuning, t0_s=float(t[0]))
         sse = np.zeros(K * runs)
         nees_sum = np.zeros(K * runs)
         n_nees = 0
@@ -214,8 +215,9 @@ def run_envelope(ac, runs: int, duration_s: float, warmup_s: float, seed: int, h
     return {"envelope": entries, "bar": check_bar(entries),
             "settings": {"runs": runs, "duration_s": duration_s, "warmup_s": warmup_s, "seed": seed,
                          "heights_m": list(heights), "dists_m": list(dists), "bearings_deg": list(bearings),
-                         "trajs": list(trajs), "algos": list(algos), "rate_hz": ac.rate_hz, "sigma_m": ac.sigma_m,
-                         "tuning": asdict(ac.tuning),
+                         "trajs": list(trajs), "algos": list(algos), "rate_hz": ac.world.rate_hz,
+                         "sigma_m": ac.world.sigma_m,
+                         "tuning": asdict(ac.nav.tuning),
                          "wall_s": wall, "points": len(pts),
                          "prior_draws": "matched" if matched_prior and runs > 8 else "iid",
                          "ratio_ci": "95 % from the run-to-run spread (delta method on per-run MSE); with "

@@ -91,12 +91,12 @@ def aircraft_raim(scenario: str, runs: int, seed: int, duration_s: float = 40.0)
     from net.scenario import load
 
     sc = load(scenario)
-    ac = from_scenario(sc)
+    world = from_scenario(sc).world  # the truth: stations, track, clock, noise
     t = np.arange(0.0, duration_s, 1.0 / AC_RATE_HZ)
-    track = trajectory.from_config(dict(ac.trajectory), t, ac.centre_m, ac.height_m)
+    track = trajectory.from_config(dict(world.trajectory), t, world.centre_m, world.height_m)
     rng = np.random.default_rng([seed, 14])
-    rho = sim.pseudoranges(track, ac.stations_m, ac.clock, ac.sigma_m, runs, rng)  # (T, M, m)
-    m = ac.stations_m.shape[0]
+    rho = sim.pseudoranges(track, world.stations_m, world.clock, world.sigma_m, runs, rng)  # (T, M, m)
+    m = world.stations_m.shape[0]
     ids = list(sc.ids)
     bad = m // 2  # a station in the middle of the list
     out = {"scenario": scenario, "stations": m, "runs": runs, "faulty_station": ids[bad], "bias_m": AC_BIAS_M,
@@ -111,7 +111,7 @@ def aircraft_raim(scenario: str, runs: int, seed: int, duration_s: float = 40.0)
         x0 = np.r_[track.pos_m[0] + 50.0, 0.0]
         first = None
         for i in range(len(t)):
-            clean = raim_fde(ids, ac.stations_m, rho[i, k], ac.sigma_m, x0, p_fa=AC_P_FA, p_md=AC_P_MD)
+            clean = raim_fde(ids, world.stations_m, rho[i, k], world.sigma_m, x0, p_fa=AC_P_FA, p_md=AC_P_MD)
             x0 = np.r_[clean.pos_m, clean.clock_m]
             n_clean += 1
             alarms += clean.fault
@@ -121,15 +121,15 @@ def aircraft_raim(scenario: str, runs: int, seed: int, duration_s: float = 40.0)
             if after[i]:
                 r = rho[i, k].copy()
                 r[bad] += AC_BIAS_M
-                f = raim_fde(ids, ac.stations_m, r, ac.sigma_m, x0, p_fa=AC_P_FA, p_md=AC_P_MD)
+                f = raim_fde(ids, world.stations_m, r, world.sigma_m, x0, p_fa=AC_P_FA, p_md=AC_P_MD)
                 if first is None and f.excluded == [ids[bad]]:
                     first = t[i] - AC_ONSET_S
                 if t[i] >= AC_ONSET_S + 5.0 and m >= 6:
                     err_ex.append(np.sum((f.pos_m - track.pos_m[i]) ** 2))
                     if k == 0 and keep.sum() >= 5:  # snapshot CRLB of the position without the faulty station
-                        d = track.pos_m[i] - ac.stations_m[keep]
+                        d = track.pos_m[i] - world.stations_m[keep]
                         H = np.hstack([d / np.linalg.norm(d, axis=1)[:, None], np.ones((keep.sum(), 1))])
-                        crlb.append(np.trace(np.linalg.inv(H.T @ H)[:3, :3]) * ac.sigma_m**2)
+                        crlb.append(np.trace(np.linalg.inv(H.T @ H)[:3, :3]) * world.sigma_m**2)
         det_t.append(first)
     found = [d for d in det_t if d is not None]
     out.update(
@@ -165,8 +165,8 @@ def _filter_case(algo, track, ac, rho, bias, fde, onset_s, bad_id, seed):
     """One filter over the runs with the fault ``bias`` (T, m) or clean (None): detection, errors, PLs."""
     from aircraft.montecarlo import radio as sim
 
-    r = sim.run_algo(algo, track, ac.stations_m, rho, ac.tuning, ac.clock, np.random.default_rng([seed, 15]),
-                     fde=fde, bias_m=bias)
+    r = sim.run_algo(algo, track, ac.world.stations_m, rho, ac.nav.tuning, ac.world.clock,
+                     np.random.default_rng([seed, 15]), fde=fde, bias_m=bias)
     t = track.t_s
     mon = r.fde
     M = rho.shape[1]
@@ -214,11 +214,13 @@ def aircraft_filters(scenario: str, runs: int, seed: int, algos=AC_FILTERS,
 
     sc = load(scenario)
     ac = from_scenario(sc)
+    world = ac.world
     fde = FdeConfig()
-    t = np.arange(0.0, duration_s, 1.0 / ac.rate_hz)
-    track = trajectory.from_config(dict(ac.trajectory), t, ac.centre_m, ac.height_m)
-    rho = sim.pseudoranges(track, ac.stations_m, ac.clock, ac.sigma_m, runs, np.random.default_rng([seed, 16]))
-    m = ac.stations_m.shape[0]
+    t = np.arange(0.0, duration_s, 1.0 / world.rate_hz)
+    track = trajectory.from_config(dict(world.trajectory), t, world.centre_m, world.height_m)
+    rho = sim.pseudoranges(track, world.stations_m, world.clock, world.sigma_m, runs,
+                           np.random.default_rng([seed, 16]))
+    m = world.stations_m.shape[0]
     bad = m // 2
     bias = np.zeros((t.size, m))
     bias[t >= AC_ONSET_S, bad] = AC_BIAS_M
@@ -226,15 +228,15 @@ def aircraft_filters(scenario: str, runs: int, seed: int, algos=AC_FILTERS,
     lost[t >= AC_ONSET_S, bad] = True
     w = t >= AC_ONSET_S + AC_SETTLE_S
     out = {"scenario": scenario, "stations": m, "runs": runs, "faulty_station_index": bad, "faulty_station": int(sc.ids[bad]), "bias_m": AC_BIAS_M,
-           "onset_s": AC_ONSET_S, "duration_s": duration_s, "epochs_per_s": ac.rate_hz,
+           "onset_s": AC_ONSET_S, "duration_s": duration_s, "epochs_per_s": world.rate_hz,
            "p_gate": fde.p_gate, "p_fa": fde.p_fa, "window": fde.window, "integrity_risk": fde.integrity_risk,
            "filters": {}}
     for algo in algos:
         model = algo.split("-")[1]
         f = _filter_case(algo, track, ac, rho, bias, fde, AC_ONSET_S, bad, seed)
         c = _filter_case(algo, track, ac, rho, None, fde, AC_ONSET_S, bad, seed)
-        P = sim.pcrb_track(model, track, ac.stations_m, ac.tuning, ac.clock, lost=lost)
-        P_all = sim.pcrb_track(model, track, ac.stations_m, ac.tuning, ac.clock)
+        P = sim.pcrb_track(model, track, world.stations_m, ac.nav.tuning, world.clock, lost=lost)
+        P_all = sim.pcrb_track(model, track, world.stations_m, ac.nav.tuning, world.clock)
         det = f.pop("detect_times_s")
         found = [d for d in det if d is not None]
         pcrb = float(np.sqrt(np.mean(np.trace(P[w], axis1=1, axis2=2))))

@@ -507,11 +507,11 @@ def _aircraft_figures(d: dict, logs, out: Path, res: dict, figs: list, scenario:
     from . import report_nav as RN
 
     acfg = _aircraft_config(logs, scenario)
-    sig = sigma_m if sigma_m is not None else (acfg.sigma_m if acfg is not None else None)
+    sig = sigma_m if sigma_m is not None else (acfg.world.sigma_m if acfg is not None else None)
     if sig is None and d["init"]:
         sig = d["init"]["cfg"].get("sigma_d_m")
     if acfg is not None:
-        tuning = acfg.tuning
+        tuning = acfg.nav.tuning
     else:
         from dataclasses import replace
 

@@ -217,19 +217,19 @@ def test_message_api_carries_one_bias_per_station_heard_on_tdma_slots(algo):
 
     ac = from_scenario(load("seed003"))
     t = np.arange(0.0, 40.0, 0.1)
-    tr = trajectory.from_config(ac.trajectory, t, ac.centre_m)
+    tr = trajectory.from_config(ac.world.trajectory, t, ac.world.centre_m)
     rng = np.random.default_rng(15)
-    m = len(ac.stations_m)
+    m = len(ac.world.stations_m)
     sync_m = 0.6  # 2 ns
     a = np.exp(-0.1 / 6.0)
     beta = sync_m * rng.standard_normal(m)
-    e = AircraftEstimator(algo, EstimatorConfig(tuning=ac.tuning), x0_guess_m=ac.centre_m + [0, 0, 1000.0])
+    e = AircraftEstimator(algo, EstimatorConfig(tuning=ac.nav.tuning), x0_guess_m=ac.world.centre_m + [0, 0, 1000.0])
     for k, tk in enumerate(t):
         beta = a * beta + np.sqrt(1 - a * a) * sync_m * rng.standard_normal(m)
         j = k % m
-        rho = (np.linalg.norm(tr.pos_m[k] - ac.stations_m[j]) + ac.clock.bias_m(tk) + beta[j]
-               + ac.sigma_m * rng.standard_normal())
-        e.on_measurement(tk, j + 1, ac.stations_m[j], None, rho, clock_var_m2=sync_m**2)
+        rho = (np.linalg.norm(tr.pos_m[k] - ac.world.stations_m[j]) + ac.world.clock.bias_m(tk) + beta[j]
+               + ac.world.sigma_m * rng.standard_normal())
+        e.on_measurement(tk, j + 1, ac.world.stations_m[j], None, rho, clock_var_m2=sync_m**2)
     assert e.n_resets == 0
     assert sorted(e.tracker.bias_ids) == list(range(1, m + 1))
     n = e.tracker.n_base
@@ -304,15 +304,13 @@ def test_linearization_error_counted_as_repeated_near_a_transmitter():
     information: overconfident (NEES ~ 90 for 8 dof with the floor truncation fed back at every update,
     ~22 with the floor counted once, 8 runs) and ~1.7 x the PCRB; counted as repeating over
     ``linearization_corr_s`` (default 10 s) it is consistent and at the bound (bench: 0.98 x, NEES 6.8)."""
-    from dataclasses import replace
-
     from larns.bench.aircraft import run_point, setup
 
     _sc, ac = setup("seed001")
     sync_m = 0.7 * 0.299792458
     out = {}
     for corr in (10.0, 0.0):
-        a = replace(ac, tuning=ac.tuning if corr else ac.tuning.without("repeats"))
+        a = ac.with_tuning(ac.nav.tuning if corr else ac.nav.tuning.without("repeats"))
         r = run_point(a, "hover", 50.0, 8, 24.0, 10.0, None, np.random.default_rng(3), algos=("ekf-pr",),
                       sync_m=sync_m, sync_tau_s=6.0, fde=False)
         out[corr] = (r["rmse_m"]["ekf-pr"] / r["pcrb_m"]["ekf-pr"], r["nees"]["ekf-pr"], r["nees_band"]["ekf-pr"])

@@ -32,7 +32,7 @@ def test_the_aircraft_hears_exactly_the_links_the_radio_allows(radio_core):
         t = 10.0 + 0.01 * k
         msg, phy = nav_broadcast(scn, sid, t)
         p, _ = core.track.at(t)
-        exists = bool(link(scn.true_pos(sid), p, ac.radio).exists)
+        exists = bool(link(scn.true_pos(sid), p, ac.world.radio).exists)
         before = core.stats["no_link"]
         out = core.on_nav(msg, phy)
         if exists:
@@ -47,9 +47,9 @@ def test_the_aircraft_hears_exactly_the_links_the_radio_allows(radio_core):
     assert [e[2] for e in entries] == heard
     for e in entries:
         p, _ = core.track.at(e[1])
-        s = reception_sigma_m(scn.true_pos(e[2]), p, ac.radio, ac.sigma_m)
+        s = reception_sigma_m(scn.true_pos(e[2]), p, ac.world.radio, ac.world.sigma_m)
         extra = np.asarray(e[4]) - np.eye(3) * 0.01
-        assert np.allclose(extra, link_var_m2(s, ac.sigma_m) * np.eye(3), rtol=1e-6, atol=1e-12)
+        assert np.allclose(extra, link_var_m2(s, ac.world.sigma_m) * np.eye(3), rtol=1e-6, atol=1e-12)
 
 
 def test_the_aircraft_timing_noise_follows_the_links_snr(radio_core):
@@ -58,12 +58,12 @@ def test_the_aircraft_timing_noise_follows_the_links_snr(radio_core):
     p, _ = core.track.at(t)
     # the farthest station still heard: its noise is above the floor
     d = {sid: np.linalg.norm(scn.true_pos(sid) - p) for sid in scn.ids
-         if link(scn.true_pos(sid), p, ac.radio).exists}
+         if link(scn.true_pos(sid), p, ac.world.radio).exists}
     sid = max(d, key=d.get)
     msg, phy = nav_broadcast(scn, sid, t)
     rho = np.array([core.measure(phy, msg)[1] for _ in range(4000)])
-    s = reception_sigma_m(scn.true_pos(sid), core.measure(phy, msg)[2], ac.radio, ac.sigma_m)
-    assert s > 1.2 * ac.sigma_m, (s, ac.sigma_m)
+    s = reception_sigma_m(scn.true_pos(sid), core.measure(phy, msg)[2], ac.world.radio, ac.world.sigma_m)
+    assert s > 1.2 * ac.world.sigma_m, (s, ac.world.sigma_m)
     # sample std of 4000 normal draws: relative standard error 1.1 %, tolerance 5 %
     assert np.std(rho) == pytest.approx(s, rel=0.05)
 
@@ -80,10 +80,11 @@ def test_inertial_and_triad_cores_drop_what_the_radio_does_not_carry():
         t = 5.0 + 0.01 * k
         msg, phy = nav_broadcast(scn, sid, t)
         p = core.truth_n(t)[0]
-        exists = bool(link(scn.true_pos(sid), p, ac.radio).exists)
+        exists = bool(link(scn.true_pos(sid), p, ac.world.radio).exists)
         got = core.measure(phy, msg)
         assert (got is not None) == exists
         if exists:
-            assert got[2] == pytest.approx(reception_sigma_m(scn.true_pos(sid), p, ac.radio, ac.sigma_m), rel=1e-6)
+            want = reception_sigma_m(scn.true_pos(sid), p, ac.world.radio, ac.world.sigma_m)
+            assert got[2] == pytest.approx(want, rel=1e-6)
         outcomes.append(exists)
     assert any(outcomes) and not all(outcomes)

@@ -19,15 +19,17 @@ def test_estimator_api_tdma_slots_and_bad_input():
     ac = from_scenario(load("seed003"))
     slot = 0.1
     t = np.arange(0.0, 40.0, slot)
-    tr = trajectory.from_config(ac.trajectory, t, ac.centre_m)
+    tr = trajectory.from_config(ac.world.trajectory, t, ac.world.centre_m)
     rng = np.random.default_rng(12)
-    ests = {a: AircraftEstimator(a, EstimatorConfig(tuning=ac.tuning), x0_guess_m=ac.centre_m + [0, 0, 1000.0])
+    ests = {a: AircraftEstimator(a, EstimatorConfig(tuning=ac.nav.tuning),
+                                 x0_guess_m=ac.world.centre_m + [0, 0, 1000.0])
             for a in ("ukf-pr", "ekf-pr", "lsq-pr", "ekf-tdoa")}
     for k, tk in enumerate(t):
-        j = k % len(ac.stations_m)
-        rho = np.linalg.norm(tr.pos_m[k] - ac.stations_m[j]) + ac.clock.bias_m(tk) + ac.sigma_m * rng.standard_normal()
+        j = k % len(ac.world.stations_m)
+        rho = (np.linalg.norm(tr.pos_m[k] - ac.world.stations_m[j]) + ac.world.clock.bias_m(tk)
+               + ac.world.sigma_m * rng.standard_normal())
         for e in ests.values():
-            e.on_measurement(tk, j + 1, ac.stations_m[j], np.eye(3) * 0.01, rho)
+            e.on_measurement(tk, j + 1, ac.world.stations_m[j], np.eye(3) * 0.01, rho)
     for a, e in ests.items():
         est = e.estimate()
         assert est is not None and est["n_updates"] > 10, a
@@ -37,7 +39,7 @@ def test_estimator_api_tdma_slots_and_bad_input():
     e = ests["ukf-pr"]
     n = e.n_updates
     e.on_measurement(t[-1] + 0.1, 1, [np.nan, 0, 0], None, 1.0)
-    e.on_epoch(t[-1] + 0.2, ac.stations_m[:2], None, [1.0, 2.0, 3.0])
+    e.on_epoch(t[-1] + 0.2, ac.world.stations_m[:2], None, [1.0, 2.0, 3.0])
     assert e.n_dropped == 2 and e.n_updates == n
     with pytest.raises(ValueError):
         AircraftEstimator("pf-pr")
@@ -45,13 +47,13 @@ def test_estimator_api_tdma_slots_and_bad_input():
 
 def test_estimator_api_synchronous_epochs():
     ac = from_scenario(load("seed001"))
-    p = ac.centre_m + np.array([1000.0, 0.0, 52.4])
+    p = ac.world.centre_m + np.array([1000.0, 0.0, 52.4])
     rng = np.random.default_rng(13)
     guess = p + rng.normal(0.0, 20.0, 3)
-    e = AircraftEstimator("ukf-tdoa", EstimatorConfig(tuning=ac.tuning, guess_sigma_m=20.0), x0_guess_m=guess)
+    e = AircraftEstimator("ukf-tdoa", EstimatorConfig(tuning=ac.nav.tuning, guess_sigma_m=20.0), x0_guess_m=guess)
     for k in range(300):
-        rho = np.linalg.norm(p - ac.stations_m, axis=1) + 0.6 * k * 0.01 + 0.5 * rng.standard_normal(4)
-        e.on_epoch(k * 0.01, ac.stations_m, None, rho)
+        rho = np.linalg.norm(p - ac.world.stations_m, axis=1) + 0.6 * k * 0.01 + 0.5 * rng.standard_normal(4)
+        e.on_epoch(k * 0.01, ac.world.stations_m, None, rho)
     est = e.estimate()
     assert np.linalg.norm(np.array(est["pos_m"]) - p) < 3 * np.sqrt(np.trace(np.array(est["cov_m2"]))) + 1.0
 
@@ -59,15 +61,17 @@ def test_estimator_api_synchronous_epochs():
 def test_estimator_resets_a_broken_filter_instead_of_raising():
     ac = from_scenario(load("seed003"))
     t = np.arange(0.0, 24.0, 0.1)
-    tr = trajectory.from_config(ac.trajectory, t, ac.centre_m)
+    tr = trajectory.from_config(ac.world.trajectory, t, ac.world.centre_m)
     rng = np.random.default_rng(14)
-    e = AircraftEstimator("ukf-pr", EstimatorConfig(tuning=ac.tuning), x0_guess_m=ac.centre_m + [0, 0, 1000.0])
+    e = AircraftEstimator("ukf-pr", EstimatorConfig(tuning=ac.nav.tuning),
+                          x0_guess_m=ac.world.centre_m + [0, 0, 1000.0])
     for k, tk in enumerate(t):
-        j = k % len(ac.stations_m)
+        j = k % len(ac.world.stations_m)
         if k == 80:
             e.tracker.P = -np.eye(e.tracker.layout.n)  # corrupt: not positive definite
-        rho = np.linalg.norm(tr.pos_m[k] - ac.stations_m[j]) + ac.clock.bias_m(tk) + 0.9 * rng.standard_normal()
-        e.on_measurement(tk, j + 1, ac.stations_m[j], None, rho)
+        rho = (np.linalg.norm(tr.pos_m[k] - ac.world.stations_m[j]) + ac.world.clock.bias_m(tk)
+               + 0.9 * rng.standard_normal())
+        e.on_measurement(tk, j + 1, ac.world.stations_m[j], None, rho)
     assert e.n_resets == 1
     est = e.estimate()
     p, _ = tr.at(est["t_s"])
@@ -78,15 +82,15 @@ def test_estimator_start_does_not_depend_on_a_guess_and_node_ignores_the_truth()
     """The message-level estimator starts from the broadcasts: a different (even absurd) position
     guess gives bit-identical estimates; the node's estimators carry no guess from the truth."""
     ac = from_scenario(load("seed001"))
-    p = ac.centre_m + np.array([70.0, -40.0, 120.0])
+    p = ac.world.centre_m + np.array([70.0, -40.0, 120.0])
     rng = np.random.default_rng(5)
-    rho = [np.linalg.norm(p - ac.stations_m, axis=1) + 0.6 * k * 0.01 + 0.5 * rng.standard_normal(4)
+    rho = [np.linalg.norm(p - ac.world.stations_m, axis=1) + 0.6 * k * 0.01 + 0.5 * rng.standard_normal(4)
            for k in range(50)]
     outs = []
     for guess in (p, p + [5000.0, -3000.0, 900.0]):
-        e = AircraftEstimator("ukf-pr", EstimatorConfig(tuning=ac.tuning), x0_guess_m=guess)
+        e = AircraftEstimator("ukf-pr", EstimatorConfig(tuning=ac.nav.tuning), x0_guess_m=guess)
         for k in range(50):
-            e.on_epoch(k * 0.01, ac.stations_m, None, rho[k])
+            e.on_epoch(k * 0.01, ac.world.stations_m, None, rho[k])
         outs.append(e.estimate()["pos_m"])
         assert e.init is not None and e.init.snapshot
     assert outs[0] == outs[1]

@@ -62,13 +62,13 @@ def test_filters_reach_the_pcrb_on_a_short_hover():
     16 runs x 10 s of correlated epochs leave about +-20 % of sampling spread)."""
     ac = from_scenario(load("seed001"))
     t = np.arange(0.0, 20.0, 0.01)
-    tr = trajectory.from_config({"kind": "hover", "distance_m": 1000.0}, t, ac.centre_m)
+    tr = trajectory.from_config({"kind": "hover", "distance_m": 1000.0}, t, ac.world.centre_m)
     rng = np.random.default_rng(9)
-    rho = sim.pseudoranges(tr, ac.stations_m, ac.clock, ac.sigma_m, 16, rng)
-    P = sim.pcrb_track("pr", tr, ac.stations_m, ac.tuning, ac.clock)
+    rho = sim.pseudoranges(tr, ac.world.stations_m, ac.world.clock, ac.world.sigma_m, 16, rng)
+    P = sim.pcrb_track("pr", tr, ac.world.stations_m, ac.nav.tuning, ac.world.clock)
     w = t >= 10.0
     pc = np.sqrt(np.mean(np.trace(P[w], axis1=1, axis2=2)))
     for algo in ("ekf-pr", "ukf-pr"):
-        res = sim.run_algo(algo, tr, ac.stations_m, rho, ac.tuning, ac.clock, rng)
+        res = sim.run_algo(algo, tr, ac.world.stations_m, rho, ac.nav.tuning, ac.world.clock, rng)
         rmse = sim.rms_total(res.err_m[:, w])
         assert 0.6 * pc < rmse < 1.25 * pc, (algo, rmse, pc)

@@ -241,12 +241,12 @@ def _ekf_pr_over(ac, track, xt, t, tun, runs: int, seed: int):
     from aircraft.navigator.radio import models as mdl
 
     rng = np.random.default_rng(seed)
-    rho = sim.pseudoranges(track, ac.stations_m, ac.clock, ac.sigma_m, runs, rng)
+    rho = sim.pseudoranges(track, ac.world.stations_m, ac.world.clock, ac.world.sigma_m, runs, rng)
     x0 = xt[0] + rng.standard_normal((runs, 8)) @ np.linalg.cholesky(tun.prior_cov(mdl.StateLayout("pr", drift=True))).T
     trk = CvTracker("ekf", "pr", x0, tun)
     for k in range(t.size):
         trk.predict_to(float(t[k]))
-        trk.update(ac.stations_m, rho[k])
+        trk.update(ac.world.stations_m, rho[k])
     return trk
 
 
@@ -260,13 +260,13 @@ def test_hover_overhead_height_does_not_drift_with_the_lagged_height_column():
     from larns.bench import envelope as env
 
     ac = from_scenario(load("seed001"))
-    t = np.arange(0.0, 10.0, 1.0 / ac.rate_hz)
+    t = np.arange(0.0, 10.0, 1.0 / ac.world.rate_hz)
     track = env._tracks(ac, env.points((100.0,), (0.0,), (225.0,), ("hover",)), t)[0]
     lay = mdl.StateLayout("pr", drift=True)
-    xt = sim.true_state(track, ac.clock, lay)
+    xt = sim.true_state(track, ac.world.clock, lay)
     out = {}
     for lag in (2.0, 0.0):
-        trk = _ekf_pr_over(ac, track, xt, t, ac.tuning if lag else ac.tuning.without("lag"), 24, 2)
+        trk = _ekf_pr_over(ac, track, xt, t, ac.nav.tuning if lag else ac.nav.tuning.without("lag"), 24, 2)
         out[lag] = float(np.mean(trk.x[:, 2] - xt[-1, 2]))
     assert abs(out[2.0]) < 8.0 and out[0.0] > 15.0, out
 
@@ -282,16 +282,17 @@ def test_symmetry_plane_no_drift_along_the_unobservable_direction():
     from larns.bench import envelope as env
 
     ac = from_scenario(load("seed001"))
-    t = np.arange(0.0, 10.0, 1.0 / ac.rate_hz)
+    t = np.arange(0.0, 10.0, 1.0 / ac.world.rate_hz)
     track = env._tracks(ac, env.points((50.0,), (100.0,), (180.0,), ("hover",)), t)[0]
     lay = mdl.StateLayout("pr", drift=True)
-    xt = sim.true_state(track, ac.clock, lay)
-    Hpb = mdl.jac_pr(xt[-1][None], ac.stations_m)[0][:, [0, 1, 2, 6]]
+    xt = sim.true_state(track, ac.world.clock, lay)
+    Hpb = mdl.jac_pr(xt[-1][None], ac.world.stations_m)[0][:, [0, 1, 2, 6]]
     null = np.linalg.svd(Hpb)[2][-1]  # the truth's unobservable (x, y, z, b) direction (test side only)
     assert np.linalg.norm(Hpb @ null) < 1e-9
     out = {}
     for mode in ("weakest", "height"):
-        trk = _ekf_pr_over(ac, track, xt, t, ac.tuning if mode == "weakest" else ac.tuning.without("weakest"), 48, 5)
+        tu = ac.nav.tuning if mode == "weakest" else ac.nav.tuning.without("weakest")
+        trk = _ekf_pr_over(ac, track, xt, t, tu, 48, 5)
         e = (trk.x - xt[-1])[:, [0, 1, 2, 6]] @ null
         out[mode] = abs(float(np.mean(e)))
     assert out["weakest"] < 0.5 * out["height"] and out["height"] > 10.0, out

@@ -52,7 +52,7 @@ def test_envelope_pcrb_matches_the_per_track_bound():
     for model in ("pr", "tdoa"):
         got = _pcrb(model, trs, ac, win)
         for i, tr in enumerate(trs):
-            P = sim.pcrb_track(model, tr, ac.stations_m, ac.tuning, ac.clock)
+            P = sim.pcrb_track(model, tr, ac.world.stations_m, ac.nav.tuning, ac.world.clock)
             assert got[i] == pytest.approx(np.sqrt(np.mean(np.trace(P[win], axis1=1, axis2=2))), rel=1e-9)
 
 

@@ -73,11 +73,13 @@ def test_the_aircraft_and_vehicle_wrappers_count_by_reason():
     from vehicle.navigator import plausible as vp
 
     scn = load("seed000")
-    ac = from_scenario(scn)
+    bounds = from_scenario(scn).nav.field_bounds  # the navigator's: the deployment plan
+    assert bounds == bounds_for(scn.pos_m)
     stats: Counter = Counter()
-    assert not ap.refuse(_nav(pos_m=scn.pos_m[1].tolist()), T, ac, stats) and not stats
-    assert ap.refuse(_nav(pos_m=[1e12, 0.0, 0.0]), T, ac, stats) and stats == {"implausible_pos": 1}
-    assert ap.refuse(_nav(), T + 1e6, ac, stats, clock=scn.clock) and stats["implausible_time"] == 1
+    assert not ap.refuse(_nav(pos_m=scn.pos_m[1].tolist()), T, bounds, stats) and not stats
+    assert ap.refuse(_nav(pos_m=[1e12, 0.0, 0.0]), T, bounds, stats) and stats == {"implausible_pos": 1}
+    assert ap.refuse(_nav(), T + 1e6, NavBounds.of_scenario(scn), stats) and stats["implausible_time"] == 1
+    assert ap.unusable(_nav(state="listening"), T, bounds, stats) and stats["nav_unusable_state"] == 1
     rec = vehicle_map(scn, None, None)
     vs: Counter = Counter()
     assert not vp.refuse(_nav(pos_m=scn.pos_m[1].tolist()), T, rec, vs)

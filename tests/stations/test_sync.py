@@ -387,7 +387,7 @@ def test_aircraft_pseudorange_error_equals_the_station_sync_error_times_c():
         phy = {"pos_m": scn.true_pos(5).tolist(), "t_true_s": tau_tx}
         t_rx, rho, p, _ = core.measure(phy, msg)
         r = np.linalg.norm(p - scn.true_pos(5))
-        err = rho - r - ac.clock.bias_m(t_rx)
+        err = rho - r - ac.world.clock.bias_m(t_rx)
         # c x the residual sync error; network time runs at station 1's rate (r x its ppm-level drift)
         assert err == pytest.approx(C * sync_err, abs=r * 1e-5 + 1e-6)
         assert core.clock_var_m2(msg) == pytest.approx(C**2 * (4e-18 + 2 * 0.3 * 1e-19 + 0.09 * 1e-20))
