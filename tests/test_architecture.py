@@ -232,3 +232,167 @@ def test_no_function_above_cyclomatic_complexity_25():
                     if b.complexity > 25:
                         over.append(f"{path.relative_to(ROOT)}:{b.lineno} {b.name} {b.complexity}")
     assert not over, over
+
+
+# --------------------------------------------------------------------------- what the navigator knows
+# aircraft/config.py splits the aircraft's configuration into the world's part (true station positions,
+# trajectory, receiver clock, channel) and the navigator's (NavigatorConfig). The navigator's part holds
+# scalars and names only: a position needs several numbers, so a field that can hold an array, a list,
+# a mapping, a tuple of numbers or an arbitrary object is refused, as is a field whose name says truth.
+SCALAR_TYPES = (str, int, float, bool, type(None))
+TRUTH_WORDS = ("station", "centre", "center", "world", "truth", "trajector", "radio")
+# names a configuration or scenario object goes by; the navigator reads no position through them
+CONFIG_NAMES = {"ac", "acfg", "aircraft_config", "cfg", "config", "conf", "world", "sc", "scn", "scenario"}
+POSITION_ATTRS = {"stations_m", "centre_m", "pos_m", "true_pos"}
+
+
+def knowledge_leaks(cls, path: str = "", localns: dict | None = None) -> list[str]:
+    """Fields of the dataclass ``cls``, recursively through the dataclasses it holds, that could carry a
+    true position or the world: a name with a word of :data:`TRUTH_WORDS`, or a type other than a
+    scalar, ``X | None`` of one, ``tuple[str, ...]`` or a dataclass (checked in turn). ``localns``: the
+    names a class defined in a function annotates with."""
+    import dataclasses
+    import types
+    import typing
+
+    out = []
+    hints = typing.get_type_hints(cls, localns=localns)
+    for f in dataclasses.fields(cls):
+        name, hint = f"{path}{f.name}", hints[f.name]
+        if any(w in f.name.lower() for w in TRUTH_WORDS):
+            out.append(f"{name}: its name says truth")
+        args = [a for a in typing.get_args(hint) if a is not type(None)]
+        if typing.get_origin(hint) in (typing.Union, types.UnionType) and len(args) == 1:
+            hint = args[0]  # X | None
+        if dataclasses.is_dataclass(hint):
+            out += knowledge_leaks(hint, name + ".", localns)
+        elif typing.get_origin(hint) is tuple and typing.get_args(hint) == (str, ...):
+            continue
+        elif hint not in SCALAR_TYPES:
+            out.append(f"{name}: type {hint} can hold a position")
+    return out
+
+
+def position_reads(src: str) -> list[tuple[int, str]]:
+    """(line, attribute chain) of every place in ``src`` that reads a position through a configuration or
+    scenario object (``ac.stations_m``, ``self.ac.world.centre_m``, ``scn.pos_m``: a name of
+    :data:`CONFIG_NAMES` in the chain before a :data:`POSITION_ATTRS` attribute), every ``.centre_m``
+    and every ``.world`` (the navigator has none), and every mention of the whole configuration's or
+    the world part's type. ``model.stations_m`` (the broadcast estimates a filter holds) passes."""
+    out = []
+    for node in ast.walk(ast.parse(src)):
+        if isinstance(node, ast.Name) and node.id in ("AircraftConfig", "AircraftWorldConfig"):
+            out.append((node.lineno, node.id))
+        if not isinstance(node, ast.Attribute):
+            continue
+        chain, base = [node.attr], node.value
+        while isinstance(base, ast.Attribute):
+            chain.append(base.attr)
+            base = base.value
+        if isinstance(base, ast.Name):
+            chain.append(base.id)
+        text = ".".join(reversed(chain))
+        if node.attr in ("centre_m", "world") or (node.attr in POSITION_ATTRS and CONFIG_NAMES & set(chain[1:])):
+            out.append((node.lineno, text))
+    return sorted(out)
+
+
+def _navigator_sources() -> list[Path]:
+    return sorted((ROOT / "aircraft" / "navigator").rglob("*.py"))
+
+
+def test_the_navigators_configuration_holds_no_truth():
+    """NavigatorConfig: scalars and names only, nothing named after the truth; the field bounds are a
+    radius and windows (the deployment plan), no station position."""
+    from aircraft.config import NavigatorConfig
+
+    assert not knowledge_leaks(NavigatorConfig), knowledge_leaks(NavigatorConfig)
+
+
+def test_the_loaded_navigator_configuration_carries_no_station_coordinate():
+    """Every scenario's loaded navigator part holds scalars only, and is the same for the same field
+    turned by 90 degrees about station 1 (same planned area, every station elsewhere): it depends on the
+    layout through the deployment area's extent alone. The world part holds the truth."""
+    import dataclasses
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from aircraft.config import from_scenario
+    from net.scenario import load
+
+    def leaves(obj):
+        if dataclasses.is_dataclass(obj):
+            for f in dataclasses.fields(obj):
+                yield from leaves(getattr(obj, f.name))
+        elif isinstance(obj, (tuple, list)):
+            for x in obj:
+                yield from leaves(x)
+        else:
+            yield obj
+
+    for path in sorted((ROOT / "net" / "scenarios").glob("*.toml")):
+        sc = load(path.stem)
+        ac = from_scenario(sc)
+        vals = list(leaves(ac.nav))
+        assert all(isinstance(v, SCALAR_TYPES) for v in vals), (path.stem, vals)
+        p = np.asarray(sc.pos_m, float)
+        turned = from_scenario(SimpleNamespace(aircraft=sc.aircraft, channel=sc.channel,
+                                               pos_m=np.column_stack([-p[:, 1], p[:, 0], p[:, 2]])))
+        assert turned.nav == ac.nav, path.stem
+        assert not np.array_equal(turned.world.stations_m, ac.world.stations_m)
+        assert np.array_equal(ac.world.stations_m, sc.pos_m)
+
+
+def test_the_navigator_reads_no_position_of_a_configuration():
+    """aircraft/navigator/** never reads ``.stations_m`` / ``.centre_m`` (nor ``.pos_m``) of a
+    configuration or scenario, never reaches a ``.world``, never names the whole configuration."""
+    assert _navigator_sources()
+    bad = [f"{p.relative_to(ROOT)}:{line} {text}" for p in _navigator_sources()
+           for line, text in position_reads(p.read_text())]
+    assert not bad, "\n".join(bad)
+
+
+def test_planted_knowledge_leaks_are_found():
+    """Both checks can fail: a navigator configuration with station positions, with the world part, with
+    a tuple of numbers or a nested leak; navigator code that builds its bounds from the true stations."""
+    from dataclasses import dataclass
+
+    import numpy as np
+
+    from aircraft.config import AircraftWorldConfig, NavigatorConfig
+    from net.plausible import NavBounds
+
+    @dataclass
+    class WithStations:
+        algos: tuple[str, ...]
+        stations_m: np.ndarray
+
+    @dataclass
+    class WithWorld:
+        bounds: NavBounds
+        world: AircraftWorldConfig | None = None
+
+    @dataclass
+    class WithNumbers:
+        anchor: tuple[float, ...]
+
+    @dataclass
+    class Nested:
+        nav: NavigatorConfig
+        inner: WithNumbers
+
+    names = dict(locals())
+    assert knowledge_leaks(WithStations, localns=names) == ["stations_m: its name says truth",
+                                             "stations_m: type <class 'numpy.ndarray'> can hold a position"]
+    assert knowledge_leaks(WithWorld, localns=names)[0] == "world: its name says truth"
+    assert any("can hold a position" in s for s in knowledge_leaks(WithWorld, localns=names))
+    assert knowledge_leaks(WithNumbers, localns=names) == ["anchor: type tuple[float, ...] can hold a position"]
+    assert knowledge_leaks(Nested, localns=names) == ["inner.anchor: type tuple[float, ...] can hold a position"]
+    leak = ("def bounds_of(ac, clock=None):\n"  # the navigator's bounds from the true stations
+            "    return bounds_for(ac.stations_m)\n"
+            "def aim(self):\n    return self.ac.world.centre_m\n"
+            "def guess(cfg):\n    return cfg.centre_m + scn.pos_m[0]\n"
+            "def typed(a: AircraftConfig):\n    return model.stations_m, self.stations_m, est.pos_m\n")
+    assert position_reads(leak) == [(2, "ac.stations_m"), (4, "self.ac.world"), (4, "self.ac.world.centre_m"),
+                                    (6, "cfg.centre_m"), (6, "scn.pos_m"), (7, "AircraftConfig")]
