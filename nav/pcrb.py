@@ -141,11 +141,18 @@ def gauss_markov_block(n_bias: int, var_m2: np.ndarray | float, tau_s: float, dt
     variance ``var_m2`` (scalar or (n_bias,)) and correlation ``exp(-|t| / tau)``. ``tau_s = inf``
     gives constant biases. Returns ``(A, Qb)``, both (n_bias, n_bias) diagonal.
     """
+    a, q = gauss_markov_diag(n_bias, var_m2, tau_s, dt_s)
+    return a * np.eye(n_bias), np.diag(q)
+
+
+def gauss_markov_diag(n_bias: int, var_m2: np.ndarray | float, tau_s: float, dt_s: float
+                      ) -> tuple[float, np.ndarray]:
+    """The diagonals of :func:`gauss_markov_block`: ``a = exp(-dt / tau)`` and ``(1 - a^2) var`` (n_bias,)."""
     if not tau_s > 0:
         raise ValueError(f"Gauss-Markov correlation time must be > 0, got {tau_s}")
     a = float(np.exp(-dt_s / tau_s))
     v = np.broadcast_to(np.asarray(var_m2, dtype=float), (n_bias,))
-    return a * np.eye(n_bias), np.diag((1.0 - a * a) * v)
+    return a, (1.0 - a * a) * v
 
 
 def augment_biases(

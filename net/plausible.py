@@ -79,6 +79,24 @@ def bounds_for(stations_m, clock_offset_sigma_s: float | None = None, clock_freq
     return _cached(a.tobytes(), clock_offset_sigma_s, clock_freq_sigma, float(cycle_s))
 
 
+def cholesky3_ok(a) -> bool:
+    """Whether the Cholesky factorization of the finite symmetric 3x3 ``a`` succeeds: ``a`` is then
+    positive definite up to the factorization's backward error (a few ulp of its largest entry),
+    far inside ``lambda_min >= -1e-9 lambda_max``, so a success answers that test without an
+    eigendecomposition (a failure leaves it to one)."""
+    d0 = float(a[0, 0])
+    if not d0 > 0.0:
+        return False
+    l0 = math.sqrt(d0)
+    l10, l20 = float(a[1, 0]) / l0, float(a[2, 0]) / l0
+    d1 = float(a[1, 1]) - l10 * l10
+    if not d1 > 0.0:
+        return False
+    l1 = math.sqrt(d1)
+    l21 = (float(a[2, 1]) - l20 * l10) / l1
+    return float(a[2, 2]) - l20 * l20 - l21 * l21 > 0.0
+
+
 def cov_ok(c, bound_m2: float) -> bool:
     """A finite, symmetric, positive semi-definite 3x3 with variances in ``[0, bound_m2]``."""
     a = np.asarray(c, float)
@@ -89,7 +107,10 @@ def cov_ok(c, bound_m2: float) -> bool:
         return False
     if np.max(np.abs(a - a.T)) > 1e-9 * max(float(np.max(d)), 1e-300):
         return False
-    lam = np.linalg.eigvalsh(0.5 * (a + a.T))
+    sym = 0.5 * (a + a.T)
+    if cholesky3_ok(sym):
+        return True
+    lam = np.linalg.eigvalsh(sym)
     return bool(lam[0] >= -1e-9 * max(float(lam[-1]), 1e-300))
 
 

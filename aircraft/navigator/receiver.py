@@ -33,10 +33,14 @@ after its first exchanges to microseconds (10^3 m), and only after a few cycles 
 
 from __future__ import annotations
 
+import functools
+import math
 from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
+
+from net.plausible import cholesky3_ok
 
 
 # statuses a navigator reports (``ac_status.state``)
@@ -86,8 +90,9 @@ def unusable_reason(clock_var_m2: float, station_cov_m2: np.ndarray | None, cfg:
     return None
 
 
+@functools.lru_cache(maxsize=1024)
 def chi2_upper(p: float, dof: float) -> float:
-    """``chi2.ppf(1 - p, dof)``."""
+    """``chi2.ppf(1 - p, dof)`` (cached: the tests ask for a few (p, dof) pairs at every update)."""
     from scipy.special import chdtri  # here, not at import: the CLI starts without scipy
 
     return float(chdtri(float(dof), p))
@@ -192,7 +197,10 @@ def publishable(pos_m, cov_m2, cfg: ReceiverConfig = DEFAULT_RECEIVER) -> bool:
     P = np.asarray(cov_m2, dtype=float)
     if P.shape != (3, 3) or not np.all(np.isfinite(P)):
         return False
-    lam = np.linalg.eigvalsh(0.5 * (P + P.T))
+    sym = 0.5 * (P + P.T)
+    if cholesky3_ok(sym):  # positive definite: sum(lambda) is the trace
+        return bool(math.sqrt(float(sym[0, 0] + sym[1, 1] + sym[2, 2])) <= cfg.max_publish_sigma_m)
+    lam = np.linalg.eigvalsh(sym)
     return bool(lam[0] >= -1e-9 * max(lam[-1], 1.0) and np.sqrt(max(np.sum(lam), 0.0)) <= cfg.max_publish_sigma_m)
 
 

@@ -24,10 +24,21 @@ class Track:
     vel_m_s: np.ndarray
 
     def at(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
-        """Position and velocity at an arbitrary time (linear interpolation between samples)."""
-        p = np.array([np.interp(t_s, self.t_s, self.pos_m[:, i]) for i in range(3)])
-        v = np.array([np.interp(t_s, self.t_s, self.vel_m_s[:, i]) for i in range(3)])
-        return p, v
+        """Position and velocity at an arbitrary time: linear interpolation between samples, the
+        arithmetic of ``numpy.interp`` (``(y1 - y0) / (t1 - t0) * (t - t0) + y0``; held at the ends) on
+        the six columns at once."""
+        t = self.t_s
+        if not t[0] < t_s < t[-1]:
+            p = np.array([np.interp(t_s, t, self.pos_m[:, i]) for i in range(3)])
+            v = np.array([np.interp(t_s, t, self.vel_m_s[:, i]) for i in range(3)])
+            return p, v
+        pv = self.__dict__.get("_pv")
+        if pv is None:  # the samples side by side, (T, 6), built on first use
+            pv = self.__dict__["_pv"] = np.concatenate([self.pos_m, self.vel_m_s], axis=1)
+        j = int(np.searchsorted(t, t_s, "right")) - 1
+        y0 = pv[j]
+        y = (pv[j + 1] - y0) / (t[j + 1] - t[j]) * (t_s - t[j]) + y0
+        return y[:3], y[3:]
 
 
 def glide_height(distance_m: float | np.ndarray, glide_deg: float = GLIDE_DEG) -> np.ndarray | float:

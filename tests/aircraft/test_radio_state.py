@@ -105,3 +105,19 @@ def test_floor_moments_are_those_of_the_truncated_gaussian():
     out = fl2.moments(xs, Ps, np.zeros(1, bool), None)
     assert out[0] is xs and out[1] is Ps  # no mass below: the same objects
     assert fl.cached(x, P, np.zeros(2, bool), None)[0] is fl.cached(x, P, np.zeros(2, bool), None)[0]
+
+
+def test_one_run_floor_moments_equal_the_batched_ones_bit_for_bit():
+    """HeightFloor's one-run path (the live filters) is the batched arithmetic without the run masks."""
+    rng = np.random.default_rng(3)
+    fl = HeightFloor(0.0, 6.0)
+    for k in range(200):
+        A = rng.normal(size=(8, 8))
+        P = A @ A.T * 10.0 ** rng.uniform(-2, 3)
+        x = rng.normal(0, 30, 8)
+        inv = np.array(k % 3 == 0)
+        ref = np.array([5.0, -3.0, 0.0])
+        one = fl.moments(x, P, inv, ref)
+        many = fl.moments(x[None], P[None], inv.reshape(1), ref)
+        np.testing.assert_array_equal(one[0], many[0][0])
+        np.testing.assert_array_equal(one[1], many[1][0])

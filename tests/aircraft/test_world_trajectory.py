@@ -27,3 +27,15 @@ def test_trajectories():
     el = trajectory.ellipse(t, [15000, 0], (18000, 12000), 1000.0, 50.0)
     assert el.pos_m[0, 0] == pytest.approx(-3000.0)
     np.testing.assert_allclose(np.gradient(el.pos_m, t, axis=0)[1:-1], el.vel_m_s[1:-1], atol=1e-3)
+
+
+def test_track_at_is_numpy_interp_bit_for_bit():
+    """Track.at's six-column interpolation is np.interp's arithmetic: equal to the last bit inside,
+    at sample times and held at both ends."""
+    rng = np.random.default_rng(4)
+    t = np.cumsum(rng.uniform(0.005, 0.02, 400))
+    tr = trajectory.Track(t, rng.normal(0, 1e3, (400, 3)), rng.normal(0, 30, (400, 3)))
+    for q in np.concatenate([rng.uniform(t[0] - 1, t[-1] + 1, 500), t[:5], t[-3:], [t[0] - 5, t[-1] + 5]]):
+        p, v = tr.at(float(q))
+        np.testing.assert_array_equal(p, [np.interp(q, t, tr.pos_m[:, i]) for i in range(3)])
+        np.testing.assert_array_equal(v, [np.interp(q, t, tr.vel_m_s[:, i]) for i in range(3)])

@@ -90,3 +90,29 @@ def test_the_aircraft_and_vehicle_wrappers_count_by_reason():
     assert vp.measurement_reason(scn.pos_m[1], np.eye(3), -1.0, 500.0, 0.0, vb) == "clock"
     assert vp.measurement_reason(scn.pos_m[1], np.eye(3), 1.0, float("nan"), 0.0, vb) == "range"
     assert vp.measurement_reason([1e9, 0.0, 0.0], np.eye(3), 1.0, 500.0, 0.0, vb) == "pos"
+
+
+def test_the_cholesky_shortcut_never_contradicts_the_eigenvalue_test():
+    """cov_ok / publishable accept a covariance whose 3x3 Cholesky succeeds without an eigendecomposition:
+    over random, near-singular, rank-deficient and indefinite matrices a success always passes
+    ``lambda_min >= -1e-9 lambda_max``, and a matrix with a clearly negative eigenvalue never succeeds."""
+    from net.plausible import cholesky3_ok
+
+    rng = np.random.default_rng(7)
+    n_ok = n_neg = 0
+    for k in range(4000):
+        V = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        scale = 10.0 ** rng.uniform(-6, 6)
+        lam = scale * np.array([rng.choice([1.0, 1e-8, 1e-14, 0.0, -1e-12, -1e-6, -0.1]), rng.uniform(0.1, 1), 1.0])
+        a = (V * lam) @ V.T
+        a = 0.5 * (a + a.T)
+        w = np.linalg.eigvalsh(a)
+        if cholesky3_ok(a):
+            n_ok += 1
+            assert w[0] >= -1e-9 * w[-1], (k, lam, w)
+        if w[0] < -1e-9 * w[-1]:
+            n_neg += 1
+            assert not cholesky3_ok(a), (k, lam, w)
+    assert n_ok > 1000 and n_neg > 1000  # both branches exercised
+    assert cov_ok(np.diag([1.0, 1.0, 0.0]), 2.0)  # semi-definite: left to the eigenvalue test, passes
+    assert not cov_ok(np.diag([1.0, 1.0, -0.5]), 2.0)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from nav.pcrb import gauss_markov_block
+from nav.pcrb import gauss_markov_diag
 
 
 class ClockBiases:
@@ -30,10 +30,12 @@ class ClockBiases:
         nb, n = len(self.ids), F.shape[-1]
         if not nb:
             return F, Q
-        A, Qb = gauss_markov_block(nb, self.var, self.tau_s, dt)
-        F = np.block([[F, np.zeros((n, nb))], [np.zeros((nb, n)), A]])
-        Q = np.block([[Q, np.zeros((n, nb))], [np.zeros((nb, n)), Qb]])
-        return F, Q
+        a, qb = gauss_markov_diag(nb, self.var, self.tau_s, dt)
+        Fx, Qx = np.zeros((2, n + nb, n + nb))
+        Fx[:n, :n], Qx[:n, :n] = F, Q
+        k = np.arange(n, n + nb)
+        Fx[k, k], Qx[k, k] = a, qb
+        return Fx, Qx
 
     def use(self, x: np.ndarray, P: np.ndarray, ids, var_m2, t_s: float):
         """Bias states for the stations ``ids`` (m,) with broadcast variances ``var_m2`` (m,) at ``t_s``:

@@ -199,8 +199,12 @@ class AircraftEstimator:
         S = np.asarray(S, dtype=float)
         S = np.atleast_2d(S)
         ids = list(range(nu.size + (self.model != "pr"))) if ids is None else list(ids)
+        done = None if self.fde is None else self.fde.last_snooping
         try:
-            q, w = snooping(nu, S, fault_vectors(self.model, len(ids), self.tracker.base))
+            if done is not None and done[0] is nu and done[1] is S:  # the integrity monitor's own test
+                q, w = done[2], done[3]
+            else:
+                q, w = snooping(nu, S, fault_vectors(self.model, len(ids), self.tracker.base))
         except np.linalg.LinAlgError:
             q, w = np.inf, np.zeros(len(ids))
         why = "diverged" if self.monitor.push(float(q), nu.size, dict(zip(ids, np.atleast_1d(w).tolist()))) \

@@ -88,6 +88,11 @@ _Q_CACHE: dict = {}
 def chi2_quantile(p: float, dof) -> np.ndarray:
     """``chi2.ppf(1 - p, dof)`` for integer dof >= 1 (array), cached per (p, dof)."""
     d = np.asarray(dof, dtype=int)
+    if d.ndim == 0:  # one filter (the live aircraft): one look-up
+        key = (p, int(d))
+        if key not in _Q_CACHE:
+            _Q_CACHE[key] = float(chdtri(float(d), p))
+        return np.asarray(_Q_CACHE[key])
     u, inv = np.unique(d, return_inverse=True)
     vals = np.empty(u.shape)
     for k, v in enumerate(u):
@@ -154,6 +159,9 @@ class FilterFde:
         self.g_thr = float(chi2_quantile(cfg.p_gate, 1))
         self.streak = np.zeros(self.shape, dtype=int)  # consecutive gated updates per run
         self.dropped_updates = 0  # unbatched updates left out whole (every measurement masked)
+        # (nu, S, q, w) of the latest update's test over all its measurements (none masked), for the
+        # divergence monitor, which tests the same innovation
+        self.last_snooping: tuple | None = None
 
     def restart(self) -> None:
         """A new filter (after a reset): empty window, unarmed; the exclusions stand."""
@@ -205,6 +213,7 @@ class FilterFde:
         """``trk.update`` with the gate, the window test and exclusion; returns its (nu, S) (about the
         prior, every measurement of the batch, the masked ones with ``sigma_out_m``: the tests' view)."""
         ids = list(ids)
+        self.last_snooping = None
         masked = self.mask(ids)
         armed = self.n_updates >= self.cfg.arm_after
         drop = not self.shape and bool(masked.any())  # unbatched: masked measurements are dropped
@@ -222,6 +231,7 @@ class FilterFde:
             q, w = snooping(*kept_part(nu, S, ~masked), F)  # the tests see only what is in use
         else:
             q, w = snooping(nu, S, F)
+            self.last_snooping = (nu, S, q, w)
         w = np.where(masked, 0.0, w)
         if masked.any():
             self._readmission(trk, ids, nu, S, F, masked)

@@ -81,6 +81,8 @@ class HeightFloor:
         out = x, P
         if self.floor_z_m is None:
             return out
+        if x.ndim == 1:
+            return self._moments_one(x, P, inv, ref)
         n = x.shape[-1]
         xf, Pf = x.reshape(-1, n), P.reshape(-1, n, n)
         s2 = Pf[:, Z, Z]
@@ -96,3 +98,16 @@ class HeightFloor:
             Pf[act] = 0.5 * (Pa + np.swapaxes(Pa, -1, -2))
             out = xf.reshape(x.shape), Pf.reshape(P.shape)
         return out
+
+    def _moments_one(self, x: np.ndarray, P: np.ndarray, inv: np.ndarray, ref: np.ndarray | None):
+        """:meth:`moments` of one run (``x`` (n,), ``P`` (n, n)): the same arithmetic without the run
+        masks (the live aircraft's filters update one run at 100 Hz)."""
+        s2 = P[Z, Z]
+        a = self.depth(x, P, inv, ref)
+        if not a > -self.trunc_sigma:
+            return x, P
+        dmu, var_t = truncated_normal(a.reshape(1))
+        pc = P[:, Z]
+        x1 = x + pc * (dmu[0] / np.sqrt(s2))
+        Pa = P + pc[:, None] * pc[None, :] * ((var_t[0] - 1.0) / s2)
+        return x1, 0.5 * (Pa + Pa.T)

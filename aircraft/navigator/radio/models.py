@@ -127,10 +127,13 @@ def r_tdoa(var: np.ndarray, base: int) -> np.ndarray:
     return np.einsum("ij,...j,kj->...ik", G, var, G)
 
 
+_AX = np.arange(3)  # the three axes: position index i, velocity i + 3
+
+
 def cv_transition(n: int, dt_s: float) -> np.ndarray:
     """Constant-velocity transition (n, n) (seed 001 F_rho / F_drho); clock ``b += bdot dt`` if n == 8."""
     F = np.eye(n)
-    F[POS, VEL] = dt_s * np.eye(3)
+    F[_AX, _AX + 3] = dt_s
     if n == 8:
         F[CLOCK, CLOCK_RATE] = dt_s
     return F
@@ -144,9 +147,9 @@ def cv_noise(n: int, dt_s: float, q_acc: float, q_clock: float, q_drift: float) 
     (if ``n == 8``): random walk ``q_drift`` (m^2/s^3) integrated into the offset.
     """
     Q = np.zeros((n, n))
-    base = np.array([[dt_s**3 / 3.0, dt_s**2 / 2.0], [dt_s**2 / 2.0, dt_s]])
-    for i in range(3):
-        Q[np.ix_([i, i + 3], [i, i + 3])] = q_acc * base
+    Q[_AX, _AX] = q_acc * (dt_s**3 / 3.0)
+    Q[_AX, _AX + 3] = Q[_AX + 3, _AX] = q_acc * (dt_s**2 / 2.0)
+    Q[_AX + 3, _AX + 3] = q_acc * dt_s
     if n >= 7:
         Q[CLOCK, CLOCK] = q_clock * dt_s
     if n == 8:

@@ -151,6 +151,7 @@ class UkfUpdate:
             Dp, m = trk.lag.correction(jac, xl, J, trk.chart.inv)
             dA = np.zeros_like(J)
             dA[..., POS] = np.where(m, Dp, 0.0)
+        ut = None  # the sigma points' transform over (xl, Pl), when the update has it
         if xl is trk._x and dA is None:  # nothing truncated, no lag: the plain UKF
             x1, P1, nu, S = ukf_update(trk._x, trk._P, z, h, R, trk.params)
         else:  # statistical linearization over the truncated moments, applied to the filter's Gaussian
@@ -158,8 +159,8 @@ class UkfUpdate:
             nu, S = z - ut.mean, symmetrize(ut.cov + R)
         if tu.iterations > 1:
             def om():
-                ut = unscented_transform(h, xl, Pl, trk.params)
-                return ut.cov - np.swapaxes(ut.cross, -1, -2) @ chol_solve(Pl, ut.cross)
+                u = ut if ut is not None else unscented_transform(h, xl, Pl, trk.params)
+                return u.cov - np.swapaxes(u.cross, -1, -2) @ chol_solve(Pl, u.cross)
             mask = needs_iteration(tu.iterate_threshold, trk._x.shape[:-1], R, om)
             if np.any(mask):
                 xi, Pi = x1, P1
