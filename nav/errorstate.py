@@ -206,22 +206,3 @@ def propagate(P: np.ndarray, Phi: np.ndarray, Qd: np.ndarray) -> np.ndarray:
     """``Phi P Phi^T + Q_d``, symmetrized; (..., n, n)."""
     Pn = Phi @ P @ np.swapaxes(Phi, -1, -2) + Qd
     return 0.5 * (Pn + np.swapaxes(Pn, -1, -2))
-
-
-def scalar_update(P: np.ndarray, h: np.ndarray, r: np.ndarray | float, nu: np.ndarray
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """One scalar measurement ``z = h^T dx + v``, ``v ~ N(0, r)``, innovation ``nu`` (...,).
-
-    Gain ``K = P h / s`` with ``s = h^T P h + r`` (the 1x1 Cholesky solve is a division) and the
-    Joseph form ``(I - K h^T) P (I - K h^T)^T + r K K^T`` evaluated by rank-one terms:
-    ``P - K (Ph)^T - (Ph) K^T + (h^T P h + r) K K^T`` (valid for any gain, O(n^2)).
-
-    Returns the error-state estimate ``dx = K nu`` (..., n), the new ``P`` and ``s`` (...,).
-    """
-    Ph = np.einsum("...ij,...j->...i", P, h)
-    s = np.einsum("...i,...i->...", h, Ph) + r
-    K = Ph / s[..., None]
-    KPh = K[..., :, None] * Ph[..., None, :]
-    Pn = P - KPh - np.swapaxes(KPh, -1, -2) + s[..., None, None] * (K[..., :, None] * K[..., None, :])
-    Pn = 0.5 * (Pn + np.swapaxes(Pn, -1, -2))
-    return K * nu[..., None], Pn, s

@@ -77,10 +77,29 @@ def joseph(P: np.ndarray, K: np.ndarray, H: np.ndarray, R: np.ndarray, diagonal:
     """Joseph-form posterior covariance ``(I - K H) P (I - K H)^T + K R K^T`` (symmetrized), valid for any
     gain ``K`` (..., n, m); ``H`` (..., m, n); ``R`` (..., m, m), or with ``diagonal`` its diagonal
     (..., m) (independent measurements). The covariance update of every linear(ized) filter of the
-    tree; the scalar error-state updates use its rank-one form (:func:`nav.errorstate.scalar_update`)."""
+    tree; the scalar error-state updates use its rank-one form (:func:`scalar_update`)."""
     IKH = np.eye(P.shape[-1]) - K @ H
     KR = K * R[..., None, :] if diagonal else K @ R
     return symmetrize(IKH @ P @ np.swapaxes(IKH, -1, -2) + KR @ np.swapaxes(K, -1, -2))
+
+
+def scalar_update(P: np.ndarray, h: np.ndarray, r: np.ndarray | float, nu: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One scalar measurement ``z = h^T dx + v``, ``v ~ N(0, r)``, innovation ``nu`` (...,).
+
+    Gain ``K = P h / s`` with ``s = h^T P h + r`` (the 1x1 Cholesky solve is a division) and the
+    Joseph form ``(I - K h^T) P (I - K h^T)^T + r K K^T`` evaluated by rank-one terms:
+    ``P - K (Ph)^T - (Ph) K^T + (h^T P h + r) K K^T`` (valid for any gain, O(n^2)).
+
+    Returns the error-state estimate ``dx = K nu`` (..., n), the new ``P`` and ``s`` (...,).
+    """
+    Ph = np.einsum("...ij,...j->...i", P, h)
+    s = np.einsum("...i,...i->...", h, Ph) + r
+    K = Ph / s[..., None]
+    KPh = K[..., :, None] * Ph[..., None, :]
+    Pn = P - KPh - np.swapaxes(KPh, -1, -2) + s[..., None, None] * (K[..., :, None] * K[..., None, :])
+    Pn = 0.5 * (Pn + np.swapaxes(Pn, -1, -2))
+    return K * nu[..., None], Pn, s
 
 
 def ekf_update(x, P, z, h: Callable, H: np.ndarray, R):

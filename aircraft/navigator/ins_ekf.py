@@ -32,6 +32,7 @@ import numpy as np
 from nav import errorstate as es
 from nav import strapdown as sd
 from nav.geometry import line_of_sight
+from nav.kalman import scalar_update
 from nav.rotations import exp_so3, skew
 
 
@@ -227,7 +228,7 @@ class InsEkf:
         self.propagate()
         pred, H = model.predict(self)
         nu = np.asarray(z, dtype=float) - pred
-        dx, Pn, s = es.scalar_update(self.P, H, var_m2, nu)
+        dx, Pn, s = scalar_update(self.P, H, var_m2, nu)
         if active is not None:
             dx = np.where(active[:, None], dx, 0.0)
             Pn = np.where(active[:, None, None], Pn, self.P)

@@ -179,10 +179,10 @@ def test_nees_is_chi_square_for_true_covariance():
 
 
 def test_the_scalar_error_state_update_is_the_joseph_update_of_one_measurement():
-    """nav.errorstate.scalar_update (rank-one terms, O(n^2)) equals nav.kalman's Joseph-form update
+    """nav.kalman.scalar_update (rank-one terms, O(n^2)) equals nav.kalman's Joseph-form update
     (kf_update, joseph) for one scalar measurement, batched over runs, and joseph's diagonal form equals
     its full form."""
-    from nav.errorstate import scalar_update
+    from nav.kalman import scalar_update
     from nav.kalman import joseph
 
     rng = np.random.default_rng(11)
