@@ -343,6 +343,11 @@ def run(args) -> int:
                                         clock_bias=getattr(args, "clock_bias", None), fde=fde)
     sweep = {} if args.no_sweep else _height_sweep(ac, sweep_h, runs, duration, warmup, rng, fde)
     speed = None if args.no_speed else speed_vs_filterpy(ac, steps=100 if args.quick else 400)
+    if speed is not None:
+        from .livecpu import live_core_cpu
+
+        _progress("live core CPU")
+        speed["live_core"] = live_core_cpu(sc, ac, seconds=5.0 if args.quick else 20.0)
     wall = time.perf_counter() - t_start
 
     out = _assemble(res, sweep, speed, runs, duration, warmup, args, ac, wall,
@@ -466,6 +471,12 @@ def _print_table(out: dict) -> None:
         if sp.get("ours_single_iterated_s_per_update"):
             print(f"  ours single with the bench tuning ({sp['iterations']} update passes): "
                   f"{sp['ours_single_iterated_s_per_update'] * 1e6:.0f} us")
+        lc = sp.get("live_core")
+        if lc:
+            print(f"Live core (larns/bench/livecpu.py, no Zenoh shell), {lc['broadcasts_per_s']:.0f} broadcasts/s: "
+                  f"{' + '.join(lc['algos'])} {lc['all_pct_of_core']:.1f} % of one core "
+                  f"({lc['messages_per_s']:.0f} messages/s); alone: "
+                  + ", ".join(f"{a} {v:.1f} %" for a, v in lc["each_pct_of_core"].items()))
     bar = out["bar"]
     BAR = bar["factor"]  # noqa: N806
     print(f"\nBar: RMSE <= {BAR} x PCRB for ekf-pr and ukf-pr at every point: "

@@ -23,4 +23,7 @@ def test_bench_aircraft_quick_smoke(tmp_path):
     assert out["height_m"]["hover"]["1000"] == pytest.approx(1000 * np.tan(np.radians(3)))
     assert out["samples"]["hover"]["1000"] > 0
     assert out["speed"]["max_rel_state_diff"] < 1e-9
+    lc = out["speed"]["live_core"]  # the live core at seed001's 100 broadcasts/s: every algorithm published
+    assert lc["broadcasts_per_s"] == pytest.approx(100.0) and set(lc["each_pct_of_core"]) == set(lc["algos"])
+    assert lc["messages_per_s"] > 3 * lc["broadcasts_per_s"] and 0 < lc["all_pct_of_core"] < 400
     assert (tmp_path / "aircraft_fig4_hover.png").stat().st_size > 1000
