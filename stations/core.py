@@ -615,6 +615,11 @@ class StationCore:
         for p in sorted(mem):
             if p in self.datum_ref and p in self.peers:
                 sets.append((*self.peers[p], self.datum_ref[p]))
+        # a carrier that fell silent is static: it is still where its last broadcast put it, so that
+        # broadcast stays one of the datum's points and a departure leaves the datum as it was
+        for p in sorted(self.datum_ref.keys() - mem - {self.id}):
+            if p in self.peers:
+                sets.append((*self.peers[p], self.datum_ref[p]))
         if len(sets) < self.cfg.datum_quorum:
             return
         t_m, w_rad = rigid_motion(*(np.stack(a) for a in zip(*sets)))

@@ -36,11 +36,29 @@ def test_founders_hand_the_frame_to_the_field(world):
 @pytest.mark.parametrize("gone", [1, 2, 3, 7])
 def test_removing_any_station_moves_no_one(world, gone):
     scn, _, base = world
-    r = Simulator(scn, stop_s={gone: 60.0}).run(100.0, [100.0])
+    sim = Simulator(scn, stop_s={gone: 60.0})
+    r = sim.run(100.0, [100.0])
     keep = np.array([i != gone for i in scn.ids])
     move = np.abs(r.pos_m[0, keep] - base.pos_m[1, keep]).max()
     assert move < MOVE_TOL_M, move
     assert np.isnan(r.pos_m[0, ~keep]).all()  # it did leave
+    # it is static: every survivor keeps it in the datum's fit, at its last broadcast (where it was)
+    for c in (c for c in sim.cores if c.id != gone):
+        assert gone not in c.members(c.clk.local_time(100.0)) and gone in c.datum_ref, c.id
+        assert np.abs(c.peers[gone][0] - base.pos_m[0, ~keep][0]).max() < MOVE_TOL_M, c.id
+
+
+def test_a_departed_carrier_leaves_the_fit_when_it_speaks_again(world):
+    scn, _, base = world
+    sim = Simulator(scn, stop_s={7: 60.0}, restart_s={7: 75.0})
+    sim.run(74.0, [74.0])
+    assert all(7 in c.datum_ref for c in sim.cores if c.id != 7)  # silent, still a point of the datum
+    sim.run(78.0, [78.0])
+    # a restarted station is an ordinary joiner: no carrier (no reference) until it converges again
+    assert not any(7 in c.datum_ref for c in sim.cores if c.id != 7)
+    r = sim.run(100.0, [100.0])
+    keep = np.array([i != 7 for i in scn.ids])
+    assert np.abs(r.pos_m[0, keep] - base.pos_m[1, keep]).max() < MOVE_TOL_M  # and it moved no one
 
 
 def test_restarted_founder_resurveys_to_its_true_position(world):
