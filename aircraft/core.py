@@ -4,8 +4,9 @@ Three sans-I/O cores hold world + navigator + journal each: the radio aircraft
 (:class:`aircraft.radio_core.RadioAircraftCore`), the inertial one (``--imu``,
 :class:`aircraft.ins_core.InsAircraftCore`) and the triad (``--satellites``,
 :class:`aircraft.triad_core.TriadAircraftCore`). :func:`make_core` picks one by configuration; the
-node holds exactly one and never asks which kind it is. What a core returns are the wire's message
-dicts (``ac_truth``, ``ac_estimate``, ``ac_status``, the journal's ``ac_init`` / ``ac_input``).
+node holds exactly one and never asks which kind it is. What a core returns are typed events
+(:mod:`aircraft.events`: ``ac_truth``, ``ac_estimate``, ``ac_status``, the journal's ``ac_init`` /
+``ac_input``); the node turns them into the wire's dicts (``to_msg``) as it publishes them.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import numpy as np
 from nav.geometry import range_jacobian
 from net import streams
 
+from .events import AcEstimate, AcEvent, AcTruth
 from .journal import AcJournal
 from .navigator import receiver as rx
 
@@ -26,9 +28,9 @@ class AircraftCore(Protocol):
     """A live aircraft core as the node drives it.
 
     * ``on_nav(msg, phy)``: one decoded station broadcast (with its true ``phy`` from the channel) ->
-      the messages to publish (``ac_truth``, ``ac_estimate``, ``ac_status``; not the journal's);
+      the events to publish (``AcTruth``, ``AcEstimate``, ``AcStatus``; not the journal's);
     * ``tick(t_s)``: between broadcasts, at fleet time ``t_s`` (already ``lag_s`` behind): integrate
-      up to it and return the messages due (an inertial core's journal; the radio core: none);
+      up to it and return the events due (an inertial core's journal; the radio core: none);
     * ``journal``: the navigator's pending journal (``ac_init`` / ``ac_input``; ``None``: none), which
       the node publishes after each broadcast's messages and closes at exit;
     * ``status_line(t_s)``: the body of the periodic status line (``None``: nothing to say yet);
@@ -49,9 +51,9 @@ class AircraftCore(Protocol):
     @property
     def step_s(self) -> float: ...  # the node's inbox wait, s
 
-    def on_nav(self, msg: dict, phy: dict) -> list[dict]: ...
+    def on_nav(self, msg: dict, phy: dict) -> list[AcEvent]: ...
 
-    def tick(self, t_s: float) -> list[dict]: ...
+    def tick(self, t_s: float) -> list[AcEvent]: ...
 
     def status_line(self, t_s: float) -> str | None: ...
 
@@ -79,8 +81,8 @@ class InertialCore:
     def step_s(self) -> float:
         return self.tn.dt_s
 
-    def tick(self, t_s: float) -> list[dict]:
-        """Integrate every IMU step that ends by ``t_s``; the journal's messages now due."""
+    def tick(self, t_s: float) -> list[AcEvent]:
+        """Integrate every IMU step that ends by ``t_s``; the journal's events now due."""
         self.advance_to(t_s)
         return self.journal.take()
 
@@ -96,7 +98,8 @@ class InertialCore:
                 f"meas={self.stats['measurements']} err {self.algo}={np.linalg.norm(e.p[0] - pt):.1f}m "
                 f"late={self.stats['nav_bad_or_late']}")
 
-    def station_update(self, t_rx: float, s_m: np.ndarray, cov_m2: np.ndarray, cvar: float, rho: float) -> list[dict]:
+    def station_update(self, t_rx: float, s_m: np.ndarray, cov_m2: np.ndarray, cvar: float, rho: float
+                       ) -> list[AcEvent]:
         """The navigator's update with one station pseudorange ``rho`` received at ``t_rx`` (IMU
         integrated into the step that contains it) from ``s_m`` (3,) with covariance ``cov_m2`` (3, 3):
         its variance the nominal range variance, the station's along the line of sight and ``cvar``
@@ -108,23 +111,31 @@ class InertialCore:
         var = self.tn.sigma_range_m**2 + float(u @ cov_m2 @ u) + cvar
         self.ekf.pseudorange(t_rx, s_m, np.array([rho]), var)
         self.stats["measurements"] += 1
-        est = self.estimate_msg()
-        if not rx.publishable(est["pos_m"], est["cov_m2"]):
+        est = self.estimate_event()
+        if not rx.publishable(est.pos_m, est.cov_m2):
             return self.status(t_rx, rx.NO_FIX)
         return [est] + self.status(t_rx, rx.TRACKING)
 
-    def status(self, t_s: float, state: str, detail: str | None = None) -> list[dict]:
+    def status(self, t_s: float, state: str, detail: str | None = None) -> list[AcEvent]:
         """The navigator's ``ac_status`` when due (aircraft/navigator/receiver.py StatusPacer)."""
         if not self._pacer.due(self.algo, state, t_s):
             return []
-        return [rx.status_msg(self.name, self.seq, self.algo, t_s, state, self.stats, detail)]
+        return [rx.status_event(self.name, self.seq, self.algo, t_s, state, self.stats, detail)]
 
-    def truth_msg(self, t_rx: float) -> dict[str, Any]:
+    def truth_event(self, t_rx: float) -> AcTruth:
         """World side: the ``ac_truth`` record of a measured broadcast (identifies it for re-flight)."""
         pt, vt, _ = self.truth_n(t_rx)
         self.seq["ac_truth"] += 1
-        return {"kind": "ac_truth", "src": self.name, "seq": self.seq["ac_truth"], "stamp_s": t_rx, "t_s": t_rx,
-                "pos_m": pt.tolist(), "vel_m_s": vt.tolist()}
+        return AcTruth(self.name, self.seq["ac_truth"], t_rx, pt.tolist(), vt.tolist())
+
+    def estimate_event(self) -> AcEstimate:
+        """The navigator's estimate: position, velocity and their covariances, and the subclass's
+        :meth:`extra` scalars."""
+        e = self.ekf
+        self.seq["ac_estimate"] += 1
+        return AcEstimate(self.name, self.seq["ac_estimate"], float(e.t_s), self.algo, e.p[0].tolist(),
+                          e.P[0, :3, :3].tolist(), int(e.n_updates), vel_m_s=e.v[0].tolist(),
+                          vel_cov=e.P[0, 3:6, 3:6].tolist(), extra=self.extra())
 
     def summary(self) -> dict[str, Any]:
         """Measurements and, once started, the estimate against the truth with the IMU steps run and due."""

@@ -222,7 +222,7 @@ class InsAircraftCore(InertialCore):
         """One draw of the channel's timing noise of sigma ``sigma_m`` (m)."""
         return sigma_m * float(self.rng.standard_normal())
 
-    def on_nav(self, msg: dict, phy: dict) -> list[dict]:
+    def on_nav(self, msg: dict, phy: dict) -> list[AcEvent]:
         """One nav broadcast -> ``ac_truth`` + the ``ac_estimate`` of ``ins-ekf`` (with attitude in
         ``extra``). World side: the channel layer; the navigator gets (and the journal records) only
         the broadcasts it can still use (not late for its IMU time)."""
@@ -246,10 +246,10 @@ class InsAircraftCore(InertialCore):
         # variance above the nominal sigma_m (known to the receiver from its SNR)
         cvar = broadcast_clock_var_m2(msg) + link_var_m2(sigma, self.ac.nav.sigma_range_m)
         self.journal.m(t_rx, int(msg["src"]), msg["pos_m"], cov, cvar, rho)
-        return [self.truth_msg(t_rx)] + self.measurement(float(t_rx), int(msg["src"]), msg["pos_m"], cov, cvar,
+        return [self.truth_event(t_rx)] + self.measurement(float(t_rx), int(msg["src"]), msg["pos_m"], cov, cvar,
                                                            float(rho))
 
-    def measurement(self, t_rx: float, src: int, pos_m, cov_m2, cvar: float, rho: float) -> list[dict]:
+    def measurement(self, t_rx: float, src: int, pos_m, cov_m2, cvar: float, rho: float) -> list[AcEvent]:
         """Navigator side: one measured broadcast (a journal ``m`` entry) -> ``ac_estimate`` / ``ac_status``."""
         s = np.asarray(pos_m, dtype=float)
         cov = np.asarray(cov_m2, dtype=float)
@@ -260,15 +260,12 @@ class InsAircraftCore(InertialCore):
         self.advance_to(t_rx + self.tn.dt_s)  # the step that contains t_rx
         return self.station_update(t_rx, s, cov, cvar, rho)
 
-    def estimate_msg(self) -> dict[str, Any]:
+    def extra(self) -> dict[str, float]:
+        """The estimate's ``extra`` scalars: attitude, clock, IMU steps, start time (and the tilt)."""
         e = self.ekf
         roll, pitch, yaw = euler_from_dcm(e.C[0])
         extra = {"roll_rad": float(roll), "pitch_rad": float(pitch), "yaw_rad": float(yaw),
                  "clock_m": float(e.clk[0, 0]), "imu_steps": float(self.imu_steps), "t0_s": self.t0_s}
         if e.L.tilt:
             extra.update(tilt_1=float(e.tau[0, 0]), tilt_2=float(e.tau[0, 1]))
-        self.seq["ac_estimate"] += 1
-        return {"kind": "ac_estimate", "src": self.name, "seq": self.seq["ac_estimate"], "stamp_s": float(e.t_s),
-                "t_s": float(e.t_s), "pos_m": e.p[0].tolist(), "cov_m2": e.P[0, :3, :3].tolist(),
-                "vel_m_s": e.v[0].tolist(), "vel_cov": e.P[0, 3:6, 3:6].tolist(), "algo": "ins-ekf",
-                "n_updates": int(e.n_updates), "extra": extra}
+        return extra

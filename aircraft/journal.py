@@ -34,6 +34,8 @@ from typing import Any, Iterable
 
 import numpy as np
 
+from .events import JournalEvent
+
 #: the init record is re-sent after this many inputs (as a station re-sends ``core_init``)
 INIT_EVERY_INPUTS = 10
 FLUSH_S = 1.0      # an ``ac_input`` at least once per second of fleet time ...
@@ -56,7 +58,7 @@ class AcJournal:
         self._items = 0
         self._t_first: float | None = None
         self._t_last = 0.0
-        self._ready: list[dict] = [self._msg("ac_init", 0.0, record=record)]
+        self._ready: list[JournalEvent] = [self._event("ac_init", 0.0, record=record)]
 
     def _add(self, t_s: float, n: int) -> None:
         if self._t_first is None:
@@ -90,22 +92,22 @@ class AcJournal:
     def flush(self) -> None:
         if not self.entries:
             return
-        self._ready.append(self._msg("ac_input", self._t_last, entries=self.entries))
+        self._ready.append(self._event("ac_input", self._t_last, entries=self.entries))
         self.entries, self._items, self._t_first = [], 0, None
         if self.seq["ac_input"] % INIT_EVERY_INPUTS == 0:
-            self._ready.append(self._msg("ac_init", self._t_last, record=self.record))
+            self._ready.append(self._event("ac_init", self._t_last, record=self.record))
 
-    def take(self) -> list[dict]:
+    def take(self) -> list[JournalEvent]:
         out, self._ready = self._ready, []
         return out
 
-    def close(self) -> list[dict]:
+    def close(self) -> list[JournalEvent]:
         self.flush()
         return self.take()
 
-    def _msg(self, kind: str, stamp_s: float, **fields: Any) -> dict:
+    def _event(self, kind: str, stamp_s: float, **fields: Any) -> JournalEvent:
         self.seq[kind] += 1
-        return {"kind": kind, "src": self.name, "seq": self.seq[kind], "stamp_s": float(stamp_s), **fields}
+        return JournalEvent(kind, self.name, self.seq[kind], float(stamp_s), fields)
 
 
 # --------------------------------------------------------------------------- replay
@@ -175,7 +177,7 @@ def can_run(record: dict[str, Any], algo: str) -> bool:
 def replay(record: dict[str, Any], name: str, entries: list[list], algos: Iterable[str] | None = None
            ) -> tuple[list[dict], str | None, float | None]:
     """Re-run the navigator of ``record`` on the journal ``entries`` (in order); returns the messages
-    it published (``ac_estimate``, ``ac_status``; not validated), why it stopped early if it did (a
+    it published (``ac_estimate``, ``ac_status`` as the wire's dicts; not validated), why it stopped early if it did (a
     :class:`JournalHole`: a sample it needed was lost) and the reception time of the last
     measurement it handled."""
     algos = tuple(algos) if algos else algos_of(record)
@@ -187,7 +189,7 @@ def replay(record: dict[str, Any], name: str, entries: list[list], algos: Iterab
     try:
         for e in entries:
             if e[0] == "m":
-                out += nav.measurement(*e[1:])
+                out += [ev.to_msg() for ev in nav.measurement(*e[1:])]
                 t_last = e[1]
             elif e[0] == "imu" and not radio:
                 nav.step_to(e[1] + len(e[2]))

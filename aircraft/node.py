@@ -114,16 +114,18 @@ class AircraftNode:
             return
         self._publish(outs + self._journal_msgs())
 
-    def _journal_msgs(self, close: bool = False) -> list[dict]:
-        """The navigator's journal messages that are due (all of them at ``close``)."""
+    def _journal_msgs(self, close: bool = False) -> list:
+        """The navigator's journal events that are due (all of them at ``close``)."""
         j = self.core.journal
         if j is None:
             return []
         return j.close() if close else j.take()
 
-    def _publish(self, outs: list[dict]) -> None:
+    def _publish(self, events: list) -> None:
+        """The core's events (aircraft/events.py) as the wire's messages."""
         M = self.M
-        for m in outs:
+        for ev in events:
+            m = ev.to_msg()
             try:
                 # the journal waits for room (a hole would stop its offline re-flight there); the rest drops
                 self.bus.publish(M.key_for(m), M.encode(m), block=m["kind"] in ("ac_init", "ac_input"))

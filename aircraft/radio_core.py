@@ -31,6 +31,7 @@ import numpy as np
 from net.clock import broadcast_clock_var_m2
 from net.radio import link_var_m2, reception_sigma_m
 
+from .events import AcEstimate, AcEvent, AcTruth
 from .journal import AcJournal
 from .navigator import receiver as rx
 from .world import radio as wradio
@@ -107,7 +108,7 @@ class RadioAircraftCore:
         """Broadcast clock variance at the transmit time as a range variance, m^2."""
         return broadcast_clock_var_m2(msg)
 
-    def on_nav(self, msg: dict, phy: dict) -> list[dict]:
+    def on_nav(self, msg: dict, phy: dict) -> list[AcEvent]:
         """One station nav broadcast -> ``ac_truth`` + one ``ac_estimate`` per algorithm that has one."""
         from .navigator import plausible  # an implausible nav never reaches the channel or a filter
 
@@ -128,15 +129,17 @@ class RadioAircraftCore:
             self.stats["nav_bad"] += 1
             return []
         self.stats["measurements"] += 1
-        out = [self._msg("ac_truth", t_s=t_rx, pos_m=p_true.tolist(), vel_m_s=self.track.at(t_rx)[1].tolist())]
+        self.seq["ac_truth"] += 1
+        out: list[AcEvent] = [AcTruth(self.name, self.seq["ac_truth"], t_rx, p_true.tolist(),
+                                      self.track.at(t_rx)[1].tolist())]
         if self.journal is not None:
             self.journal.m(t_rx, int(msg["src"]), msg["pos_m"], st_cov, cvar, rho)
         return out + self.measurement(t_rx, int(msg["src"]), msg["pos_m"], st_cov, cvar, rho)
 
-    def measurement(self, t_rx: float, src: int, pos_m, st_cov, cvar: float, rho: float) -> list[dict]:
+    def measurement(self, t_rx: float, src: int, pos_m, st_cov, cvar: float, rho: float) -> list[AcEvent]:
         """Navigator side: one measured broadcast (a journal ``m`` entry) -> ``ac_estimate`` /
-        ``ac_status`` messages."""
-        out: list[dict] = []
+        ``ac_status`` events."""
+        out: list[AcEvent] = []
         st_cov = np.asarray(st_cov, float)
         for algo, est in self.estimators.items():
             n = est.n_updates
@@ -145,25 +148,23 @@ class RadioAircraftCore:
             state = est.status
             if e is not None and not rx.publishable(e["pos_m"], e["cov_m2"], est.cfg.receiver or rx.DEFAULT_RECEIVER):
                 e, state = None, rx.NO_FIX
-            out.extend(self._status_msgs(algo, t_rx, state, est))
+            out.extend(self._status_events(algo, t_rx, state, est))
             if e is None:
                 continue
-            m = self._msg("ac_estimate", t_s=float(e["t_s"]), pos_m=e["pos_m"], cov_m2=np.asarray(e["cov_m2"]).tolist(),
-                          algo=algo, n_updates=int(e["n_updates"]))
-            if e["vel_m_s"] is not None:
-                m["vel_m_s"] = e["vel_m_s"]
-            m.update(integrity_fields(e))
-            out.append(m)
+            self.seq["ac_estimate"] += 1
+            out.append(AcEstimate(self.name, self.seq["ac_estimate"], float(e["t_s"]), algo, e["pos_m"],
+                                  np.asarray(e["cov_m2"], float).tolist(), int(e["n_updates"]),
+                                  vel_m_s=e["vel_m_s"], **integrity_fields(e)))
         return out
 
-    def _status_msgs(self, algo: str, t_s: float, state: str, est) -> list[dict]:
+    def _status_events(self, algo: str, t_s: float, state: str, est) -> list[AcEvent]:
         """An ``ac_status`` when an algorithm's state changes, and once per second of fleet time: what
         the navigator is doing when it publishes no estimate (docs/aircraft.md "Cold start")."""
         if not self._pacer.due(algo, state, t_s):
             return []
-        return [rx.status_msg(self.name, self.seq, algo, t_s, state, {**self.stats, **est.stats})]
+        return [rx.status_event(self.name, self.seq, algo, t_s, state, {**self.stats, **est.stats})]
 
-    def tick(self, t_s: float) -> list[dict]:
+    def tick(self, t_s: float) -> list[AcEvent]:
         """Nothing to do between broadcasts (the journal goes out with them)."""
         return []
 
@@ -192,9 +193,6 @@ class RadioAircraftCore:
                                                                        if e.get("excluded") else {})}
         return out
 
-    def _msg(self, kind: str, **fields: Any) -> dict:
-        self.seq[kind] += 1
-        return {"kind": kind, "src": self.name, "seq": self.seq[kind], "stamp_s": float(fields["t_s"]), **fields}
 
 
 def radio_record(nav, algos) -> dict:

@@ -227,7 +227,7 @@ class TriadAircraftCore(InertialCore):
         j = ids.index(src)
         return t.stations_m[j], t.cov_m2[j]
 
-    def on_nav(self, msg: dict, phy: dict) -> list[dict]:
+    def on_nav(self, msg: dict, phy: dict) -> list[AcEvent]:
         """One nav broadcast -> ``ac_truth`` + the ``ac_estimate`` of ``triad``."""
         from .navigator import plausible  # an implausible nav never reaches the channel or a filter
 
@@ -252,9 +252,9 @@ class TriadAircraftCore(InertialCore):
         # variance above the nominal sigma_m (known to the receiver from its SNR)
         cvar = broadcast_clock_var_m2(msg) + link_var_m2(sigma, self.ac.nav.sigma_range_m)
         self.journal.m(t_rx, src, msg["pos_m"], cov_l, cvar, rho)
-        return [self.truth_msg(t_rx)] + self.measurement(float(t_rx), src, msg["pos_m"], cov_l, cvar, float(rho))
+        return [self.truth_event(t_rx)] + self.measurement(float(t_rx), src, msg["pos_m"], cov_l, cvar, float(rho))
 
-    def measurement(self, t_rx: float, src: int, pos_m, cov_m2, cvar: float, rho: float) -> list[dict]:
+    def measurement(self, t_rx: float, src: int, pos_m, cov_m2, cvar: float, rho: float) -> list[AcEvent]:
         """Navigator side: one measured broadcast (a journal ``m`` entry) -> ``ac_estimate`` / ``ac_status``."""
         self._broadcast[src] = (np.asarray(pos_m, dtype=float), np.asarray(cov_m2, dtype=float))
         self.advance_to(t_rx + self.tn.dt_s)  # the step that contains t_rx
@@ -269,17 +269,13 @@ class TriadAircraftCore(InertialCore):
             return []
         return self.station_update(t_rx, *loc, cvar, rho)
 
-    def estimate_msg(self) -> dict[str, Any]:
+    def extra(self) -> dict[str, float]:
+        """The estimate's ``extra`` scalars: attitude, clock, IMU, satellites, baro bias, start sigma."""
         e = self.ekf
         roll, pitch, yaw = euler_from_dcm(e.C[0])
-        extra = {"roll_rad": float(roll), "pitch_rad": float(pitch), "yaw_rad": float(yaw),
-                 "clock_m": float(e.clk[0, 0]), "imu_steps": float(self.imu_steps), "t0_s": self.t0_s,
-                 "n_sv": float(self.n_sv), "imu_preset": float(list(PRESETS).index(self.imu_name)),
-                 "imu_rate_hz": float(self.preset.rate_hz), "sat_used": float(self.stats["sat_used"]),
-                 "baro_bias_m": float(e.bh[0]),
-                 "init_sigma_m": self.init_sigma_m}
-        self.seq["ac_estimate"] += 1
-        return {"kind": "ac_estimate", "src": self.name, "seq": self.seq["ac_estimate"], "stamp_s": float(e.t_s),
-                "t_s": float(e.t_s), "pos_m": e.p[0].tolist(), "cov_m2": e.P[0, :3, :3].tolist(),
-                "vel_m_s": e.v[0].tolist(), "vel_cov": e.P[0, 3:6, 3:6].tolist(), "algo": self.algo,
-                "n_updates": int(e.n_updates), "extra": extra}
+        return {"roll_rad": float(roll), "pitch_rad": float(pitch), "yaw_rad": float(yaw),
+                "clock_m": float(e.clk[0, 0]), "imu_steps": float(self.imu_steps), "t0_s": self.t0_s,
+                "n_sv": float(self.n_sv), "imu_preset": float(list(PRESETS).index(self.imu_name)),
+                "imu_rate_hz": float(self.preset.rate_hz), "sat_used": float(self.stats["sat_used"]),
+                "baro_bias_m": float(e.bh[0]),
+                "init_sigma_m": self.init_sigma_m}

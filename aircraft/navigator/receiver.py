@@ -42,6 +42,8 @@ import numpy as np
 
 from net.plausible import cholesky3_ok
 
+from ..events import AcStatus
+
 
 # statuses a navigator reports (``ac_status.state``)
 WAITING = "waiting"  # no usable set of broadcasts yet (unsynchronized / too few stations)
@@ -224,10 +226,10 @@ STATUS_TEXT = {WAITING: "waiting for synchronized stations", TRACKING: "tracking
                RESTARTING: "diverged: restarting from a consistent set", NO_FIX: "no fix (estimate not defensible)"}
 
 
-def status_msg(name: str, seq, algo: str, t_s: float, state: str, counts: dict, detail: str | None = None) -> dict:
-    """An ``ac_status`` message (``seq``: the aircraft's per-kind sequence counter, advanced here)."""
+def status_event(name: str, seq, algo: str, t_s: float, state: str, counts: dict, detail: str | None = None
+                 ) -> AcStatus:
+    """An ``ac_status`` event (``seq``: the aircraft's per-kind sequence counter, advanced here)."""
     seq["ac_status"] += 1
-    return {"kind": "ac_status", "src": name, "seq": seq["ac_status"], "stamp_s": float(t_s), "t_s": float(t_s),
-            "algo": algo, "state": state, "detail": (detail or STATUS_TEXT.get(state, state))[:64],
-            "counts": {str(k)[:64]: float(v) for k, v in sorted(counts.items())[:16]}}
+    return AcStatus(name, seq["ac_status"], float(t_s), algo, state, (detail or STATUS_TEXT.get(state, state))[:64],
+                    {str(k)[:64]: float(v) for k, v in sorted(counts.items())[:16]})
 

@@ -88,7 +88,7 @@ def refly(record: dict, name: str, entries: list[list], algo: str, t0_s: float, 
     out = []
     for e in entries:
         if e[0] == "m" and e[1] >= t0_s:
-            out += [m for m in core.measurement(*e[1:]) if m["kind"] == "ac_estimate"]
+            out += [ev.to_msg() for ev in core.measurement(*e[1:]) if ev.kind == "ac_estimate"]
     return out
 
 

@@ -43,8 +43,8 @@ def core_cpu_s(sc, ac, algos: tuple[str, ...], navs: list[tuple[dict, dict]]) ->
     n_out = 0
     c0 = time.process_time()
     for msg, phy in navs:
-        for m in core.on_nav(msg, phy) + core.journal.take():
-            M.encode(m)
+        for ev in core.on_nav(msg, phy) + core.journal.take():
+            M.encode(ev.to_msg())
             n_out += 1
     return time.process_time() - c0, n_out
 

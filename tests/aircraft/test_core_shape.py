@@ -39,7 +39,7 @@ def test_the_factory_picks_the_core_by_configuration(opts, kind, algos):
     assert type(core).__name__ == kind and core.algos == algos
     assert all(hasattr(core, m) for m in MEMBERS), [m for m in MEMBERS if not hasattr(core, m)]
     assert all(hasattr(AircraftCore, m) or m in AircraftCore.__annotations__ for m in MEMBERS)
-    assert core.journal is not None and core.journal.take()[0]["kind"] == "ac_init"
+    assert core.journal is not None and core.journal.take()[0].kind == "ac_init"
     assert (core.lag_s, core.step_s) == ((0.0, 0.1) if kind == "RadioAircraftCore" else (0.25, core.tn.dt_s))
     assert core.tick(1.0) == [] or kind != "RadioAircraftCore"
     assert o == AircraftOptions(name="ac1", duration_s=30.0, **opts)  # the options are not rewritten
@@ -77,4 +77,4 @@ def test_the_node_holds_exactly_one_core(opts):
     assert rep == {"name": "ac1", "measurements": 0, "drops": node.drops.as_dict(), "estimates": {}}
     # the radio core's journal goes out with its first broadcast, an inertial core's from the first tick
     assert node.core.tick(0.0) == [] if opts["algos"] == ("ukf-pr",) else \
-        [m["kind"] for m in node.core.tick(0.0)] == ["ac_init"]
+        [ev.kind for ev in node.core.tick(0.0)] == ["ac_init"]

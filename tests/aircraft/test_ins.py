@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from aircraft.events import to_msgs
 from aircraft.navigator import fict_kf
 from aircraft.navigator.ins_ekf import InsEkf, InsTuning, PositionComponent, initial_covariance
 from aircraft.world.imu import ImuEmulator, allan_dev, gm_allan_var, preset
@@ -586,7 +587,7 @@ def test_ins_aircraft_core_flies_on_nav_broadcasts():
         truth = sc.pos_m[j]
         msg = {"kind": "nav", "src": j + 1, "state": "frame", "pos_m": (truth + rng.normal(0, 0.05, 3)).tolist(),
                "cov_m2": (0.05**2 * np.eye(3)).tolist()}
-        out = core.on_nav(msg, {"pos_m": truth.tolist(), "t_true_s": t})
+        out = to_msgs(core.on_nav(msg, {"pos_m": truth.tolist(), "t_true_s": t}))
         core.advance_to(t + 0.05)
         started = t >= window - 1e-9  # the first broadcast received after the window starts the EKF
         for m in out:  # what the navigator is doing, once per second and at every change
@@ -627,7 +628,7 @@ def test_ins_core_is_independent_of_loop_timing():
                 core.advance_to(t_loop)
             msg = {"kind": "nav", "src": j + 1, "state": "surveying", "pos_m": sc.pos_m[j].tolist(),
                    "cov_m2": np.zeros((3, 3)).tolist()}
-            got += [o for o in core.on_nav(msg, {"pos_m": sc.pos_m[j].tolist(), "t_true_s": t})
+            got += [o for o in to_msgs(core.on_nav(msg, {"pos_m": sc.pos_m[j].tolist(), "t_true_s": t}))
                     if o["kind"] == "ac_estimate"]
         outs.append(got)
     assert len(outs[0]) == len(outs[1]) > 90  # estimates after the 10 s start window

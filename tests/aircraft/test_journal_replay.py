@@ -11,6 +11,7 @@ import functools
 import numpy as np
 import pytest
 
+from aircraft.events import to_msgs
 from net import messages as M
 
 SECONDS = 14.0  # past the inertial cores' 10 s start window
@@ -50,8 +51,8 @@ def _fly(kind: str, loop_step_s: float = 0.37):
         msg = {"kind": "nav", "src": j + 1, "seq": seq[j], "stamp_s": t, "cycle": seq[j], "slot": j, "t_tx_s": t,
                "pos_m": (sc.pos_m[j] + rng.normal(0, 0.05, 3)).tolist(), "cov_m2": (0.05**2 * np.eye(3)).tolist(),
                "n_updates": 1, "state": "frame", "ranges": [], "members": []}
-        out += core.on_nav(msg, {"pos_m": sc.pos_m[j].tolist(), "t_true_s": t}) + core.journal.take()
-    out += core.journal.close()
+        out += to_msgs(core.on_nav(msg, {"pos_m": sc.pos_m[j].tolist(), "t_true_s": t}) + core.journal.take())
+    out += to_msgs(core.journal.close())
     return core, [M.decode(M.encode(o))[0] for o in out]
 
 

@@ -20,6 +20,7 @@ from collections import Counter
 import numpy as np
 import pytest
 
+from aircraft.events import to_msgs
 from larns.adversary.insider import absurd_message
 from net import messages as M
 from net.scenario import load
@@ -54,7 +55,7 @@ class Radio:
         self.slot_s, self.ids = self.scn.tdma.slot_s, list(self.scn.ids)
 
     def feed(self, core, msg, phy, t):
-        return core.on_nav(msg, phy)
+        return to_msgs(core.on_nav(msg, phy))
 
     def estimates(self, outs):
         return {o["algo"]: o for o in outs if o["kind"] == "ac_estimate"}
@@ -75,7 +76,7 @@ class Ins(Radio):
 
     def feed(self, core, msg, phy, t):
         core.advance_to(t - 0.05)
-        return core.on_nav(msg, phy)
+        return to_msgs(core.on_nav(msg, phy))
 
     def estimates(self, outs):
         return {o.get("algo", "ins"): o for o in outs if o["kind"] == "ac_estimate"}
@@ -95,7 +96,7 @@ class Triad(Ins):
 
     def feed(self, core, msg, phy, t):
         core.advance_to(t - core.lag_s)
-        return core.on_nav(msg, phy)
+        return to_msgs(core.on_nav(msg, phy))
 
 
 class Vehicle(Radio):

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from broadcast_support import nav_broadcast
+from aircraft.events import to_msgs
 from net.radio import link, link_var_m2, reception_sigma_m
 from net.scenario import load
 
@@ -34,7 +35,7 @@ def test_the_aircraft_hears_exactly_the_links_the_radio_allows(radio_core):
         p, _ = core.track.at(t)
         exists = bool(link(scn.true_pos(sid), p, ac.world.radio).exists)
         before = core.stats["no_link"]
-        out = core.on_nav(msg, phy)
+        out = to_msgs(core.on_nav(msg, phy))
         if exists:
             heard.append(sid)
             assert core.stats["no_link"] == before and any(m["kind"] == "ac_truth" for m in out)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from aircraft.events import to_msgs
 from aircraft.navigator import receiver as rx
 from aircraft.navigator.radio.estimator import AircraftEstimator, EstimatorConfig
 from aircraft.radio_core import RadioAircraftCore
@@ -141,7 +142,7 @@ def test_no_published_estimate_is_ever_invalid_over_random_broadcast_sets(seed):
                "cov_m2": cov.tolist(), "n_updates": k, "state": "surveying", "ranges": [], "members": [],
                "clock": [t_s, sd * float(rng.standard_normal()) / 3e8, 0.0, (sd / 3e8) ** 2, 0.0, 0.0]}
         phy = {"pos_m": STATIONS[j].tolist(), "t_true_s": t_s}
-        for out in core.on_nav(msg, phy):
+        for out in to_msgs(core.on_nav(msg, phy)):
             kinds.add(out["kind"])
             out, _ = M.decode(M.encode(out))  # what the wire takes (raises if it would refuse it)
             if out["kind"] == "ac_estimate":
@@ -163,7 +164,7 @@ def test_live_core_says_why_it_publishes_nothing():
         msg = {"kind": "nav", "src": j + 1, "seq": k + 1, "stamp_s": 0.01 * k, "cycle": 0, "slot": j,
                "t_tx_s": 0.01 * k, "pos_m": STATIONS[j].tolist(), "cov_m2": np.eye(3).tolist(), "n_updates": 1,
                "state": "surveying", "ranges": [], "members": [], "clock": [0.0, 0.0, 0.0, 1e-6, 0.0, 0.0]}
-        outs += core.on_nav(msg, {"pos_m": STATIONS[j].tolist(), "t_true_s": 0.01 * k})
+        outs += to_msgs(core.on_nav(msg, {"pos_m": STATIONS[j].tolist(), "t_true_s": 0.01 * k}))
     status = [o for o in outs if o["kind"] == "ac_status"]
     assert not [o for o in outs if o["kind"] == "ac_estimate"]
     assert status and status[0]["state"] == rx.WAITING and status[-1]["counts"]["nav_unsynchronized"] >= 1

@@ -6,6 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from aircraft.events import to_msgs
+
 
 def _fly(n_sv: int, seconds: float, loop_step_s: float, seed: int = 5):
     """Drive a core with TDMA nav broadcasts of seed003-text (stations' estimates = truth + 5 cm) and
@@ -35,7 +37,7 @@ def _fly(n_sv: int, seconds: float, loop_step_s: float, seed: int = 5):
         phy = {"pos_m": sc.pos_m[j].tolist(), "t_true_s": t}
         ns = int(t * 1e9)
         msgs.append(Msg(M.key_for(msg), ns, ns, k, M.encode(msg, phy)))
-        for o in core.on_nav(msg, phy) + core.journal.take():
+        for o in to_msgs(core.on_nav(msg, phy) + core.journal.take()):
             M.validate_msg(o)
             msgs.append(Msg(M.key_for(o), ns, ns, o["seq"], M.encode(o)))
             if o["kind"] == "ac_estimate":
@@ -57,7 +59,7 @@ def test_triad_core_flies_and_refly_is_bit_exact():
     e = est[-1]
     d = np.asarray(e["pos_m"]) - core.truth_n(e["t_s"])[0]
     assert d @ np.linalg.solve(np.asarray(e["cov_m2"]), d) < 3.0**2 * 3
-    msgs += [Msg(M.key_for(o), msgs[-1].log_time, msgs[-1].log_time, o["seq"], M.encode(o)) for o in core.journal.close()]
+    msgs += [Msg(M.key_for(o), msgs[-1].log_time, msgs[-1].log_time, o["seq"], M.encode(o)) for o in to_msgs(core.journal.close())]
     res = reestimate_aircraft(msgs)["ac1"]["triad"]
     assert res["missing_from"] is None and res["stopped"] is None
     assert res["n"] == res["recorded"] == res["compared"] == res["equal"] == len(est)
