@@ -461,22 +461,8 @@ def _print_table(out: dict) -> None:
         for h, r in hs.items():
             pc = out["height_sweep"]["pcrb_m"][h]
             print(f"  h = {h:>5} m  " + "  ".join(f"{a} {r[a]:7.2f} ({pc[a]:.2f})" for a in r))
-    sp = out["speed"]
-    if sp:
-        print(f"\nUKF-PR update (predict+update): filterpy {sp['filterpy_s_per_update'] * 1e6:.0f} us, "
-              f"ours single {sp['ours_single_s_per_update'] * 1e6:.0f} us (x{sp['speedup_single']:.1f}), "
-              f"ours batched {sp['ours_batched_s_per_update_run'] * 1e6:.1f} us/run over {sp['batch_runs']} runs "
-              f"(x{sp['speedup_batched']:.0f}); max |x_ours - x_filterpy| = {sp['max_abs_state_diff']:.2e} m "
-              f"(relative {sp['max_rel_state_diff']:.1e}) over {sp['steps']} steps")
-        if sp.get("ours_single_iterated_s_per_update"):
-            print(f"  ours single with the bench tuning ({sp['iterations']} update passes): "
-                  f"{sp['ours_single_iterated_s_per_update'] * 1e6:.0f} us")
-        lc = sp.get("live_core")
-        if lc:
-            print(f"Live core (larns/bench/livecpu.py, no Zenoh shell), {lc['broadcasts_per_s']:.0f} broadcasts/s: "
-                  f"{' + '.join(lc['algos'])} {lc['all_pct_of_core']:.1f} % of one core "
-                  f"({lc['messages_per_s']:.0f} messages/s); alone: "
-                  + ", ".join(f"{a} {v:.1f} %" for a, v in lc["each_pct_of_core"].items()))
+    if out["speed"]:
+        _print_speed(out["speed"])
     bar = out["bar"]
     BAR = bar["factor"]  # noqa: N806
     print(f"\nBar: RMSE <= {BAR} x PCRB for ekf-pr and ukf-pr at every point: "
@@ -487,6 +473,25 @@ def _print_table(out: dict) -> None:
     print("     mean NEES above its 95 % band (pr filters): "
           + ("none" if not bar["nees_above_band"] else "; ".join(bar["nees_above_band"])))
     print(f"wall time {out['settings']['wall_s']:.0f} s")
+
+
+
+def _print_speed(sp: dict) -> None:
+    """The speed section: UKF-PR against filterpy, and the live core's CPU."""
+    print(f"\nUKF-PR update (predict+update): filterpy {sp['filterpy_s_per_update'] * 1e6:.0f} us, "
+          f"ours single {sp['ours_single_s_per_update'] * 1e6:.0f} us (x{sp['speedup_single']:.1f}), "
+          f"ours batched {sp['ours_batched_s_per_update_run'] * 1e6:.1f} us/run over {sp['batch_runs']} runs "
+          f"(x{sp['speedup_batched']:.0f}); max |x_ours - x_filterpy| = {sp['max_abs_state_diff']:.2e} m "
+          f"(relative {sp['max_rel_state_diff']:.1e}) over {sp['steps']} steps")
+    if sp.get("ours_single_iterated_s_per_update"):
+        print(f"  ours single with the bench tuning ({sp['iterations']} update passes): "
+              f"{sp['ours_single_iterated_s_per_update'] * 1e6:.0f} us")
+    lc = sp.get("live_core")
+    if lc:
+        print(f"Live core (larns/bench/livecpu.py, no Zenoh shell), {lc['broadcasts_per_s']:.0f} broadcasts/s: "
+              f"{' + '.join(lc['algos'])} {lc['all_pct_of_core']:.1f} % of one core "
+              f"({lc['messages_per_s']:.0f} messages/s); alone: "
+              + ", ".join(f"{a} {v:.1f} %" for a, v in lc["each_pct_of_core"].items()))
 
 
 def _print_clocks(out: dict) -> None:
