@@ -153,12 +153,7 @@ class AircraftEstimator:
             # snapshot uses (LSQ, the filter start): each residual seen once, as range variance
             # (an isotropic term on the station covariance: u^T (P + s I) u = u^T P u + s)
             cov = (np.zeros((m, 3, 3)) if cov is None else cov) + cvar[:, None, None] * np.eye(3)
-        if self.method == "lsq" and self.cfg.receiver is not None and dt is not None and np.any(dt):
-            # a snapshot of a TDMA batch: the aircraft's unknown motion over each member's dt is noise
-            # to it (the start's velocity prior), in its weights and in the covariance it reports
-            v_sig = (self.cfg.init or InitConfig()).vel_sigma_m_s
-            cov = (np.zeros((m, 3, 3)) if cov is None else cov) + ((v_sig * np.asarray(dt, float)) ** 2)[:, None, None] * np.eye(3)
-        self._last_geom = (pos, cov)
+        self._last_geom = (pos, self._snapshot_cov(cov, dt) if self.method == "lsq" else cov)
         if m < self.cfg.min_stations:
             self.n_dropped += 1
             return
@@ -238,6 +233,20 @@ class AircraftEstimator:
             self.stats["start_surveyed_subset"] += 1
         return keep
 
+    def _snapshot_cov(self, cov, dt):
+        """The station covariances a snapshot of a TDMA batch uses (LSQ, the filter start): the aircraft's
+        unknown motion over each member's ``dt`` is noise to one fix, an isotropic ``(v dt)^2`` with the
+        start's velocity prior ``v`` (``InitConfig.vel_sigma_m_s``), in its weights, its consistency test
+        and the covariance it reports. cov (m, 3, 3) or None, dt (m,) or None; returns (m, 3, 3) or None.
+        Weighting the fix and testing it with the same variances matters: on seed003's 50 m/s ellipse
+        (0.8 s cycle) a fix weighted without the motion failed the test it is held to in a third of the
+        batches (docs/aircraft.md "Start from the broadcasts")."""
+        if self.cfg.receiver is None or dt is None or not np.any(dt):
+            return cov
+        v_sig = (self.cfg.init or InitConfig()).vel_sigma_m_s
+        motion = ((v_sig * np.asarray(dt, float)) ** 2)[:, None, None] * np.eye(3)
+        return motion if cov is None else cov + motion
+
     def _start(self, t_s, pos, cov, rho, dt=None) -> None:
         """No filter yet: a snapshot fix from the batch (LSQ), or the filter's start."""
         if self.cfg.guess_sigma_m is None and (self.fix is None or self.method != "lsq"):
@@ -252,9 +261,9 @@ class AircraftEstimator:
         kw = dict(floor_z_m=tu.floor_z_m, iters=50 if first else 10, max_step_m=5000.0 if first else 200.0)
         if self.model == "pr":
             x0 = self.fix if self.fix.size == 4 else np.append(self.fix, 0.0)
-            self.fix = lsq_pr(rho[None], pos, x0[None], var, cov, **kw)[0]
+            self.fix = lsq_pr(rho[None], pos, x0[None], var, self._snapshot_cov(cov, dt), **kw)[0]
         else:
-            self.fix = lsq_tdoa(rho[None], pos, self.fix[:3][None], var, cov, **kw)[0]
+            self.fix = lsq_tdoa(rho[None], pos, self.fix[:3][None], var, self._snapshot_cov(cov, dt), **kw)[0]
         self.t_s = t_s
         self.n_updates += 1
         if self.method == "lsq":
@@ -266,16 +275,17 @@ class AircraftEstimator:
         """Start from the broadcasts alone: multi-start snapshot fix (or a wide prior), from a batch that
         passes the start test when the receiver rules are on."""
         tu = self.cfg.tuning
-        init = initial_state(self.model, tu, pos, cov, rho, self.cfg.init)
+        cov_snap = self._snapshot_cov(cov, dt)  # the fix's weights; the members' survey is judged by cov
+        init = initial_state(self.model, tu, pos, cov_snap, rho, self.cfg.init)
         if self.cfg.receiver is not None:
             keep = self._start_members(t_s, init.fix[:3], pos, cov)
             if keep is None:
                 return
             if not keep.all():  # the surveyed stations alone (enough for a snapshot with redundancy)
-                pos, cov, rho = pos[keep], cov[keep], rho[keep]
-                dt = None if dt is None else np.asarray(dt)[keep]
-                init = initial_state(self.model, tu, pos, cov, rho, self.cfg.init)
-            init = consistent_start(self.model, self.cfg, self.stats, init, pos, cov, rho, dt)
+                pos, rho = pos[keep], rho[keep]
+                cov_snap = None if cov_snap is None else cov_snap[keep]
+                init = initial_state(self.model, tu, pos, cov_snap, rho, self.cfg.init)
+            init = consistent_start(self.model, self.cfg, self.stats, init, pos, cov_snap, rho)
             if init is None:
                 return
         if not init.snapshot and len(rho) <= 4 and self.n_deferred < (self.cfg.init or InitConfig()).defer_batches:

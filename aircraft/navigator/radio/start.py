@@ -8,30 +8,24 @@ from collections import Counter
 import numpy as np
 
 from .. import receiver as rx
-from .initializer import InitConfig, batch_cost, initial_state
+from .initializer import batch_cost, initial_state
 
 
-def consistent_start(model: str, cfg, stats: Counter, init, pos, cov, rho, dt=None):
+def consistent_start(model: str, cfg, stats: Counter, init, pos, cov, rho):
     """The batch's weighted residual sum of squares at the fix against chi-square with ``m - 4`` dof;
-    a failing batch is refused unless leaving out exactly one station makes it pass. The test allows
-    for the aircraft's own motion across a TDMA batch: a member ``dt`` seconds before the last gets the
-    range variance ``(vel_sigma_m_s dt)^2`` more (the start's velocity prior), so a moving aircraft's
-    batch is not mistaken for an inconsistent one.
+    a failing batch is refused unless leaving out exactly one station makes it pass. ``cov`` must be the
+    covariances the fix ``init`` was weighted with (the caller adds the aircraft's motion across a TDMA
+    batch: ``AircraftEstimator._snapshot_cov``), so that the test judges the fix by its own weights.
 
     model : "pr" or "tdoa". cfg : the estimator's ``EstimatorConfig`` (``receiver``, ``init``,
     ``tuning``). stats : counts ``start_left_one_out`` / ``start_inconsistent``. init : the
-    ``InitResult`` of the whole batch; pos (m, 3), cov (m, 3, 3) or None, rho (m,), dt (m,) or None.
+    ``InitResult`` of the whole batch; pos (m, 3), cov (m, 3, 3) or None, rho (m,).
     Returns the start to use, or None.
     """
     rcfg, m = cfg.receiver, len(rho)
-    cov_t = cov
-    if dt is not None and np.any(dt):
-        v_sig = (cfg.init or InitConfig()).vel_sigma_m_s
-        cov_t = (np.zeros((m, 3, 3)) if cov is None else cov) \
-            + ((v_sig * np.asarray(dt, float)) ** 2)[:, None, None] * np.eye(3)
 
     def cost(r, k):
-        c = None if cov_t is None else cov_t[k]
+        c = None if cov is None else cov[k]
         return float(batch_cost(model, r.fix, pos[k], c, rho[k], cfg.tuning.sigma_m)[0])
 
     if rx.consistent(cost(init, np.arange(m)), m - 4, rcfg.p_start):
