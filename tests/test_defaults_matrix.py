@@ -221,10 +221,11 @@ def _held_to_the_bounds(name: str, algo: str, tmp_path_factory) -> None:
 
 @pytest.mark.e2e
 @pytest.mark.matrix
-@pytest.mark.xfail(strict=False, reason="defect, owner issue 29: seed001's TDOA filters in the far field, overconfident "
-                   "in some runs: NEES 430-440 while the stations excluded each other (fixed 2026-11-29, f431681); "
-                   "since then 2 of 3 90 s fleets held the bounds (NEES 1.9-2.0) and one did not (NEES 6.4 / 13.7, "
-                   "final 250 / 354 m against sigma_h 96 m)")
+@pytest.mark.xfail(strict=False, reason="defect, owner issue 29: seed001's TDOA filters in the far field start from a "
+                   "2 km wide prior and settle on the range within their first second, sometimes on a wrong one: "
+                   "in 3 later fleets of 2026-11-29 ukf-tdoa held NEES 2.6 once and 19.4 / 19.7 twice (380-760 m along "
+                   "the range against sigma 80-165 m from 4 s on), ekf-tdoa 2.9-4.7 (held; it failed one of 3 earlier "
+                   "that day at NEES 6.4); docs/aircraft.md, 'seed001's far field'")
 @pytest.mark.parametrize("name,algo", [(n, a) for n, c in sorted(MATRIX.items()) for a in c.intermittent])
 def test_intermittent_defects(name, algo, tmp_path_factory):
     """The algorithms ``Case.intermittent`` excludes, held to the same bounds (they fail in some runs)."""
