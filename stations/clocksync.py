@@ -399,18 +399,29 @@ class ClockEstimator:
 
     def _combo(self, coeffs: dict[int, float]) -> tuple[float, float, float, float, float]:
         """``sum c_k theta_k``, ``sum c_k f_k`` at ``T_s`` and their covariance ``(P_tt, P_tf, P_ff)``
-        (station 1, the filter's reference, has ``theta = f = 0``)."""
-        items = [(self.index[k], c) for k, c in coeffs.items() if k != 1 and c != 0.0]
-        th = sum(c * self.x[2 * k] for k, c in items)
-        f = sum(c * self.x[2 * k + 1] for k, c in items)
-        tt = tf = ff = 0.0
-        for ki, ci in items:
-            for kj, cj in items:
-                a, b, _, d = self._cov(ki, kj)
-                tt += ci * cj * a
-                tf += ci * cj * b
-                ff += ci * cj * d
-        return float(th), float(f), tt, tf, ff
+        (station 1, the filter's reference, has ``theta = f = 0``).
+
+        With the blocks ``B_tt, B_tf, B_ff`` of ``P0`` on the touched clocks and ``F`` over
+        ``dt = T_s - T0``: ``P_ff = c^T B_ff c``, ``P_tf = c^T B_tf c + dt P_ff``,
+        ``P_tt = c^T B_tt c + 2 dt c^T B_tf c + dt^2 P_ff``, plus ``Q(dt)`` times
+        ``c^T (I + 1 1^T) c = sum c^2 + (sum c)^2`` (each clock's own wander and network time's)."""
+        cs = np.zeros(len(self.index))  # over every clock of the state (dense: O(n^2), no gathers)
+        for k, c in coeffs.items():
+            if k != 1:
+                cs[self.index[k]] += c
+        if not cs.any():
+            return 0.0, 0.0, 0.0, 0.0, 0.0
+        x, P0 = self.x, self._P0
+        th, f = float(cs @ x[0::2]), float(cs @ x[1::2])
+        ctt = float(cs @ P0[0::2, 0::2] @ cs)
+        ctf = float(cs @ P0[0::2, 1::2] @ cs)
+        ff = float(cs @ P0[1::2, 1::2] @ cs)
+        dt = self.T_s - self._T0
+        if dt <= 0:
+            return th, f, ctt, ctf, ff
+        a, b, q = self._Q(dt)
+        g = float(cs @ cs + cs.sum() ** 2)
+        return th, f, ctt + 2.0 * dt * ctf + dt * dt * ff + g * a, ctf + dt * ff + g * b, ff + g * q
 
     def _ens(self, sid: int) -> tuple[float, float, float, float, float, float]:
         """Clock ``sid``'s offset and frequency against network time at ``T_s``, their covariance
