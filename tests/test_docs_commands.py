@@ -409,6 +409,7 @@ TABLE: dict[str, Run | Skip] = {
     # --- docs/sync.md
     "larns bench sync --founders-leave": Skip(BENCH),
     "larns bench sync --trials 20": Skip(BENCH),
+    "larns bench sync --trials 100 --jobs 2 --bound-draws 4000": Skip(BENCH),
     "larns bench integrity --trials 20": Skip(BENCH),
     "larns bench integrity --cases clock_jump": Skip(BENCH),
     "larns bench sync --late-founder 5 --trials 100 --duration 60 --jobs 2": Skip(BENCH),

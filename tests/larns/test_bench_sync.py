@@ -101,3 +101,16 @@ def test_the_bound_filter_errors_match_the_bound():
     nees = np.mean(err[late] ** 2 / var[late])
     assert abs(nees - 1.0) < 0.25, nees
     assert np.all(np.abs(err[late, 0]) > 0.0)
+
+
+def test_bench_sync_bound_draws():
+    """--bound-draws: the bound's own filter drawn again on one world's exchanges; its largest errors
+    from 60 s on are those of an efficient estimator at the bound (about 0.5 ns RMS here: a few ns at most),
+    and the share at most 2 ns comes with its binomial interval."""
+    from larns.bench.sync import bound_draws
+
+    bd = bound_draws(("seed000", "tcxo", 0.5, 10, 1, 70.0, {}, {}), 6, 1)
+    assert bd["n"] == 6 and bd["world_seed"] == 1
+    assert 0.3 < bd["median_ns"] < 3.0 and bd["median_ns"] <= bd["max_ns"] < 5.0
+    ok = bd["trial_max_le_2ns"]
+    assert 0.0 <= ok <= 1.0 and abs(bd["ci95"] - 1.96 * np.sqrt(ok * (1 - ok) / 6)) < 1e-12
