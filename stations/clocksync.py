@@ -401,7 +401,7 @@ class ClockEstimator:
         """``sum c_k theta_k``, ``sum c_k f_k`` at ``T_s`` and their covariance ``(P_tt, P_tf, P_ff)``
         (station 1, the filter's reference, has ``theta = f = 0``).
 
-        With the blocks ``B_tt, B_tf, B_ff`` of ``P0`` on the touched clocks and ``F`` over
+        With ``c`` over every clock of the state, the blocks ``B_tt, B_tf, B_ff`` of ``P0`` and ``F`` over
         ``dt = T_s - T0``: ``P_ff = c^T B_ff c``, ``P_tf = c^T B_tf c + dt P_ff``,
         ``P_tt = c^T B_tt c + 2 dt c^T B_tf c + dt^2 P_ff``, plus ``Q(dt)`` times
         ``c^T (I + 1 1^T) c = sum c^2 + (sum c)^2`` (each clock's own wander and network time's)."""

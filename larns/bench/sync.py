@@ -112,7 +112,7 @@ def crlb_offset_var(scn, exchange_log, ids, times_s: np.ndarray, corr_eig: list 
     # each exchange's transfer noise: (sigma_d / c)^2, or under [radio] its link's at the true geometry
     radio = getattr(scn.channel, "radio", None)
     P = np.asarray([scn.true_pos(sid) for sid in ids], float)
-    z_var = (np.full((len(ids), len(ids)), (scn.channel.sigma_d_m / SPEED_OF_LIGHT_M_S) ** 2) if radio is None else
+    z_var = (np.full((len(ids), len(ids)), kf.var_z) if radio is None else
              range_var_m2(P[:, None, :], P[None, :, :], radio, scn.channel.sigma_d_m) / SPEED_OF_LIGHT_M_S**2)
     for sid in ids[1:]:
         kf._add(sid)
@@ -132,7 +132,7 @@ def crlb_offset_var(scn, exchange_log, ids, times_s: np.ndarray, corr_eig: list 
         while i < len(log) and log[i][0] <= t:
             _tt, a, b = log[i]
             z = 0.0 if rng is None else theta[i, a] - theta[i, b] + rng.standard_normal() * np.sqrt(z_var[a, b])
-            kf.on_exchange(ids[a], ids[b], T_ex[i], z, z_var_s2=None if radio is None else z_var[a, b])
+            kf.on_exchange(ids[a], ids[b], T_ex[i], z, z_var_s2=z_var[a, b])
             i += 1
         kf.predict(t)
         alive = [j for j, sid in enumerate(ids) if t < stop_s.get(sid, np.inf)]
@@ -172,14 +172,8 @@ def bound_draws(job: tuple, draws: int, jobs: int) -> dict:
     each trial's largest error from ``AFTER_S`` on; the share at most 2 ns with its binomial 95 % interval.
     Cheap (the filter alone, about 25 ms a draw): the trial-maximum bar's bound to a fraction of a percent."""
     global _BOUND
-    from net.scenario import load
-    from stations.sim import Simulator
-
-    scenario, clock, sigma_d, n, seed, duration, stop_s, start_s = job
-    scn = load(scenario, seed=seed, channel={"sigma_d_m": sigma_d}, layout={"n": n}, clock={"model": clock})
-    sim = Simulator(scn, stop_s=stop_s, start_s=start_s)
-    times = np.arange(1.0, duration + 1e-9, 1.0)
-    r = sim.run(duration, times)
+    scn, sim, r, times = _world(job)
+    seed, stop_s = job[4], job[6]
     _BOUND = (scn, sim.exchange_log, r.ids, times, stop_s)
     with mp.get_context("fork").Pool(max(1, jobs)) as pool:
         m = np.array(pool.map(_bound_draw, range(draws)))
@@ -189,17 +183,24 @@ def bound_draws(job: tuple, draws: int, jobs: int) -> dict:
             "p99_ns": float(np.percentile(m, 99)), "max_ns": float(m.max())}
 
 
-def _trial(job: tuple) -> dict:
+def _world(job: tuple):
+    """One trial's world run in the simulator: ``(scn, sim, result, times)`` of a :func:`_trial` job
+    ``(scenario, clock, sigma_d, n, seed, duration, stop_s, start_s)``, sampled every second."""
     from net.scenario import load
     from stations.sim import Simulator
-
-    from net.clock import ensemble_step_s
 
     scenario, clock, sigma_d, n, seed, duration, stop_s, start_s = job
     scn = load(scenario, seed=seed, channel={"sigma_d_m": sigma_d}, layout={"n": n}, clock={"model": clock})
     sim = Simulator(scn, stop_s=stop_s, start_s=start_s)
     times = np.arange(1.0, duration + 1e-9, 1.0)
-    r = sim.run(duration, times)
+    return scn, sim, sim.run(duration, times), times
+
+
+def _trial(job: tuple) -> dict:
+    from net.clock import ensemble_step_s
+
+    seed, stop_s = job[4], job[6]
+    scn, sim, r, times = _world(job)
     eig: list = []
     crlb, bound_err = crlb_offset_var(scn, sim.exchange_log, r.ids, times, eig, stop_s,
                                       np.random.default_rng([seed, 0x5C]))

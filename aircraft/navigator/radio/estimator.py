@@ -153,12 +153,13 @@ class AircraftEstimator:
             # snapshot uses (LSQ, the filter start): each residual seen once, as range variance
             # (an isotropic term on the station covariance: u^T (P + s I) u = u^T P u + s)
             cov = (np.zeros((m, 3, 3)) if cov is None else cov) + cvar[:, None, None] * np.eye(3)
-        self._last_geom = (pos, self._snapshot_cov(cov, dt) if self.method == "lsq" else cov)
+        cov_snap = self._snapshot_cov(cov, dt)  # the snapshot's weights (LSQ, the start)
+        self._last_geom = (pos, cov_snap if self.method == "lsq" else cov)
         if m < self.cfg.min_stations:
             self.n_dropped += 1
             return
         if self.tracker is None:
-            self._start(t_s, pos, cov, rho, dt)
+            self._start(t_s, pos, cov, cov_snap, rho)
             return
         try:
             self.tracker.predict_to(t_s)
@@ -237,20 +238,19 @@ class AircraftEstimator:
         """The station covariances a snapshot of a TDMA batch uses (LSQ, the filter start): the aircraft's
         unknown motion over each member's ``dt`` is noise to one fix, an isotropic ``(v dt)^2`` with the
         start's velocity prior ``v`` (``InitConfig.vel_sigma_m_s``), in its weights, its consistency test
-        and the covariance it reports. cov (m, 3, 3) or None, dt (m,) or None; returns (m, 3, 3) or None.
-        Weighting the fix and testing it with the same variances matters: on seed003's 50 m/s ellipse
-        (0.8 s cycle) a fix weighted without the motion failed the test it is held to in a third of the
-        batches (docs/aircraft.md "Start from the broadcasts")."""
+        and the covariance it reports (the fix and its test use the same variances: docs/aircraft.md,
+        receiver rule 2). cov (m, 3, 3) or None, dt (m,) or None; returns (m, 3, 3) or None."""
         if self.cfg.receiver is None or dt is None or not np.any(dt):
             return cov
         v_sig = (self.cfg.init or InitConfig()).vel_sigma_m_s
         motion = ((v_sig * np.asarray(dt, float)) ** 2)[:, None, None] * np.eye(3)
         return motion if cov is None else cov + motion
 
-    def _start(self, t_s, pos, cov, rho, dt=None) -> None:
-        """No filter yet: a snapshot fix from the batch (LSQ), or the filter's start."""
+    def _start(self, t_s, pos, cov, cov_snap, rho) -> None:
+        """No filter yet: a snapshot fix from the batch (LSQ), or the filter's start. ``cov``: the
+        broadcast covariances; ``cov_snap``: the snapshot's (:meth:`_snapshot_cov`)."""
         if self.cfg.guess_sigma_m is None and (self.fix is None or self.method != "lsq"):
-            self._start_from_broadcasts(t_s, pos, cov, rho, dt)
+            self._start_from_broadcasts(t_s, pos, cov, cov_snap, rho)
             return
         tu = self.cfg.tuning
         var = tu.sigma_m**2
@@ -261,9 +261,9 @@ class AircraftEstimator:
         kw = dict(floor_z_m=tu.floor_z_m, iters=50 if first else 10, max_step_m=5000.0 if first else 200.0)
         if self.model == "pr":
             x0 = self.fix if self.fix.size == 4 else np.append(self.fix, 0.0)
-            self.fix = lsq_pr(rho[None], pos, x0[None], var, self._snapshot_cov(cov, dt), **kw)[0]
+            self.fix = lsq_pr(rho[None], pos, x0[None], var, cov_snap, **kw)[0]
         else:
-            self.fix = lsq_tdoa(rho[None], pos, self.fix[:3][None], var, self._snapshot_cov(cov, dt), **kw)[0]
+            self.fix = lsq_tdoa(rho[None], pos, self.fix[:3][None], var, cov_snap, **kw)[0]
         self.t_s = t_s
         self.n_updates += 1
         if self.method == "lsq":
@@ -274,21 +274,20 @@ class AircraftEstimator:
     def _initial(self, pos, cov, cov_snap, rho):
         """The start's snapshot fix weighted with the aircraft's motion over the batch (``cov_snap``)
         where it is still a snapshot; otherwise the fix without the motion, about which the start is
-        the wide prior (:func:`.initializer.initial_state`). Weighted with the motion, a small array's
-        far-field fix spreads over kilometres and the wide prior would take that spread: seed001's
-        stations in 10 ms TDMA slots (`larns bench aircraft`'s live core), 1 km out, 0.9 m of motion per
-        member against 0.5 m of noise gave a fix sigma of 122 km and no filter published in 5 s."""
+        the wide prior (:func:`.initializer.initial_state`): weighted with the motion, a small array's
+        far-field fix spreads over kilometres and the wide prior would take that spread
+        (docs/aircraft.md, receiver rule 2)."""
         tu = self.cfg.tuning
         init = initial_state(self.model, tu, pos, cov_snap, rho, self.cfg.init)
         if init.snapshot or cov_snap is cov:
             return init
         return initial_state(self.model, tu, pos, cov, rho, self.cfg.init)
 
-    def _start_from_broadcasts(self, t_s, pos, cov, rho, dt=None) -> None:
+    def _start_from_broadcasts(self, t_s, pos, cov, cov_snap, rho) -> None:
         """Start from the broadcasts alone: multi-start snapshot fix (or a wide prior), from a batch that
-        passes the start test when the receiver rules are on."""
+        passes the start test when the receiver rules are on. The fix is weighted by ``cov_snap``; the
+        members' survey is judged by ``cov``."""
         tu = self.cfg.tuning
-        cov_snap = self._snapshot_cov(cov, dt)  # the fix's weights; the members' survey is judged by cov
         init = self._initial(pos, cov, cov_snap, rho)
         if self.cfg.receiver is not None:
             keep = self._start_members(t_s, init.fix[:3], pos, cov)
@@ -296,7 +295,9 @@ class AircraftEstimator:
                 return
             if not keep.all():  # the surveyed stations alone (enough for a snapshot with redundancy)
                 pos, rho = pos[keep], rho[keep]
-                cov, cov_snap = (None if c is None else c[keep] for c in (cov, cov_snap))
+                same = cov_snap is cov  # (no motion: one array, kept one)
+                cov = None if cov is None else cov[keep]
+                cov_snap = cov if same else cov_snap[keep]
                 init = self._initial(pos, cov, cov_snap, rho)
             init = consistent_start(self.model, self.cfg, self.stats, init, pos, cov_snap, rho)
             if init is None:
