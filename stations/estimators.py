@@ -35,10 +35,11 @@ from __future__ import annotations
 from typing import Protocol
 
 import numpy as np
+from scipy.linalg.lapack import dpotrs, dtrtri
 
 from nav.geometry import frame_free_mask
 from nav.kalman import symmetrize, update
-from nav.ut import SigmaParams, unscented_transform
+from nav.ut import SigmaParams, chol_lower, unscented_transform
 from net.radio import range_var_m2
 
 
@@ -193,6 +194,70 @@ def los_cluster(ranges_m: np.ndarray, width_m: float) -> tuple[float, int]:
             best, lo = j - i, i
     mid = lo + best // 2  # the window's median
     return (s[mid] if best % 2 else (s[mid - 1] + s[mid]) / 2.0), best
+
+
+def _spd_solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``A^-1 b`` for a symmetric positive definite ``A`` (n, n) and ``b`` (n,): Cholesky factor and
+    triangular solves by LAPACK ``potrf`` / ``potrs`` (raises ``LinAlgError`` unless ``A`` is positive
+    definite, like ``np.linalg.cholesky``)."""
+    x, info = dpotrs(chol_lower(A), b, lower=1)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"potrs info {info}")
+    return x
+
+
+def _chol_inv_factor(A: np.ndarray) -> np.ndarray:
+    """``L^-1`` (n, n) of the lower Cholesky factor of a symmetric positive definite ``A`` (n, n), so
+    that ``A^-1 = L^-T L^-1`` (LAPACK ``potrf`` / ``trtri``)."""
+    Linv, info = dtrtri(chol_lower(A), lower=1)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"trtri info {info}")
+    return Linv
+
+
+class _SolveCache:
+    """What one :meth:`DistributedMap.solve` reads of the store and does not change while it runs: the
+    kept ranges ``rk`` (nr,) peer slots and ``rv`` (nr,) m, the peers' estimates ``pos`` (m, 3) m and
+    covariances ``cov`` (m, 3, 3) m^2 (views), ``cov_sum = cov + P`` (m, 3, 3) m^2 with our own
+    covariance of the last solve, the usable peers ``known`` (m,) bool (known estimate, not
+    excluded) and, for the robust weights, the within-link consensus ``gate`` (nr,), the ranges
+    judged by the Huber loss ``huber_sel`` (nr,) bool and the inlier floor
+    ``min_inlier_frac * sum(gate)``. Formed once per solve, read by every IRLS iteration."""
+
+    __slots__ = ("m", "rk", "rv", "pos", "cov", "cov_sum", "known", "gate", "huber_sel", "ones", "inlier_floor",
+                 "_x", "_dr", "_u")
+
+    def __init__(self, est: "DistributedMap", robust: bool):
+        m, nr = len(est._index), est._nr
+        self.m = m
+        self.rk, self.rv = est._rk[:nr], est._rv[:nr]
+        self.pos, self.cov = est._pos[:m], est._cov[:m]
+        self.cov_sum = self.cov + est.cov_m2
+        self.known = est._peer_sel()
+        if robust and est.robust is not None:
+            if est.link_consensus:
+                self.gate, confirmed = est._consensus(self.rk, self.rv, m)
+            else:
+                self.gate, confirmed = np.ones(nr), np.zeros(nr, bool)
+            self.huber_sel = confirmed & (est.confirmed_loss is not None)
+            self.ones = np.ones(nr)
+            self.inlier_floor = est.min_inlier_frac * self.gate.sum()
+        self._x = self._dr = self._u = None
+
+    def dist(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``x - pos`` (m, 3) m and the distances ``r`` (m,) m from every peer's estimate to ``x`` (3,),
+        kept for the latest ``x`` (an iterate is never modified once it is read)."""
+        if x is not self._x:
+            diff = x - self.pos
+            self._x, self._dr, self._u = x, (diff, np.sqrt(np.einsum("ki,ki->k", diff, diff))), None
+        return self._dr
+
+    def unit(self, x: np.ndarray) -> np.ndarray:
+        """(m, 3) unit vectors from every peer's estimate to ``x`` (3,) (a distance below 1 nm taken as 1 nm)."""
+        diff, r = self.dist(x)
+        if self._u is None:
+            self._u = diff / np.maximum(r, 1e-9)[:, None]
+        return self._u
 
 
 class DistributedMap:
@@ -453,40 +518,34 @@ class DistributedMap:
             return self.sigma_d_m
         return np.sqrt(self._link_var(self.pos_m, self._pos[:m]))
 
-    def _z(self, x: np.ndarray) -> np.ndarray:
+    def _z(self, x: np.ndarray, sc: "_SolveCache | None" = None) -> np.ndarray:
         """(nr,) normalized innovation of every kept range against the range predicted at ``x``:
-        ``(d - |x - c_j|) / s``, ``s^2 = sigma_j^2 + u^T (P + C_j) u`` (``sigma_j = sigma_d`` without ``[radio]``)."""
-        nr = self._nr
-        rk, rv = self._rk[:nr], self._rv[:nr]
-        m = len(self._index)
-        diff = x - self._pos[:m]
-        r = np.sqrt(np.einsum("ki,ki->k", diff, diff))
-        u = diff / np.maximum(r, 1e-9)[:, None]
-        s2 = self._link_var(x, self._pos[:m]) + np.einsum("ki,kij,kj->k", u, self._cov[:m] + self.cov_m2, u)
-        return (rv - r[rk]) / np.sqrt(s2[rk])
+        ``(d - |x - c_j|) / s``, ``s^2 = sigma_j^2 + u^T (P + C_j) u`` (``sigma_j = sigma_d`` without ``[radio]``).
+        ``sc``: the solve's fixed arrays (:class:`_SolveCache`), else read from the store."""
+        if sc is None:
+            sc = _SolveCache(self, False)
+        r = sc.dist(x)[1]
+        u = sc.unit(x)
+        s2 = self._link_var(x, sc.pos) + np.einsum("ki,kij,kj->k", u, sc.cov_sum, u)
+        return (sc.rv - r[sc.rk]) / np.sqrt(s2[sc.rk])
 
-    def _weights(self, x: np.ndarray, robust: bool) -> np.ndarray:
-        """(nr,) robust weight of every kept range at own position ``x``."""
-        nr = self._nr
-        rk, rv = self._rk[:nr], self._rv[:nr]
+    def _weights(self, x: np.ndarray, robust: bool, sc: "_SolveCache | None" = None) -> np.ndarray:
+        """(nr,) robust weight of every kept range at own position ``x`` (``sc``: as in :meth:`_z`)."""
         if not robust or self.robust is None:
-            return np.ones(nr)
-        m = len(self._index)
-        z = self._z(x)
-        if self.link_consensus:
-            gate, confirmed = self._consensus(rk, rv, m)
-        else:
-            gate, confirmed = np.ones(nr), np.zeros(nr, bool)
+            return np.ones(self._nr)
+        if sc is None:
+            sc = _SolveCache(self, True)
+        z = self._z(x, sc)
         # a confirmed link (its LOS cluster holds >= confirm_n ranges) is judged against the geometry
         # by the convex Huber loss only: its pull is bounded (a lying peer until it is excluded) but
         # never zero, so the network cannot settle in a wrong configuration that drops its links to
         # the frame stations; the redescending Tukey loss judges the ranges of unconfirmed links
         zh = huber_weight(z, self.huber_k)
-        zc = zh if self.confirmed_loss == "huber" else np.ones(nr)
-        w = np.where(confirmed & (self.confirmed_loss is not None), zc, tukey_weight(z, self.tukey_c)) * gate
-        if w.sum() < self.min_inlier_frac * gate.sum():
+        zc = zh if self.confirmed_loss == "huber" else sc.ones
+        w = np.where(sc.huber_sel, zc, tukey_weight(z, self.tukey_c)) * sc.gate
+        if w.sum() < sc.inlier_floor:
             # far from everything: convex start (MM scheme), still within the links' consensus
-            w = zh * gate
+            w = zh * sc.gate
         return w
 
     def _consensus(self, rk: np.ndarray, rv: np.ndarray, m: int) -> np.ndarray:
@@ -562,25 +621,30 @@ class DistributedMap:
         wb = self.weak_below_nlos if self.nlos_seen else self.weak_below
         self._centre_factor[:m] = np.where((supp > 0) & (supp < wb), self.unconfirmed_weight, 1.0)
 
-    def robust_cost(self, x: np.ndarray) -> float:
+    def robust_cost(self, x: np.ndarray, sc: "_SolveCache | None" = None) -> float:
         """Robust MAP objective at ``x``: prior Mahalanobis term + sum of Tukey losses
         ``rho(z) = c^2/3 (1 - (1 - (z/c)^2)^3)`` (``~ z^2`` near 0, ``c^2/3`` for a rejected range)."""
         c = self.tukey_c
-        z = self._z(x)
+        z = self._z(x, sc)
         q = np.clip(1.0 - (z / c) ** 2, 0.0, None)
         d0 = x[self.free] - self.prior_mean
         return float(d0 @ self.prior_info @ d0 + (c * c / 3.0 * (1.0 - q**3)).sum())
 
-    def _arrays(self, w: np.ndarray):
-        """Per-link (effective count, weighted mean range, peer estimate, peer covariance, slots)."""
-        m = len(self._index)
-        nr = self._nr
-        n = self._n[:m] + np.bincount(self._rk[:nr], weights=w, minlength=m)
-        tot = self._sum[:m] + np.bincount(self._rk[:nr], weights=w * self._rv[:nr], minlength=m)
-        sel = (n > 1e-6) & self._peer_sel()
-        if not sel.any():
+    def _arrays(self, w: np.ndarray, sc: "_SolveCache | None" = None):
+        """Per-link (effective count, weighted mean range, peer estimate, peer covariance) of the links
+        in use (a known, not excluded peer with weight); None if there is none (``sc``: as in :meth:`_z`)."""
+        if sc is None:
+            sc = _SolveCache(self, False)
+        m = sc.m
+        n = self._n[:m] + np.bincount(sc.rk, weights=w, minlength=m)
+        tot = self._sum[:m] + np.bincount(sc.rk, weights=w * sc.rv, minlength=m)
+        sel = (n > 1e-6) & sc.known
+        k = np.count_nonzero(sel)
+        if k == m:  # every link: the stored arrays themselves
+            return n, tot / n, sc.pos, sc.cov
+        if k == 0:
             return None
-        return n[sel], tot[sel] / n[sel], self._pos[:m][sel], self._cov[:m][sel]
+        return n[sel], tot[sel] / n[sel], sc.pos[sel], sc.cov[sel]
 
     def _extrinsic(self, x, n, Pj, Cj):
         """Peer covariances with this station's own link removed (Gaussian BP extrinsic message).
@@ -600,51 +664,57 @@ class DistributedMap:
         g = np.where(ok, w / np.where(ok, 1.0 - s, 1.0), 0.0)
         return Cj + g[:, None, None] * Cu[:, :, None] * Cu[:, None, :]
 
-    def _normal(self, x, n, dbar, Pj, Cj, gamma):
+    def _normal(self, x, n, dbar, Pj, Cj, gamma, sc: "_SolveCache | None" = None):
         """Normal equations of the local MAP problem at ``x``: information ``A`` (nf, nf) and ``b`` (nf,).
 
         Link variance: ``sigma_d^2 / n_j + gamma u_j^T C_j u_j`` (gamma: consider factor of the peer error).
         Also returns the link weights ``w`` and the distances ``r`` (k,) to the peers at ``x``.
+        ``sc``: the solve's fixed arrays when ``Pj`` is every peer's (``sc.pos``): the geometry read there.
         """
         nf = self.nf  # the free coordinates are the first nf (frame_free_mask): slices, not masks
-        diff = x - Pj
-        r = np.sqrt(np.einsum("ki,ki->k", diff, diff))
-        u = diff / r[:, None]
+        if sc is not None and Pj is sc.pos:
+            r, u = sc.dist(x)[1], sc.unit(x)
+        else:
+            diff = x - Pj
+            r = np.sqrt(np.einsum("ki,ki->k", diff, diff))
+            u = diff / r[:, None]
         w = 1.0 / (self._link_var(x, Pj) / n + gamma * np.einsum("ki,kij,kj->k", u, Cj, u))
-        J = u[:, self.free]
+        J = u[:, :nf] if nf < 3 else u
         A = self.prior_info + (J.T * w) @ J
         b = self.prior_info @ (self.prior_mean - x[:nf]) + J.T @ (w * (dbar - r))
         return A, b, w, r
 
-    def _objective(self, x, n, dbar, Pj, wl, r=None) -> float:
+    def _objective(self, x, n, dbar, Pj, wl, r=None, sc: "_SolveCache | None" = None) -> float:
         """Local MAP objective at ``x`` with the link weights ``wl`` held fixed (``r``: the distances to
-        the peers at ``x`` when known)."""
-        if r is None:
+        the peers at ``x`` when known; ``sc``: as in :meth:`_normal`)."""
+        if r is None and sc is not None and Pj is sc.pos:
+            r = sc.dist(x)[1]
+        elif r is None:
             diff = x - Pj
             r = np.sqrt(np.einsum("ki,ki->k", diff, diff))
         d0 = x[:self.nf] - self.prior_mean
         return float(d0 @ self.prior_info @ d0 + wl @ (dbar - r) ** 2)
 
-    def _irls(self, x: np.ndarray, iters: int, robust: bool) -> np.ndarray | None:
-        """Iteratively re-weighted, backtracked Gauss-Newton from ``x`` (3,); None if no usable link."""
+    def _irls(self, x: np.ndarray, iters: int, robust: bool, sc: "_SolveCache") -> np.ndarray | None:
+        """Iteratively re-weighted, backtracked Gauss-Newton from ``x`` (3,); None if no usable link.
+        ``sc``: the solve's fixed arrays (:class:`_SolveCache`)."""
         nf = self.nf
         for _ in range(iters):
-            w = self._weights(x, robust)
-            arr = self._arrays(w)
+            w = self._weights(x, robust, sc)
+            arr = self._arrays(w, sc)
             if arr is None:
                 return None
             n, dbar, Pj, Cj = arr
             Ce = self._extrinsic(x, n, Pj, Cj) if self.extrinsic_est and self.initialized else Cj
-            A, b, wl, r = self._normal(x, n, dbar, Pj, Ce, self.peer_corr_est)
-            L = np.linalg.cholesky(A)
-            dx = np.linalg.solve(L.T, np.linalg.solve(L, b))
+            A, b, wl, r = self._normal(x, n, dbar, Pj, Ce, self.peer_corr_est, sc)
+            dx = _spd_solve(A, b)
             # backtracking on the (fixed-weight) objective: near-flat geometry makes the range nearly
             # quadratic in height, so a full Gauss-Newton step can overshoot far along z
             f0 = self._objective(x, n, dbar, Pj, wl, r)
             for _ in range(20):
                 xt = x.copy()
                 xt[:nf] += dx
-                if self._objective(xt, n, dbar, Pj, wl) <= f0 + 1e-12:
+                if self._objective(xt, n, dbar, Pj, wl, sc=sc) <= f0 + 1e-12:
                     break
                 dx = 0.5 * dx
             x = xt
@@ -672,7 +742,8 @@ class DistributedMap:
             self.pos_m[~self.free] = 0.0
             iters = 50
         f = self.free
-        x = self._irls(self.pos_m.copy(), iters, robust)
+        sc = _SolveCache(self, robust)
+        x = self._irls(self.pos_m.copy(), iters, robust, sc)
         if x is None:
             return False
         if (robust and self.robust is not None and self.restart_from_prior and self.prior_mean is not None
@@ -683,11 +754,11 @@ class DistributedMap:
             # Keep whichever start has the lower robust objective.
             x0 = self.pos_m.copy()
             x0[f] = self.prior_mean
-            x2 = self._irls(x0, self.restart_iter, robust)
-            if x2 is not None and self.robust_cost(x2) < self.robust_cost(x):
+            x2 = self._irls(x0, self.restart_iter, robust, sc)
+            if x2 is not None and self.robust_cost(x2, sc) < self.robust_cost(x, sc):
                 x = x2
-        w = self._weights(x, robust)
-        arr = self._arrays(w)
+        w = self._weights(x, robust, sc)
+        arr = self._arrays(w, sc)
         if arr is None:
             return False
         n, dbar, Pj, Cj = arr
@@ -697,8 +768,8 @@ class DistributedMap:
         self.range_weight = w
         self.pos_m = x
         cov = np.zeros((3, 3))
-        Linv = np.linalg.solve(np.linalg.cholesky(A), np.eye(self.nf))
-        cov[np.ix_(f, f)] = Linv.T @ Linv
+        Linv = _chol_inv_factor(A)
+        cov[:self.nf, :self.nf] = Linv.T @ Linv  # (the free coordinates are the first nf)
         self.cov_m2 = symmetrize(cov)
         self.initialized = True
         self.n_updates += 1
