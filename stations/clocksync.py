@@ -124,6 +124,23 @@ def predict_correction(corr, t_s: float, model: ClockModel) -> tuple[float, floa
     return th + f * dt, max(var, 0.0)
 
 
+def _block_at(P0: np.ndarray, k1: int, k2: int, dt_s: float, Q: tuple[float, float, float] | None
+              ) -> tuple[float, float, float, float]:
+    """The 2x2 block ``(P_tt, P_tf, P_ft, P_ff)`` between the clocks at state-block indices ``k1``, ``k2``
+    of ``F P0 F^T + Q (x) (I + 1 1^T)`` over ``dt_s`` (``Q = Q(dt_s)`` as ``(Q_tt, Q_tf, Q_ff)``; ``dt_s <= 0``:
+    ``P0``'s block). The same operations, in the same order, as the dense prediction (:func:`_propagate`),
+    so the values are bit for bit those of its block."""
+    i, j = 2 * k1, 2 * k2
+    tt, tf, ft, ff = P0.item(i, j), P0.item(i, j + 1), P0.item(i + 1, j), P0.item(i + 1, j + 1)
+    if dt_s > 0:
+        tt, tf = tt + dt_s * ft, tf + dt_s * ff  # F M: row theta += dt row f
+        tt, ft = tt + dt_s * tf, ft + dt_s * ff  # (F M) F^T: column theta += dt column f
+        a, b, c = Q  # own wander on the diagonal blocks, network time's everywhere
+        g = 2.0 if k1 == k2 else 1.0
+        tt, tf, ft, ff = tt + g * a, tf + g * b, ft + g * b, ff + g * c
+    return tt, tf, ft, ff
+
+
 def _propagate(P: np.ndarray, dt_s: float, Q: tuple[float, float, float]) -> None:
     """In place: ``P <- F P F^T + Q (x) (I + 1 1^T)`` for clocks in 2x2 blocks (``F = [[1, dt], [0, 1]]``
     per block; the ``1 1^T`` part is network time's own wander, common to every offset)."""
@@ -182,6 +199,7 @@ class ClockEstimator:
         self._P0 = np.zeros((0, 0))  # covariance at self._T0 (see the class docstring)
         self._T0 = self.T_s
         self._q_dt, self._q = 0.0, (0.0, 0.0, 0.0)  # the last Q(dt) (_Q)
+        self._members_of, self._members_w, self._members_neg = None, {}, np.zeros(0)  # (_members)
         self.rebase_s = float(rebase_s)
         self.var_z = (sigma_d_m / C) ** 2
         self.coarse_var = (coarse_range_m / C) ** 2
@@ -251,37 +269,20 @@ class ClockEstimator:
 
     def _cov(self, k1: int, k2: int) -> tuple[float, float, float, float]:
         """``P(T_s)`` between the clocks at state-block indices ``k1``, ``k2`` as scalars
-        ``(P_tt, P_tf, P_ft, P_ff)``: the 2x2 block of ``P0`` through ``F`` and ``Q``, O(1).
-
-        The same operations, in the same order, as the dense ``F P0 F^T + Q (x) (I + 1 1^T)``
-        (``_propagate``), so the values are bit for bit those of the full prediction's block."""
-        P0 = self._P0
-        i, j = 2 * k1, 2 * k2
-        tt, tf, ft, ff = float(P0[i, j]), float(P0[i, j + 1]), float(P0[i + 1, j]), float(P0[i + 1, j + 1])
+        ``(P_tt, P_tf, P_ft, P_ff)``: the 2x2 block of ``P0`` through ``F`` and ``Q``, O(1)
+        (:func:`_block_at`)."""
         dt = self.T_s - self._T0
-        if dt > 0:
-            tt, tf = tt + dt * ft, tf + dt * ff  # F M: row theta += dt row f
-            tt, ft = tt + dt * tf, ft + dt * ff  # (F M) F^T: column theta += dt column f
-            a, b, c = self._Q(dt)  # own wander on the diagonal blocks, network time's everywhere
-            g = 2.0 if k1 == k2 else 1.0
-            tt, tf, ft, ff = tt + g * a, tf + g * b, ft + g * b, ff + g * c
-        return tt, tf, ft, ff
-
-    def _ff(self, k1: int, k2: int) -> float:
-        """``P_ff`` of :meth:`_cov` alone (frequencies: ``F`` leaves them, only ``Q`` adds)."""
-        ff = float(self._P0[2 * k1 + 1, 2 * k2 + 1])
-        dt = self.T_s - self._T0
-        if dt > 0:
-            ff = ff + (2.0 if k1 == k2 else 1.0) * self._Q(dt)[2]
-        return ff
+        return _block_at(self._P0, k1, k2, dt, self._Q(dt) if dt > 0 else None)
 
     def _var(self, ks: list[int], signs: list[float], dt_h: float) -> float:
         """``h P(T_s) h^T`` for the sparse row ``h = sum_i s_i e_{k_i} (x) [1, dt_h]``, O(1) (scalar sums:
         equal to the dense product to rounding; the gates that read it are not near a tie)."""
+        P0, dt = self._P0, self.T_s - self._T0
+        q = self._Q(dt) if dt > 0 else None
         var = 0.0
         for ki, si in zip(ks, signs):
             for kj, sj in zip(ks, signs):
-                tt, tf, ft, ff = self._cov(ki, kj)
+                tt, tf, ft, ff = _block_at(P0, ki, kj, dt, q)
                 var += si * sj * (tt + dt_h * (tf + ft) + dt_h * dt_h * ff)
         return var
 
@@ -375,7 +376,7 @@ class ClockEstimator:
         if self.exact:
             return [float(t_local_s), 0.0, 0.0, 0.0, 0.0, 0.0]
         self.predict(self.network_time(t_local_s))
-        a, f, ptt, ptf, pff, _ = self._ens(self.id)
+        a, f, ptt, ptf, pff = self._ens(self.id)
         dt = self.network_time(t_local_s) - self.T_s  # 0 unless t_local_s lies in the filter's past
         return [float(t_local_s), float(a + f * dt), float(f),
                 float(ptt + 2 * dt * ptf + dt * dt * pff + self._scale_var_s2), float(ptf + dt * pff), float(pff)]
@@ -385,7 +386,8 @@ class ClockEstimator:
         (predicted; the filter unchanged), s and s^2."""
         if self.exact:
             return 0.0, 0.0
-        e, f, ptt, ptf, pff, qfac = self._ens(self.id)
+        e, f, ptt, ptf, pff = self._ens(self.id)
+        qfac = sum(c * c for c in self._coeffs(self.id, self.scale.w).values())  # its offset wanders with qfac Q
         dt = self.network_time(t_local_s) - self.T_s
         var = ptt + 2 * dt * ptf + dt * dt * pff + (qfac * self._Q(dt)[0] if dt > 0 else 0.0)
         return float(e + f * dt), float(max(var, 0.0))
@@ -399,17 +401,23 @@ class ClockEstimator:
 
     def _combo(self, coeffs: dict[int, float]) -> tuple[float, float, float, float, float]:
         """``sum c_k theta_k``, ``sum c_k f_k`` at ``T_s`` and their covariance ``(P_tt, P_tf, P_ff)``
-        (station 1, the filter's reference, has ``theta = f = 0``).
-
-        With ``c`` over every clock of the state, the blocks ``B_tt, B_tf, B_ff`` of ``P0`` and ``F`` over
-        ``dt = T_s - T0``: ``P_ff = c^T B_ff c``, ``P_tf = c^T B_tf c + dt P_ff``,
-        ``P_tt = c^T B_tt c + 2 dt c^T B_tf c + dt^2 P_ff``, plus ``Q(dt)`` times
-        ``c^T (I + 1 1^T) c = sum c^2 + (sum c)^2`` (each clock's own wander and network time's)."""
-        cs = np.zeros(len(self.index))  # over every clock of the state (dense: O(n^2), no gathers)
+        (station 1, the filter's reference, has ``theta = f = 0``): :meth:`_combo_dense` of the
+        coefficients over every clock of the state."""
+        cs = np.zeros(len(self.index))
         for k, c in coeffs.items():
             if k != 1:
                 cs[self.index[k]] += c
-        if not cs.any():
+        return self._combo_dense(cs)
+
+    def _combo_dense(self, cs: np.ndarray) -> tuple[float, float, float, float, float]:
+        """:meth:`_combo` of the coefficients ``cs`` (n,) over every clock of the state (dense: O(n^2),
+        no gathers).
+
+        With the blocks ``B_tt, B_tf, B_ff`` of ``P0`` and ``F`` over ``dt = T_s - T0``:
+        ``P_ff = c^T B_ff c``, ``P_tf = c^T B_tf c + dt P_ff``,
+        ``P_tt = c^T B_tt c + 2 dt c^T B_tf c + dt^2 P_ff``, plus ``Q(dt)`` times
+        ``c^T (I + 1 1^T) c = sum c^2 + (sum c)^2`` (each clock's own wander and network time's)."""
+        if not np.count_nonzero(cs):
             return 0.0, 0.0, 0.0, 0.0, 0.0
         x, P0 = self.x, self._P0
         th, f = float(cs @ x[0::2]), float(cs @ x[1::2])
@@ -420,17 +428,32 @@ class ClockEstimator:
         if dt <= 0:
             return th, f, ctt, ctf, ff
         a, b, q = self._Q(dt)
-        g = float(cs @ cs + cs.sum() ** 2)
+        g = float(cs @ cs + np.add.reduce(cs) ** 2)  # (np.add.reduce: cs.sum() without its wrapper)
         return th, f, ctt + 2.0 * dt * ctf + dt * dt * ff + g * a, ctf + dt * ff + g * b, ff + g * q
 
-    def _ens(self, sid: int) -> tuple[float, float, float, float, float, float]:
-        """Clock ``sid``'s offset and frequency against network time at ``T_s``, their covariance
-        ``(P_tt, P_tf, P_ff)`` and the factor of one clock's ``Q`` its offset wanders with."""
+    def _members(self) -> tuple[dict[int, float], np.ndarray]:
+        """The time scale's weights ``{clock: w}`` and ``-w`` over the state's clocks (n,) (station 1 has
+        no state): the coefficients of the ensemble in a clock's offset against it (:meth:`_coeffs`).
+        Kept until the scale or the clocks change."""
+        sc, n = self.scale, len(self.index)
+        if self._members_of is not sc or len(self._members_neg) != n:
+            w = sc.w
+            neg = np.zeros(n)
+            for k, c in w.items():
+                if k != 1:
+                    neg[self.index[k]] += -c
+            self._members_of, self._members_w, self._members_neg = sc, w, neg
+        return self._members_w, self._members_neg
+
+    def _ens(self, sid: int) -> tuple[float, float, float, float, float]:
+        """Clock ``sid``'s offset and frequency against network time at ``T_s`` and their covariance
+        ``(P_tt, P_tf, P_ff)``."""
         sc = self.scale
-        coeffs = self._coeffs(sid, sc.w)
-        th, f, tt, tf, ff = self._combo(coeffs)
-        qfac = sum(c * c for c in coeffs.values())
-        return th - sc.a_s - sc.b * (self.T_s - sc.T_ref_s), f - sc.b, tt, tf, ff, qfac
+        cs = self._members()[1].copy()  # sid's coefficients (_coeffs) over the state's clocks
+        if sid != 1:
+            cs[self.index[sid]] += 1.0
+        th, f, tt, tf, ff = self._combo_dense(cs)
+        return th - sc.a_s - sc.b * (self.T_s - sc.T_ref_s), f - sc.b, tt, tf, ff
 
     def on_peer_scale(self, src: int, t_tx_src_s: float, corr) -> None:
         """A peer's broadcast correction ``corr`` (its offset against *its* network time at its stamp
@@ -447,7 +470,7 @@ class ClockEstimator:
         if not agreed and var_peer > UNAGREED_SD_S**2 + STEER_GATE_S**2:
             return
         T, _ = self.peer_time(src, t_tx_src_s)
-        e, f, ptt, ptf, pff, _ = self._ens(src)
+        e, f, ptt, ptf, pff = self._ens(src)
         dt = T - self.T_s
         if ptt + 2 * dt * ptf + dt * dt * pff > STEER_GATE_S**2:
             return
@@ -568,10 +591,12 @@ class ClockEstimator:
         """Sparse row of ``sum sign theta_sid(T_s)`` at the filter's time: block indices, signs and the
         ``dt = T_s - self.T_s`` (``<= 0``: late inputs use ``h = sign [1, dt]``); station 1 has no state."""
         ks, signs = [], []
+        index = self.index
         for sid, sign in terms:
             if sid == 1:
                 continue
-            ks.append(self._add(sid))
+            k = index.get(sid)
+            ks.append(self._add(sid) if k is None else k)
             signs.append(sign)
         return ks, signs, T_s - self.T_s
 
@@ -585,10 +610,10 @@ class ClockEstimator:
         x = self.x
         hph, hx = 0.0, 0.0
         for k, sg in zip(ks, signs):
-            hph += sg * (PH[2 * k] + dt_h * PH[2 * k + 1])
-            hx += sg * (x[2 * k] + dt_h * x[2 * k + 1])
-        S = float(hph) + r
-        nu = z - float(hx)
+            hph += sg * (PH.item(2 * k) + dt_h * PH.item(2 * k + 1))
+            hx += sg * (x.item(2 * k) + dt_h * x.item(2 * k + 1))
+        S = hph + r
+        nu = z - hx
         self._last_nu = nu
         if nu * nu > gate * S and hph <= STEP_KNOWN_S**2:
             return nu * nu / S
@@ -648,8 +673,8 @@ class ClockEstimator:
                     ks.append(k)
                     sg.append(g)
             if ks:
-                ef = sum(g * self.x[2 * k + 1] for k, g in zip(ks, sg))  # E[f_a - f_b]
-                vf += sum(gi * gj * self._ff(ki, kj) for ki, gi in zip(ks, sg) for kj, gj in zip(ks, sg))
+                ef, v = self._freq_diff(ks, sg)
+                vf += v
             r_t = (float(ef) ** 2 + float(vf)) * t_var_s2
             if r_t > self.time_gate * r:
                 return None
@@ -657,7 +682,7 @@ class ClockEstimator:
         self.predict(T_s)
         ks, signs, dt_h = self._terms(T_s, [(a, 1.0), (b, -1.0)])
         n_before = self.n_updates
-        w = self.scale.w  # steps are judged between members of the time scale (acquired clocks)
+        w = self._members()[0]  # steps are judged between members of the time scale (acquired clocks)
         nis = self._update(ks, signs, dt_h, dtheta_s, r, gate=self.step_nis if a in w and b in w else math.inf)
         if self.n_updates == n_before:  # refused: a step of a or b (whichever keeps failing with every partner)
             self.n_step_refused += 1
@@ -672,6 +697,22 @@ class ClockEstimator:
             self._heard_T[sid] = max(self._heard_T.get(sid, -math.inf), T_s)
             self._refused.pop(sid, None)
         return nis
+
+    def _freq_diff(self, ks: list[int], signs: list[float]) -> tuple[float, float]:
+        """Mean and variance of ``sum_i s_i f_{k_i}`` at ``T_s`` (block indices ``ks``, signs ``s``): the
+        frequencies' block ``P_ff`` of :meth:`_cov` (``F`` leaves the frequencies, only ``Q`` adds)."""
+        x, P0 = self.x, self._P0
+        dt = self.T_s - self._T0
+        q = self._Q(dt)[2] if dt > 0 else 0.0
+        ef = vf = 0
+        for ki, gi in zip(ks, signs):
+            ef = ef + gi * x[2 * ki + 1]
+            for kj, gj in zip(ks, signs):
+                ff = P0.item(2 * ki + 1, 2 * kj + 1)
+                if dt > 0:
+                    ff = ff + (2.0 if ki == kj else 1.0) * q
+                vf = vf + gi * gj * ff
+        return ef, vf
 
     def _reinit(self, sid: int) -> None:
         """Forget clock ``sid``'s state (a step): decorrelated, class-prior phase and frequency variances

@@ -96,7 +96,7 @@ def newest_mode(d: np.ndarray, half_width_m: float, factor: float, max_iter: int
     c = float(d[-1])
     sel = d[np.abs(d - c) <= half_width_m]
     for _ in range(max_iter):
-        c_new = float(sel.mean())
+        c_new = _mean(sel)
         if c_new == c:
             break
         c = c_new
@@ -105,7 +105,12 @@ def newest_mode(d: np.ndarray, half_width_m: float, factor: float, max_iter: int
             return None
     if sel.size < 2:
         return None
-    return float(sel.mean()), sel.size / factor
+    return _mean(sel), sel.size / factor
+
+
+def _mean(v: np.ndarray) -> float:
+    """``v.mean()`` of a non-empty (k,) array: the same pairwise sum over the count, without the wrapper."""
+    return float(np.add.reduce(v)) / v.size
 
 
 class StationIntegrity:
@@ -198,7 +203,7 @@ class StationIntegrity:
             g = self.gate * sigma_m
             centre, support = los_cluster(d, g)
             sets = [d[np.abs(d - centre) <= g]] if support >= 2 else []
-            sets = [(x.mean(), len(x)) for x in sets]
+            sets = [(_mean(x), len(x)) for x in sets]
             newest = newest_mode(d, 0.5 * g, self.newest_factor)  # the newest range's cluster (a step: fault onset)
             if newest is not None:
                 sets.append(newest)
@@ -219,7 +224,7 @@ class StationIntegrity:
         if not sets:  # no two ranges of the window agree (NLOS one-offs): inconclusive
             return None
         diff = np.asarray(pos_m, float) - np.asarray(peer_pos_m, float)
-        pred = float(np.linalg.norm(diff))
+        pred = math.sqrt(diff @ diff)  # (np.linalg.norm's own sum for a vector)
         if pred <= 0.0:
             return None
         u = diff / pred
