@@ -141,6 +141,15 @@ def _block_at(P0: np.ndarray, k1: int, k2: int, dt_s: float, Q: tuple[float, flo
     return tt, tf, ft, ff
 
 
+def _on_states(c: np.ndarray) -> np.ndarray:
+    """Coefficients ``c`` (n,) over the clocks as two rows over the states (2n, 2): ``c`` on the
+    offsets (column 0) and on the frequencies (column 1)."""
+    V = np.zeros((2 * len(c), 2))
+    V[0::2, 0] = c
+    V[1::2, 1] = c
+    return V
+
+
 def _propagate(P: np.ndarray, dt_s: float, Q: tuple[float, float, float]) -> None:
     """In place: ``P <- F P F^T + Q (x) (I + 1 1^T)`` for clocks in 2x2 blocks (``F = [[1, dt], [0, 1]]``
     per block; the ``1 1^T`` part is network time's own wander, common to every offset)."""
@@ -407,23 +416,21 @@ class ClockEstimator:
         for k, c in coeffs.items():
             if k != 1:
                 cs[self.index[k]] += c
-        return self._combo_dense(cs)
+        return self._combo_dense(_on_states(cs))
 
-    def _combo_dense(self, cs: np.ndarray) -> tuple[float, float, float, float, float]:
-        """:meth:`_combo` of the coefficients ``cs`` (n,) over every clock of the state (dense: O(n^2),
-        no gathers).
+    def _combo_dense(self, V: np.ndarray) -> tuple[float, float, float, float, float]:
+        """:meth:`_combo` of the coefficients ``c`` over every clock of the state, given as the two
+        state-space rows ``V = [c (x) e_theta, c (x) e_f]`` (2n, 2) (:func:`_on_states`): dense, O(n^2).
 
-        With the blocks ``B_tt, B_tf, B_ff`` of ``P0`` and ``F`` over ``dt = T_s - T0``:
-        ``P_ff = c^T B_ff c``, ``P_tf = c^T B_tf c + dt P_ff``,
-        ``P_tt = c^T B_tt c + 2 dt c^T B_tf c + dt^2 P_ff``, plus ``Q(dt)`` times
-        ``c^T (I + 1 1^T) c = sum c^2 + (sum c)^2`` (each clock's own wander and network time's)."""
+        ``V^T x = [sum c theta, sum c f]``; ``V^T P0 V`` holds ``c^T B_tt c``, ``c^T B_tf c``, ``c^T B_ff c``
+        over the blocks of ``P0``; through ``F`` over ``dt = T_s - T0``: ``P_ff = c^T B_ff c``,
+        ``P_tf = c^T B_tf c + dt P_ff``, ``P_tt = c^T B_tt c + 2 dt c^T B_tf c + dt^2 P_ff``, plus ``Q(dt)``
+        times ``c^T (I + 1 1^T) c = sum c^2 + (sum c)^2`` (each clock's own wander and network time's)."""
+        cs = V[0::2, 0]
         if not np.count_nonzero(cs):
             return 0.0, 0.0, 0.0, 0.0, 0.0
-        x, P0 = self.x, self._P0
-        th, f = float(cs @ x[0::2]), float(cs @ x[1::2])
-        ctt = float(cs @ P0[0::2, 0::2] @ cs)
-        ctf = float(cs @ P0[0::2, 1::2] @ cs)
-        ff = float(cs @ P0[1::2, 1::2] @ cs)
+        th, f = (self.x @ V).tolist()
+        (ctt, ctf), (_, ff) = (V.T @ self._P0 @ V).tolist()
         dt = self.T_s - self._T0
         if dt <= 0:
             return th, f, ctt, ctf, ff
@@ -432,27 +439,29 @@ class ClockEstimator:
         return th, f, ctt + 2.0 * dt * ctf + dt * dt * ff + g * a, ctf + dt * ff + g * b, ff + g * q
 
     def _members(self) -> tuple[dict[int, float], np.ndarray]:
-        """The time scale's weights ``{clock: w}`` and ``-w`` over the state's clocks (n,) (station 1 has
-        no state): the coefficients of the ensemble in a clock's offset against it (:meth:`_coeffs`).
-        Kept until the scale or the clocks change."""
+        """The time scale's weights ``{clock: w}`` and ``-w`` over the state's clocks as the rows of
+        :meth:`_combo_dense` (2n, 2) (station 1 has no state): the ensemble's coefficients in a clock's
+        offset against it (:meth:`_coeffs`). Kept until the scale or the clocks change."""
         sc, n = self.scale, len(self.index)
-        if self._members_of is not sc or len(self._members_neg) != n:
+        if self._members_of is not sc or len(self._members_neg) != 2 * n:
             w = sc.w
             neg = np.zeros(n)
             for k, c in w.items():
                 if k != 1:
                     neg[self.index[k]] += -c
-            self._members_of, self._members_w, self._members_neg = sc, w, neg
+            self._members_of, self._members_w, self._members_neg = sc, w, _on_states(neg)
         return self._members_w, self._members_neg
 
     def _ens(self, sid: int) -> tuple[float, float, float, float, float]:
         """Clock ``sid``'s offset and frequency against network time at ``T_s`` and their covariance
         ``(P_tt, P_tf, P_ff)``."""
         sc = self.scale
-        cs = self._members()[1].copy()  # sid's coefficients (_coeffs) over the state's clocks
+        V = self._members()[1].copy()  # sid's coefficients (_coeffs) over the state's clocks
         if sid != 1:
-            cs[self.index[sid]] += 1.0
-        th, f, tt, tf, ff = self._combo_dense(cs)
+            k = 2 * self.index[sid]
+            V[k, 0] += 1.0
+            V[k + 1, 1] += 1.0
+        th, f, tt, tf, ff = self._combo_dense(V)
         return th - sc.a_s - sc.b * (self.T_s - sc.T_ref_s), f - sc.b, tt, tf, ff
 
     def on_peer_scale(self, src: int, t_tx_src_s: float, corr) -> None:

@@ -163,8 +163,8 @@ def tukey_weight(z: np.ndarray, c: float) -> np.ndarray:
 
 def huber_weight(z: np.ndarray, k: float) -> np.ndarray:
     """Huber IRLS weights ``min(1, k/|z|)`` (monotone: a unique solution from any start)."""
-    a = np.abs(np.asarray(z))
-    return np.where(a <= k, 1.0, k / np.maximum(a, 1e-300))
+    # k / |z| >= 1 wherever |z| <= k, so the minimum is 1 there and k / |z| elsewhere
+    return np.minimum(k / np.maximum(np.abs(np.asarray(z)), 1e-300), 1.0)
 
 
 def los_cluster(ranges_m: np.ndarray, width_m: float) -> tuple[float, int]:
@@ -217,20 +217,22 @@ def _chol_inv_factor(A: np.ndarray) -> np.ndarray:
 
 class _SolveCache:
     """What one :meth:`DistributedMap.solve` reads of the store and does not change while it runs: the
-    kept ranges ``rk`` (nr,) peer slots and ``rv`` (nr,) m, the peers' estimates ``pos`` (m, 3) m and
+    kept ranges ``rk`` (nr,) peer slots and ``rv`` (nr,) m, the links' archives ``n_arch`` (m,) (weight)
+    and ``sum_arch`` (m,) m (weighted sum of the archived ranges), the peers' estimates ``pos`` (m, 3) m and
     covariances ``cov`` (m, 3, 3) m^2 (views), ``cov_sum = cov + P`` (m, 3, 3) m^2 with our own
     covariance of the last solve, the usable peers ``known`` (m,) bool (known estimate, not
     excluded) and, for the robust weights, the within-link consensus ``gate`` (nr,), the ranges
     judged by the Huber loss ``huber_sel`` (nr,) bool and the inlier floor
     ``min_inlier_frac * sum(gate)``. Formed once per solve, read by every IRLS iteration."""
 
-    __slots__ = ("m", "rk", "rv", "pos", "cov", "cov_sum", "known", "gate", "huber_sel", "ones", "inlier_floor",
-                 "_x", "_dr", "_u")
+    __slots__ = ("m", "rk", "rv", "n_arch", "sum_arch", "pos", "cov", "cov_sum", "known", "gate", "huber_sel",
+                 "ones", "inlier_floor", "_x", "_dr", "_u")
 
     def __init__(self, est: "DistributedMap", robust: bool):
         m, nr = len(est._index), est._nr
         self.m = m
         self.rk, self.rv = est._rk[:nr], est._rv[:nr]
+        self.n_arch, self.sum_arch = est._n[:m], est._sum[:m]
         self.pos, self.cov = est._pos[:m], est._cov[:m]
         self.cov_sum = self.cov + est.cov_m2
         self.known = est._peer_sel()
@@ -626,9 +628,9 @@ class DistributedMap:
         ``rho(z) = c^2/3 (1 - (1 - (z/c)^2)^3)`` (``~ z^2`` near 0, ``c^2/3`` for a rejected range)."""
         c = self.tukey_c
         z = self._z(x, sc)
-        q = np.clip(1.0 - (z / c) ** 2, 0.0, None)
+        q = np.maximum(1.0 - (z / c) ** 2, 0.0)  # (= np.clip(., 0, None), without its wrapper)
         d0 = x[self.free] - self.prior_mean
-        return float(d0 @ self.prior_info @ d0 + (c * c / 3.0 * (1.0 - q**3)).sum())
+        return float(d0 @ self.prior_info @ d0 + np.add.reduce(c * c / 3.0 * (1.0 - q**3)))
 
     def _arrays(self, w: np.ndarray, sc: "_SolveCache | None" = None):
         """Per-link (effective count, weighted mean range, peer estimate, peer covariance) of the links
@@ -636,8 +638,8 @@ class DistributedMap:
         if sc is None:
             sc = _SolveCache(self, False)
         m = sc.m
-        n = self._n[:m] + np.bincount(sc.rk, weights=w, minlength=m)
-        tot = self._sum[:m] + np.bincount(sc.rk, weights=w * sc.rv, minlength=m)
+        n = sc.n_arch + np.bincount(sc.rk, weights=w, minlength=m)
+        tot = sc.sum_arch + np.bincount(sc.rk, weights=w * sc.rv, minlength=m)
         sel = (n > 1e-6) & sc.known
         k = np.count_nonzero(sel)
         if k == m:  # every link: the stored arrays themselves
