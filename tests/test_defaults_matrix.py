@@ -59,7 +59,6 @@ class Case:
     veh_m: float = 5.0
     speed: float = SPEED             # seed001's 10 ms slots in a 40 ms cycle keep their exchanges at speed 1 only
     nees: bool = True                # the filters' NEES from 30 s on within its 95 % band or below
-    defects: tuple[str, ...] = ()    # algorithms known not to hold these bounds here (test_known_defects)
     intermittent: tuple[str, ...] = ()  # algorithms that hold them in some runs only (test_intermittent_defects)
     extra: tuple[str, ...] = field(default=())
 
@@ -75,7 +74,7 @@ MATRIX: dict[str, Case] = {
     # a 50 m array seen from 1 km with no prior: one batch's fix is off by kilometres and the curvature
     # that carries the range takes minutes; the filters must stay honest, their accuracy is the start's
     "seed001": Case(**TCXO, survey_m=3.0, speed=1.0, ac_window_m=5000.0, ac_final_m=5000.0, lsq_window_m=5000.0,
-                    nees=False, defects=("lsq-pr", "lsq-tdoa"), intermittent=("ekf-tdoa", "ukf-tdoa")),
+                    nees=False, intermittent=("ekf-tdoa", "ukf-tdoa")),
     # 8 stations over 40 x 30 km, the aircraft on a 50 m/s ellipse
     "seed003": Case(**TCXO, survey_m=5.0, ac_window_m=10.0, ac_final_m=5.0, lsq_window_m=100.0, nees=False),
     # the same field heard through a radio ([radio]): links beyond the 26 km horizon do not exist
@@ -140,7 +139,7 @@ def check_whole(name: str, case: Case, rec: Path, report: dict) -> dict:
         (ac,) = s["aircraft"].values()
         assert sorted(ac) == sorted(algos), (name, sorted(ac))
         for algo, row in ac.items():
-            if algo not in case.defects + case.intermittent:
+            if algo not in case.intermittent:
                 _check_aircraft(name, case, algo, row)
     if case.vehicle:
         (v,) = s["vehicles"].values()
@@ -194,18 +193,6 @@ def test_the_default_scenario_whole_secure(tmp_path_factory):
     res = verify_recording(Keystore(keys.group(1)), [rec])
     assert not res["by_reason"] and res["by_signer"].get("vehicle-veh1", 0) > 100, res
     assert res["by_signer"].get("aircraft-ac1", 0) > 100 and res["by_signer"].get("station-1", 0) > 100, res
-
-
-@pytest.mark.e2e
-@pytest.mark.matrix
-@pytest.mark.xfail(strict=True, reason="defect, owner issue 29 (the aircraft written once): in seed001's far field "
-                   "(a 50 m array 1 km away, no prior) both snapshot LSQs are overconfident along the range: "
-                   "90 s at speed 1, NEES 6e5-1.6e6, final errors 1.1-2.4 km against sigma_h 0.03-3 km (most of "
-                   "their Gauss-Newton solves stop at the 10-iteration cap, unconverged)")
-@pytest.mark.parametrize("name,algo", [(n, a) for n, c in sorted(MATRIX.items()) for a in c.defects])
-def test_known_defects(name, algo, tmp_path_factory):
-    """The algorithms ``Case.defects`` excludes, held to the same bounds (they fail today)."""
-    _held_to_the_bounds(name, algo, tmp_path_factory)
 
 
 def _held_to_the_bounds(name: str, algo: str, tmp_path_factory) -> None:

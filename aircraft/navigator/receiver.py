@@ -21,7 +21,9 @@ after its first exchanges to microseconds (10^3 m), and only after a few cycles 
    height floor: its truncated moments sit on the floor, confident, with small innovations.
 4. **Publish only what is defensible** (:func:`publishable`): a finite estimate with a
    positive semi-definite covariance whose position sigma is below ``max_publish_sigma_m``; otherwise
-   the process publishes a status (``ac_status``) instead.
+   the process publishes a status (``ac_status``) instead. A snapshot LSQ's covariance is its batch's
+   own ``(H^T W H)^-1`` only where the batch defends it as a filter start's snapshot (with redundancy;
+   :func:`aircraft.navigator.radio.initializer.defended`), otherwise the wide prior's.
 5. **Start on a surveyed field** (:func:`start_members`): a filter starts only from a batch whose every
    station is known to ``start_station_sigma_m`` along its line of sight to the batch's fix (clock and
    position); from the surveyed stations alone where they are enough for a snapshot with redundancy;

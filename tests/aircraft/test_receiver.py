@@ -264,3 +264,71 @@ def test_a_filter_under_the_floor_restarts():
         assert e.stats["under_floor"] == 1 and e.n_resets == 1, (algo, dict(e.stats))
         cycles(e, 9, 12)                   # restarts from the next consistent batch
         assert e.tracker is not None and abs(e.estimate()["pos_m"][2] - p_ac[2]) < 100.0, algo
+
+
+def _lsq_far_field(algo: str, seconds: float, rng):
+    """seed001 as the live core flies it (four stations on a 50 m circle, the aircraft on its turn 1-3 km
+    out, one nav per 10 ms slot), the stations' broadcast positions off by a persisting survey error
+    (5 cm horizontally, 0.5 m in height; broadcast sigmas 5 cm and 1 m); yields, from 30 s on, each LSQ
+    estimate's error, its published covariance and the batch's own ``(H^T W H)^-1`` at the fix."""
+    from aircraft.config import from_scenario
+    from aircraft.navigator.radio.lsq import lsq_cov
+    from net.scenario import load
+
+    sc = load("seed001")
+    ac = from_scenario(sc)
+    n = len(sc.pos_m)
+    err = np.column_stack([rng.normal(0.0, 0.05, (n, 2)), rng.normal(0.0, 0.5, n)])
+    err[0] = 0.0  # the frame's origin
+    cov = np.diag([0.05**2, 0.05**2, 1.0]).tolist()
+    core = RadioAircraftCore(ac, (algo,), "ac1", rng, horizon_s=seconds + 5.0)
+    est = core.estimators[algo]
+    truth = None
+    for k in range(int(seconds / sc.tdma.slot_s)):
+        t, j = k * sc.tdma.slot_s, k % n
+        msg = {"kind": "nav", "src": j + 1, "seq": k // n + 1, "stamp_s": t, "cycle": k // n + 1, "slot": j,
+               "t_tx_s": t, "pos_m": (sc.pos_m[j] + err[j]).tolist(), "cov_m2": cov, "n_updates": k // n + 1,
+               "state": "surveying", "ranges": [], "members": [], "clock": [t, 0.0, 0.0, 0.7e-9**2, 0.0, 1e-24]}
+        for ev in core.on_nav(msg, {"pos_m": sc.pos_m[j].tolist(), "t_true_s": t}):
+            if ev.kind == "ac_truth":
+                truth = np.asarray(ev.pos_m)
+            elif ev.kind == "ac_estimate" and ev.t_s >= 30.0:
+                pos_b, cov_b = est._last_geom[:2]
+                own = lsq_cov(est.fix[None], pos_b, est.cfg.tuning.sigma_m**2, est.model, cov_b)[0, :3, :3]
+                yield np.subtract(ev.pos_m, truth), np.asarray(ev.cov_m2), own
+
+
+@pytest.mark.parametrize("algo", ["lsq-pr", "lsq-tdoa"])
+def test_a_far_field_lsq_without_redundancy_reports_what_it_can_defend(algo):
+    """Receiver rule 4 for the snapshot LSQ: four stations give no redundancy, so a far-field fix fits its
+    ranges whatever its error (here about 1.4 km off, pulled towards the array), and its linearized
+    covariance, taken where the error put the fix, is far too small; the LSQ publishes the fix with the
+    wide prior's covariance instead: mean NEES of its estimates at most the 3-dof chi-square's 99.9 %
+    point of one value (16.3), where the batches' own covariances give a median NEES in the hundreds
+    on the same estimates (mean 1e5: docs/aircraft.md, "seed001's far field")."""
+    rows = list(_lsq_far_field(algo, 60.0, np.random.default_rng(1)))
+    assert len(rows) >= 100, len(rows)
+    nees = np.array([e @ np.linalg.solve(P, e) for e, P, _ in rows])
+    own = np.array([e @ np.linalg.solve(C, e) for e, _, C in rows])
+    assert nees.mean() <= 16.3, (nees.mean(), np.median(nees))
+    assert np.median(own) > 100.0, np.median(own)
+
+def test_an_lsq_with_redundancy_keeps_its_own_covariance():
+    """The eight stations of this module's field 1.5 km out: every batch defends its fix, and the
+    published covariance is the batch's own ``(H^T W H)^-1`` to the bit."""
+    from aircraft.navigator.radio.lsq import lsq_cov
+
+    est = AircraftEstimator("lsq-pr", EstimatorConfig())
+    rng = np.random.default_rng(3)
+    n = 0
+    for t, sid, pos, cov, rho, cvar in _slots(30, lambda c, j: 0.3, rng):
+        est.on_measurement(t, sid, pos, cov, rho, clock_var_m2=cvar)
+        e = est.estimate()
+        if e is None or e["cov_m2"] is None:
+            continue
+        pos_b, cov_b = est._last_geom[:2]
+        own = lsq_cov(est.fix[None], pos_b, est.cfg.tuning.sigma_m**2, "pr", cov_b)[0, :3, :3]
+        assert np.array_equal(np.asarray(e["cov_m2"]), own)
+        n += 1
+    assert n >= 20, n
+

@@ -14,7 +14,7 @@ from .. import receiver as rx
 from . import coords as crd
 from . import models as mdl
 from .fde import FdeConfig, FilterFde, fault_vectors, protection_levels, snooping
-from .initializer import InitConfig, initial_state
+from .initializer import InitConfig, defended, initial_state, wide_cov
 from .lsq import lsq_cov, lsq_pr, lsq_tdoa
 from .start import consistent_start
 from .state import CLOCK, POS, VEL, StateLayout
@@ -69,7 +69,7 @@ class AircraftEstimator:
         self.t_s: float | None = None
         self.guess = np.array([0.0, 0.0, 1000.0]) if x0_guess_m is None else np.asarray(x0_guess_m, float)
         self._pending: dict[int, tuple[float, np.ndarray, np.ndarray, float, float]] = {}
-        self._last_geom: tuple[np.ndarray, np.ndarray | None] | None = None  # LSQ covariance
+        self._last_geom: tuple | None = None  # the latest batch (pos, cov, rho): the LSQ's covariance
         self.n_updates = 0
         self.n_dropped = 0
         self.n_resets = 0
@@ -154,7 +154,7 @@ class AircraftEstimator:
             # (an isotropic term on the station covariance: u^T (P + s I) u = u^T P u + s)
             cov = (np.zeros((m, 3, 3)) if cov is None else cov) + cvar[:, None, None] * np.eye(3)
         cov_snap = self._snapshot_cov(cov, dt)  # the snapshot's weights (LSQ, the start)
-        self._last_geom = (pos, cov_snap if self.method == "lsq" else cov)
+        self._last_geom = (pos, cov_snap if self.method == "lsq" else cov, rho)
         if m < self.cfg.min_stations:
             self.n_dropped += 1
             return
@@ -329,6 +329,28 @@ class AircraftEstimator:
         if self.fde is not None:  # exclusions stand; the new filter's transient passes before the gate
             self.fde.restart()
 
+    def _fix_cov(self) -> list | None:
+        """The LSQ fix's position covariance (3 x 3 list; None where ``(H^T W H)`` is singular): its own
+        ``(H^T W H)^-1`` over the latest batch, where that batch defends it as a snapshot with
+        redundancy (:func:`.initializer.defended`); otherwise, with the receiver rules on, the wide
+        prior's (:func:`.initializer.wide_cov`): an exactly determined far-field batch fits its ranges
+        whatever its error, and its linearized covariance, taken where the error put the fix, can be
+        a hundred times too small (docs/aircraft.md, "seed001's far field")."""
+        if self._last_geom is None:
+            return None
+        pos, cov, rho = self._last_geom
+        sigma = self.cfg.tuning.sigma_m
+        try:
+            C = lsq_cov(self.fix[None], pos, sigma**2, self.model, cov)[0]
+        except np.linalg.LinAlgError:
+            return None
+        if self.cfg.receiver is not None:
+            init = self.cfg.init or InitConfig()
+            ok, sig = defended(self.model, self.fix, C, pos, cov, rho, sigma, init, need_redundancy=True)
+            if not ok:
+                C = wide_cov(self.fix.size, sig, init)
+        return C[:3, :3].tolist()
+
     def tracker_or_fix(self) -> bool:
         """Whether there is anything to estimate from (a running filter, or an LSQ fix)."""
         return self.tracker is not None or (self.method == "lsq" and self.fix is not None)
@@ -343,13 +365,7 @@ class AircraftEstimator:
         if self.tracker is None:
             if self.method != "lsq" or self.fix is None:
                 return None
-            C = None
-            if self._last_geom is not None:
-                try:
-                    C = lsq_cov(self.fix[None], self._last_geom[0], self.cfg.tuning.sigma_m**2, self.model,
-                                self._last_geom[1])[0, :3, :3].tolist()
-                except np.linalg.LinAlgError:
-                    C = None
+            C = self._fix_cov()
             return {"t_s": self.t_s, "pos_m": self.fix[:3].tolist(), "cov_m2": C, "vel_m_s": None,
                     "clock_m": float(self.fix[3]) if self.fix.size == 4 else None, "n_updates": self.n_updates}
         x, P = self.tracker.x, self.tracker.P

@@ -157,6 +157,30 @@ def snapshot_fix(
     return fix, C, float(cost[i]), amb
 
 
+def defended(model: str, fix: np.ndarray, C: np.ndarray, pos_m, cov_m2, rho_m, sigma_m: float,
+             cfg: InitConfig, need_redundancy: bool = False) -> tuple[bool, float]:
+    """Whether one batch's fix is a snapshot its linearized covariance ``C`` describes, and the fix's
+    position standard deviation ``sqrt(tr C_pos)`` (inf where ``C`` is not finite): at most
+    ``max_fix_sigma_m`` and the cost rising over that uncertainty as its linearization says
+    (:func:`linear_over_sigma`); with ``need_redundancy`` also more ranges than unknowns (a batch
+    without redundancy fits exactly whatever its errors: a station's persisting survey error, the
+    curvature of a small array's far field, nothing in its residuals says it is off)."""
+    sig = float(np.sqrt(np.trace(C[:3, :3]))) if np.all(np.isfinite(C)) else np.inf
+    rho_m = np.asarray(rho_m, dtype=float)
+    if need_redundancy and rho_m.shape[-1] - (model != "pr") <= fix.size:
+        return False, sig
+    ok = bool(np.isfinite(sig) and sig <= cfg.max_fix_sigma_m) and \
+        linear_over_sigma(model, fix, C, np.asarray(pos_m, dtype=float), cov_m2, rho_m, sigma_m)
+    return ok, sig
+
+
+def wide_cov(k: int, sig: float, cfg: InitConfig, amb: float = 0.0) -> np.ndarray:
+    """The wide prior's covariance (k, k) about a fix that is no snapshot: isotropic, standard deviation
+    ``wide_sigma_m``, never below the fix's own ``sig`` (where finite) or the distance ``amb`` to other
+    roots that fit as well."""
+    return np.eye(k) * max(cfg.wide_sigma_m, sig if np.isfinite(sig) else 0.0, amb) ** 2
+
+
 def initial_state(
     model: str, tuning: Tuning, pos_m: np.ndarray, cov_m2: np.ndarray | None, rho_m: np.ndarray,
     config: InitConfig | None = None,
@@ -172,16 +196,11 @@ def initial_state(
     cfg = config or InitConfig()
     layout = mdl.StateLayout(model, drift=model == "pr")
     fix, C, cost, amb = snapshot_fix(model, pos_m, cov_m2, rho_m, tuning.sigma_m, tuning.floor_z_m)
-    sig = float(np.sqrt(np.trace(C[:3, :3]))) if np.all(np.isfinite(C)) else np.inf
-    snapshot = bool(np.isfinite(sig) and sig <= cfg.max_fix_sigma_m) and \
-        linear_over_sigma(model, fix, C, np.asarray(pos_m, dtype=float), cov_m2, np.asarray(rho_m, dtype=float),
-                          tuning.sigma_m)
-    k = fix.size  # 4 (pr: x y z b) or 3
+    snapshot, sig = defended(model, fix, C, pos_m, cov_m2, rho_m, tuning.sigma_m, cfg)
     if snapshot:
         C = C * cfg.fix_inflation**2
     else:
-        w2 = max(cfg.wide_sigma_m, sig if np.isfinite(sig) else 0.0, amb) ** 2
-        C = np.eye(k) * w2
+        C = wide_cov(fix.size, sig, cfg, amb)
     n = layout.n
     x0 = np.zeros(n)
     P0 = np.zeros((n, n))
