@@ -151,7 +151,9 @@ def gauss_markov_diag(n_bias: int, var_m2: np.ndarray | float, tau_s: float, dt_
     if not tau_s > 0:
         raise ValueError(f"Gauss-Markov correlation time must be > 0, got {tau_s}")
     a = float(np.exp(-dt_s / tau_s))
-    v = np.broadcast_to(np.asarray(var_m2, dtype=float), (n_bias,))
+    v = np.asarray(var_m2, dtype=float)
+    if v.shape != (n_bias,):
+        v = np.broadcast_to(v, (n_bias,))
     return a, (1.0 - a * a) * v
 
 

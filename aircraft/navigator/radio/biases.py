@@ -47,7 +47,9 @@ class ClockBiases:
         Returns ``(x, P, D, changed)``: the filter's state with the bias states added/dropped, ``D``
         (m, nb) (measurement j sees bias ``D[j] @ beta``), and whether the process model changed."""
         changed = False
-        var_all = np.broadcast_to(np.asarray(var_m2, dtype=float), (len(ids),))
+        var_all = np.asarray(var_m2, dtype=float)
+        if var_all.shape != (len(ids),):
+            var_all = np.broadcast_to(var_all, (len(ids),))
         rows = [j for j, (sid, v) in enumerate(zip(ids, var_all)) if sid is not None and v > 0]
         m_all = len(var_all)
         ids = [ids[j] for j in rows]

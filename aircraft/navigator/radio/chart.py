@@ -97,6 +97,8 @@ class InverseChart:
         ``min_radii`` array radii from the reference, back to Cartesian above twice that (checked on
         the runs' own coordinates: in inverse ones ``sqrt(tr P_qq) / |q|`` is the same ratio to first
         order). Returns the (possibly new) ``(x, P)``; updates ``inv``."""
+        if x_all.ndim == 1 and self._stays_one(x_all, P_all, max_rel, min_radii):
+            return x_all, P_all
         n = x_all.shape[-1]
         x = x_all.reshape(-1, n)
         P = P_all.reshape(-1, n, n)
@@ -125,6 +127,20 @@ class InverseChart:
         x2[ch], P2[ch] = xs, Ps
         self.inv = new.reshape(self.inv.shape)
         return x2.reshape(x_all.shape), P2.reshape(P_all.shape)
+
+    def _stays_one(self, x: np.ndarray, P: np.ndarray, k: float, min_radii: float) -> bool:
+        """Whether one run (``x`` (n,), ``P`` (n, n)) keeps its coordinates (:meth:`switch`'s test,
+        the same float64 operations on scalars)."""
+        inv = self._any
+        d = x[POS] if inv else x[POS] - self.ref
+        dd = np.einsum("i,i->", d, d)
+        with np.errstate(all="ignore"):
+            rel = np.sqrt(np.einsum("ii->", P[POS, POS]) / dd)
+            r = np.sqrt(dd)
+            if inv:
+                r = crd.SCALE_M**2 / r
+        new = bool((rel < 2.0 * k if inv else rel < k) and r > min_radii * self.radius)
+        return new == inv
 
     def predict(self, x: np.ndarray, P: np.ndarray, F: np.ndarray, Q: np.ndarray):
         """The linear step ``(F, Q)`` (Cartesian) carried to the runs' own coordinates by its Jacobian

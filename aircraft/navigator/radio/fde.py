@@ -112,14 +112,24 @@ def protection_levels(P_pos: np.ndarray, integrity_risk: float) -> tuple[np.ndar
     return k_h * np.sqrt(np.maximum(major, 0.0)), k_v * np.sqrt(np.maximum(P_pos[..., 2, 2], 0.0))
 
 
+_F_CACHE: dict = {}
+
+
 def fault_vectors(model: str, m: int, base: int = 0) -> np.ndarray:
-    """F (d, m): the innovation direction of a unit bias on each station."""
-    return np.eye(m) if model == "pr" else mdl.g_matrix(m, base)
+    """F (d, m): the innovation direction of a unit bias on each station (read-only, shared)."""
+    key = (model == "pr", m, base)
+    F = _F_CACHE.get(key)
+    if F is None:
+        F = np.eye(m) if model == "pr" else mdl.g_matrix(m, base)
+        F.setflags(write=False)
+        _F_CACHE[key] = F
+    return F
 
 
 def snooping(nu: np.ndarray, S: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(q, w)``: the NIS (...) and each station's normalized innovation ``w`` (..., m)."""
-    A = chol_solve(S, np.broadcast_to(F, S.shape[:-1] + F.shape[-1:]).copy())  # S^-1 F (..., d, m)
+    Fb = F.copy() if S.ndim == 2 else np.broadcast_to(F, S.shape[:-1] + F.shape[-1:]).copy()
+    A = chol_solve(S, Fb)  # S^-1 F (..., d, m)
     g = np.einsum("...dm,...d->...m", A, nu)  # F^T S^-1 nu
     den = np.einsum("dm,...dm->...m", F, A)  # diag(F^T S^-1 F)
     Sinu = chol_solve(S, nu[..., None])[..., 0]
@@ -178,6 +188,9 @@ class FilterFde:
 
     def mask(self, ids) -> np.ndarray:
         """(shape + (m,)) bool: measurement j of the batch is excluded."""
+        if not self.shape:
+            out = self.out
+            return np.array([i in out and bool(out[i]) for i in ids], dtype=bool)
         cols = [self.out.get(i, np.zeros(self.shape, dtype=bool)) for i in ids]
         return np.stack(cols, axis=-1) if cols else np.zeros(self.shape + (0,), dtype=bool)
 
@@ -237,7 +250,8 @@ class FilterFde:
             self._readmission(trk, ids, nu, S, F, masked)
         d = (~masked).sum(-1) - (trk.layout.kind != "pr")
         jmax = np.argmax(w, axis=-1)
-        gate = (np.take_along_axis(w, jmax[..., None], -1)[..., 0] > self.g_thr) & (self.streak < self.cfg.max_gated_streak)
+        wmax = w[jmax] if w.ndim == 1 else np.take_along_axis(w, jmax[..., None], -1)[..., 0]
+        gate = (wmax > self.g_thr) & (self.streak < self.cfg.max_gated_streak)
         self.streak = np.where(gate, self.streak + 1, 0)
         if np.any(gate):
             trk.restore(saved)
@@ -293,12 +307,26 @@ class FilterFde:
         self._add(*entry, sign=1.0)
 
     def _add(self, ids, q, d, w, valid, sign: float) -> None:
+        if not self.shape:
+            self._add_one(ids, q, d, w, bool(valid), sign)
+            return
         z = np.zeros(self.shape)
         self.Q = self.Q + sign * np.where(valid, q, 0.0)
         self.D = self.D + sign * np.where(valid, d, 0)
         for j, i in enumerate(ids):
             Wi, Ni = self.W.get(i, (z, z))
             self.W[i] = (Wi + sign * np.where(valid, w[..., j], 0.0), Ni + sign * (valid & (w[..., j] > 0)))
+
+    def _add_one(self, ids, q, d, w, valid: bool, sign: float) -> None:
+        """:meth:`_add` of an unbatched filter (``valid`` a bool): the same sums."""
+        self.Q = self.Q + sign * (q if valid else 0.0)
+        self.D = self.D + sign * (d if valid else 0)
+        W = self.W
+        for j, i in enumerate(ids):
+            wj = w[j]
+            e = W.get(i)
+            Wi, Ni = (np.zeros(()), np.zeros(())) if e is None else e
+            W[i] = (Wi + sign * (wj if valid else 0.0), Ni + sign * (valid and bool(wj > 0)))
 
     def _restart(self, runs: np.ndarray) -> None:
         """Empty the window of the runs ``runs`` (bool, shape)."""
@@ -311,6 +339,8 @@ class FilterFde:
     def _test(self, t_s: float) -> None:
         """The window test and leave-one-out exclusion (module docstring)."""
         Q, D = self.Q, np.rint(self.D)
+        if not self.shape and not (D > 0 and Q > chi2_quantile(self.cfg.p_fa, np.maximum(D, 1))):
+            return  # unbatched, no alarm
         T = np.where(D > 0, chi2_quantile(self.cfg.p_fa, np.maximum(D, 1)), np.inf)
         alarm = Q > T
         if not np.any(alarm):

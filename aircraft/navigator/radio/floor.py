@@ -34,6 +34,21 @@ def truncated_normal(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return lam, np.maximum(var, 1e-8)
 
 
+_SQRT_2_PI = np.sqrt(2.0 / np.pi)
+_SQRT_2 = np.sqrt(2.0)
+
+
+def _truncated_normal_one(a: float) -> tuple[float, float]:
+    """:func:`truncated_normal` of one ``a`` (a float): the same operations on float64 scalars."""
+    lam = float(_SQRT_2_PI / erfcx(a / _SQRT_2))
+    if a > 50.0:
+        ia2 = 1.0 / (a * a)
+        var = ia2 * (1.0 - ia2 * (6.0 - ia2 * (50.0 - 518.0 * ia2)))
+    else:
+        var = 1.0 + a * lam - lam * lam
+    return lam, var if not var < 1e-8 else 1e-8
+
+
 class HeightFloor:
     """The constraint ``z >= floor_z_m`` (None: no floor) and the truncated moments of a Gaussian.
 
@@ -60,6 +75,8 @@ class HeightFloor:
         deviations of the height (...,): ``(floor - z) / sigma_z`` (inverse-range runs: the floor
         taken at the mean, as in :meth:`moments`). Above ~5 the Gaussian has no mass left on the
         physical side. Requires a floor."""
+        if x.ndim == 1 and not inv:
+            return self._depth_one(x, P)
         n = x.shape[-1]
         xf, Pf = x.reshape(-1, n), P.reshape(-1, n, n)
         fz = self.floor_z_m
@@ -71,6 +88,13 @@ class HeightFloor:
                   - xf[:, Z]) / s
             a = np.where(inv.reshape(-1), ai, a)
         return a.reshape(x.shape[:-1])
+
+    def _depth_one(self, x: np.ndarray, P: np.ndarray) -> np.ndarray:
+        """:meth:`depth` (0-d) of one Cartesian run (``x`` (n,), ``P`` (n, n)): the same float64
+        operations on scalars."""
+        s2 = P[Z, Z]
+        s = np.sqrt(s2) if s2 >= 0.0 else np.float64(np.nan)  # a broken filter is reset by its owner
+        return np.asarray((self.floor_z_m - x[Z]) / s)
 
     def moments(self, x: np.ndarray, P: np.ndarray, inv: np.ndarray, ref: np.ndarray | None):
         """The moments ``(x, P)`` (internal coordinates, (..., n), (..., n, n)) of ``N(x, P)`` truncated to
@@ -106,8 +130,8 @@ class HeightFloor:
         a = self.depth(x, P, inv, ref)
         if not a > -self.trunc_sigma:
             return x, P
-        dmu, var_t = truncated_normal(a.reshape(1))
+        dmu, var_t = _truncated_normal_one(float(a))
         pc = P[:, Z]
-        x1 = x + pc * (dmu[0] / np.sqrt(s2))
-        Pa = P + pc[:, None] * pc[None, :] * ((var_t[0] - 1.0) / s2)
+        x1 = x + pc * (dmu / np.sqrt(s2))
+        Pa = P + pc[:, None] * pc[None, :] * ((var_t - 1.0) / s2)
         return x1, 0.5 * (Pa + Pa.T)

@@ -43,7 +43,8 @@ class PseudorangeModel:
         J = self.base_jacobian(X)
         if self.Db is None:
             return J
-        return np.concatenate([J, np.broadcast_to(self.Db, J.shape[:-1] + self.Db.shape[-1:])], axis=-1)
+        Db = self.Db if J.ndim == 2 else np.broadcast_to(self.Db, J.shape[:-1] + self.Db.shape[-1:])
+        return np.concatenate([J, Db], axis=-1)
 
     def z(self, rho_m: np.ndarray) -> np.ndarray:
         """The measurement vector of the pseudoranges ``rho_m`` (..., m)."""

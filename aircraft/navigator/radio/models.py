@@ -107,10 +107,10 @@ def range_var(
     if station_cov_m2 is None and np.ndim(sigma_m) == 0:
         return np.full(X.shape[:-1] + (stations_m.shape[0],), float(sigma_m) ** 2)
     sig2 = np.asarray(sigma_m, dtype=float) ** 2  # (m,) or per run (..., m)
-    sig2 = np.broadcast_to(sig2, np.broadcast_shapes(sig2.shape, (stations_m.shape[0],)))
     if station_cov_m2 is None:
+        sig2 = np.broadcast_to(sig2, np.broadcast_shapes(sig2.shape, (stations_m.shape[0],)))
         return np.broadcast_to(sig2, np.broadcast_shapes(X.shape[:-1] + (stations_m.shape[0],), sig2.shape)).copy()
-    _, u = los(X, stations_m, dt)
+    _, u = los(X, stations_m, dt)  # the sum below broadcasts sig2 to (..., m)
     return sig2 + np.einsum("...mi,mij,...mj->...m", u, station_cov_m2, u)
 
 
