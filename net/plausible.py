@@ -84,21 +84,29 @@ def cholesky3_ok(a) -> bool:
     positive definite up to the factorization's backward error (a few ulp of its largest entry),
     far inside ``lambda_min >= -1e-9 lambda_max``, so a success answers that test without an
     eigendecomposition (a failure leaves it to one)."""
-    d0 = float(a[0, 0])
+    return _chol3_ok(float(a[0, 0]), float(a[1, 0]), float(a[2, 0]), float(a[1, 1]), float(a[2, 1]),
+                     float(a[2, 2]))
+
+
+def _chol3_ok(d0: float, a10: float, a20: float, a11: float, a21: float, a22: float) -> bool:
+    """:func:`cholesky3_ok` on the lower triangle's six floats."""
     if not d0 > 0.0:
         return False
     l0 = math.sqrt(d0)
-    l10, l20 = float(a[1, 0]) / l0, float(a[2, 0]) / l0
-    d1 = float(a[1, 1]) - l10 * l10
+    l10, l20 = a10 / l0, a20 / l0
+    d1 = a11 - l10 * l10
     if not d1 > 0.0:
         return False
     l1 = math.sqrt(d1)
-    l21 = (float(a[2, 1]) - l20 * l10) / l1
-    return float(a[2, 2]) - l20 * l20 - l21 * l21 > 0.0
+    l21 = (a21 - l20 * l10) / l1
+    return a22 - l20 * l20 - l21 * l21 > 0.0
 
 
 def cov_ok(c, bound_m2: float) -> bool:
     """A finite, symmetric, positive semi-definite 3x3 with variances in ``[0, bound_m2]``."""
+    fast = _cov_ok_rows(c, bound_m2)
+    if fast is not None:
+        return fast
     a = np.asarray(c, float)
     if a.shape != (3, 3) or not np.all(np.isfinite(a)):
         return False
@@ -112,6 +120,30 @@ def cov_ok(c, bound_m2: float) -> bool:
         return True
     lam = np.linalg.eigvalsh(sym)
     return bool(lam[0] >= -1e-9 * max(float(lam[-1]), 1e-300))
+
+
+def _cov_ok_rows(c, bound_m2: float) -> bool | None:
+    """:func:`cov_ok` of three rows of three Python floats (a decoded message's covariance) by the
+    same float operations without arrays; None for any other input, and where only the
+    eigendecomposition answers (not positive definite)."""
+    if type(c) not in (list, tuple) or len(c) != 3:
+        return None
+    if not all(type(r) in (list, tuple) and len(r) == 3 for r in c):
+        return None
+    v = (*c[0], *c[1], *c[2])
+    if not all(type(x) is float for x in v):
+        return None
+    if not all(math.isfinite(x) for x in v):
+        return False
+    a00, a01, a02, a10, a11, a12, a20, a21, a22 = v
+    if min(a00, a11, a22) < 0.0 or max(a00, a11, a22) > bound_m2:
+        return False
+    if max(abs(a01 - a10), abs(a02 - a20), abs(a12 - a21)) > 1e-9 * max(a00, a11, a22, 1e-300):
+        return False
+    if _chol3_ok(0.5 * (a00 + a00), 0.5 * (a10 + a01), 0.5 * (a20 + a02), 0.5 * (a11 + a11),
+                 0.5 * (a21 + a12), 0.5 * (a22 + a22)):
+        return True
+    return None
 
 
 def clock_ok(corr, t_tx_s: float, b: NavBounds) -> bool:

@@ -83,12 +83,26 @@ def broadcast_sigma_m(clock_var_m2: float, station_cov_m2: np.ndarray | None) ->
     return float(np.sqrt(max(float(clock_var_m2), 0.0) + max(pos_var, 0.0)))
 
 
+def _clearly_synchronized(clock_var_m2: float, station_cov_m2: np.ndarray | None, max_sigma_m: float) -> bool:
+    """Whether :func:`broadcast_sigma_m` is within ``max_sigma_m`` by the trace alone: for a positive
+    definite (Cholesky) finite covariance ``lambda_max <= tr P``; the 1e-6 margin covers the rounding
+    of the eigenvalue and the square root, so the answer is that of the eigendecomposition."""
+    cv = max(float(clock_var_m2), 0.0)
+    if station_cov_m2 is None:
+        return False
+    cov = np.asarray(station_cov_m2, dtype=float).reshape(3, 3)
+    sym = 0.5 * (cov + cov.T)
+    return cholesky3_ok(sym) and cv + float(sym[0, 0] + sym[1, 1] + sym[2, 2]) <= max_sigma_m**2 * (1.0 - 1e-6)
+
+
 def unusable_reason(clock_var_m2: float, station_cov_m2: np.ndarray | None, cfg: ReceiverConfig) -> str | None:
     """Why a broadcast is not used (a counter name), or None if it is usable."""
     if not np.isfinite(clock_var_m2) or clock_var_m2 < 0:
         return "nav_bad_clock"
     if station_cov_m2 is not None and not np.all(np.isfinite(station_cov_m2)):
         return "nav_bad_cov"
+    if _clearly_synchronized(clock_var_m2, station_cov_m2, cfg.max_broadcast_sigma_m):
+        return None
     if broadcast_sigma_m(clock_var_m2, station_cov_m2) > cfg.max_broadcast_sigma_m:
         return "nav_unsynchronized"
     return None
@@ -134,16 +148,16 @@ class DivergenceMonitor:
         self.win.clear()
 
     def push(self, q: float, dof: int, w: dict | None = None) -> bool:
-        if not np.isfinite(q):
+        if not math.isfinite(q):
             return True
-        self.win.append((float(q), int(dof), dict(w or {})))
-        if len(self.win) < self.cfg.window:
+        win = self.win
+        win.append((float(q), int(dof), dict(w or {})))
+        if len(win) < self.cfg.window:
             return False
-        Q = sum(e[0] for e in self.win)
-        D = sum(e[1] for e in self.win)
+        D = sum(e[1] for e in win)
         W: dict = {}
         N: dict = {}
-        for _, _, ws in self.win:
+        for _, _, ws in win:
             for i, wi in ws.items():
                 W[i] = W.get(i, 0.0) + float(wi)
                 N[i] = N.get(i, 0) + 1
@@ -152,8 +166,10 @@ class DivergenceMonitor:
             # Q - W_i update by update: the part of an update's NIS left once station i's bias is
             # estimated, known only to the rounding of that NIS (a measurement 1e12 m off leaves 1e8 of
             # rounding in a difference of two 1e24 sums, which would read as a lost filter)
-            Q = sum(_rest(q, ws.get(i, 0.0)) for q, _, ws in self.win)
+            Q = sum(_rest(q, ws.get(i, 0.0)) for q, _, ws in win)
             D = D - N[i]
+        else:
+            Q = sum(e[0] for e in win)
         return D > 0 and Q > chi2_upper(self.cfg.p_diverge, D)
 
 

@@ -14,6 +14,7 @@ noise (the link's, :func:`net.radio.reception_sigma_m`) is the caller's draw.
 
 from __future__ import annotations
 
+import math
 from typing import Callable
 
 import numpy as np
@@ -24,12 +25,17 @@ from net.nettime import pseudorange_time_error_s
 LIGHT_TIME_STEPS = 2
 
 
+def _norm(d: np.ndarray) -> float:
+    """``|d|`` of one vector (3,) (float64): ``numpy.linalg.norm``'s own ``sqrt(d . d)``."""
+    return math.sqrt(d.dot(d))
+
+
 def heard(position_at: Callable[[float], np.ndarray], p_tx_m: np.ndarray, t_tx_s: float) -> tuple[float, np.ndarray]:
     """The true reception time of a broadcast sent from ``p_tx_m`` (3,) at ``t_tx_s`` by a receiver whose
     true position at a time is ``position_at(t)`` (3,), and that position (module doc)."""
     t_rx = t_tx_s
     for _ in range(LIGHT_TIME_STEPS):
-        t_rx = t_tx_s + float(np.linalg.norm(position_at(t_rx) - p_tx_m)) / SPEED_OF_LIGHT_M_S
+        t_rx = t_tx_s + _norm(position_at(t_rx) - p_tx_m) / SPEED_OF_LIGHT_M_S
     return t_rx, position_at(t_rx)
 
 
@@ -37,6 +43,6 @@ def pseudorange_m(p_rx_m: np.ndarray, p_tx_m: np.ndarray, t_tx_s: float, t_rx_s:
                   clock, net_clock) -> float:
     """The noise-free pseudorange (m) of a broadcast ``msg`` heard at ``(t_rx_s, p_rx_m)`` (module doc);
     ``clock`` the receiver clock (``bias_m(t)``), ``net_clock`` the receiver's network-time error."""
-    return float(np.linalg.norm(p_rx_m - p_tx_m)) \
+    return _norm(p_rx_m - p_tx_m) \
         + SPEED_OF_LIGHT_M_S * pseudorange_time_error_s(msg, t_tx_s, t_rx_s, net_clock) \
         + float(clock.bias_m(t_rx_s))

@@ -98,7 +98,11 @@ class LaggedJacobian:
         if self.direction != "weakest" or self.pos is None or self.lag_s <= 0:
             return
         X = cart_moments().copy()  # Cartesian: the model's own Jacobian
-        X[..., POS] = np.where(inv[..., None], X[..., POS], self.pos)
+        if X.ndim == 1:
+            if not inv:
+                X[POS] = self.pos
+        else:
+            X[..., POS] = np.where(inv[..., None], X[..., POS], self.pos)
         A = jac(X)[..., cols]
         F = np.swapaxes(A, -1, -2) @ A
         a = min(1.0, step_s / self.lag_s) if step_s > 0 else 1.0
@@ -136,4 +140,7 @@ class LaggedJacobian:
             E = self.comp
             m2 = mahalanobis2(np.einsum("...ij,...i->...j", E, d), np.swapaxes(E, -1, -2) @ Ph @ E)
         a = min(1.0, step_s / lag) if step_s > 0 else 1.0
-        self.pos = np.where(~(m2 <= 16.0)[..., None], p, self.pos + a * d)
+        if d.ndim == 1:  # one run
+            self.pos = self.pos + a * d if m2 <= 16.0 else p.copy()
+        else:
+            self.pos = np.where(~(m2 <= 16.0)[..., None], p, self.pos + a * d)
