@@ -161,7 +161,7 @@ def run(args) -> int:
             entries, _hole, _n = a.contiguous()
             ms = [e[1] for e in entries if e[0] == "m"]
             if ms:
-                flights.append((path, a, entries, ms[0]))
+                flights.append((path, a, entries, min(ms)))  # the earliest reception (out-of-order arrivals)
     if not flights:
         print("error: no aircraft journal with truth in " + ", ".join(args.mcap)
               + " (record a fleet with its aircraft: larns fleet --aircraft --record FILE)", file=sys.stderr)
