@@ -45,7 +45,7 @@ def register(sub) -> None:
                    help="radio algorithm to re-fly (repeatable; default ukf-pr and ekf-pr)")
     p.add_argument("--starts", type=int, default=12, help="start times per recording")
     p.add_argument("--span", type=float, default=30.0,
-                   help="the starts spread over this many seconds from the journal's first broadcast")
+                   help="the starts spread over this many seconds from the journal's earliest broadcast")
     p.add_argument("--bad-m", type=float, default=10.0, help="a start whose last estimate is further off horizontally is bad")
     p.add_argument("--without", action="append", default=[], type=_rules, metavar="RULE[,RULE]",
                    help="also re-fly with these receiver rules off (repeatable; comma-separated: together): "
