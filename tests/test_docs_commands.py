@@ -237,6 +237,17 @@ TABLE: dict[str, Run | Skip] = {
     "docker compose run --rm keys add /keys --station 11": Skip(COMPOSE),
     "docker compose --profile hotjoin up -d station11": Skip(COMPOSE),
     "docker compose down -v": Skip(COMPOSE),
+    # --- docs/slots.md
+    "larns bench slots --trials 5": Skip(BENCH),
+    "larns bench slots --trials 5 --cycle-slots 0": Skip(BENCH),
+    "larns bench slots --trials 5 --tx-power-dbm 0": Skip(BENCH),
+    "larns bench slots --trials 5 --tx-power-dbm 3": Skip(BENCH),
+    "larns bench slots --trials 5 --tx-power-dbm 5": Skip(BENCH),
+    "larns bench slots --layout corridor --trials 5": Skip(BENCH),
+    "larns bench slots --layout corridor --trials 5 --cycle-slots 0": Skip(BENCH),
+    "larns bench slots --layout corridor --trials 5 --tx-power-dbm 0": Skip(BENCH),
+    "larns bench slots --stations 40 --trials 1 --duration 20 --joiners 2 --tx-power-dbm -5 --cycle-slots 20":
+        Run(expect=r"bar joiners_hold_within_3_cycles: PASS", timeout_s=60.0),
     # --- docs/aircraft.md
     "larns crlb --scenario seed003 --png crlb.png [--height 1000] [--params posvel|pos] [--clock] [--json F]":
         Run("the [optional] parts dropped", edits=_short(" [--height 1000] [--params posvel|pos] [--clock] [--json F]", ""),

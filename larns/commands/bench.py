@@ -22,6 +22,7 @@ BENCHES: list[str] = [
     "larns.bench.integrity",
     "larns.bench.vehicle",
     "larns.bench.triad",
+    "larns.bench.slots",
 ]
 
 
@@ -58,6 +59,9 @@ EXAMPLES: dict[str, list[str]] = {
                   "larns bench integrity --trials 20 --aircraft seed001 seed003 --json integrity.json"],
     "vehicle": ["larns bench vehicle --quick                          # smoke test",
                 "larns bench vehicle --json vehicle.json --png-dir img/"],
+    "slots": ["larns bench slots --trials 5 --tx-power-dbm 0 --json slots.json   # 200 stations, 40 x 30 km, 4.7 km links",
+              "larns bench slots --layout corridor --tx-power-dbm 0 --trials 5",
+              "larns bench slots --cycle-slots 0 --trials 2                # default radio: cycle sized for the densest 2-hop neighbourhood"],
     "triad": ["larns bench triad --quick                            # 10 runs, durations / 5: ~1.5 min",
               "larns bench triad --cases 4gs 2sv2gs --json triad.json"],
 }
