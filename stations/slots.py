@@ -188,8 +188,13 @@ class SlotCore:
             if self._peers[oldest].last_cycle >= cycle:
                 return  # a full table of peers heard this cycle: the newcomer is not stored
             del self._peers[oldest]
-        summary = h.summary if h.summary is not None and len(h.summary.state) == self.cfg.cycle_slots else None
+        summary = h.summary if self._valid(h.summary) else None
         self._peers[h.sender] = _Peer(cycle, int(h.slot), int(h.since), summary)
+
+    def _valid(self, s: SlotSummary | None) -> bool:
+        """A summary of this cycle size (three arrays of ``C`` entries); anything else is ignored."""
+        C = self.cfg.cycle_slots
+        return s is not None and all(np.shape(a) == (C,) for a in (s.state, s.owner, s.since))
 
     def _evict(self, cycle: int) -> None:
         for k in [k for k, p in self._peers.items() if cycle - p.last_cycle >= self.cfg.evict_after_cycles]:
@@ -236,7 +241,7 @@ class SlotCore:
         better = other_inc = no_inc = acked = False
         for h in heard:
             s = h.summary
-            if s is None or len(s.state) != self.cfg.cycle_slots or h.sender == me:
+            if not self._valid(s) or h.sender == me:
                 continue
             st, own = int(s.state[k]), int(s.owner[k])
             if st == GARBAGE:

@@ -157,9 +157,13 @@ def test_the_peer_table_stays_bounded_under_a_flood_of_hostile_ids():
         assert core.peer_count <= 16
         assert 2 in core._peers  # the flood did not push out the neighbour heard in the same cycle
     # malformed input is ignored, not stored: slots out of range, summaries of another cycle size
-    core.on_cycle(5, [Heard(3, 99, 0, None), Heard(4, 1, 0, _summary(5, {}))])
-    assert 3 not in core._peers and core._peers[4].summary is None
-    for cycle in range(6, 6 + cfg.evict_after_cycles):
+    ragged = SlotSummary(np.zeros(8, np.int8), np.zeros(2, np.int64), np.zeros(8, np.int64))
+    core.on_cycle(5, [Heard(3, 99, 0, None), Heard(4, 1, 0, _summary(5, {})), Heard(5, 2, 0, ragged)])
+    assert 3 not in core._peers and core._peers[4].summary is None and core._peers[5].summary is None
+    core.slot, core.since = 2, 6  # a holder reads the ragged summary's slot 2 without an IndexError
+    core.on_cycle(6, [])
+    core.on_cycle(7, [Heard(5, 2, 0, ragged)])
+    for cycle in range(8, 8 + cfg.evict_after_cycles):
         core.on_cycle(cycle, [])
     assert core.peer_count == 0  # nobody heard for evict_after_cycles cycles: all evicted
 
