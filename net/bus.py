@@ -122,6 +122,7 @@ MAX_ZENOH_MESSAGE_BYTES = 2 * 64 * 1024
 # link again within ~0.1 s of a peer or router that restarts or reopens its session (a revocation:
 # Bus.reopen); Zenoh's default (1 s, x2 up to 4 s) lost 1-3 s of traffic
 _FAST_RETRY = {"connect/retry": '{"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2}'}
+ROUTER_BLOCK_CLOSE_US = 500_000
 _MODE_SETTINGS: dict[str, dict[str, str]] = {
     # peers: full mesh through gossip (Zenoh >= 1.9 peers do not relay); keep retrying seeds that
     # are not up yet (processes start in any order)
@@ -140,6 +141,12 @@ _MODE_SETTINGS: dict[str, dict[str, str]] = {
                "scouting/gossip/enabled": "false",
                "scouting/delay": "0",  # a router waited 0.5 s after binding its port, its clients with it
                "timestamping/enabled": '{"router": false, "peer": false, "client": false}',
+               # a link blocked this long (us) on a full queue is closed: a message sent with BLOCK
+               # (the journals) towards a link that died without a FIN (a cut backbone between two
+               # routers) stalled the router's forwarding to every client for 5-10 s with Zenoh's
+               # default 5 s, 1-2 s with 1 s, 0.5-1.1 s with 0.5 s (tests/larns/test_compose_sites.py,
+               # docs/deploy.md "Two sites, a router each")
+               "transport/link/tx/queue/congestion_control/block/wait_before_close": str(ROUTER_BLOCK_CLOSE_US),
                "connect/timeout_ms": '{"router": -1, "peer": -1, "client": 0}',
                "connect/exit_on_failure": '{"router": false, "peer": false, "client": true}'},
 }

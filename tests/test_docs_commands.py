@@ -174,6 +174,8 @@ class Skip:
 MENTION = "prose: names an option or mode of the command inside a sentence, not a line to run"
 SYNOPSIS = "synopsis with placeholders or [optional] parts, not a line to run as written"
 COMPOSE = "needs a Docker engine: the compose timeline (up, hot-join station11 with its keys, logs, down -v -> a valid MCAP) is tests/larns/test_compose.py (marker compose)"
+SITES = ("needs a Docker engine: tests/larns/test_compose_sites.py (marker compose) writes the file with "
+         "scripts/compose-sites.py, runs it up, cuts and heals the backbone, and takes it down -v")
 BENCH = "long bench (minutes of Monte Carlo or real-time fleets on 2 cores); options checked by the parser here"
 SUITE = "a pytest run of this suite's own files: the suite runs them (path checked here)"
 MANUAL = "a piece of a fleet started by hand on fixed ports (7447/7450/7500), typed beside a running fleet in other terminals; the launcher does the same with free ports: larns fleet lines RUN here, tests/net/test_bus_router.py (router + clients), tests/larns/test_record.py (record)"
@@ -237,6 +239,10 @@ TABLE: dict[str, Run | Skip] = {
     "docker compose run --rm keys add /keys --station 11": Skip(COMPOSE),
     "docker compose --profile hotjoin up -d station11": Skip(COMPOSE),
     "docker compose down -v": Skip(COMPOSE),
+    # --- docs/deploy.md, two sites
+    "scripts/compose-sites.py --out runs/sites.yml": Skip(SITES),
+    "docker compose -f runs/sites.yml --project-directory . -p sites up -d": Skip(SITES),
+    "docker compose -f runs/sites.yml --project-directory . -p sites down -v": Skip(SITES),
     # --- docs/slots.md
     "larns bench slots --trials 5": Skip(BENCH),
     "larns bench slots --trials 5 --cycle-slots 0": Skip(BENCH),

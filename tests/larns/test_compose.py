@@ -43,6 +43,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from compose_support import Compose, sim_rms as _sim_rms, sleep_until as _sleep_until, tail as _tail, wait_started
+from compose_support import assert_not_disturbed, at_index as _at, err_sigma as _err_sigma, logs_and_down
 from scenario_text import random_world
 
 # whole-product stage (marker matrix): containers run whole, ~2 min, beside the packaged scenarios'
@@ -87,10 +89,6 @@ if COMPOSE is None:
     pytest.skip(f"compose tests need Docker: {_why}", allow_module_level=True)
 if _run([sys.executable, "-m", "larns", "station", "--help"]).returncode != 0:
     pytest.skip("`larns station` does not exist yet", allow_module_level=True)
-
-
-def _tail(text: str, n: int = 30) -> str:
-    return "\n".join(text.strip().splitlines()[-n:])
 
 
 _build: dict = {}   # the image build, started early by start_image_build(): thread, result
@@ -143,33 +141,6 @@ class FleetRun:
 
     def ns(self, event: str) -> int:
         return int(self.events[event] * 1e9)
-
-
-class Compose:
-    def __init__(self, project: str, env: dict[str, str]):
-        self.project, self.env = project, env
-
-    def __call__(self, *args: str, timeout: float = 120, check: bool = True) -> subprocess.CompletedProcess:
-        r = _run([*COMPOSE, "-p", self.project, "-f", str(ROOT / "docker-compose.yml"), *args],
-                 timeout=timeout, env=self.env, cwd=ROOT)
-        if check:
-            assert r.returncode == 0, f"compose {' '.join(args)} failed:\n{_tail(r.stderr + r.stdout)}"
-        return r
-
-    def containers(self) -> dict[str, tuple[str, str]]:
-        """service -> (container id, state), from the compose labels (one fast `docker ps`)."""
-        out = _run(["docker", "ps", "-a", "--filter", f"label=com.docker.compose.project={self.project}",
-                    "--format", '{{.Label "com.docker.compose.service"}} {{.ID}} {{.State}}']).stdout
-        return {svc: (cid, st) for svc, cid, st in (line.split() for line in out.splitlines() if line.strip())}
-
-    def cid(self, service: str) -> str:
-        c = self.containers().get(service)
-        assert c, f"no container for {service}"
-        return c[0]
-
-
-def _sleep_until(wall_s: float) -> None:
-    time.sleep(max(0.0, wall_s - time.time()))
 
 
 _timeline_bg: dict = {}   # the compose timeline run in the background: thread, run | skip | error
@@ -270,7 +241,7 @@ def _timeline(larns_image: str, tmp: Path) -> FleetRun:
     env = {**os.environ, "LARNS_IMAGE": larns_image, "LARNS_SCENARIO": "compose", "LARNS_JOIN_SCENARIO": "compose",
            "LARNS_SCENARIO_DIR": str(tmp), "LARNS_SPEED": repr(SPEED), "LARNS_EPOCH": repr(epoch),
            "LARNS_RUN": name, "LARNS_UID": str(os.getuid()), "LARNS_GID": str(os.getgid())}
-    dc = Compose(_project(), env)
+    dc = Compose(COMPOSE, _project(), env)
     run = FleetRun(mcap=mcap, scenario=scn, epoch=epoch, logs=logs)
     stations = [f"station{i}" for i in IDS]
     try:
@@ -288,13 +259,7 @@ def _timeline(larns_image: str, tmp: Path) -> FleetRun:
                                  cids[svc]]).stdout.strip()
         # the timeline starts when every station process runs (its start line), not at `up`: on a
         # loaded 2-core box, 11 Python processes importing numpy/scipy/zenoh take a while
-        waiting = set(IDS)
-        while waiting and time.time() - t0 < 120:
-            for i in sorted(waiting):
-                r = _run(["docker", "logs", cids[f"station{i}"]])
-                if f"[station {i}] scenario" in r.stdout + r.stderr:
-                    waiting.discard(i)
-            time.sleep(0.5)
+        waiting = wait_started({i: cids[f"station{i}"] for i in IDS}, t0)
         assert not waiting, f"stations {sorted(waiting)} did not start within 120 s"
         run.events["running"] = start = max(time.time(), epoch)
         print(f"[compose] 11 containers up in {run.events['up'] - t0:.1f} s, "
@@ -369,34 +334,10 @@ def _timeline(larns_image: str, tmp: Path) -> FleetRun:
         run.summary = mcap_station_summary(mcap)
         return run
     finally:
-        if not logs.exists():       # failed before `down`: keep the containers' logs
-            logs.write_text(dc("logs", "--no-color", check=False).stdout)
-        print(f"[compose] container logs: {logs}", file=sys.stderr)
-        dc("down", "-v", "--remove-orphans", timeout=120, check=False)
+        logs_and_down(dc, logs, "compose")
 
 
 # ------------------------------------------------------------------------------------------ helpers
-
-def _sim_rms(scn: Path, until_s: float, ids: list[int], start_s: dict, stop_s: dict) -> float:
-    """Mean over 3 world seeds of the in-process simulator's RMS error of ``ids`` at ``until_s``."""
-    from net.scenario import load
-    from stations.sim import Simulator
-
-    s = load(scn)
-    k = [s.ids.index(i) for i in ids]
-    out = []
-    for seed in range(3):
-        r = Simulator(s, seed=seed, start_s=start_s, stop_s=stop_s).run(until_s, [until_s])
-        out.append(np.sqrt(np.mean(np.linalg.norm(r.pos_m[-1, k] - r.truth_m[k], axis=-1) ** 2)))
-    return float(np.mean(out))
-
-
-def _at(s: dict, t_ns: int) -> int:
-    """Index of the last estimate logged before wall time ``t_ns``."""
-    i = int(np.searchsorted(s["log_time_ns"], t_ns)) - 1
-    assert i >= 0, "no estimate before the event"
-    return i
-
 
 def _stalled(run: FleetRun, sid: int, t0_ns: int, t1_ns: int) -> str:
     """Why a station made no survey update between ``t0_ns`` and ``t1_ns``: whether it still published
@@ -414,11 +355,6 @@ def _stalled(run: FleetRun, sid: int, t0_ns: int, t1_ns: int) -> str:
             f"at its last estimate {last:+.1f} s wall after the window's start; its log ends:\n" + "\n".join(lines))
 
 
-def _err_sigma(s: dict, i: int) -> tuple[float, float]:
-    return (float(np.linalg.norm(s["pos_m"][i] - s["truth_m"])),
-            float(math.sqrt(max(np.trace(s["cov_m2"][i]), 0.0))))
-
-
 def _first_nav_after(path: Path, sid: int, t_ns: int) -> int:
     from mcap.reader import make_reader
     with open(path, "rb") as f:
@@ -431,14 +367,7 @@ def _first_nav_after(path: Path, sid: int, t_ns: int) -> int:
 def _assert_not_disturbed(run: FleetRun, t_ns: int, ids: list[int]) -> None:
     """Stations ``ids`` move by < 1 sigma per axis from their last estimate before ``t_ns`` to
     their first estimate 2 cycles later (the join / reconnection must not shake the network)."""
-    for sid in ids:
-        s = run.summary[sid]
-        b = _at(s, t_ns)
-        a = int(np.searchsorted(s["log_time_ns"], t_ns + int(2 * CYCLE_S / SPEED * 1e9)))
-        assert a < len(s["log_time_ns"]), (sid, "no estimate after the event")
-        d = np.abs(s["pos_m"][a] - s["pos_m"][b])
-        sig = np.sqrt(np.diag(s["cov_m2"][b]))
-        assert np.all(d <= sig + 1e-6), (sid, d, sig)
+    assert_not_disturbed(run.summary, t_ns, ids, 2 * CYCLE_S / SPEED)
 
 
 # -------------------------------------------------------------------------------------------- tests
