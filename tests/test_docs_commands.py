@@ -213,6 +213,8 @@ TABLE: dict[str, Run | Skip] = {
         "needs ./dev demo's recording; the bench runs on the shared fleet's in tests/larns/test_bench_coldstart.py"),
     "larns bench cold-start e2ev1.mcap e2ev2.mcap e2ev3.mcap e2ev4.mcap --span 3 --without survey --without survey,floor --without floor --png cold.png": Skip(
         "needs four CPU-starved fleet recordings (the lines above it); the bench runs on the shared fleet's in tests/larns/test_bench_coldstart.py"),
+    "larns bench cold-start REC --starts 20 --span 10": Skip(
+        "needs a fleet recording REC of the e2e scenario (the line beside it); the bench runs on the shared fleet's in tests/larns/test_bench_coldstart.py"),
     "./dev bench net": Skip("real-time Zenoh latency bench (~1 min); options checked by the parser here"),
     "./dev bench ins --json ins.json --png ins.png": Skip(BENCH),
     "./dev bench integrity --aircraft --json integrity.json": Skip(BENCH),
