@@ -13,6 +13,9 @@ One model for the simulator and the processes (``net/channel.py`` applies it to 
   by taking the larger of the two losses. A link exists when the path clears the horizon and the
   post-correlation SNR (``SNR + 10 log10(B T_int)``, the processing gain of a correlator integrating
   ``T_int``) reaches the receiver's detection threshold.
+* **Terrain** (optional, ``[radio] terrain``: :mod:`net.terrain`): the straight path between the antennas
+  must clear a height grid plus the Earth bulge ``d1 d2 / (2 k R_E)`` (and a fraction of the first Fresnel
+  zone) at every sample; without it nothing changes.
 * **Timing noise from the SNR**: the Cramer-Rao bound of a time of arrival,
   ``sigma_tau = 1 / (2 pi beta sqrt(2 SNR_post))`` with ``beta = B / sqrt(12)`` the RMS bandwidth of a
   flat spectrum of width ``B`` (Van Trees; Gezici et al. 2005, eq. 3), added in quadrature to the
@@ -31,10 +34,14 @@ bandwidth, 0 dBi antennas 10 m up, a 10 us correlator and a 12 dB detection thre
 from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
+from pathlib import Path
 
 import numpy as np
 
 from nav.geometry import SPEED_OF_LIGHT_M_S
+
+from . import terrain as _terrain
+from .terrain import Terrain
 
 EARTH_RADIUS_M = 6_371_000.0
 THERMAL_NOISE_DBM_HZ = -174.0
@@ -55,6 +62,8 @@ class RadioParams:
     integration_s: float = 1.0e-5
     threshold_db: float = 12.0
     two_ray: bool = True
+    # [radio] terrain (net/terrain.py): line-of-sight masking by a height grid; None: a smooth Earth
+    terrain: Terrain | None = None
     # not scenario keys: the physical up direction in the frame of the positions the channel gets (the
     # network frame) and the physical height of that frame's origin (:meth:`in_frame`)
     up: tuple[float, float, float] = (0.0, 0.0, 1.0)
@@ -64,7 +73,8 @@ class RadioParams:
         """These parameters for positions in the network frame ``p_net = R (p_phys - t)``
         (:func:`nav.geometry.to_network_frame`): physical height ``z = R[:, 2] . p_net + t_z``."""
         R, t_m = np.asarray(R, float), np.asarray(t_m, float)
-        return replace(self, up=tuple(float(v) for v in R[:, 2]), origin_height_m=float(t_m[2]))
+        terrain = None if self.terrain is None else self.terrain.in_frame(R, t_m)
+        return replace(self, up=tuple(float(v) for v in R[:, 2]), origin_height_m=float(t_m[2]), terrain=terrain)
 
     @property
     def wavelength_m(self) -> float:
@@ -127,8 +137,21 @@ def link(tx_pos_m, rx_pos_m, params: RadioParams) -> Link:
     h1, h2 = _heights(tx, params), _heights(rx, params)
     snr_db = link_snr_db(d, h1, h2, params)
     exists = (d <= horizon_m(h1, h2, params.k_factor)) & (snr_db >= params.threshold_db)
+    if params.terrain is not None:  # line of sight over the terrain
+        exists = _line_of_sight(tx, rx, exists, params)
     sigma = np.where(exists, toa_crlb_s(snr_db, params), np.inf)
     return Link(exists=np.asarray(exists), snr_db=np.asarray(snr_db), sigma_crlb_s=np.asarray(sigma))
+
+
+def _line_of_sight(tx, rx, exists, params: RadioParams) -> np.ndarray:
+    """``exists`` (...) and the terrain's line of sight (:func:`net.terrain.clear`), evaluated only where the
+    horizon and the budget let the link exist."""
+    tx, rx = np.broadcast_arrays(tx, rx)
+    out = np.broadcast_to(np.asarray(exists, bool), tx.shape[:-1]).copy()
+    if out.any():
+        out[out] = _terrain.clear(tx[out], rx[out], params.terrain, params.k_factor, params.wavelength_m,
+                                  params.antenna_height_m)
+    return out
 
 
 def toa_crlb_s(snr_db, params: RadioParams) -> np.ndarray:
@@ -162,7 +185,7 @@ def radio_dict(params: RadioParams | None) -> dict | None:
     if params is None:
         return None
     return {f.name: (list(getattr(params, f.name)) if f.name == "up" else getattr(params, f.name))
-            for f in fields(params)}
+            for f in fields(params) if f.name != "terrain"}  # the stations weight ranges without the terrain
 
 
 def radio_from_dict(d: dict | None) -> RadioParams | None:
@@ -191,19 +214,42 @@ def max_range_m(params: RadioParams, h1_m: float, h2_m: float) -> float:
 POSITIVE = ("k_factor", "freq_hz", "bandwidth_hz", "integration_s")
 
 
-def parse(table: dict, error) -> RadioParams | None:
+TERRAIN_KEYS = ("terrain", "fresnel_clearance")
+
+
+def _parse_terrain(table: dict, error, base_dir: Path | None, load_terrain: bool) -> Terrain | None:
+    """``[radio] terrain`` (a grid file, relative to ``base_dir``) and ``fresnel_clearance`` (net/terrain.py)."""
+    name, f = table.get("terrain"), table.get("fresnel_clearance", 0.0)
+    if name is None:
+        if "fresnel_clearance" in table:
+            raise error("[radio] fresnel_clearance: without [radio] terrain (expected a terrain grid file too)")
+        return None
+    if not isinstance(name, str) or not name:
+        raise error(f"[radio] terrain: got {name!r} (expected the path of a terrain grid TOML file)")
+    if isinstance(f, bool) or not isinstance(f, (int, float)) or not np.isfinite(f) or f < 0:
+        raise error(f"[radio] fresnel_clearance: got {f!r} (expected a number >= 0: the fraction of the first "
+                    "Fresnel zone kept clear)")
+    return _terrain.load(name, base_dir, float(f), error) if load_terrain else None
+
+
+def parse(table: dict, error, base_dir: str | Path | None = None, load_terrain: bool = True) -> RadioParams | None:
     """``RadioParams`` of a scenario's ``[radio]`` table (None: no table, every station hears every
-    other at any distance). ``error(message)`` raises the loader's one-line error."""
+    other at any distance). ``error(message)`` raises the loader's one-line error. ``[radio] terrain``
+    is read relative to ``base_dir`` (the scenario file's folder), not at all with ``load_terrain`` False."""
     if table is None:
         return None
     if not isinstance(table, dict):
         raise error("[radio]: expected a table")
-    known = {f.name: f for f in fields(RadioParams) if f.name not in ("up", "origin_height_m")}
+    known = [f.name for f in fields(RadioParams) if f.name not in ("up", "origin_height_m", "terrain")]
+    known += list(TERRAIN_KEYS)
     for key in table:
         if key not in known:
             raise error(f"[radio] {key}: unknown key (expected one of {', '.join(known)})")
+    terrain = _parse_terrain(table, error, None if base_dir is None else Path(base_dir), load_terrain)
     values = {}
     for key, v in table.items():
+        if key in TERRAIN_KEYS:
+            continue
         if key == "two_ray":
             if not isinstance(v, bool):
                 raise error(f"[radio] two_ray: {v!r} is not a boolean (expected true or false)")
@@ -216,7 +262,7 @@ def parse(table: dict, error) -> RadioParams | None:
         if key == "antenna_height_m" and v < 0:
             raise error(f"[radio] antenna_height_m: {v!r} (expected >= 0)")
         values[key] = float(v)
-    return RadioParams(**values)
+    return RadioParams(**values, terrain=terrain)
 
 
 def reception_sigma_m(tx_pos_m, rx_pos_m, params: RadioParams | None, floor_m: float) -> float | None:

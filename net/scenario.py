@@ -90,6 +90,7 @@ from nav.site import Site
 from .clock import PRESETS, ClockParams, clock_params
 from .radio import RadioParams
 from .radio import parse as parse_radio
+from .sidefile import read_beside
 
 
 class ScenarioError(ValueError):
@@ -463,15 +464,9 @@ def _geojson_stations(name: str, base_dir: Path | None) -> list[dict]:
     ``[[stations]]`` entries with ``lat_deg`` / ``lon_deg`` / ``h_m``."""
     import json
 
-    path = Path(name) if base_dir is None or Path(name).is_absolute() else Path(base_dir) / name
     w = "[site] stations_geojson"
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as e:
-        raise ScenarioError(f"{w}: cannot read {path}: {e.strerror or e} (expected a readable GeoJSON file, "
-                            "relative to the scenario file)") from None
-    except (UnicodeDecodeError, ValueError) as e:
-        raise ScenarioError(f"{w}: {path}: not JSON ({e}) (expected a GeoJSON FeatureCollection)") from None
+    path, doc = read_beside(name, base_dir, w, json.loads, "JSON", "a readable GeoJSON file, relative to the scenario file",
+                            "a GeoJSON FeatureCollection", ScenarioError)
     if not isinstance(doc, dict) or doc.get("type") != "FeatureCollection" or not isinstance(doc.get("features"), list):
         raise ScenarioError(f"{w}: {path}: not a FeatureCollection (expected a GeoJSON FeatureCollection of "
                             "Point features)")
@@ -565,7 +560,7 @@ def from_dict(raw: dict[str, Any], base_dir: str | Path | None = None) -> Scenar
     survey = raw.get("survey", {})
     channel = ChannelParams(**raw.get("channel", {}))
     if "radio" in raw:  # links and their timing noise from the radio (net/radio.py)
-        radio = parse_radio(raw["radio"], ScenarioError)
+        radio = parse_radio(raw["radio"], ScenarioError, base_dir=base_dir)  # [radio] terrain beside the file
         channel = replace(channel, radio=radio.in_frame(R, t))
     return Scenario(
         name=str(raw.get("name", "unnamed")),
@@ -946,7 +941,7 @@ def validate(raw: dict[str, Any]) -> None:
     _validate_stations(raw)
     _validate_site(raw)
     if "radio" in raw:
-        parse_radio(raw["radio"], ScenarioError)
+        parse_radio(raw["radio"], ScenarioError, load_terrain=False)  # the terrain file: from_dict
     frame = _table(raw, "frame")
     _known(frame, "[frame]", ("z_ref",))
     if "z_ref" in frame:

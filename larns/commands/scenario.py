@@ -159,9 +159,12 @@ def format_scenario(sc) -> str:
     ]
     radio = getattr(sc.channel, "radio", None)
     if radio is not None:
-        keep = {k: v for k, v in asdict(radio).items() if k not in ("up", "origin_height_m")}
+        keep = {k: v for k, v in asdict(replace(radio, terrain=None)).items()
+                if k not in ("up", "origin_height_m", "terrain")}
         lines.append("[radio]      " + ", ".join(f"{k} {v:g}" if isinstance(v, float) and not isinstance(v, bool)
                                                  else f"{k} {v}" for k, v in keep.items()))
+        if radio.terrain is not None:
+            lines.append("[radio]      " + radio.terrain.describe())
     if sc.site is not None:
         lines.append(f"[site]       origin {sc.site.lat_deg:.9f} deg, {sc.site.lon_deg:.9f} deg, "
                      f"{sc.site.h_m:.3f} m (WGS84); azimuth of +X {sc.site.azimuth_deg:g} deg")

@@ -114,9 +114,10 @@ def test_every_packaged_scenario_is_valid():
     files = sorted(p.name for p in (importlib.resources.files("net") / "scenarios").iterdir()
                    if p.name.endswith(".toml"))
     assert "seed000.toml" in files and len(files) >= 8
+    folder = importlib.resources.files("net") / "scenarios"
     for name in files:
-        with (importlib.resources.files("net") / "scenarios" / name).open("rb") as f:
-            from_dict(tomllib.load(f))
+        with (folder / name).open("rb") as f:
+            from_dict(tomllib.load(f), base_dir=str(folder))  # files they name ([radio] terrain) lie beside them
         assert load(name[:-5]).ids[:3] == [1, 2, 3]
 
 
