@@ -158,6 +158,7 @@ def _check_aircraft(name: str, case: Case, algo: str, row: dict) -> None:
         return
     window = case.lsq_window_m if algo.startswith("lsq") and case.lsq_window_m else case.ac_window_m
     final = case.lsq_window_m if algo.startswith("lsq") and case.lsq_window_m else case.ac_final_m
+    assert row.get("max_eh_window_m") is not None, (name, algo, "no estimate from 30 s on", row)
     assert row["max_eh_window_m"] <= window, (name, algo, row)
     assert row["final_eh_m"] <= min(final, 3.0 * row["final_sigma_h_m"] + 1.0), (name, algo, row)
     if case.nees and not algo.startswith("lsq"):

@@ -266,13 +266,12 @@ def test_a_filter_under_the_floor_restarts():
         assert e.tracker is not None and abs(e.estimate()["pos_m"][2] - p_ac[2]) < 100.0, algo
 
 
-def _lsq_far_field(algo: str, seconds: float, rng):
+def _far_field_estimates(algo: str, seconds: float, rng, hook=None):
     """seed001 as the live core flies it (four stations on a 50 m circle, the aircraft on its turn 1-3 km
     out, one nav per 10 ms slot), the stations' broadcast positions off by a persisting survey error
-    (5 cm horizontally, 0.5 m in height; broadcast sigmas 5 cm and 1 m); yields, from 30 s on, each LSQ
-    estimate's error, its published covariance and the batch's own ``(H^T W H)^-1`` at the fix."""
+    (5 cm horizontally, 0.5 m in height; broadcast sigmas 5 cm and 1 m); yields ``(event, truth,
+    estimator)`` for each estimate; ``hook(t_s, estimator)`` runs before each nav."""
     from aircraft.config import from_scenario
-    from aircraft.navigator.radio.lsq import lsq_cov
     from net.scenario import load
 
     sc = load("seed001")
@@ -286,16 +285,47 @@ def _lsq_far_field(algo: str, seconds: float, rng):
     truth = None
     for k in range(int(seconds / sc.tdma.slot_s)):
         t, j = k * sc.tdma.slot_s, k % n
+        if hook is not None:
+            hook(t, est)
         msg = {"kind": "nav", "src": j + 1, "seq": k // n + 1, "stamp_s": t, "cycle": k // n + 1, "slot": j,
                "t_tx_s": t, "pos_m": (sc.pos_m[j] + err[j]).tolist(), "cov_m2": cov, "n_updates": k // n + 1,
                "state": "surveying", "ranges": [], "members": [], "clock": [t, 0.0, 0.0, 0.7e-9**2, 0.0, 1e-24]}
         for ev in core.on_nav(msg, {"pos_m": sc.pos_m[j].tolist(), "t_true_s": t}):
             if ev.kind == "ac_truth":
                 truth = np.asarray(ev.pos_m)
-            elif ev.kind == "ac_estimate" and ev.t_s >= 30.0:
-                pos_b, cov_b = est._last_geom[:2]
-                own = lsq_cov(est.fix[None], pos_b, est.cfg.tuning.sigma_m**2, est.model, cov_b)[0, :3, :3]
-                yield np.subtract(ev.pos_m, truth), np.asarray(ev.cov_m2), own
+            elif ev.kind == "ac_estimate":
+                yield ev, truth, est
+
+
+def _lsq_far_field(algo: str, seconds: float, rng):
+    """:func:`_far_field_estimates` from 30 s on: each LSQ estimate's error, its published covariance
+    and the batch's own ``(H^T W H)^-1`` at the fix."""
+    from aircraft.navigator.radio.lsq import lsq_cov
+
+    for ev, truth, est in _far_field_estimates(algo, seconds, rng):
+        if ev.t_s >= 30.0:
+            pos_b, cov_b = est._last_geom[:2]
+            own = lsq_cov(est.fix[None], pos_b, est.cfg.tuning.sigma_m**2, est.model, cov_b)[0, :3, :3]
+            yield np.subtract(ev.pos_m, truth), np.asarray(ev.cov_m2), own
+
+
+@pytest.mark.parametrize("algo", ["lsq-pr", "lsq-tdoa"])
+def test_a_runaway_lsq_fix_restarts_from_the_broadcasts(algo):
+    """Receiver rule 4 for the snapshot LSQ's warm start: a fix that has walked off along the range
+    (planted here 300 km out at 5 s, where seed001's far-field chain went in a CI fleet) is not
+    publishable; it is dropped and the next batch starts from the broadcasts again, so estimates
+    resume within a second. Without the rule the warm start (10 steps of 200 m) never comes back and
+    nothing is published for the rest of the run."""
+    def plant(t_s, est):
+        if abs(t_s - 5.0) < 1e-9:
+            est.fix = np.r_[0.0, -300e3, 40e3, 0.0][: est.fix.size]
+
+    rows = [(ev.t_s, np.subtract(ev.pos_m, truth)) for ev, truth, _ in
+            _far_field_estimates(algo, 12.0, np.random.default_rng(2), plant)]
+    after = [(t, e) for t, e in rows if t > 5.0]
+    assert after and after[0][0] < 6.0, [t for t, _ in rows][-5:]
+    assert max(np.hypot(e[0], e[1]) for _, e in after) < 10e3
+    assert sum(t > 10.0 for t, _ in after) >= 20
 
 
 @pytest.mark.parametrize("algo", ["lsq-pr", "lsq-tdoa"])

@@ -267,6 +267,7 @@ class AircraftEstimator:
         self.t_s = t_s
         self.n_updates += 1
         if self.method == "lsq":
+            self._drop_runaway_fix()
             return
         self.fix, self.tracker = start_from_guess(self.method, self.model, tu, self.guess, self.cfg.guess_sigma_m,
                                                   self.fix, t_s, pos, rho)
@@ -328,6 +329,21 @@ class AircraftEstimator:
             self.monitor.reset()
         if self.fde is not None:  # exclusions stand; the new filter's transient passes before the gate
             self.fde.restart()
+
+    def _drop_runaway_fix(self) -> None:
+        """Receiver rule 4 for the snapshot LSQ (aircraft/navigator/receiver.py): each batch's fix starts
+        from the previous one (a warm start, up to 10 steps of 200 m). Where the batch cannot fix the
+        range (seed001's far field: four stations of a 50 m array, no redundancy) that chain can walk
+        off along it, batch by batch, to hundreds of kilometres, with a covariance that says so: a fix
+        that is not publishable is dropped, and the next batch starts from the broadcasts again
+        (multi-start, as the first). Measured on a fresh-clone CI fleet of 2026-11-30 (docs/aircraft.md,
+        "The snapshot LSQ's covariance")."""
+        if self.cfg.receiver is None or self.fix is None:
+            return
+        C = self._fix_cov()
+        if not rx.publishable(self.fix[:3], C, self.cfg.receiver):
+            self.stats["lsq_runaway"] += 1
+            self.fix = None
 
     def _fix_cov(self) -> list | None:
         """The LSQ fix's position covariance (3 x 3 list; None where ``(H^T W H)`` is singular): its own
