@@ -39,11 +39,11 @@ from pathlib import Path
 import numpy as np
 
 from nav.geometry import SPEED_OF_LIGHT_M_S
+from nav.orbits import R_EARTH_MEAN_M as EARTH_RADIUS_M
 
 from . import terrain as _terrain
 from .terrain import Terrain
 
-EARTH_RADIUS_M = 6_371_000.0
 THERMAL_NOISE_DBM_HZ = -174.0
 MIN_HEIGHT_M = 0.1
 

@@ -28,9 +28,10 @@ from pathlib import Path
 
 import numpy as np
 
+from nav.orbits import R_EARTH_MEAN_M as EARTH_RADIUS_M
+
 from .sidefile import read_beside
 
-EARTH_RADIUS_M = 6_371_000.0
 #: samples (links x points) evaluated at once: bounds the memory of a bulk evaluation
 CHUNK_SAMPLES = 1_000_000
 

@@ -70,6 +70,7 @@ class AircraftEstimator:
         self.guess = np.array([0.0, 0.0, 1000.0]) if x0_guess_m is None else np.asarray(x0_guess_m, float)
         self._pending: dict[int, tuple[float, np.ndarray, np.ndarray, float, float]] = {}
         self._last_geom: tuple | None = None  # the latest batch (pos, cov, rho): the LSQ's covariance
+        self._fix_cov_memo: tuple | None = None  # ((fix, batch), covariance) of the latest _fix_cov
         self.n_updates = 0
         self.n_dropped = 0
         self.n_resets = 0
@@ -354,6 +355,15 @@ class AircraftEstimator:
         a hundred times too small (docs/aircraft.md, "seed001's far field")."""
         if self._last_geom is None:
             return None
+        key = (self.fix, self._last_geom)  # the batch's check (_drop_runaway_fix) and its estimate share it
+        if self._fix_cov_memo is not None and all(a is b for a, b in zip(self._fix_cov_memo[0], key)):
+            return self._fix_cov_memo[1]
+        C = self._fix_cov_of_batch()
+        self._fix_cov_memo = (key, C)
+        return C
+
+    def _fix_cov_of_batch(self) -> list | None:
+        """:meth:`_fix_cov` computed for the current fix and batch."""
         pos, cov, rho = self._last_geom
         sigma = self.cfg.tuning.sigma_m
         try:
