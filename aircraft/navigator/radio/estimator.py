@@ -337,8 +337,7 @@ class AircraftEstimator:
         range (seed001's far field: four stations of a 50 m array, no redundancy) that chain can walk
         off along it, batch by batch, to hundreds of kilometres, with a covariance that says so: a fix
         that is not publishable is dropped, and the next batch starts from the broadcasts again
-        (multi-start, as the first). Measured on a fresh-clone CI fleet of 2026-11-30 (docs/aircraft.md,
-        "The snapshot LSQ's covariance")."""
+        (multi-start, as the first; docs/aircraft.md, "A runaway warm start is dropped")."""
         if self.cfg.receiver is None or self.fix is None:
             return
         C = self._fix_cov()
