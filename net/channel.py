@@ -116,6 +116,22 @@ def coarse_fix(
     return pos, np.diag(free * sigma0_m**2).astype(float)
 
 
+def _seed_words(values) -> np.ndarray | None:
+    """The entropy ``np.random.SeedSequence`` makes of a sequence of ints, given to it directly (the same
+    generator, without its conversion of each int): each int little-endian in 32-bit words, 0 as one word.
+    None if one is negative (SeedSequence's own error then)."""
+    words = []
+    for n in values:
+        if n < 0:
+            return None
+        words.append(n & 0xFFFFFFFF)
+        n >>= 32
+        while n > 0:
+            words.append(n & 0xFFFFFFFF)
+            n >>= 32
+    return np.array(words, dtype=np.uint32)
+
+
 class AirChannel:
     """The air as seen by one receiver. Pure apart from its own seeded generator."""
 
@@ -127,6 +143,28 @@ class AirChannel:
         # the scenario's [radio] (net/radio.py): links beyond the horizon or the link budget do not
         # exist, and timing noise grows as the SNR falls; None: everyone hears everyone, noise sigma_t_s
         self.radio = getattr(params, "radio", None)
+        self._memo: dict[tuple[bytes, bytes], tuple[float, float] | None] = {}
+
+    #: pair geometries :meth:`geometry` keeps (then it starts over): a moving end only adds entries
+    MEMO_SIZE = 65536
+
+    def geometry(self, tx_pos_m, rx_pos_m) -> tuple[float, float] | None:
+        """The link from ``tx_pos_m`` (3,) to ``rx_pos_m`` (3,): ``(distance m, one-way timing sigma s)``,
+        or ``None`` where the radio has no link. A pure function of the two positions, kept by their
+        exact values (static stations ask for the same pairs all the time)."""
+        tx, rx = np.asarray(tx_pos_m, float), np.asarray(rx_pos_m, float)
+        key = (tx.tobytes(), rx.tobytes())
+        got = self._memo.get(key, self)
+        if got is not self:
+            return got
+        got = (float(np.linalg.norm(rx - tx)), self.sigma_t_s)
+        if self.radio is not None:
+            air = link(tx, rx, self.radio)
+            got = (got[0], float(np.hypot(self.sigma_t_s, air.sigma_crlb_s))) if air.exists else None
+        if len(self._memo) >= self.MEMO_SIZE:
+            self._memo.clear()
+        self._memo[key] = got
+        return got
 
     def draws(self, tx_id: int | None, t_tx_true_s: float) -> np.random.Generator:
         """The generator for one reception: keyed by (seed, receiver, sender, transmit time) when the
@@ -134,7 +172,8 @@ class AirChannel:
         if self.key is None or tx_id is None:
             return self.rng
         t_key = max(0, int(round(t_tx_true_s * 1e7)))  # 100 ns: one station never sends twice in it
-        return np.random.default_rng([*self.key, int(tx_id), t_key])
+        words = _seed_words((*self.key, int(tx_id), t_key))
+        return np.random.default_rng([*self.key, int(tx_id), t_key] if words is None else words)
 
     def arrival_local_s(
         self, tx_pos_m: np.ndarray, t_tx_true_s: float, rx_pos_m: np.ndarray, rx_clock: Clock | OscillatorClock,
@@ -149,16 +188,13 @@ class AirChannel:
         tx_id : sender's id; with a keyed channel it selects the reception's own draws.
         """
         p = self.params
-        sigma_t_s = self.sigma_t_s
-        if self.radio is not None:
-            air = link(tx_pos_m, rx_pos_m, self.radio)
-            if not air.exists:
-                return None
-            sigma_t_s = float(np.hypot(sigma_t_s, air.sigma_crlb_s))
+        geometry = self.geometry(tx_pos_m, rx_pos_m)
+        if geometry is None:
+            return None
+        d, sigma_t_s = geometry
         rng = self.draws(tx_id, t_tx_true_s)
         if p.loss_prob > 0 and rng.random() < p.loss_prob:
             return None
-        d = float(np.linalg.norm(np.asarray(rx_pos_m, float) - np.asarray(tx_pos_m, float)))
         t = t_tx_true_s + d / SPEED_OF_LIGHT_M_S
         if sigma_t_s > 0:
             t += float(rng.normal(0.0, sigma_t_s))

@@ -33,7 +33,9 @@ bandwidth, 0 dBi antennas 10 m up, a 10 us correlator and a 12 dB detection thre
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields, replace
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -89,10 +91,23 @@ class RadioParams:
     def processing_gain_db(self) -> float:
         return 10.0 * np.log10(self.bandwidth_hz * self.integration_s)
 
+    @cached_property
+    def _consts(self) -> tuple:
+        """What every link evaluation reads, computed once: ``P_tx + 2 G`` (dB), :attr:`noise_dbm`,
+        :attr:`processing_gain_db`, the RMS bandwidth ``beta = B / sqrt(12)`` (Hz) and ``up`` (3,)."""
+        return (self.tx_power_dbm + 2.0 * self.antenna_gain_dbi, self.noise_dbm, self.processing_gain_db,
+                self.bandwidth_hz / np.sqrt(12.0), np.asarray(self.up))
+
+
+def _norm(v: np.ndarray) -> np.ndarray:
+    """``np.linalg.norm(v, axis=-1)`` (...) of vectors ``v`` (..., 3): its own operations without its
+    argument handling."""
+    return np.sqrt(np.add.reduce(v * v, axis=-1))
+
 
 def _heights(pos_m, params: RadioParams) -> np.ndarray:
     """Antenna heights (...) above the ground of positions (..., 3) in the parameters' frame."""
-    z = np.asarray(pos_m, float) @ np.asarray(params.up) + params.origin_height_m
+    z = np.asarray(pos_m, float) @ params._consts[4] + params.origin_height_m
     return np.maximum(z + params.antenna_height_m, MIN_HEIGHT_M)
 
 
@@ -116,8 +131,8 @@ def path_loss_db(d_m, h1_m, h2_m, params: RadioParams) -> np.ndarray:
 def link_snr_db(d_m, h1_m, h2_m, params: RadioParams) -> np.ndarray:
     """Post-correlation SNR (...) dB of a link of length ``d_m`` between antennas at ``h1_m``, ``h2_m``:
     the link budget ``P_tx + G_tx + G_rx - L(d) - N`` plus the processing gain."""
-    return (params.tx_power_dbm + 2.0 * params.antenna_gain_dbi - path_loss_db(d_m, h1_m, h2_m, params)
-            - params.noise_dbm + params.processing_gain_db)
+    gain_db, noise_dbm, gain_pg_db = params._consts[:3]
+    return gain_db - path_loss_db(d_m, h1_m, h2_m, params) - noise_dbm + gain_pg_db
 
 
 @dataclass(frozen=True)
@@ -133,7 +148,7 @@ class Link:
 def link(tx_pos_m, rx_pos_m, params: RadioParams) -> Link:
     """The link between positions ``tx_pos_m`` (..., 3) and ``rx_pos_m`` (..., 3) of the physical frame."""
     tx, rx = np.asarray(tx_pos_m, float), np.asarray(rx_pos_m, float)
-    d = np.linalg.norm(rx - tx, axis=-1)
+    d = _norm(rx - tx)
     h1, h2 = _heights(tx, params), _heights(rx, params)
     snr_db = link_snr_db(d, h1, h2, params)
     exists = (d <= horizon_m(h1, h2, params.k_factor)) & (snr_db >= params.threshold_db)
@@ -141,6 +156,22 @@ def link(tx_pos_m, rx_pos_m, params: RadioParams) -> Link:
         exists = _line_of_sight(tx, rx, exists, params)
     sigma = np.where(exists, toa_crlb_s(snr_db, params), np.inf)
     return Link(exists=np.asarray(exists), snr_db=np.asarray(snr_db), sigma_crlb_s=np.asarray(sigma))
+
+
+def may_link(pos_m, params: RadioParams | None, slack: float = 1e-6) -> np.ndarray:
+    """(n, n) bool, ``[i, j]``: whether the horizon and the link budget can let :func:`link` from position
+    ``i`` to position ``j`` of ``pos_m`` (n, 3) exist, with a relative slack on the distance and an
+    absolute one (dB) on the SNR far above rounding: every pair :func:`link` lets exist is in it (the
+    terrain is not looked at), so a caller tests only these pairs one by one. All True without ``[radio]``."""
+    pos = np.asarray(pos_m, float)
+    n = len(pos)
+    if params is None:
+        return np.ones((n, n), bool)
+    d = np.linalg.norm(pos[:, None, :] - pos[None, :, :], axis=-1)
+    h = _heights(pos, params)
+    h1, h2 = h[:, None], h[None, :]
+    snr_db = link_snr_db(d, h1, h2, params)
+    return (d <= horizon_m(h1, h2, params.k_factor) * (1.0 + slack)) & (snr_db >= params.threshold_db - slack)
 
 
 def _line_of_sight(tx, rx, exists, params: RadioParams) -> np.ndarray:
@@ -157,7 +188,7 @@ def _line_of_sight(tx, rx, exists, params: RadioParams) -> np.ndarray:
 def toa_crlb_s(snr_db, params: RadioParams) -> np.ndarray:
     """One-way TOA Cramer-Rao bound (...) s at post-correlation SNR ``snr_db`` (...):
     ``1 / (2 pi beta sqrt(2 SNR))``, ``beta = B / sqrt(12)`` (flat spectrum)."""
-    beta = params.bandwidth_hz / np.sqrt(12.0)
+    beta = params._consts[3]
     snr = 10.0 ** (np.asarray(snr_db, float) / 10.0)
     return 1.0 / (2.0 * np.pi * beta * np.sqrt(2.0 * snr))
 
@@ -174,10 +205,36 @@ def range_var_m2(pos_a_m, pos_b_m, params: RadioParams | None, sigma_d_m: float)
     if params is None:
         return float(sigma_d_m) ** 2
     a, b = np.asarray(pos_a_m, float), np.asarray(pos_b_m, float)
-    d = np.linalg.norm(a - b, axis=-1)
+    if a.shape == b.shape == (3,):
+        var = _pair_range_var_m2(a, b, params, sigma_d_m)
+        if var is not None:
+            return var
+    d = _norm(a - b)
     snr_db = link_snr_db(d, _heights(a, params), _heights(b, params), params)
     crlb_m = SPEED_OF_LIGHT_M_S * toa_crlb_s(np.maximum(snr_db, params.threshold_db), params)
     return float(sigma_d_m) ** 2 + 0.5 * crlb_m**2
+
+
+def _pair_range_var_m2(a: np.ndarray, b: np.ndarray, params: RadioParams, sigma_d_m: float):
+    """:func:`range_var_m2` of one pair ``a``, ``b`` (3,) without small arrays: the same operations in the
+    same order on floats (the norm's sum as numpy reduces three terms; ``log10`` and the powers on numpy
+    scalars, as there), so the same value; None where a coordinate is not finite (then the arrays)."""
+    ax, ay, az = a.tolist()
+    bx, by, bz = b.tolist()
+    if not math.isfinite(ax + ay + az + bx + by + bz):
+        return None
+    gain_db, noise_dbm, gain_pg_db, beta, up = params._consts
+    dx, dy, dz = ax - bx, ay - by, az - bz
+    d = max(math.sqrt((dx * dx + dy * dy) + dz * dz), 1e-3)
+    h1 = max(float(a @ up) + params.origin_height_m + params.antenna_height_m, MIN_HEIGHT_M)
+    h2 = max(float(b @ up) + params.origin_height_m + params.antenna_height_m, MIN_HEIGHT_M)
+    loss_db = 20.0 * float(np.log10(4.0 * np.pi * d / params.wavelength_m))
+    if params.two_ray:
+        loss_db = max(loss_db, 40.0 * float(np.log10(d)) - 20.0 * float(np.log10(h1 * h2)))
+    snr_db = max(gain_db - loss_db - noise_dbm + gain_pg_db, params.threshold_db)
+    snr = 10.0 ** np.float64(snr_db / 10.0)
+    crlb_m = SPEED_OF_LIGHT_M_S * (1.0 / (2.0 * np.pi * beta * math.sqrt(2.0 * snr)))
+    return float(sigma_d_m) ** 2 + 0.5 * np.float64(crlb_m) ** 2
 
 
 def radio_dict(params: RadioParams | None) -> dict | None:

@@ -19,7 +19,7 @@ import numpy as np
 from net import streams
 from net.channel import AirChannel, Clock, coarse_fix, draw_clock, station_rng
 from net.clock import true_network_offset_s
-from net.radio import radio_dict
+from net.radio import may_link, radio_dict
 from net.scenario import DEPARTURE_KINDS, Scenario
 
 from .admission import field_radius
@@ -149,6 +149,11 @@ class Simulator:
         self.shell = [ShellFaults(scn, i) for i in scn.ids]  # per-link channel, [[faults]]
         self.net_rng = np.random.default_rng([self.seed, 0, 3])
         self.links = np.zeros((n, n), dtype=np.int64)
+        self._index = {sid: k for k, sid in enumerate(scn.ids)}
+        # [k]: the stations that may hear station k (the radio's horizon and budget; static positions)
+        reach = may_link(scn.pos_m, scn.channel.radio)
+        self._hear = [[j for j in range(n) if j != k and reach[k, j]] for k in range(n)]
+        self._reach = reach.tolist()
         self.range_log: list[tuple[float, int, int, float]] = []  # (t_true, initiator idx, responder idx, range_m)
         self.exchange_log: list[tuple[float, int, int]] = []  # (t_true reply rx, initiator idx, responder idx)
         self._heap: list = []
@@ -178,7 +183,7 @@ class Simulator:
             self._push(self.clocks[k].to_true(dl), ("timer", k, self._timer_ver[k]))
 
     def _emit(self, k: int, outs: list[dict]) -> None:
-        ids = self.scn.ids
+        ids, index, loss = self.scn.ids, self._index, self.scn.net.loss_prob
         for m in outs:
             kind = m["kind"]
             if kind not in ("range_req", "range_rsp", "nav"):
@@ -191,15 +196,18 @@ class Simulator:
             self.policy[k].sent(kind)
             if kind == "nav":
                 for peer, rng_m, *_ in m["ranges"]:
-                    if peer in ids:
-                        self.range_log.append((t_tx_true, k, ids.index(peer), float(rng_m)))
-                targets = [j for j in range(len(ids)) if j != k]
+                    if peer in index:
+                        self.range_log.append((t_tx_true, k, index[peer], float(rng_m)))
+                # a wire loss is drawn for every station, so only then are the others all visited
+                targets = [j for j in range(len(ids)) if j != k] if loss > 0 else self._hear[k]
             else:
-                targets = [ids.index(m["dst"])] if m["dst"] in ids else []
+                targets = [index[m["dst"]]] if m["dst"] in index else []
             for j in targets:
                 if self.cores[j] is None and ids[j] not in self.start_s:
                     continue
-                if self.scn.net.loss_prob > 0 and self.net_rng.random() < self.scn.net.loss_prob:
+                if loss > 0 and self.net_rng.random() < loss:
+                    continue
+                if not self._reach[k][j]:
                     continue
                 t_local = self.shell[j].arrival_local_s(self.air[j], ids[k], self.scn.pos_m[k], t_tx_true,
                                                         self.scn.pos_m[j], self.clocks[j])
@@ -249,8 +257,8 @@ class Simulator:
             before = core.counters["responses"]
             outs = core.on_message(m, t_local)
             if core.counters["responses"] != before:
-                self.links[k, self.scn.ids.index(m["src"])] += 1
-                self.exchange_log.append((t, k, self.scn.ids.index(m["src"])))
+                self.links[k, self._index[m["src"]]] += 1
+                self.exchange_log.append((t, k, self._index[m["src"]]))
         self._emit(k, outs)
         self._arm(k)
 
