@@ -147,9 +147,11 @@ class OscillatorClock:
         """Phase at grid point ``k`` and the slope of segment ``[k, k+1]``."""
         if k < 0:
             return float(self._x[0]) + float(self._y[0]) * k * self.h, float(self._y[0])
-        self._extend(k)
-        x0 = float(self._x[k])
-        return x0, (float(self._x[k + 1]) - x0) / self.h
+        if len(self._x) <= k + 1:
+            self._extend(k)
+        x = self._x
+        x0 = x.item(k)
+        return x0, (x.item(k + 1) - x0) / self.h
 
     # ------------------------------------------------------------------ conversions
     def error_s(self, t_true_s: float) -> float:
