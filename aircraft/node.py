@@ -8,7 +8,7 @@ stations' nav broadcasts, hands each to the core and publishes what the core ret
   position and transmit time), its navigator and its journal.
 * **time**: fleet time ``t = (wall - epoch) * speed`` like the stations (same ``--epoch``); the core
   is ticked ``lag_s`` (x speed) behind it between broadcasts (an inertial core integrates its IMU there).
-* **receive**: ``larns/station/*/nav`` -> strict decode (malformed: counted and dropped) -> key/src
+* **receive**: ``larns/station/*/nav/**`` -> strict decode (malformed: counted and dropped) -> key/src
   check -> the named sender's true position and transmit time from the scenario's truth, never the
   sender's ``phy`` claims (``net.channel.UserIntake``) -> ``core.on_nav``.
 * **publish**: ``larns/aircraft/<name>/estimate/<algo>`` (``ac_estimate``) after every update and
@@ -142,7 +142,7 @@ class AircraftNode:
                   flush=True)
 
     def run(self) -> dict:
-        self.bus.subscribe("larns/station/*/nav", self._on_bytes)
+        self.bus.subscribe("larns/station/*/nav/**", self._on_bytes)
         self.bus.declare_token(self.M.alive_key("aircraft", self.opts.name))
         end = math.inf if self.opts.duration_s is None else self.opts.duration_s
         if not self.opts.quiet:

@@ -569,10 +569,11 @@ def vehicle_key(name: str, *rest: str) -> str:
 
 
 # Every key a sender publishes under its own prefix ``larns/<role>/<name>/`` (``*``: one chunk, the
-# destination station or the algorithm); :func:`key_for` gives no other. The access rules
-# (net/security.py) allow exactly these, so an invented sub-key is refused by every receiver's Zenoh.
+# destination station, the algorithm or a station's nav tile: net/tiles.py; a live station sends its
+# navs on ``nav/<tile>``, ``nav`` is the key of :func:`key_for` and of recordings from before tiles).
+# The access rules (net/security.py) allow exactly these, so an invented sub-key is refused by every receiver's Zenoh.
 OWN_KEYS = {
-    "station": ("nav", "estimate", "truth", "init", "input", "integrity", "range/req/*", "range/rsp/*"),
+    "station": ("nav/*", "nav", "estimate", "truth", "init", "input", "integrity", "range/req/*", "range/rsp/*"),
     "aircraft": ("estimate/*", "truth", "status/*", "init", "input"),
     "vehicle": ("estimate", "truth", "init", "input"),
 }
@@ -624,6 +625,13 @@ def parse_key(key: str) -> tuple[str, str | int, list[str]] | None:
         except ValueError:
             return None
     return role, name, parts[3:]
+
+
+def is_nav_key(key: str) -> bool:
+    """A station's nav key: ``larns/station/<id>/nav/<tile>`` (net/tiles.py) or, in a recording from
+    before tiles, ``larns/station/<id>/nav``."""
+    pk = parse_key(key)
+    return pk is not None and pk[0] == "station" and len(pk[2]) in (1, 2) and pk[2][0] == "nav"
 
 
 # --------------------------------------------------------------------------- drop counter
@@ -693,7 +701,7 @@ def station_nav(decode: Callable[[str, bytes], tuple[dict[str, Any], dict[str, A
                 data: bytes, drops: DropCounter) -> tuple[dict[str, Any], dict[str, Any]] | None:
     """A receiver's intake of a station broadcast: ``decode(key, data)`` (plain :func:`decode` or a
     ``--secure`` guard's), then the message must be a ``nav`` with its ``phy`` block on its own
-    station's key (``larns/station/<src>/nav``). Returns ``(msg, phy)``, or None with the reason
+    station's key (``larns/station/<src>/nav/<tile>``, or ``.../nav`` before tiles). Returns ``(msg, phy)``, or None with the reason
     counted in ``drops`` (the decoder's, or ``key``)."""
     try:
         msg, phy = decode(key, data)

@@ -66,6 +66,8 @@ class RadioParams:
     two_ray: bool = True
     # [radio] terrain (net/terrain.py): line-of-sight masking by a height grid; None: a smooth Earth
     terrain: Terrain | None = None
+    # [radio] tile_m (net/tiles.py): the side of the wire's nav tiles; None: derived from the link range
+    tile_m: float | None = None
     # not scenario keys: the physical up direction in the frame of the positions the channel gets (the
     # network frame) and the physical height of that frame's origin (:meth:`in_frame`)
     up: tuple[float, float, float] = (0.0, 0.0, 1.0)
@@ -242,7 +244,7 @@ def radio_dict(params: RadioParams | None) -> dict | None:
     if params is None:
         return None
     return {f.name: (list(getattr(params, f.name)) if f.name == "up" else getattr(params, f.name))
-            for f in fields(params) if f.name != "terrain"}  # the stations weight ranges without the terrain
+            for f in fields(params) if f.name not in ("terrain", "tile_m")}  # ranges are weighted without them
 
 
 def radio_from_dict(d: dict | None) -> RadioParams | None:
@@ -268,7 +270,7 @@ def max_range_m(params: RadioParams, h1_m: float, h2_m: float) -> float:
     return lo
 
 
-POSITIVE = ("k_factor", "freq_hz", "bandwidth_hz", "integration_s")
+POSITIVE = ("k_factor", "freq_hz", "bandwidth_hz", "integration_s", "tile_m")
 
 
 TERRAIN_KEYS = ("terrain", "fresnel_clearance")

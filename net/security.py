@@ -194,8 +194,10 @@ _OBSERVE = ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_q
 
 
 def station_subscriptions(sid: int) -> list[str]:
-    """What a station subscribes to (docs/protocol.md)."""
-    return ["larns/station/*/nav", f"larns/station/*/range/req/{sid}", f"larns/station/*/range/rsp/{sid}"]
+    """What a station may subscribe to (docs/protocol.md): the navs of any tile (net/tiles.py: it
+    subscribes to those within its radio reach) or of none (a replayed recording from before tiles),
+    and the requests and replies addressed to it."""
+    return ["larns/station/*/nav/**", f"larns/station/*/range/req/{sid}", f"larns/station/*/range/rsp/{sid}"]
 
 
 def access_control(ks: Keystore, me: str) -> dict:
@@ -231,7 +233,7 @@ def access_control(ks: Keystore, me: str) -> dict:
         for name in names:
             r_pub = rule(f"pub-{role}-{name}", ["put"], [f"larns/{role}/{name}/{k}" for k in OWN_KEYS[role]])
             r_tok = rule(f"tok-{role}-{name}", ["liveliness_token"], [f"larns/alive/{role}/{name}"])
-            r_sub = rule(f"sub-{role}-{name}", ["declare_subscriber"], ["larns/station/*/nav"])
+            r_sub = rule(f"sub-{role}-{name}", ["declare_subscriber"], ["larns/station/*/nav/**"])
             subject(f"{role}-{name}", [f"{role}-{name}"], [everyone, r_pub, r_tok, r_sub])
     r_rtok = rule("tok-recorder", ["liveliness_token"], ["larns/alive/recorder/**"])
     subject("recorder", ["recorder"], [everyone, observe, r_rtok])
@@ -333,7 +335,7 @@ def rate_limits_on() -> bool:
 
 
 def flood_guard(cycle_s: float, slot_s: float, speed: float = 1.0, ids=(), me: int | None = None,
-                pair_ids=()) -> list[dict]:
+                pair_ids=(), nav_keys: dict | None = None) -> list[dict]:
     """Zenoh ``downsampling`` for a peer's or the router's ingress. Zenoh keeps one state per rule
     *and per link*, and peers link directly to each other (a client only to its router), so on a
     peer and on the router each rule caps one remote process. A LARNS station sends each of these
@@ -346,22 +348,28 @@ def flood_guard(cycle_s: float, slot_s: float, speed: float = 1.0, ids=(), me: i
     ``ids``: a station ``me`` caps what it subscribes to (nav, requests and replies addressed to it);
     the router (``me`` None) caps every id's nav, estimate, truth and init, and the requests and
     replies between the ids in ``pair_ids``. The journal (``.../input``, sent in bursts of chunks)
-    and the aircraft's keys are not capped here (the receivers' :class:`RateLimiter` counts them)."""
+    and the aircraft's keys are not capped here (the receivers' :class:`RateLimiter` counts them).
+    ``nav_keys`` ``{id: key}``: each station's nav key with its tile (net/tiles.py
+    ``station_nav_keys``), capped beside the tile-less ``larns/station/<id>/nav`` (both are allowed)."""
     if not rate_limits_on():
         return []
     per_cycle = 4.0 * speed / cycle_s       # Hz, wall: 4 per cycle
     per_slot = 2.0 * speed / slot_s         # Hz, wall: 2 per slot
     rules: list[dict] = []
+
+    def navs(k) -> list[str]:  # a station's nav key with its tile, and the tile-less one (both allowed)
+        return [x for x in ((nav_keys or {}).get(k), f"larns/station/{k}/nav") if x is not None]
+
     for k in ids:
         if me is not None:
             if k == me:
                 continue
-            rules += [{"key_expr": f"larns/station/{k}/nav", "freq": per_cycle},
-                      {"key_expr": f"larns/station/{k}/range/req/{me}", "freq": per_cycle},
+            rules += [{"key_expr": x, "freq": per_cycle} for x in navs(k)]
+            rules += [{"key_expr": f"larns/station/{k}/range/req/{me}", "freq": per_cycle},
                       {"key_expr": f"larns/station/{k}/range/rsp/{me}", "freq": per_cycle}]
         else:
-            rules += [{"key_expr": f"larns/station/{k}/{x}", "freq": per_cycle}
-                      for x in ("nav", "estimate", "truth", "init")]
+            rules += [{"key_expr": x, "freq": per_cycle} for x in navs(k)]
+            rules += [{"key_expr": f"larns/station/{k}/{x}", "freq": per_cycle} for x in ("estimate", "truth", "init")]
     if me is None:
         for k in pair_ids:
             for j in pair_ids:

@@ -11,7 +11,10 @@ the same per-station streams):
   called with the exact deadline. A request timer firing after half a slot is a *missed slot*.
 * **transmit**: core outputs go to their keys (``net.messages.key_for``); air messages carry the
   physical part ``phy`` = true sender position + true transmit time (``clock.to_true(t_tx_s)``).
-  The core's ``estimate`` is published with the true position on ``.../truth``.
+  The core's ``estimate`` is published with the true position on ``.../truth``. A nav goes out on
+  ``larns/station/<id>/nav/<tile>``, the tile of the true position (``net/tiles.py``).
+* **subscriptions**: the navs of the tiles within the radio's reach of the true position (all of
+  them without ``[radio]``) and the range requests and replies addressed to this station.
 * **receive**: bytes -> strict decode (malformed: counted and dropped, never a crash) -> key/src
   consistency -> wire faults (delay, jitter, loss, duplication; seeded) -> duplicate filter ->
   air channel (time of flight, clock, noise, NLOS, air loss) -> local rx timestamp. The core, not
@@ -52,6 +55,7 @@ from net.channel import AirChannel, scenario_senders, station_rng
 from net.faults import WireFaults, merge_faults
 from net.procsched import add_sched_args, apply_sched_args
 from net.scenario import Scenario, joiner_position
+from net.tiles import Tiling, parse_tile
 
 from .shell import PublishPolicy, true_clock_error_s
 from .shellfaults import ShellFaults
@@ -107,6 +111,9 @@ class StationNode:
         self.seed = scn.seed if opts.seed is None else opts.seed
         self._stop = threading.Event()
         self.true_pos = np.asarray(scn.true_pos(self.id), float)
+        # the wire's spatial tiles (net/tiles.py): the own nav's key, the tiles within radio reach
+        self.tiling = Tiling.of(scn)
+        self.nav_key = self.tiling.nav_key(self.id, self.true_pos)
         self._make_core = make_core
         self.core = None
         self.clock = None
@@ -135,7 +142,8 @@ class StationNode:
         self._journal_q: Any = None
         self._last_status = -math.inf
         self._wire_delay_s: deque = deque(maxlen=10000)  # recent range message delivery delays
-        self._nav_sub = None
+        self._nav_subs: list = []
+        self._power_on_s: float | None = None  # fleet time of start_core (the bus counters' time base)
         self._last_drain = -math.inf
         # (key, bytes) -> (msg, phy); --secure: rate limit, signature, replay first (net/security.py)
         sec = getattr(bus, "security", None)
@@ -191,7 +199,7 @@ class StationNode:
         of peer estimates feeds the solve behind that nav, and the batch never competes with the
         station's own range exchange at the start of its slot (it ran 5 ms earlier) nor wakes the
         process at other times. Fallback: :meth:`_drain_every_s`."""
-        if self._nav_sub is None:
+        if not self._nav_subs:
             return False
         now = time.time()
         if now - self._last_drain >= self._drain_every_s():
@@ -211,9 +219,8 @@ class StationNode:
         is taken per nav, not for the whole batch: a range request or reply arriving meanwhile on
         a Zenoh thread gets in between two navs instead of waiting for the batch."""
         self._last_drain = time.time()
-        if self._nav_sub is None:
-            return
-        for key, data in self.bus.drain(self._nav_sub):
+        batch = [kd for sub in self._nav_subs for kd in self.bus.drain(sub)]
+        for key, data in batch:
             with self._lock:
                 if self._stop.is_set():
                     return
@@ -229,8 +236,8 @@ class StationNode:
             return False
         rest = pk[2]
         kind = msg["kind"]
-        if kind == "nav":
-            return rest == ["nav"]
+        if kind == "nav":  # its tile (net/tiles.py), or none (a recording from before tiles, replayed)
+            return rest == ["nav"] or (len(rest) == 2 and rest[0] == "nav" and parse_tile(rest[1]) is not None)
         if kind == "range_req":
             return rest == ["range", "req", str(self.id)] and msg["dst"] == self.id
         if kind == "range_rsp":
@@ -238,6 +245,7 @@ class StationNode:
         return False
 
     def _ingest(self, recv_wall: float, key: str, data: bytes) -> None:
+        self.stats["bus_rx"] += 1  # every sample the bus delivered (larns bench wire)
         try:
             msg, phy = self._decode(key, data)
         except M.MessageError as e:
@@ -331,7 +339,7 @@ class StationNode:
                 log.error("station %d: refusing to send invalid %s: %s", self.id, kind, e)
                 self.stats["tx_invalid"] += 1
                 continue
-            self.bus.publish(M.key_for(m), data)
+            self.bus.publish(self.nav_key if kind == "nav" else M.key_for(m), data)
             self.stats["tx_" + kind] += 1
             self.policy.sent(kind)
         for kind, fields in self.policy.after_outputs(self.core, outs):
@@ -474,6 +482,7 @@ class StationNode:
     def start_core(self) -> None:
         """Power on: build the core at the current fleet time (what ``run`` does first)."""
         t0 = max(0.0, self.fleet_now())
+        self._power_on_s = t0
         self.core, self.clock = self._make_core(self.scn, self.id, estimator=self.opts.estimator,
                                                 join=self.opts.join, start_s=t0, seed=self.seed)
         for kind, fields in self.policy.start(self.core):
@@ -489,12 +498,14 @@ class StationNode:
         self.start_core()
         bus.subscribe(f"larns/station/*/range/req/{me}", self._on_bytes)
         bus.subscribe(f"larns/station/*/range/rsp/{me}", self._on_bytes)
-        # navs (N-1 per cycle, not latency-critical: their timing comes from phy) go through a
-        # Zenoh ring buffer drained in batches; range requests/replies wake us immediately
-        if hasattr(bus, "subscribe_ring"):
-            self._nav_sub = bus.subscribe_ring("larns/station/*/nav", 16384)
-        else:  # a bus without ring buffers: one callback per nav
-            bus.subscribe("larns/station/*/nav", self._on_bytes)
+        # navs (one per neighbour and cycle, not latency-critical: their timing comes from phy) go
+        # through Zenoh ring buffers drained in batches, one per tile within radio reach
+        # (net/tiles.py); range requests/replies wake us immediately
+        for keyexpr in self.tiling.nav_subscriptions(self.true_pos):
+            if hasattr(bus, "subscribe_ring"):
+                self._nav_subs.append(bus.subscribe_ring(keyexpr, 16384))
+            else:  # a bus without ring buffers: one callback per nav
+                bus.subscribe(keyexpr, self._on_bytes)
         bus.declare_token(M.alive_key("station", me))
         end = math.inf if self.opts.duration_s is None else self.opts.duration_s
         if self.opts.run_s is not None:  # --duration: counted from power-on, after the start-up
@@ -520,7 +531,7 @@ class StationNode:
                 self._wake.clear()
             if end < math.inf:
                 wake = min(wake, self.wall_of(end))
-            if self._nav_sub is not None:
+            if self._nav_subs:
                 wake = min(wake, self._last_drain + self._drain_every_s())
             timeout = wake - time.time()
             if timeout > 0:
@@ -556,7 +567,12 @@ class StationNode:
             "exchanges": [list(e) for e in self.core.exchanges],  # [t_tx_s local, addressee, replied]
             "tx": {k[3:]: v for k, v in self.stats.items() if k.startswith("tx_")},
             "rx": {k[3:]: v for k, v in self.stats.items() if k.startswith("rx_")},
+            "bus_rx": int(self.stats["bus_rx"]), "bus_s": self._bus_s(),
         }
+
+    def _bus_s(self) -> float:
+        """Fleet seconds since power-on: the time base of ``bus_rx`` (samples the bus delivered)."""
+        return 0.0 if self._power_on_s is None else max(0.0, self.fleet_now() - self._power_on_s)
 
 
 # --------------------------------------------------------------------------- command line
@@ -649,7 +665,8 @@ def main_args(args: argparse.Namespace) -> int:
         print(f"[station {args.id}] stopped: updates={rep['n_updates']} err={rep['err_m']:.2f} m "
               f"drops={rep['drops']['total']} late={rep['late']} host_late={rep['host_late']} "
               f"lost={rep['counters'].get('lost', 0)} missed_slots={rep['missed_slots']} sync={rep['sync_err_ns']:.2f} ns "
-              f"range delay ms {' '.join(f'{k}={v:.1f}' for k, v in rep['range_delay_ms'].items())}",
+              f"range delay ms {' '.join(f'{k}={v:.1f}' for k, v in rep['range_delay_ms'].items())} "
+              f"bus_rx={rep.get('bus_rx', 0)} in {rep.get('bus_s', 0.0):.1f} s",
               file=sys.stderr, flush=True)
     return 0
 
@@ -680,11 +697,13 @@ def _bus_kwargs(args: argparse.Namespace, scn: Scenario) -> dict:
     scenario's TDMA (net/security.py)."""
     from net.bus import bus_kwargs
     from net.security import Keystore, flood_guard
+    from net.tiles import station_nav_keys
 
     kw = bus_kwargs(args)
     if "secure" in kw:
         ids = sorted(set(Keystore(kw["secure"][0]).reserved) | set(scn.ids))
-        kw["secure"] = (*kw["secure"], flood_guard(scn.tdma.cycle_s, scn.tdma.slot_s, args.speed, ids, args.id))
+        kw["secure"] = (*kw["secure"], flood_guard(scn.tdma.cycle_s, scn.tdma.slot_s, args.speed, ids, args.id,
+                                                   nav_keys=station_nav_keys(scn, ids)))
     return kw
 
 

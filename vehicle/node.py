@@ -5,7 +5,7 @@ route through the LARNS field, navigating by the stations' nav broadcasts, its I
   straight legs in the network frame, docs/routes/field-straight.toml; default: a level W -> E leg
   through the middle of the field at 5 m/s) from its start (the first whole fleet second after it
   comes up); IMU and odometer at ``--imu-rate``; receiver clock on network time.
-* **receive**: ``larns/station/*/nav`` -> strict decode (malformed: counted and dropped) -> key/src
+* **receive**: ``larns/station/*/nav/**`` -> strict decode (malformed: counted and dropped) -> key/src
   check -> the channel's truth of the named sender (its true position and transmit time, never the
   sender's ``phy`` claims: ``net.channel.UserIntake``) -> a reorder buffer (half the integration lag: broadcasts reach the process by different
   links) -> pseudorange and carrier pseudorange rate formed like the aircraft's (docs/vehicle.md).
@@ -163,7 +163,7 @@ class VehicleNode:
               f"err={'-' if err is None else f'{err:.2f}m'} drops={self.drops.total}", file=sys.stderr, flush=True)
 
     def run(self) -> dict:
-        self.bus.subscribe("larns/station/*/nav", self._on_bytes)
+        self.bus.subscribe("larns/station/*/nav/**", self._on_bytes)
         self.bus.declare_token(self.M.alive_key("vehicle", self.opts.name))
         end = math.inf if self.opts.duration_s is None else self.opts.duration_s
         if not self.opts.quiet:

@@ -94,7 +94,7 @@ def attack_forge(args) -> dict:
         if msg["src"] == args.victim and msg["kind"] == "nav":
             victim_pos["msg"], victim_pos["phy"], victim_pos["wall"] = msg, phy, time.time()
 
-    b.subscribe("larns/station/*/nav", grab)
+    b.subscribe("larns/station/*/nav/**", grab)
     t_end = time.time() + args.duration
     sent = {"victim_key": 0, "own_key_as_victim": 0, "unsigned": 0, "bad_signature": 0}
     seq = 10**6
@@ -137,7 +137,7 @@ def attack_replay(args) -> dict:
     b = _bus(args, f"station-{me}")
     linked = _wait_linked(b, args.link_wait)
     captured: list = []
-    b.subscribe(f"larns/station/{me}/nav", lambda k, d: captured.append((time.time(), k, d)))
+    b.subscribe(f"larns/station/{me}/nav/**", lambda k, d: captured.append((time.time(), k, d)))
     t_end = time.time() + args.duration
     sent = 0
     while time.time() < t_end:

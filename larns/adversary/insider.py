@@ -389,7 +389,7 @@ def attack_insider(args) -> list[dict]:
     victims = [v for v in (args.victims or []) if v != me]
     ins = Insider(me, np.random.default_rng(args.seed), clock, victims=victims, delay_s=args.delay,
                   budget_per_cycle=args.budget)
-    bus.subscribe("larns/station/*/nav", lambda k, d: ins.heard(k, d, time.time()))
+    bus.subscribe("larns/station/*/nav/**", lambda k, d: ins.heard(k, d, time.time()))
     t0 = time.time()
     while not clock.known() and time.time() - t0 < args.link_wait:  # the field's time off its navs
         time.sleep(0.05)

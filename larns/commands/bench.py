@@ -23,6 +23,7 @@ BENCHES: list[str] = [
     "larns.bench.vehicle",
     "larns.bench.triad",
     "larns.bench.slots",
+    "larns.bench.wire",
 ]
 
 
@@ -62,6 +63,8 @@ EXAMPLES: dict[str, list[str]] = {
     "slots": ["larns bench slots --trials 5 --tx-power-dbm 0 --json slots.json   # 200 stations, 40 x 30 km, 4.7 km links",
               "larns bench slots --layout corridor --tx-power-dbm 0 --trials 5",
               "larns bench slots --cycle-slots 0 --trials 2                # default radio: cycle sized for the densest 2-hop neighbourhood"],
+    "wire": ["larns bench wire --compare --json bench-out/wire.json   # 20 and 40 stations, tiles on and off",
+             "larns bench wire --sizes 20,40,60 --speed 0.25 --duration 20"],
     "triad": ["larns bench triad --quick                            # 10 runs, durations / 5: ~1.5 min",
               "larns bench triad --cases 4gs 2sv2gs --json triad.json"],
 }

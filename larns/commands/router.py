@@ -77,11 +77,13 @@ def cmd_router(args: argparse.Namespace) -> int:
     if args.secure:
         from net import scenario as S
         from net.security import Keystore, KeystoreError, flood_guard
+        from net.tiles import station_nav_keys
 
         if args.secure == "auto":
             print("[router] --secure needs a keystore DIR (larns keys init DIR)", file=sys.stderr)
             return 2
-        tdma = S.load(args.scenario).tdma  # the flood guard's budget: the fleet's TDMA
+        scn = S.load(args.scenario)
+        tdma = scn.tdma  # the flood guard's budget: the fleet's TDMA
         try:
             ks = Keystore(args.secure)
         except KeystoreError as e:
@@ -89,7 +91,7 @@ def cmd_router(args: argparse.Namespace) -> int:
             return 2
         issued = sorted(e["id"] for e in ks.enclaves.values() if e.get("role") == "station")
         secure = (args.secure, "router", flood_guard(tdma.cycle_s, tdma.slot_s, args.speed, ks.reserved,
-                                                     None, issued))
+                                                     None, issued, nav_keys=station_nav_keys(scn, ks.reserved)))
     default = "tls/127.0.0.1:7447" if secure else "tcp/127.0.0.1:7447"
     return run_router(args.listen or [default], args.connect or [], args.zenoh_config,
                       args.duration, args.quiet, args.nice, args.slice_us, secure)

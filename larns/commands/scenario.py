@@ -159,8 +159,11 @@ def format_scenario(sc) -> str:
     ]
     radio = getattr(sc.channel, "radio", None)
     if radio is not None:
+        from net.tiles import tile_size_m
+
         keep = {k: v for k, v in asdict(replace(radio, terrain=None)).items()
                 if k not in ("up", "origin_height_m", "terrain")}
+        keep["tile_m"] = tile_size_m(radio)  # the wire's tiles (net/tiles.py), derived when not given
         lines.append("[radio]      " + ", ".join(f"{k} {v:g}" if isinstance(v, float) and not isinstance(v, bool)
                                                  else f"{k} {v}" for k, v in keep.items()))
         if radio.terrain is not None:

@@ -95,7 +95,7 @@ class Recording:
         with open(path, "rb") as f:
             for _s, ch, m in make_reader(f).iter_messages():
                 times[ch.topic].append(m.log_time)
-                if ch.topic.startswith("larns/station/") and ch.topic.endswith("/nav"):
+                if M.is_nav_key(ch.topic):
                     rec.unsigned_navs += S.split_signed(m.data) is None
                     sid = int(ch.topic.split("/")[2])
                     rec.members.setdefault(sid, []).append((m.log_time, tuple(M.decode(m.data)[0]["members"])))

@@ -204,10 +204,13 @@ def test_fleet_six_stations_converge_from_mcap(fleet7):
     print(f"networked RMS {rms:.2f} m vs simulator {sim[0]:.2f} m")
     # every kind of traffic is in the file
     from mcap.reader import make_reader
+
+    from net import messages as M
     with open(f["out"], "rb") as fh:
         topics = {c.topic for c in make_reader(fh).get_summary().channels.values()}
     for sid in range(1, 8):
-        assert {f"larns/station/{sid}/nav", f"larns/station/{sid}/estimate", f"larns/station/{sid}/truth"} <= topics
+        assert {f"larns/station/{sid}/estimate", f"larns/station/{sid}/truth"} <= topics
+        assert any(M.is_nav_key(t) and t.startswith(f"larns/station/{sid}/nav/") for t in topics)  # with its tile
     assert any("/range/req/" in t for t in topics) and any("/range/rsp/" in t for t in topics)
 
 

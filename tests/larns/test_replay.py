@@ -295,7 +295,7 @@ def test_replay_into_a_live_aircraft(run, tmp_path):
                            "--listen", f"tcp/127.0.0.1:{p_ac}"],
                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        r = larns("replay", str(rec), "--topics", "larns/station/*/nav", "--rate", "2", "--delay", "0.5",
+        r = larns("replay", str(rec), "--topics", "larns/station/*/nav/**", "--rate", "2", "--delay", "0.5",
                   "--wait-for", "larns/alive/aircraft/*", "--json", "-q",
                   "--listen", f"tcp/127.0.0.1:{p_rp}", "--connect", f"tcp/127.0.0.1:{p_ac}")
     finally:
@@ -304,7 +304,7 @@ def test_replay_into_a_live_aircraft(run, tmp_path):
         out, err = ac.communicate(timeout=30)
     assert ac.returncode == 0, err[-2000:]
     st = json.loads(r.stdout.strip().splitlines()[-1])
-    n_nav = sum(1 for m in _wire(rec) if m.topic.endswith("/nav"))
+    n_nav = sum(1 for m in _wire(rec) if M.is_nav_key(m.topic))
     assert st["published"] == n_nav
     rep = json.loads(out.strip().splitlines()[-1])
     # the aircraft measured (nearly) every replayed broadcast and its EKF converged on them

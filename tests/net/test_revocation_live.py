@@ -37,7 +37,7 @@ def on_nav(k, d):
     m = M.decode(d)[0]
     out["navs"].append([m["src"], m["stamp_s"], [r[:3] for r in m["ranges"]]])
 b.subscribe("larns/trust/crl", on_crl)
-b.subscribe("larns/station/*/nav", on_nav)
+b.subscribe("larns/station/*/nav/**", on_nav)
 time.sleep(float(sys.argv[2]))
 b.close()
 print(json.dumps(out))

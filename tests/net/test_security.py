@@ -227,7 +227,7 @@ from net.bus import Bus
 from net import messages as M
 b = Bus(listen=["tls/127.0.0.1:0"], connect=sys.argv[3:], secure=(sys.argv[1], "monitor"))
 seqs = []
-b.subscribe("larns/station/5/nav", lambda k, d: seqs.append(M.decode(d)[0]["seq"]))
+b.subscribe("larns/station/5/nav/**", lambda k, d: seqs.append(M.decode(d)[0]["seq"]))
 time.sleep(float(sys.argv[2]))
 print(json.dumps({"navs": len(seqs), "forged": sum(1 for s in seqs if s >= 10**6)}))
 b.close()
@@ -366,7 +366,7 @@ def test_vehicle_enclave_speaks_only_for_itself(tmp_path):
     rules = {r["id"]: r for r in acl["rules"]}
     assert rules["pub-vehicle-veh1"]["key_exprs"] == [f"larns/vehicle/veh1/{k}" for k in ("estimate", "truth", "init", "input")]
     assert rules["tok-vehicle-veh1"]["key_exprs"] == ["larns/alive/vehicle/veh1"]
-    assert rules["sub-vehicle-veh1"]["key_exprs"] == ["larns/station/*/nav"]
+    assert rules["sub-vehicle-veh1"]["key_exprs"] == ["larns/station/*/nav/**"]
     assert {"id": "vehicle-veh1", "cert_common_names": ["vehicle-veh1"]} in acl["subjects"]
     assert add_to_keystore(root, vehicles=["veh2"])[1] == ["vehicle-veh2"]
     assert S.sender_cn("larns/vehicle/veh1/estimate", "veh1") == "vehicle-veh1"

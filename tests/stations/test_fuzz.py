@@ -51,7 +51,7 @@ def test_fuzz_absurd_requests_replies_and_navs_through_the_node():
         t0 = time.process_time()
         node._on_bytes(M.key_for(m), data)
         if kind == "nav":  # navs reach the core in the node's batches
-            node._nav_sub = None
+            node._nav_subs = []
             node._deliver(*M.decode(data))
         worst = max(worst, time.process_time() - t0)
     # no message hangs the node (a claim drawing the sender's emulated clock out to 1e12 s would take

@@ -154,7 +154,7 @@ def _make_due(node, t_local_s):
 def test_navs_are_drained_before_the_own_nav_not_at_the_request():
     node, bus, _ = make_node(station_id=3)
     assert not node._drain_due(node.fleet_now())  # no nav subscription: nothing to drain
-    node._nav_sub = object()
+    node._nav_subs = [object()]
     node._last_drain = time.time()
     req_dl = node.core.next_deadline()
     assert node._is_slot_start(req_dl)

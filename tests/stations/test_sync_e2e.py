@@ -48,7 +48,7 @@ def test_fleet_and_simulator_make_the_same_exchanges_and_sync(tmp_path):
     scn = load(scn_path)
     navs = []
     for m in read_log(rec).messages:
-        if m.topic.endswith("/nav"):
+        if M.is_nav_key(m.topic):
             msg, phy = M.decode(m.data)
             navs.append((msg["src"], phy["t_true_s"], msg["ranges"]))
     live = exchanges(navs, scn.tdma.slot_s, scn.tdma.cycle_s)
