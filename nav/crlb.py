@@ -54,13 +54,19 @@ def survey_fim(pos_m: np.ndarray, counts: np.ndarray, sigma_d_m: float | np.ndar
     tot = counts + counts.T
     sig = np.broadcast_to(np.asarray(sigma_d_m, dtype=float), tot.shape)
     ii, jj = np.nonzero(np.triu(tot, 1))
-    for i, j in zip(ii, jj):
-        d = pos_m[i] - pos_m[j]
-        u = d / np.linalg.norm(d)
-        g = np.zeros(p)
-        g[idx[i][free[i]]] += u[free[i]]
-        g[idx[j][free[j]]] -= u[free[j]]
-        J += tot[i, j] / sig[i, j] ** 2 * np.outer(g, g)
+    # each link (i, j) adds w g g^T, g = [u on i's free coordinates, -u on j's]: its four 3 x 3 blocks
+    # scattered into J (cost per link, not per link times the field's size: a sparse graph stays cheap)
+    d = pos_m[ii] - pos_m[jj]
+    u = d / np.linalg.norm(d, axis=1)[:, None]  # (m, 3)
+    w = tot[ii, jj] / sig[ii, jj] ** 2  # (m,)
+    rows = np.concatenate([idx[ii], idx[jj]], axis=1)  # (m, 6): -1 on constrained coordinates
+    g = np.concatenate([u, -u], axis=1)  # (m, 6)
+    ok = rows >= 0
+    g = np.where(ok, g, 0.0)
+    r = np.where(ok, rows, 0)
+    blocks = w[:, None, None] * g[:, :, None] * g[:, None, :]  # (m, 6, 6)
+    np.add.at(J, (np.broadcast_to(r[:, :, None], blocks.shape), np.broadcast_to(r[:, None, :], blocks.shape)),
+              blocks)
     return J
 
 
