@@ -215,13 +215,15 @@ def random_layout(
                         "(expected a smaller min_separation_m, fewer stations or a larger area_m)")
 
 
-def order_for_frame(pos_m: np.ndarray) -> np.ndarray:
+def order_for_frame(pos_m: np.ndarray, within_m: float | None = None) -> np.ndarray:
     """Reorder random physical positions so the frame stations make a well-conditioned frame.
 
-    Station 1: nearest the centroid's corner (the first point); station 2: the farthest point from 1;
-    station 3: the point farthest from the line 1-2; station 4: the point highest above the plane of
-    1-2-3 (so +Z points up). Returns an index permutation.
+    Station 1: the first point; station 2: the farthest point from 1; station 3: the point farthest
+    from the line 1-2; station 4: the point highest above the plane of 1-2-3 (so +Z points up).
+    ``within_m``: :func:`order_founders_near`. Returns an index permutation.
     """
+    if within_m is not None:
+        return order_founders_near(pos_m, within_m)
     n = len(pos_m)
     idx = list(range(n))
     i1 = 0
@@ -233,15 +235,54 @@ def order_for_frame(pos_m: np.ndarray) -> np.ndarray:
         return float(np.linalg.norm(v - ex * (v @ ex)))
 
     i3 = max((i for i in idx if i not in (i1, i2)), key=off_line)
-    order = [i1, i2, i3]
-    rest = [i for i in idx if i not in order]
-    if rest:
+    return _with_z_ref(pos_m, [i1, i2, i3], [i for i in idx if i not in (i1, i2, i3)])
+
+
+def _with_z_ref(pos_m: np.ndarray, founders: list[int], candidates: list[int]) -> np.ndarray:
+    """The permutation: the founders, then station 4 the candidate highest above their plane, then the rest."""
+    i1, i2, i3 = founders
+    order = list(founders)
+    if candidates:
         nrm = np.cross(pos_m[i2] - pos_m[i1], pos_m[i3] - pos_m[i1])
         nrm = nrm / np.linalg.norm(nrm) * (1.0 if nrm[2] >= 0 else -1.0)  # upward normal
-        i4 = max(rest, key=lambda i: float((pos_m[i] - pos_m[i1]) @ nrm))
-        order.append(i4)
-        order += [i for i in rest if i != i4]
+        order.append(max(candidates, key=lambda i: float((pos_m[i] - pos_m[i1]) @ nrm)))
+    order += [i for i in range(len(pos_m)) if i not in order]
     return np.array(order)
+
+
+def order_founders_near(pos_m: np.ndarray, within_m: float) -> np.ndarray:
+    """:func:`order_for_frame` for a field larger than a radio link: the founders must hear each other.
+
+    Station 1: the first point with at least three others within ``within_m`` (horizontally); stations
+    2 and 3: the pair of those, within ``within_m`` of each other, that makes the widest triangle with
+    1 (largest horizontal area: the frame's plane and axes as well conditioned as the layout allows),
+    2 the farther from 1; station 4: the point within ``within_m`` of 1 and 2 (else of 1) highest
+    above the plane of 1-2-3. Then 1 and 2 swap if the tetrahedron 1-2-3-4 is negatively oriented, so
+    that station 3 lies on the left of 1 -> 2 seen from station 4's side: the handedness that stations
+    without a coarse fix assume (ranges cannot tell a field from its mirror image; docs/survey.md).
+    """
+    P = np.asarray(pos_m, float)
+    d_h = np.hypot(P[:, None, 0] - P[None, :, 0], P[:, None, 1] - P[None, :, 1])
+    near = d_h <= within_m
+    np.fill_diagonal(near, False)
+    i1 = int(np.argmax(near.sum(axis=1) >= 3))
+    cand1 = [int(i) for i in np.flatnonzero(near[i1])]
+    pairs = [(a, b) for a in cand1 for b in cand1 if a < b and near[a, b]]
+    if len(cand1) < 3 or not pairs:
+        raise ScenarioError(f"[layout] founders_within_m: no three stations within {within_m:g} m of each other "
+                            "(expected a larger founders_within_m or a denser layout)")
+
+    def area(pair: tuple[int, int]) -> float:
+        u, v = P[pair[0], :2] - P[i1, :2], P[pair[1], :2] - P[i1, :2]
+        return abs(float(u[0] * v[1] - u[1] * v[0]))
+
+    a, b = max(pairs, key=area)
+    i2, i3 = (a, b) if d_h[i1, a] >= d_h[i1, b] else (b, a)
+    z_cand = [i for i in cand1 if i not in (i2, i3) and near[i2, i]] or [i for i in cand1 if i not in (i2, i3)]
+    order = _with_z_ref(P, [i1, i2, i3], z_cand)
+    if np.linalg.det(P[order[1:4]] - P[order[0]]) < 0.0:
+        order[[0, 1]] = order[[1, 0]]
+    return order
 
 
 def packaged_names() -> list[str]:
@@ -348,7 +389,8 @@ def _random_stations(raw: dict[str, Any], seed: int) -> tuple[list[int], np.ndar
     sep = float(lay.get("min_separation_m", 100.0))
     rng = np.random.default_rng(seed)
     phys = random_layout(rng, n, area, sep)
-    phys = phys[order_for_frame(phys)]
+    within = lay.get("founders_within_m")
+    phys = phys[order_for_frame(phys, None if within is None else float(within))]
     ids = list(range(1, n + 1))
     join_ids = [int(i) for i in lay.get("join_ids", [])]
     joiners = int(lay.get("joiners", 0))
@@ -557,6 +599,12 @@ def from_dict(raw: dict[str, Any], base_dir: str | Path | None = None) -> Scenar
     zi = ids.index(z_ref) if z_ref in ids else 3
     pos, R, t = to_network_frame(phys, z_ref=zi)
     init = raw.get("init", {})
+    if float(init.get("sigma0_m", 10.0)) == 0.0 and len(ids) > 3 and pos[2, 1] < 0.0:
+        # without a coarse fix the stations take the founders to turn counterclockwise, seen from the
+        # side of station z_ref (ranges alone cannot tell a field from its mirror image)
+        raise ScenarioError(f"[init] sigma0_m: 0 (no coarse fix) needs station 3 on the left of the line from "
+                            f"station 1 to station 2, seen from above (from station {z_ref}'s side of their "
+                            "plane); here it is on the right (expected swapped ids 1 and 2, or sigma0_m > 0)")
     survey = raw.get("survey", {})
     channel = ChannelParams(**raw.get("channel", {}))
     if "radio" in raw:  # links and their timing noise from the radio (net/radio.py)
@@ -747,7 +795,7 @@ _SECTION_RULES: dict[str, tuple[type, dict[str, str]]] = {
     "net": (NetFaults, {"delay_s": _NONNEG, "jitter_s": _NONNEG, "loss_prob": _PROB, "dup_prob": _PROB}),
     "init": (None, {"sigma0_m": _NONNEG}),
 }
-_LAYOUT_KEYS = ("kind", "n", "area_m", "min_separation_m", "join_ids", "joiners")
+_LAYOUT_KEYS = ("kind", "n", "area_m", "min_separation_m", "join_ids", "joiners", "founders_within_m")
 _SURVEY_KEYS = ("estimator", "ranges_per_update", "datum")
 DATUMS = ("founders", "field")
 
@@ -834,6 +882,8 @@ def _validate_layout(raw: dict) -> None:
         _int(lay["n"], "[layout] n", 3)
     if "joiners" in lay:
         _int(lay["joiners"], "[layout] joiners", 0)
+    if "founders_within_m" in lay:
+        _check_rule(_num(lay["founders_within_m"], "[layout] founders_within_m"), "[layout] founders_within_m", _POS)
     if "min_separation_m" in lay:
         _check_rule(_num(lay["min_separation_m"], "[layout] min_separation_m"), "[layout] min_separation_m", _NONNEG)
     area = lay.get("area_m", (1.0, 1.0, 1.0))

@@ -215,6 +215,28 @@ def _chol_inv_factor(A: np.ndarray) -> np.ndarray:
     return Linv
 
 
+# the mirror test of a first fix without a coarse fix (DistributedMap._flip_ambiguous): iterations
+# from the mirror image, and the cost margin (chi-square units: 3 sigma) the solution must win by
+FLIP_ITERS = 10
+FLIP_MARGIN = 9.0
+FLIP_SAME_M = 1.0  # a mirror start that converges within this (plus 3 sigma) found the same solution
+
+
+def _trilateration_start(dbar_m: np.ndarray, peers_m: np.ndarray, free: np.ndarray, up_m: float) -> np.ndarray:
+    """Start (3,) of a station's first solve from the mean ranges ``dbar_m`` (k,) to fixed peers at
+    ``peers_m`` (k, 3) (docs/survey.md, "A station without a fix"): their centroid, moved along the
+    frame's sign convention so that Gauss-Newton converges to the solution on that side of the
+    peers' line or plane (ranges alone cannot tell a mirror image): station 2 by the mean range
+    along +x, station 3 along +y; any other station by ``up_m`` along +z, up (a small step: the peers
+    of a ground field are nearly coplanar, and from far above the plane the solve would trade
+    height for horizontal distance); fixed coordinates 0."""
+    x = peers_m.mean(axis=0)
+    last = np.flatnonzero(free)[-1]
+    x[last] += up_m if last == 2 else float(np.mean(dbar_m))
+    x[~free] = 0.0
+    return x
+
+
 class _SolveCache:
     """What one :meth:`DistributedMap.solve` reads of the store and does not change while it runs: the
     kept ranges ``rk`` (nr,) peer slots and ``rv`` (nr,) m, the links' archives ``n_arch`` (m,) (weight)
@@ -287,7 +309,8 @@ class DistributedMap:
 
     def __init__(self, station_id: int, pos0_m: np.ndarray | None, cov0_m2: np.ndarray | None,
                  sigma_d_m: float, *, max_iter: int = 3, tol_m: float = 1e-3,
-                 no_fix_sigma_m: float = 1000.0, min_peers_to_init: int = 4, extrinsic: bool = True,
+                 no_fix_sigma_m: float = 1000.0, no_fix_height_sigma_m: float = 100.0,
+                 min_peers_to_init: int = 3, extrinsic: bool = True,
                  peer_corr: float = 2.0, peer_corr_est: float = 0.5, extrinsic_est: bool = False,
                  robust: str | None = "tukey", tukey_c: float = 4.685, huber_k: float = 2.0,
                  min_inlier_frac: float = 0.5, keep_per_link: int = 256, link_consensus: str | None = "cluster",
@@ -309,6 +332,10 @@ class DistributedMap:
         self.max_iter = max_iter
         self.tol_m = tol_m
         self.no_fix_sigma_m = no_fix_sigma_m
+        self._fix_var_m2 = (0.5 * no_fix_sigma_m) ** 2  # below: a peer's broadcast holds a fix
+        # without a fix, the height prior of a ground station: its first peers' mean height, this sigma
+        # (ranges between nearly coplanar stations hardly see height; docs/survey.md)
+        self.no_fix_height_sigma_m = no_fix_height_sigma_m
         self.min_peers_to_init = min_peers_to_init
         self.extrinsic = extrinsic
         self.peer_corr = peer_corr
@@ -375,7 +402,11 @@ class DistributedMap:
             self.cov_m2 = np.diag(self.free * no_fix_sigma_m**2).astype(float)
             self.prior_mean = None
             self.prior_info = np.zeros((self.nf, self.nf))
+            # (no coarse fix to restart from: the prior set at the first solve only regularizes it)
+            self.restart_from_prior = False
+            self.no_fix = True
         else:
+            self.no_fix = False
             self.initialized = True
             self.pos_m = np.asarray(pos0_m, dtype=float).copy()
             self.cov_m2 = _clean_cov(cov0_m2, self.free)
@@ -397,10 +428,15 @@ class DistributedMap:
         return k
 
     def on_peer(self, peer_id, pos_m, cov_m2) -> None:
+        """A peer's broadcast estimate. One without a fix yet (a station that has not trilaterated
+        broadcasts its no-fix prior, ``no_fix_sigma_m`` on its free coordinates) carries no position:
+        its links wait, their ranges kept, until it has one (a multi-hop field: docs/survey.md). The
+        test reads the horizontal variances: a located station of a flat field may have a height
+        sigma as large as the no-fix prior's."""
         k = self._slot(peer_id)
         self._pos[k] = pos_m
         self._cov[k] = cov_m2
-        self._known[k] = True
+        self._known[k] = bool(cov_m2[0][0] < self._fix_var_m2 and cov_m2[1][1] < self._fix_var_m2)
 
     def link_ranges(self, peer_id: int) -> tuple[np.ndarray, np.ndarray]:
         """Kept ranges of the link to ``peer_id`` (oldest first) and their weights of the last solve."""
@@ -724,6 +760,20 @@ class DistributedMap:
                 break
         return x
 
+    def _ground_height_m(self, x: np.ndarray) -> float:
+        """The height prior of a station without a fix at horizontal position ``x[:2]``: the plane
+        ``z = a + b x + c y`` through the located peers' estimates (least squares), else their mean
+        height. The network frame's XY plane is the founders', tilted against the ground by their
+        own height differences, so across a large field the ground lies far from z = 0 while
+        neighbours stay near one plane (docs/survey.md)."""
+        m = len(self._index)
+        Pj = self._pos[:m][self._peer_sel()]
+        if len(Pj) < 3:
+            return float(Pj[:, 2].mean()) if len(Pj) else float(x[2])
+        G = np.column_stack([np.ones(len(Pj)), Pj[:, 0] - x[0], Pj[:, 1] - x[1]])
+        coef, _, rank, _ = np.linalg.lstsq(G, Pj[:, 2], rcond=1e-6)
+        return float(coef[0]) if rank == 3 else float(Pj[:, 2].mean())
+
     def solve(self) -> bool:
         if self._nr == 0 and not (self._n > 0).any():
             return False
@@ -734,19 +784,66 @@ class DistributedMap:
             self.prior_info = np.eye(self.nf) / self.datum_sigma_m**2
         if not self.initialized:
             arr = self._arrays(np.ones(self._nr))
-            if arr is None or len(arr[0]) < self.min_peers_to_init:
+            # enough fixed peers: nf for a founder (station 2 from station 1, station 3 from 1 and 2, on
+            # the frame's sign convention), min_peers_to_init for any other station
+            if arr is None or len(arr[0]) < (self.min_peers_to_init if self.nf == 3 else self.nf):
                 return False
-            Pj = arr[2]
-            # weak prior at the peers' centroid: fixes the mirror ambiguity of a flat network
-            self.prior_mean = Pj.mean(axis=0)[self.free]
-            self.prior_info = np.eye(self.nf) / self.no_fix_sigma_m**2
-            self.pos_m = Pj.mean(axis=0)
-            self.pos_m[~self.free] = 0.0
+            self.pos_m = _trilateration_start(arr[1], arr[2], self.free, self.sigma_d_m)
+            # weak prior at the start: keeps the solve on the start's side of a mirror ambiguity
+            self.prior_mean = self.pos_m[self.free].copy()
+            sig = np.where(np.arange(3)[self.free] == 2, self.no_fix_height_sigma_m, self.no_fix_sigma_m)
+            self.prior_info = np.diag(1.0 / sig**2)
             iters = 50
-        f = self.free
+        elif self.no_fix and self.nf == 3 and self.datum_sigma_m is None:
+            self.prior_mean[2] = self._ground_height_m(self.pos_m)
         sc = _SolveCache(self, robust)
+        first = not self.initialized
+        try:
+            if not self._solve_from(iters, robust, sc):
+                return False
+            if first and self.no_fix and self.nf == 3 and self._flip_ambiguous(sc):
+                # not located yet: wait for peers that tell the solution from its mirror image
+                self.initialized = False
+                self.n_updates -= 1
+                self.cov_m2 = np.diag(self.free * self.no_fix_sigma_m**2).astype(float)
+                return False
+            return True
+        except np.linalg.LinAlgError:  # a degenerate geometry (e.g. a start on a peer): no update
+            return False
+
+    def _flip_ambiguous(self, sc: "_SolveCache") -> bool:
+        """A first fix from ranges alone is ambiguous if the located peers lie nearly on a line: the
+        solution's mirror image across their principal line fits about as well. Re-solve from the
+        mirror (plain least squares, ``FLIP_ITERS`` iterations) and call it ambiguous when it ends
+        elsewhere with a cost (the local MAP objective) within ``FLIP_MARGIN`` of ours (docs/survey.md)."""
+        arr = self._arrays(np.ones(self._nr), sc)
+        if arr is None:
+            return True
+        n, dbar, Pj, Cj = arr
+        c = Pj[:, :2].mean(axis=0)
+        D = Pj[:, :2] - c
+        e = np.linalg.eigh(D.T @ D)[1][:, 1]  # the peers' principal direction
+        x = self.pos_m
+        v = x[:2] - c
+        xm = x.copy()
+        xm[:2] = c + 2.0 * e * (e @ v) - v
+        x2 = self._irls(xm, FLIP_ITERS, False, sc)
+        if x2 is None or not np.all(np.isfinite(x2)):
+            return False
+
+        def cost(y: np.ndarray) -> float:
+            w, r = self._normal(y, n, dbar, Pj, Cj, self.peer_corr_est)[2:]
+            return self._objective(y, n, dbar, Pj, w, r)
+
+        if np.hypot(*(x2[:2] - x[:2])) <= FLIP_SAME_M + 3.0 * np.sqrt(self.cov_m2[0, 0] + self.cov_m2[1, 1]):
+            return False  # back to the same solution: there is one
+        return cost(x2) - cost(x) < FLIP_MARGIN
+
+    def _solve_from(self, iters: int, robust: bool, sc: "_SolveCache") -> bool:
+        """:meth:`solve` from the current estimate: IRLS, the second start, the covariance."""
+        f = self.free
         x = self._irls(self.pos_m.copy(), iters, robust, sc)
-        if x is None:
+        if x is None or not np.all(np.isfinite(x)):
             return False
         if (robust and self.robust is not None and self.restart_from_prior and self.prior_mean is not None
                 and self.datum_sigma_m is None):  # (in datum mode the prior is the start itself)
@@ -767,10 +864,10 @@ class DistributedMap:
         Cx = self._extrinsic(x, n, Pj, Cj) if self.extrinsic and self.initialized else Cj
         gamma = self.peer_corr if self.datum_sigma_m is None else self.peer_corr_datum
         A = self._normal(x, n, dbar, Pj, Cx, gamma)[0]
+        Linv = _chol_inv_factor(A)
         self.range_weight = w
         self.pos_m = x
         cov = np.zeros((3, 3))
-        Linv = _chol_inv_factor(A)
         cov[:self.nf, :self.nf] = Linv.T @ Linv  # (the free coordinates are the first nf)
         self.cov_m2 = symmetrize(cov)
         self.initialized = True

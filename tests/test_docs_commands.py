@@ -207,6 +207,7 @@ TABLE: dict[str, Run | Skip] = {
     "./dev bench wire --compare --json wire.json": Skip(BENCH),
     "larns bench wire --compare --speed 0.5 --duration 30 --json bench-out/wire.json --png-dir bench-out/wire": Skip(BENCH),
     "larns bench survey --scenario seed003-radio --stations 8 --sigma-d 0.9 --estimator dmap --trials 20": Skip(BENCH),
+    "larns bench survey --scenario field.toml --estimator dmap --sigma-d 0.9 --trials 2 --duration 300": Skip(BENCH),
     "larns bench sync --scenario seed003-radio --stations 8 --sigma-d 0.9 --trials 20": Skip(BENCH),
     "./dev bench aircraft --json aircraft.json": Skip(BENCH),
     "./dev bench aircraft --envelope --png-dir png/": Skip(BENCH),
