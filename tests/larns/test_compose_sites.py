@@ -104,6 +104,12 @@ class Recording:
         return rec
 
     def of(self, sid: int, what: str = "nav") -> np.ndarray:
+        """Log times of station ``sid``'s ``what`` (its navs under any tile: net/tiles.py)."""
+        from net import messages as M
+
+        if what == "nav":
+            ts = [t for k, t in self.times.items() if M.is_nav_key(k) and k.split("/")[2] == str(sid)]
+            return np.sort(np.concatenate(ts)) if ts else np.zeros(0, np.int64)
         return self.times.get(f"larns/station/{sid}/{what}", np.zeros(0, np.int64))
 
     def from_station(self, sid: int) -> np.ndarray:
