@@ -222,6 +222,14 @@ FLIP_MARGIN = 9.0
 FLIP_SAME_M = 1.0  # a mirror start that converges within this (plus 3 sigma) found the same solution
 
 
+def holds_fix(cov_m2, no_fix_sigma_m: float = 1000.0) -> bool:
+    """True if a broadcast covariance (3, 3) holds a fix: both horizontal variances below a quarter
+    of the no-fix prior's (a station without a fix broadcasts ``no_fix_sigma_m`` on its free
+    coordinates; a located station of a flat field may have a height sigma as large)."""
+    lim = (0.5 * no_fix_sigma_m) ** 2
+    return bool(cov_m2[0][0] < lim and cov_m2[1][1] < lim)
+
+
 def _trilateration_start(dbar_m: np.ndarray, peers_m: np.ndarray, free: np.ndarray, up_m: float) -> np.ndarray:
     """Start (3,) of a station's first solve from the mean ranges ``dbar_m`` (k,) to fixed peers at
     ``peers_m`` (k, 3) (docs/survey.md, "A station without a fix"): their centroid, moved along the
@@ -332,9 +340,9 @@ class DistributedMap:
         self.max_iter = max_iter
         self.tol_m = tol_m
         self.no_fix_sigma_m = no_fix_sigma_m
-        self._fix_var_m2 = (0.5 * no_fix_sigma_m) ** 2  # below: a peer's broadcast holds a fix
-        # without a fix, the height prior of a ground station: its first peers' mean height, this sigma
-        # (ranges between nearly coplanar stations hardly see height; docs/survey.md)
+        # without a fix, the height prior of a ground station: the plane of its located peers at its
+        # position (_ground_height_m), this sigma (ranges between nearly coplanar stations hardly see
+        # height; docs/survey.md)
         self.no_fix_height_sigma_m = no_fix_height_sigma_m
         self.min_peers_to_init = min_peers_to_init
         self.extrinsic = extrinsic
@@ -399,7 +407,7 @@ class DistributedMap:
             # no coarse fix: trilaterate once enough peers are known
             self.initialized = self.nf == 0
             self.pos_m = np.zeros(3) if pos0_m is None else np.asarray(pos0_m, float).copy()
-            self.cov_m2 = np.diag(self.free * no_fix_sigma_m**2).astype(float)
+            self.cov_m2 = self._no_fix_cov()
             self.prior_mean = None
             self.prior_info = np.zeros((self.nf, self.nf))
             # (no coarse fix to restart from: the prior set at the first solve only regularizes it)
@@ -430,13 +438,11 @@ class DistributedMap:
     def on_peer(self, peer_id, pos_m, cov_m2) -> None:
         """A peer's broadcast estimate. One without a fix yet (a station that has not trilaterated
         broadcasts its no-fix prior, ``no_fix_sigma_m`` on its free coordinates) carries no position:
-        its links wait, their ranges kept, until it has one (a multi-hop field: docs/survey.md). The
-        test reads the horizontal variances: a located station of a flat field may have a height
-        sigma as large as the no-fix prior's."""
+        its links wait, their ranges kept, until it has one (:func:`holds_fix`; docs/survey.md)."""
         k = self._slot(peer_id)
         self._pos[k] = pos_m
         self._cov[k] = cov_m2
-        self._known[k] = bool(cov_m2[0][0] < self._fix_var_m2 and cov_m2[1][1] < self._fix_var_m2)
+        self._known[k] = holds_fix(cov_m2, self.no_fix_sigma_m)
 
     def link_ranges(self, peer_id: int) -> tuple[np.ndarray, np.ndarray]:
         """Kept ranges of the link to ``peer_id`` (oldest first) and their weights of the last solve."""
@@ -760,6 +766,11 @@ class DistributedMap:
                 break
         return x
 
+    def _no_fix_cov(self) -> np.ndarray:
+        """(3, 3) the broadcast covariance of a station without a fix: ``no_fix_sigma_m`` on its free
+        coordinates."""
+        return np.diag(self.free * self.no_fix_sigma_m**2).astype(float)
+
     def _ground_height_m(self, x: np.ndarray) -> float:
         """The height prior of a station without a fix at horizontal position ``x[:2]``: the plane
         ``z = a + b x + c y`` through the located peers' estimates (least squares), else their mean
@@ -805,7 +816,7 @@ class DistributedMap:
                 # not located yet: wait for peers that tell the solution from its mirror image
                 self.initialized = False
                 self.n_updates -= 1
-                self.cov_m2 = np.diag(self.free * self.no_fix_sigma_m**2).astype(float)
+                self.cov_m2 = self._no_fix_cov()
                 return False
             return True
         except np.linalg.LinAlgError:  # a degenerate geometry (e.g. a start on a peer): no update
@@ -831,12 +842,13 @@ class DistributedMap:
         if x2 is None or not np.all(np.isfinite(x2)):
             return False
 
+        if np.hypot(*(x2[:2] - x[:2])) <= FLIP_SAME_M + 3.0 * np.sqrt(self.cov_m2[0, 0] + self.cov_m2[1, 1]):
+            return False  # back to the same solution: there is one
+
         def cost(y: np.ndarray) -> float:
             w, r = self._normal(y, n, dbar, Pj, Cj, self.peer_corr_est)[2:]
             return self._objective(y, n, dbar, Pj, w, r)
 
-        if np.hypot(*(x2[:2] - x[:2])) <= FLIP_SAME_M + 3.0 * np.sqrt(self.cov_m2[0, 0] + self.cov_m2[1, 1]):
-            return False  # back to the same solution: there is one
         return cost(x2) - cost(x) < FLIP_MARGIN
 
     def _solve_from(self, iters: int, robust: bool, sc: "_SolveCache") -> bool:

@@ -19,7 +19,6 @@ import numpy as np
 TABLE_TIMES_S = [10, 15, 20, 30, 40, 60]
 LONG_TABLE_TIMES_S = [30, 60, 120, 180, 240, 300]  # runs longer than 60 s (large multi-hop fields)
 NO_FIX_SIGMA_M = 1000.0  # stations/estimators.py DistributedMap no_fix_sigma_m
-LOCATED_VAR_M2 = (0.5 * NO_FIX_SIGMA_M) ** 2  # below in x and y: a station holds a fix
 
 
 def register(sub) -> None:
@@ -105,6 +104,7 @@ def _trial(job: tuple) -> dict:
     from nav.geometry import frame_free_mask
     from net.channel import coarse_fix, station_rng
     from net.scenario import load
+    from stations.estimators import holds_fix
     from stations.sim import Simulator
 
     scenario, estimator, sigma_d, n, seed, duration, table_times, with_map, clock = job
@@ -116,7 +116,7 @@ def _trial(job: tuple) -> dict:
     err = r.pos_m - r.truth_m  # (K, n, 3)
     # a station without a fix (scenario sigma0_m = 0) that has not trilaterated yet is not located:
     # it broadcasts its no-fix prior (stations/estimators.py); its error is not scored
-    located = np.all(np.diagonal(r.cov_m2, axis1=-2, axis2=-1)[..., :2] < LOCATED_VAR_M2, axis=-1)  # (K, n)
+    located = np.array([[holds_fix(c) for c in ck] for ck in r.cov_m2])  # (K, n)
     err = np.where(located[..., None], err, np.nan)
     free = frame_free_mask(len(scn.ids))
     ti = [int(np.argmin(np.abs(times - t))) for t in table_times]
