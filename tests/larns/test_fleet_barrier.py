@@ -9,8 +9,13 @@ import sys
 import threading
 import time
 
+import pytest
+
 from larns.fleet.spawn import Child, start_barrier
 from net.cli import await_epoch
+
+# real child processes timed against each other: run with the other process tests (alone), not in parallel
+pytestmark = pytest.mark.e2e
 
 PY = sys.executable
 

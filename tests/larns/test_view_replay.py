@@ -61,6 +61,7 @@ def _t(got, after_wall: float = 0.0) -> list[float]:
     return [m["t_s"] for wall, topic, _, m in got.messages if topic == "larns/foxglove/station/2" and wall > after_wall]
 
 
+@pytest.mark.e2e
 def test_replay_view_obeys_pause_and_seek(tmp_path: Path):
     from net.bus import free_tcp_ports
 

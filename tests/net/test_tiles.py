@@ -132,6 +132,7 @@ def _line_scenario():
                         "stations": [{"id": i + 1, "pos_m": p} for i, p in enumerate(pos)]})
 
 
+@pytest.mark.e2e
 @pytest.mark.timeout(60)
 def test_station_node_on_zenoh_hears_neighbours_only():
     """Station 1's node on a real Zenoh bus: a peer publishes navs of station 2 (1.5 km away) and of

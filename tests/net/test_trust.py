@@ -243,6 +243,7 @@ def test_replay_history_from_another_epoch_is_forgotten(tmp_path):
 
 # --------------------------------------------------------------------------- over real Zenoh
 
+@pytest.mark.e2e
 def test_certificate_fetched_over_zenoh_by_a_host_with_only_its_own_credentials(ks, tmp_path):
     """Two processes, each with only its own enclave + ca.crt (no certs/ folder): the receiver
     fetches the signer's certificate from the bus and then verifies its navs (before: `DROP
