@@ -157,6 +157,52 @@ def _members(v: Any, name: str) -> list[int]:
     return list(v)
 
 
+MAX_SLOTS = 1024  # slots of a distributed assignment's cycle (net.scenario.MAX_CYCLE_SLOTS)
+SLOT_STATES = (1, 2, 3)  # stations.slots CLEAN, SOFT, GARBAGE (FREE slots are not sent)
+
+
+def _slot_summary(v: Any, name: str) -> dict[str, Any]:
+    """A nav's slot summary (distributed assignment, docs/slots.md): ``{"n": C, "claim": cycle,
+    "v": [[slot, state, owner, since], ...]}`` - the cycle's slot count, the cycle the sender claimed
+    its slot in (-1: none), and one entry per slot not free in its one-hop view (state 1 clean,
+    2 soft, 3 garbage; owner 0: none; since -1: none), slots unique and below ``n``."""
+    if not isinstance(v, dict) or set(v) != {"n", "claim", "v"}:
+        raise MessageError("shape", f"{name} must be a map with exactly n, claim and v")
+    n = _int(1, MAX_SLOTS)(v["n"], f"{name}.n")
+    claim = _int(-1, MAX_SEQ)(v["claim"], f"{name}.claim")
+    ent = v["v"]
+    if not isinstance(ent, (list, tuple)) or len(ent) > n:
+        raise MessageError("shape", f"{name}.v must be a list of <= {name}.n entries")
+    out, seen = [], set()
+    for e in ent:
+        if not isinstance(e, (list, tuple)) or len(e) != 4:
+            raise MessageError("shape", f"{name}.v entries must be [slot, state, owner, since]")
+        k, st = _int(0, n - 1)(e[0], f"{name}.v slot"), _int(1, 3)(e[1], f"{name}.v state")
+        own, since = _int(0, MAX_ID)(e[2], f"{name}.v owner"), _int(-1, MAX_SEQ)(e[3], f"{name}.v since")
+        if k in seen:
+            raise MessageError("value", f"{name}.v: slot {k} twice")
+        seen.add(k)
+        out.append([k, st, own, since])
+    return {"n": n, "claim": claim, "v": out}
+
+
+slot_summary = _slot_summary  # the stations' cores check a summary handed to them directly (the simulator)
+
+
+def _nav_slots_plausible(m: dict[str, Any]) -> None:
+    """A nav's summary against the nav itself: its slot within the summary's cycle, and no claim
+    (its own or a neighbour's) dated after the cycle it is sent in plus one (a claim takes effect
+    the cycle after it is made)."""
+    s = m.get("slots")
+    if s is None:
+        return
+    if m["slot"] >= s["n"]:
+        raise MessageError("value", f"nav: slot {m['slot']} outside the summary's {s['n']} slots")
+    top = m["cycle"] + 1
+    if s["claim"] > top or any(e[3] > top for e in s["v"]):
+        raise MessageError("value", f"nav: a slot claim after cycle {top}")
+
+
 def _extra(v: Any, name: str) -> dict[str, float]:
     if not isinstance(v, dict) or len(v) > 32:
         raise MessageError("shape", f"{name} must be a map of <= 32 numbers")
@@ -221,20 +267,23 @@ def _init_record(v: Any, name: str) -> dict[str, Any]:
 
 
 def _journal(v: Any, name: str) -> list[list[Any]]:
-    """``[["t", t_local_s] | ["m", t_rx_local_s, msg], ...]``; msg an air message, validated."""
+    """``[["t", t_local_s] | ["m", t_rx_local_s, msg] | ["g", t_rx_local_s], ...]``; msg an air message,
+    validated; ``g``: a collision heard (distributed slot assignment, docs/slots.md)."""
     if not isinstance(v, (list, tuple)) or len(v) > MAX_JOURNAL:
         raise MessageError("shape", f"{name} must be a list of <= {MAX_JOURNAL} entries")
     out: list[list[Any]] = []
     for e in v:
         if isinstance(e, (list, tuple)) and len(e) == 2 and e[0] == "t":
             out.append(["t", _num(e[1], name)])
+        elif isinstance(e, (list, tuple)) and len(e) == 2 and e[0] == "g":  # energy, nothing decodable
+            out.append(["g", _num(e[1], name)])
         elif isinstance(e, (list, tuple)) and len(e) == 3 and e[0] == "m":
             m = validate_msg(e[2])
             if m["kind"] not in AIR_MSG_KINDS:
                 raise MessageError("kind", f"{name}: {m['kind']} is not an air message")
             out.append(["m", _num(e[1], name), m])
         else:
-            raise MessageError("shape", f"{name} entries must be ['t', t] or ['m', t, msg]")
+            raise MessageError("shape", f"{name} entries must be ['t', t], ['m', t, msg] or ['g', t]")
     return out
 
 
@@ -364,7 +413,7 @@ SCHEMAS: dict[str, tuple[dict[str, Callable], dict[str, Callable]]] = {
                    "state": _state}, {"t_tx_s": _num, "t_rx_s": _num, "clock": _clock}),
     "nav": ({**_COMMON_STATION, "cycle": _count, "slot": _slot, "t_tx_s": _num, "pos_m": _vec3,
              "cov_m2": _cov33, "n_updates": _count, "state": _state, "ranges": _ranges,
-             "members": _members}, {"clock": _clock, "excluded": _members}),
+             "members": _members}, {"clock": _clock, "excluded": _members, "slots": _slot_summary}),
     "estimate": ({**_COMMON_STATION, "t_s": _num, "pos_m": _vec3, "cov_m2": _cov33,
                   "n_updates": _count, "estimator": _text, "state": _state},
                  {"slot": _slot, "cycle": _count, "dropped": _count, "clock_offset_s": _num,
@@ -435,6 +484,8 @@ def validate_msg(msg: Any) -> dict[str, Any]:
         out[k] = kind if check is None else check(v, k)
     if not req.keys() <= out.keys():
         raise MessageError("field", f"{kind}: missing {[k for k in req if k not in out]}")
+    if kind == "nav":
+        _nav_slots_plausible(out)
     return out
 
 

@@ -152,12 +152,27 @@ class NetFaults:
 
 @dataclass(frozen=True)
 class Tdma:
+    """``[tdma]``. ``assignment``: "fixed" (station ``id`` owns slot ``id - 1``, one slot per station)
+    or "distributed" (each station picks a slot free in its two-hop view, ``stations/slots.py``, among
+    the first ``cycle_slots`` slots of the cycle; 0: all of them; docs/slots.md)."""
+
     cycle_s: float = 1.0
     slot_s: float = 0.01
+    assignment: str = "fixed"
+    cycle_slots: int = 0
 
     @property
     def slots_per_cycle(self) -> int:
         return int(round(self.cycle_s / self.slot_s))
+
+    @property
+    def distributed(self) -> bool:
+        return self.assignment == "distributed"
+
+    @property
+    def assigned_slots(self) -> int:
+        """Slots the distributed assignment picks among (``cycle_slots``, or the whole cycle)."""
+        return self.cycle_slots or self.slots_per_cycle
 
 
 @dataclass
@@ -423,7 +438,7 @@ def _check_ids(raw: dict[str, Any], ids: list[int], join_ids: list[int], where: 
                             "network frame)")
     tdma = Tdma(**raw.get("tdma", {}))
     slots, top = tdma.slots_per_cycle, max(ids)
-    if top > slots:
+    if top > slots and not tdma.distributed:  # a distributed assignment: any number of stations
         w = where[ids.index(top)]
         w = f"{w}.id" if w.startswith("stations[") else w
         raise ScenarioError(f"{w}: station {top} needs slot {top}, but the TDMA cycle has {slots} slots "
@@ -788,7 +803,7 @@ def _clock(raw: dict, channel: ChannelParams) -> ClockParams:
 
 _NONNEG, _PROB, _POS = "a number >= 0", "a probability in [0, 1]", "a number > 0"
 _SECTION_RULES: dict[str, tuple[type, dict[str, str]]] = {
-    "tdma": (Tdma, {"cycle_s": _POS, "slot_s": _POS}),
+    "tdma": (Tdma, {"cycle_s": _POS, "slot_s": _POS}),  # assignment, cycle_slots: _validate_tdma
     "channel": (ChannelParams, {"sigma_d_m": _NONNEG, "nlos_prob": _PROB, "nlos_bias_m": _NONNEG,
                                 "loss_prob": _PROB, "clock_offset_s": _NONNEG, "clock_drift_ppm": _NONNEG,
                                 "turnaround_s": _NONNEG}),
@@ -865,11 +880,33 @@ def _validate_params(raw: dict) -> None:
         for k, v in tab.items():
             if k in rules:
                 _check_rule(_num(v, f"[{key}] {k}"), f"[{key}] {k}", rules[k])
-    tdma = _table(raw, "tdma")
+    _validate_tdma(_table(raw, "tdma"))
+
+
+ASSIGNMENTS = ("fixed", "distributed")
+MAX_CYCLE_SLOTS = 1024  # net.messages.MAX_SLOTS: a nav's slot summary has one entry per slot at most
+
+
+def _validate_tdma(tdma: dict) -> None:
     slot_s, cycle_s = _num(tdma.get("slot_s", 0.01), "[tdma] slot_s"), _num(tdma.get("cycle_s", 1.0), "[tdma] cycle_s")
     if slot_s > cycle_s:
         raise ScenarioError(f"[tdma] slot_s: {slot_s:g} s is longer than cycle_s {cycle_s:g} s "
                             "(expected slot_s <= cycle_s)")
+    how = tdma.get("assignment", "fixed")
+    if how not in ASSIGNMENTS:
+        raise ScenarioError(f"[tdma] assignment: got {how!r} (expected one of {', '.join(ASSIGNMENTS)}"
+                            f"{_did_you_mean(str(how), ASSIGNMENTS)})")
+    n = _int(tdma.get("cycle_slots", 0), "[tdma] cycle_slots", 0)
+    slots = int(round(cycle_s / slot_s))
+    if how == "distributed" and n == 0 and slots > MAX_CYCLE_SLOTS:
+        raise ScenarioError(f"[tdma] cycle_slots: 0 (all {slots} slots of the cycle) (expected at most "
+                            f"{MAX_CYCLE_SLOTS} slots for the distributed assignment: set cycle_slots)")
+    if n > min(slots, MAX_CYCLE_SLOTS):
+        raise ScenarioError(f"[tdma] cycle_slots: got {n} (expected at most the cycle's {slots} slots "
+                            f"(cycle_s {cycle_s:g} / slot_s {slot_s:g}) and at most {MAX_CYCLE_SLOTS}; 0: all)")
+    if how != "distributed" and n:
+        raise ScenarioError(f"[tdma] cycle_slots: {n} with assignment {how!r} (expected it only with "
+                            "assignment = \"distributed\"; the fixed plan gives station id slot id - 1)")
 
 
 def _validate_layout(raw: dict) -> None:

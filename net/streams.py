@@ -13,6 +13,7 @@ import numpy as np
 
 # a station's streams: [seed, station id, purpose] (net.channel.station_rng)
 CLOCK, COARSE_FIX, AIR, WIRE = 0, 1, 2, 3
+SLOTS = 4  # its distributed slot assignment's choices (stations/slots.py, via stations/core.py)
 
 # the mobile processes' streams: [seed, tag, name, ...]
 AIRCRAFT_RADIO = 0xA1C    # the radio aircraft's channel noise (aircraft/radio_core.py)

@@ -24,6 +24,14 @@ Joining (``join=True``): listen for ``listen_cycles`` cycles, collecting the slo
 nav broadcasts heard; claim the default slot (``id - 1``) if free, else the first free slot after it.
 Two newcomers claiming the same slot both hear each other's nav in that slot: the lower id keeps it,
 the higher id listens again and claims another one.
+
+Distributed slot assignment (``slot_assignment="distributed"``, docs/slots.md): instead of the above,
+every station (founders too) drives a :class:`stations.slots.SlotCore` at each cycle end on network
+time (an extra deadline) with the navs heard cleanly in that cycle (sender, slot, claim cycle, its
+``slots`` summary) and the slots its radio heard collide (:meth:`StationCore.on_garbage`, journalled
+as ``["g", t]``); it listens for the first whole cycle, then transmits request and nav in
+``SlotCore.slot`` and is silent while it holds none (or listens in its own slot). The choices draw on
+the stream ``(slot_seed, id, net.streams.SLOTS)``.
 """
 
 from __future__ import annotations
@@ -37,12 +45,15 @@ from scipy.special import chdtri  # chi-square inverse survival (scipy.stats cos
 
 from nav.geometry import SPEED_OF_LIGHT_M_S
 from nav.kalman import nees
+from net import streams
+from net.messages import MessageError, slot_summary
 from net.radio import radio_from_dict, range_var_m2
 
 from .admission import Admission, Bounds
 from .clocksync import ClockEstimator, ClockModel
 from .estimators import SurveyEstimator, make_estimator
 from .integrity import StationIntegrity
+from .slots import FREE, Heard, SlotConfig, SlotCore, SlotSummary
 from .tdma import TdmaPlan
 
 EXCHANGE_LOG = 4096  # own exchanges kept for the report (about an hour at a 1 s cycle)
@@ -85,6 +96,16 @@ class StationConfig:
     # the scenario's [radio] in the network frame (net.radio.radio_dict): the survey, the integrity
     # tests and the clock filter weight each link by its SNR's timing noise; None: sigma_d everywhere
     radio: dict | None = None
+    # the slot plan ([tdma] assignment, docs/slots.md): "fixed" (slot id - 1, the old default) or
+    # "distributed" (stations/slots.py: a slot free in the two-hop view, among the first cycle_slots
+    # slots of the cycle, chosen with the stream (slot_seed, id, streams.SLOTS))
+    slot_assignment: str = "fixed"
+    cycle_slots: int = 0
+    slot_seed: int = 0
+
+
+SLOT_KEYS = ("slot_assignment", "cycle_slots", "slot_seed")  # in the init record only when distributed
+HEARD_CYCLES = 3  # cycles of receptions kept for the slot assignment's cycle ends (late timers)
 
 
 class StationCore:
@@ -97,7 +118,8 @@ class StationCore:
         self.journal = journal
         self._inputs: list[list] = []
         self.init_record = {
-            "cfg": {k: (list(v) if isinstance(v, tuple) else v) for k, v in cfg.__dict__.items() if k != "tdma"},
+            "cfg": {k: (list(v) if isinstance(v, tuple) else v) for k, v in cfg.__dict__.items()
+                    if k != "tdma" and (k not in SLOT_KEYS or cfg.slot_assignment != "fixed")},
             "tdma": [cfg.tdma.cycle_s, cfg.tdma.slot_s],
             "init_pos_m": None if init_pos_m is None else np.asarray(init_pos_m, float).tolist(),
             "init_cov_m2": None if init_cov_m2 is None else np.asarray(init_cov_m2, float).tolist(),
@@ -137,10 +159,32 @@ class StationCore:
         self.counters = {"requests": 0, "responses": 0, "lost": 0, "ranges_in": 0, "ignored": 0,
                          "rejected_ranges": 0, "late": 0, "sync_in": 0, "implausible": 0}
         # plausibility before trust: senders, ids, values and slot claims (stations/admission.py)
-        self.admission = Admission(Bounds.of(cfg), self.plan.cycle_s,
-                                   cfg.max_peers or self.plan.slots_per_cycle + 1)
+        self.slots: SlotCore | None = None  # the distributed assignment (None: the fixed plan)
+        peer_bound = self.plan.slots_per_cycle + 1
+        if cfg.slot_assignment == "distributed":
+            C = cfg.cycle_slots or self.plan.slots_per_cycle
+            self.slots = SlotCore(cfg.id, SlotConfig(C, listen_cycles=cfg.listen_cycles),
+                                  streams.rng(cfg.slot_seed, cfg.id, streams.SLOTS))
+            # stations outnumber the slots: the deployment's ids and as many newcomers as a slot table holds
+            peer_bound = len(self.known) + 1 + self.slots.cfg.max_peers
+        self.admission = Admission(Bounds.of(cfg), self.plan.cycle_s, cfg.max_peers or peer_bound)
         self.admission.ids.update([cfg.id, *self.known])
-        if cfg.join:
+        # receptions per cycle for the slot assignment: cycle -> (sender -> Heard), garbage slots
+        self._rx_heard: dict[int, dict[int, Heard]] = {}
+        self._rx_garbage: dict[int, set[int]] = {}
+        self._tick_T = float("inf")  # network time of the next cycle end the slot assignment acts on
+        self._first_cycle = 0
+        if self.slots is not None:
+            self.state = "joining" if cfg.join else ("frame" if cfg.id == 1 else "surveying")
+            self.slot = None  # listen first, then pick (stations/slots.py)
+            self.listen_until_s = float("inf")
+            self.heard_slots = {}
+            T = self.clk.network_time(start_s)
+            c0, _ = self.plan.locate(max(T, 0.0))
+            # a cycle heard in part is not listened to: the first cycle the assignment acts on is whole
+            self._first_cycle = c0 if abs(T - c0 * self.plan.cycle_s) < 1e-9 else c0 + 1
+            self._tick_T = (self._first_cycle + 1) * self.plan.cycle_s
+        elif cfg.join:
             self.state = "joining"
             self.slot: int | None = None
             self.listen_until_s = start_s + cfg.listen_cycles * self.plan.cycle_s
@@ -178,7 +222,9 @@ class StationCore:
     def next_deadline(self) -> float | None:
         """Local time of the next ``on_timer`` call the core needs."""
         times = [self._next_req_s, self._nav_s]
-        if self.state == "joining" and self.slot is None:
+        if self.slots is not None:
+            times.append(self.clk.local_time(self._tick_T))
+        elif self.state == "joining" and self.slot is None:
             times.append(self.listen_until_s)
         t = min(times)
         return None if not math.isfinite(t) else t
@@ -214,6 +260,8 @@ class StationCore:
                  pos_m=self.est.pos_m.tolist(), cov_m2=self.est.cov_m2.tolist(),
                  n_updates=int(self.est.n_updates), state=self.state,
                  ranges=self.ranges_out, members=self.members(t_s), clock=self.clk.correction(t_s))
+        if self.slots is not None:
+            m["slots"] = self._slots_field()
         own = self.integrity.own_excluded
         if own:  # the quorum's input at the other stations (stations/integrity.py)
             m["excluded"] = sorted(own)
@@ -240,14 +288,103 @@ class StationCore:
         """Feed journal entries; returns every output in order."""
         out: list[dict] = []
         for e in inputs:
-            out += self.on_timer(e[1]) if e[0] == "t" else self.on_message(e[2], e[1])
+            if e[0] == "g":
+                self.on_garbage(e[1])
+            else:
+                out += self.on_timer(e[1]) if e[0] == "t" else self.on_message(e[2], e[1])
         return out
+
+    # ------------------------------------------------------------------ distributed slot assignment
+    def _slots_field(self) -> dict:
+        """The nav's ``slots``: the cycle's slot count, our claim cycle and our one-hop view of the
+        last cycle (the non-free slots: [slot, state, owner, since]; net.messages.slot_summary)."""
+        sc = self.slots
+        s = sc.summary()
+        ent = [] if s is None else [[int(k), int(s.state[k]), int(s.owner[k]), int(s.since[k])]
+                                    for k in np.flatnonzero(s.state != FREE)]
+        return {"n": sc.cfg.cycle_slots, "claim": int(sc.since) if sc.slot is not None else -1, "v": ent}
+
+    def _summary_of(self, field: dict | None) -> tuple[int | None, SlotSummary | None]:
+        """A nav's ``slots`` as (claim cycle, :class:`SlotSummary`): checked (hostile values: counted,
+        ignored), None for a summary of another cycle size."""
+        if field is None:
+            return None, None
+        try:
+            f = slot_summary(field, "slots")
+        except MessageError:
+            self.counters["implausible"] += 1
+            return None, None
+        C = self.slots.cfg.cycle_slots
+        if f["n"] != C:
+            return f["claim"], None
+        state, owner, since = np.zeros(C, np.int8), np.zeros(C, np.int64), np.full(C, -1, np.int64)
+        for k, st, own, sn in f["v"]:
+            state[k], owner[k], since[k] = st, own, sn
+        return f["claim"], SlotSummary(state=state, owner=owner, since=since)
+
+    def _slot_heard(self, msg: dict, t_rx_s: float) -> None:
+        """A nav heard cleanly in its slot: kept for the end of the cycle it was heard in."""
+        slot = msg.get("slot")
+        if type(slot) is not int or not 0 <= slot < self.slots.cfg.cycle_slots:
+            return
+        cycle, _ = self.plan.locate(max(self.clk.network_time(t_rx_s), 0.0))
+        claim, summary = self._summary_of(msg.get("slots"))
+        buf = self._rx_heard.setdefault(cycle, {})
+        if msg["src"] in buf or len(buf) < self.slots.cfg.max_peers:
+            buf[msg["src"]] = Heard(msg["src"], slot, msg.get("cycle", cycle) if claim is None else claim, summary)
+        self._trim_rx(cycle)
+
+    def on_garbage(self, t_rx_s: float) -> None:
+        """The radio heard energy and decoded nothing (two senders in one slot) at local ``t_rx_s``:
+        the slot it falls in is garbage for this cycle (distributed assignment only)."""
+        if self.journal:
+            self._inputs.append(["g", float(t_rx_s)])
+        if self.slots is None:
+            return
+        cycle, slot = self.plan.locate(max(self.clk.network_time(t_rx_s), 0.0))
+        if slot < self.slots.cfg.cycle_slots:
+            self._rx_garbage.setdefault(cycle, set()).add(slot)
+            self._trim_rx(cycle)
+
+    def _trim_rx(self, cycle: int) -> None:
+        for buf in (self._rx_heard, self._rx_garbage):
+            for c in [c for c in buf if c < cycle - HEARD_CYCLES]:
+                del buf[c]
+
+    def _cycle_ends(self, t_s: float) -> None:
+        """Every cycle end due by local ``t_s``. A jump of our network-time estimate (a first sync)
+        moves the next one to the cycle we are now in instead of replaying the cycles jumped over."""
+        cyc = self.plan.cycle_s
+        T_now = self.clk.network_time(t_s)
+        if not -2.0 * cyc < self._tick_T - T_now < (HEARD_CYCLES + 1) * cyc:
+            self._tick_T = (math.floor(T_now / cyc + 1e-9) + 1) * cyc
+            self._next_req_T = float("inf") if self.slot is None else self._schedule_after(t_s)[0]
+        while t_s >= self.clk.local_time(self._tick_T) - 1e-12:
+            self._cycle_end()
+
+    def _cycle_end(self) -> None:
+        """End of a cycle on network time: the slot assignment takes what was heard in it, and the
+        slot of the next cycle (None: silent, listening or none free) is scheduled."""
+        T = self._tick_T
+        cycle = int(round(T / self.plan.cycle_s)) - 1
+        self._tick_T = T + self.plan.cycle_s
+        if cycle < self._first_cycle:
+            return
+        heard = list(self._rx_heard.pop(cycle, {}).values())
+        garbage = sorted(self._rx_garbage.pop(cycle, set()))
+        self._trim_rx(cycle + 1)
+        new = self.slots.on_cycle(cycle, heard, garbage)
+        self.slot = None if self.slots.listening else new
+        self._next_req_T = self.plan.slot_start_s(cycle + 1, self.slot) if self.slot is not None else float("inf")
+        self._refresh_state()
 
     def on_timer(self, t_s: float) -> list[dict]:
         if self.journal:
             self._inputs.append(["t", float(t_s)])
         out: list[dict] = []
-        if self.state == "joining" and self.slot is None and t_s >= self.listen_until_s - 1e-12:
+        if self.slots is not None:
+            self._cycle_ends(t_s)
+        if self.slots is None and self.state == "joining" and self.slot is None and t_s >= self.listen_until_s - 1e-12:
             self._claim_slot(t_s)
         if t_s >= self._nav_s - 1e-12:
             self._nav_s = float("inf")
@@ -280,6 +417,8 @@ class StationCore:
             self._next_req_T = self.plan.slot_start_s(cycle + 1, self.slot)
             if self._next_req_s <= t0:  # the network-time estimate jumped ahead: next cycle's slot
                 self._next_req_T, _ = self._schedule_after(t0)
+            if self.slots is not None and self._next_req_T >= self._tick_T:
+                self._next_req_T = float("inf")  # the next cycle's slot: set at this cycle's end
             # forget requests whose slot is over
             for s in [s for s, (_, _, end) in self.pending.items() if end < t0]:
                 del self.pending[s]
@@ -414,7 +553,12 @@ class StationCore:
         slot = msg.get("slot")
         # a slot claim is believed only if the nav arrived inside that slot (and not too often changed)
         in_slot = "cycle" not in msg or self._in_slot(msg, t_rx_s)  # (every nav on the wire has a cycle)
-        if slot is not None and self.admission.slot_claim(src, slot, in_slot, t_rx_s):
+        if self.slots is not None:
+            if in_slot:  # claims change often in a cold start: no rate limit (the slot table is bounded)
+                self._slot_heard(msg, t_rx_s)
+            else:
+                self.admission.drop("slot_time")
+        elif slot is not None and self.admission.slot_claim(src, slot, in_slot, t_rx_s):
             self.heard_slots[src] = slot
             if self.slot is not None and slot == self.slot and src < self.id:
                 # slot collision: the lower id keeps the slot, we listen again and re-claim

@@ -95,6 +95,8 @@ def make_core(scn: Scenario, station_id: int, *, estimator: str | None = None, j
         # the frame datum: the founders' throughout, or handed to the converged field ([survey] datum)
         datum_converged_m=0.0 if scn.datum == "field" else -1.0,
         radio=radio_dict(scn.channel.radio),
+        **({"slot_assignment": "distributed", "cycle_slots": scn.tdma.assigned_slots, "slot_seed": int(seed)}
+           if scn.tdma.distributed else {}),
     )
     return StationCore(cfg, pos0, cov0, start_s=clock.to_local(start_s)), clock
 
@@ -156,6 +158,8 @@ class Simulator:
         self._reach = reach.tolist()
         self.range_log: list[tuple[float, int, int, float]] = []  # (t_true, initiator idx, responder idx, range_m)
         self.exchange_log: list[tuple[float, int, int]] = []  # (t_true reply rx, initiator idx, responder idx)
+        self.collisions = 0  # distributed assignment: navs lost at a receiver to another sender in their slot
+        self.collision_log: list[tuple[float, int, int]] = []  # (t_true tx, sender idx, receiver idx) of each
         self._heap: list = []
         self._order = 0
         self._timer_ver = [0] * n
@@ -202,6 +206,7 @@ class Simulator:
                 targets = [j for j in range(len(ids)) if j != k] if loss > 0 else self._hear[k]
             else:
                 targets = [index[m["dst"]]] if m["dst"] in index else []
+            holders = self._holders(k, m) if self.scn.tdma.distributed else None
             for j in targets:
                 if self.cores[j] is None and ids[j] not in self.start_s:
                     continue
@@ -209,12 +214,41 @@ class Simulator:
                     continue
                 if not self._reach[k][j]:
                     continue
+                if holders and self._collided(k, j, m, holders, t_tx_true):
+                    continue
                 t_local = self.shell[j].arrival_local_s(self.air[j], ids[k], self.scn.pos_m[k], t_tx_true,
                                                         self.scn.pos_m[j], self.clocks[j])
                 if t_local is None:
                     continue
                 self._push(self.clocks[j].to_true(t_local), ("rx", j, m, t_local))
         self._journal(k, self.policy[k].after_outputs(self.cores[k], outs))
+
+    def _holders(self, k: int, m: dict) -> list[int]:
+        """Distributed assignment: the other stations transmitting in the slot of ``m`` (sent by station
+        index ``k``) this cycle - the slot they hold now (a range reply falls in its requester's slot)."""
+        if m["kind"] == "range_rsp":
+            j = self._index.get(m["dst"])
+            s = None if j is None or self.cores[j] is None else self.cores[j].slot
+        else:
+            s = m.get("slot")
+        if s is None:
+            return []
+        return [h for h, c in enumerate(self.cores)
+                if h != k and c is not None and c.slot == s and self._alive(h, self.now_s)]
+
+    def _collided(self, k: int, j: int, m: dict, holders: list[int], t_tx_true: float) -> bool:
+        """Does receiver index ``j`` lose ``m`` to another sender in its slot (``holders``)? A station
+        transmitting in the slot hears nothing in it (half duplex); one in range of another sender there
+        decodes neither, and a nav lost that way is reported to its core as garbage (energy heard)."""
+        if m["kind"] != "range_rsp" and j in holders:
+            return True
+        if not any(self._reach[h][j] for h in holders if h != j):
+            return False
+        if m["kind"] == "nav" and self.cores[j] is not None:
+            self.collisions += 1
+            self.collision_log.append((t_tx_true, k, j))
+            self._push(t_tx_true + 1e-6, ("garbage", j, self.clocks[j].to_local(t_tx_true + 1e-6)))
+        return True
 
     def _publish_local(self, k: int, m: dict) -> None:
         """A core output that does not go on air: an estimate goes out decorated after its truth (the
@@ -248,6 +282,9 @@ class Simulator:
         if not self._alive(k, t):
             return
         core = self.cores[k]
+        if what == "garbage":
+            core.on_garbage(ev[2])  # journalled with the core's next nav
+            return
         if what == "timer":
             if ev[2] != self._timer_ver[k]:
                 return

@@ -1,8 +1,8 @@
 """Distributed TDMA slot assignment with spatial reuse (issue 33 item 4): one station's state machine.
 
-Sans-I/O and not yet wired into the station processes or the message schema: nothing in
-``stations/core.py`` or ``net/messages.py`` calls or carries it (docs/slots.md). It is driven, one
-call per TDMA cycle, by the MAC simulator :mod:`stations.slotsim` and by the tests.
+Sans-I/O. It is driven, one call per TDMA cycle, by the station core (``stations/core.py``, with
+``[tdma] assignment = "distributed"``; the nav carries :meth:`SlotCore.summary` as its ``slots``,
+``net/messages.py``), by the MAC simulator :mod:`stations.slotsim` and by the tests (docs/slots.md).
 
 Model. A cycle has ``C`` slots; stations within two hops of each other must not share one (a
 receiver in range of two senders in the same slot decodes neither: the hidden terminal), stations

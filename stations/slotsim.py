@@ -5,8 +5,9 @@ slot transmits once in it, carrying its claim cycle and its :class:`stations.slo
 the previous cycle; a receiver in range of exactly one sender in a slot decodes it, a receiver in
 range of two or more decodes none (garbage: a collision), a station does not receive in the slot
 it transmits in (half duplex). Links are :func:`net.radio.link` of the scenario's radio (horizon and
-link budget; symmetric here, all antennas ``antenna_height_m`` above flat ground). Not the station
-processes: they still use the fixed plan of ``stations/tdma.py`` (docs/slots.md).
+link budget; symmetric here, all antennas ``antenna_height_m`` above flat ground). The station
+processes run the same cores with ``[tdma] assignment = "distributed"`` (``stations/core.py``; the
+in-process simulator ``stations/sim.py`` models the same collisions; docs/slots.md).
 
 Figures (:class:`SimResult`): cycles until no two stations within two hops share a slot (and every
 station holds one), slots used (max slot index + 1) against the densest neighbourhoods, the reuse

@@ -4,8 +4,10 @@ Each trial draws a layout from its own seed - ``field``: stations uniform over 4
 area); ``corridor``: along a 100 km road - takes the link graph of the ``[radio]`` model
 (:func:`net.radio.link`, default radio unless overridden, antennas ``--antenna-height-m`` up), cold
 starts every station at once in the MAC simulator (:mod:`stations.slotsim`, the cores of
-:mod:`stations.slots`), then powers on ``--joiners`` late joiners one at a time. Not the station
-processes: they still use the fixed plan of ``stations/tdma.py`` (docs/slots.md).
+:mod:`stations.slots`), then powers on ``--joiners`` late joiners one at a time. With
+``--scenario`` the same figures come from the station simulator (``stations/sim.py``: the station cores
+with the nav's summaries, their ranging and survey) on a scenario with ``[tdma] assignment =
+"distributed"`` (docs/slots.md).
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ def register(sub) -> None:
         help="distributed slot assignment (spatial TDMA reuse) on a radio link graph: MAC simulator",
         description=(
             "Monte Carlo of the distributed slot assignment of stations/slots.py in the MAC simulator "
-            "stations/slotsim.py (not yet the station processes). Per trial: the link graph's densest "
+            "stations/slotsim.py (with --scenario: the station simulator). Per trial: the link graph's densest "
             "neighbourhoods (closed 1-hop: a lower bound on the slots; closed 2-hop: with that many slots a "
             "free slot always exists), cycles until no two stations within two hops share a slot, slots used "
             "(max index + 1), reuse factor (stations holding a slot) / slots used, collided transmissions per station-hour (the whole "
@@ -57,6 +59,13 @@ def register(sub) -> None:
     p.add_argument("--json", metavar="FILE", help="write the results as JSON")
     p.add_argument("--png-dir", metavar="DIR", default="bench-out/slots",
                    help="where to write the PNG figure ('' to skip)")
+    p.add_argument("--scenario", metavar="FILE",
+                   help="instead of the MAC simulator: the station simulator (stations/sim.py, the station cores "
+                        "with the nav's summaries, ranging and survey) on this scenario with [tdma] assignment = "
+                        "\"distributed\"; its [layout] joiners power on one at a time after --duration; the same "
+                        "figures, the survey's horizontal error, and with --compare-fixed the fixed plan's")
+    p.add_argument("--compare-fixed", action="store_true",
+                   help="with --scenario: also run the fixed plan (one slot per station, the cycle sized for them)")
     p.set_defaults(func=main)
 
 
@@ -161,6 +170,7 @@ def summarize(trials: list[dict], meta: dict) -> dict:
         "collided_tx_after_60s": sum(t["collided_tx_after_60s"] for t in trials),
         "joiner_hold_cycles_max": None if (not join or None in join) else max(join),
         "joiners_never_held": sum(c is None for c in join),
+        "joiners_total": len(join),
     }
     return meta | {"summary": summary, "bar": _bar(summary), "trials": trials}
 
@@ -170,7 +180,8 @@ def _bar(s: dict) -> dict:
     join = s["joiner_hold_cycles_max"]
     return {"slots_le_40": s["cycle_slots_max"] <= BAR_SLOTS and s["converged_all"],
             "converged_and_no_collisions_after_60s": s["collided_tx_after_60s"] == 0 and s["converged_all"],
-            "joiners_hold_within_3_cycles": join is not None and join <= BAR_JOIN_CYCLES}
+            # (no joiner: not measured)
+            "joiners_hold_within_3_cycles": (join is not None and join <= BAR_JOIN_CYCLES) if s["joiners_total"] else None}
 
 
 def print_table(res: dict) -> None:
@@ -201,7 +212,7 @@ def print_table(res: dict) -> None:
                   f"others, and it and they are pairwise within two hops, so at least {s['max_closed_1hop']} "
                   f"slots are needed (densest closed 2-hop neighbourhood: {s['max_closed_2hop']})")
     for name, ok in res["bar"].items():
-        print(f"  bar {name}: {'PASS' if ok else 'FAIL'}")
+        print(f"  bar {name}: {'n/a' if ok is None else 'PASS' if ok else 'FAIL'}")
 
 
 def _s(x, fmt: str = "") -> str:
@@ -246,9 +257,101 @@ def plot(res: dict, png_dir: Path) -> Path:
     return f
 
 
+# --------------------------------------------------------------------------- the station simulator
+def _held(core) -> int:
+    """The slot a station core holds (-1: none or not on): the distributed assignment's (held while it
+    listens in it, as in :mod:`stations.slotsim`), or the fixed plan's."""
+    if core is None:
+        return -1
+    s = core.slots.slot if core.slots is not None else core.slot
+    return -1 if s is None else int(s)
+
+
+def station_trial(path: str, duration_s: float, fixed: bool = False) -> dict:
+    """The scenario at ``path`` in :class:`stations.sim.Simulator`: the slot each station holds sampled
+    in the middle of every cycle into a :class:`stations.slotsim.SimResult` (collided transmissions:
+    navs lost at one or more receivers to another sender in their slot), scored by :func:`_score`, and
+    the survey's horizontal error at the end of the cold start. ``fixed``: the same field on the fixed
+    plan (a slot per station, the cycle sized for them; the joiners start as in the distributed run)."""
+    from dataclasses import asdict
+
+    from net.radio import may_link
+    from net.scenario import load
+    from stations.sim import Simulator
+    from stations.slotsim import SimResult, conflicts, graph_stats, two_hop
+
+    scn = load(path)
+    if not scn.tdma.distributed:
+        raise SystemExit(f"{path}: [tdma] assignment is not \"distributed\"")
+    n, C, slot_s = len(scn.initial_ids), scn.tdma.assigned_slots, scn.tdma.slot_s
+    cycle_s = scn.tdma.cycle_s
+    if fixed:
+        n_all = len(scn.ids)
+        scn = load(path, tdma={"assignment": "fixed", "cycle_slots": 0, "cycle_s": n_all * slot_s})
+    main_cycles = max(int(math.ceil(duration_s / cycle_s)), 2)
+    joiners = [sid for sid in scn.ids if sid in scn.join_ids]
+    start = np.concatenate([np.zeros(n, int), main_cycles + JOIN_WINDOW_CYCLES * np.arange(len(joiners))])
+    adj = may_link(scn.pos_m, scn.channel.radio)
+    np.fill_diagonal(adj, False)
+    adj &= adj.T
+    sim = Simulator(scn, start_s={sid: float(start[n + j]) * cycle_s for j, sid in enumerate(joiners)})
+    T = main_cycles + JOIN_WINDOW_CYCLES * len(joiners)
+    slot = np.full((T, len(scn.ids)), -1)
+    r = None
+    for c in range(T):
+        rc = sim.run((c + 0.5) * cycle_s, [(c + 0.5) * cycle_s])
+        slot[c] = [_held(k) for k in sim.cores]
+        r = rc if c == main_cycles - 1 else r
+    on = start[None, :] <= np.arange(T)[:, None]
+    coll = np.zeros(T, int)
+    for c, k in {(int(t // cycle_s), k) for t, k, _ in sim.collision_log}:
+        coll[c] += c < T
+    res = SimResult(conflict_pairs=np.array([conflicts(two_hop(adj & on[c][None, :] & on[c][:, None]), slot[c])
+                                             for c in range(T)]),
+                    unassigned=(on & (slot < 0)).sum(1), collided_tx=coll, tx=(slot >= 0).sum(1), slot=slot, cores=[])
+    # (the fixed plan is sampled on the distributed cycle's clock too: only its survey is compared)
+    out = {} if fixed else _score(res, adj, n, start, main_cycles, C, slot_s)
+    err = np.linalg.norm((r.pos_m[0] - r.truth_m)[:n, :2], axis=1)
+    return out | {"seed": scn.seed, "graph": asdict(graph_stats(adj[:n, :n])), "cycle_slots": C if not fixed else len(scn.ids),
+                  "cycle_s": scn.tdma.cycle_s, "pos_m": scn.pos_m[:, :2].tolist(), "plan": "fixed" if fixed else "distributed",
+                  "survey_horizontal_err_m": {"median": float(np.nanmedian(err)), "rms": float(np.sqrt(np.nanmean(err**2))),
+                                              "p95": float(np.nanpercentile(err, 95)), "at_s": float(main_cycles - 0.5) * cycle_s},
+                  "ranges": len(sim.range_log), "collided_navs_at_receivers": sim.collisions,
+                  "tx_power_dbm": scn.channel.radio.tx_power_dbm if scn.channel.radio else float("nan"),
+                  "antenna_height_m": scn.channel.radio.antenna_height_m if scn.channel.radio else float("nan")}
+
+
+def main_scenario(args) -> int:
+    t0 = time.perf_counter()
+    trials = [station_trial(args.scenario, args.duration)]
+    if args.compare_fixed:
+        trials.append(station_trial(args.scenario, args.duration, fixed=True))
+    res = summarize(trials[:1], {"layout": f"scenario {args.scenario} (station simulator)", "stations": len(trials[0]["slot_end"]),
+                                 "trial_count": 1, "tx_power_dbm": trials[0]["tx_power_dbm"],
+                                 "antenna_height_m": trials[0]["antenna_height_m"],
+                                 "slot_s": trials[0]["cycle_s"] / trials[0]["cycle_slots"], "duration_s": args.duration,
+                                 "joiners": len(trials[0]["joiner_hold_cycles"])})
+    res["wall_s"] = time.perf_counter() - t0
+    res["fixed"] = trials[1] if args.compare_fixed else None
+    print_table(res)
+    for t in trials:
+        e = t["survey_horizontal_err_m"]
+        print(f"{t['plan']:>11} plan: {t['cycle_slots']} slots of {1e3 * t['cycle_s'] / t['cycle_slots']:g} ms, "
+              f"ranges {t['ranges']}, survey horizontal error at {e['at_s']:.1f} s: median {e['median']:.2f} m, "
+              f"RMS {e['rms']:.2f} m, 95 % {e['p95']:.2f} m; collided navs at receivers {t['collided_navs_at_receivers']}")
+    if args.json:
+        out = Path(args.json)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(res, indent=1))
+        print(f"wrote {out}")
+    return 0
+
+
 def main(args) -> int:
     from .progress import progress
 
+    if args.scenario:
+        return main_scenario(args)
     radio = _radio(args)
     jobs = [(args.layout, args.stations, args.joiners, args.seed + k, args.cycle_slots, args.slot_s,
              args.duration, radio) for k in range(args.trials)]

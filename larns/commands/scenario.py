@@ -118,6 +118,14 @@ def _fields(obj) -> str:
     return ", ".join(f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}" for k, v in asdict(obj).items())
 
 
+def _tdma(tdma) -> str:
+    """The plan: cycle and slot, and the distributed assignment's keys when it is on."""
+    out = f"cycle_s {tdma.cycle_s:g}, slot_s {tdma.slot_s:g} ({tdma.slots_per_cycle} slots per cycle)"
+    if tdma.distributed:
+        out += f"; assignment distributed among {tdma.assigned_slots} slots (cycle_slots {tdma.cycle_slots})"
+    return out
+
+
 def _kv(table: dict) -> str:
     return ", ".join(f"{k} = {v!r}" for k, v in table.items())
 
@@ -150,7 +158,7 @@ def format_scenario(sc) -> str:
         f"description: {sc.description}",
         f"seed:        {sc.seed}",
         f"stations:    {len(sc.ids)} (ids {sc.ids[0]}..{sc.ids[-1]}{joiners}); [frame] z_ref {sc.z_ref}",
-        f"[tdma]       {_fields(sc.tdma)} ({sc.tdma.slots_per_cycle} slots per cycle)",
+        f"[tdma]       {_tdma(sc.tdma)}",
         f"[channel]    {_fields(replace(sc.channel, radio=None)).removesuffix(', radio None')}",
         f"[clock]      {_fields(sc.clock)}",
         f"[net]        {_fields(sc.net)}",

@@ -39,3 +39,41 @@ def test_bench_slots_reports_a_cycle_too_short_for_the_densest_neighbourhood(tmp
     assert t["unassigned_end"] > 0 or t["conflict_pairs_end"] > 0  # it does not converge, and says so
     assert t["converged_cycle"] is None and res["bar"]["converged_and_no_collisions_after_60s"] is False
     assert f"at least {deg} slots are needed" in r.stdout
+
+
+SMALL_FIELD = """name = "slots-small"
+seed = 3
+[layout]
+n = 16
+joiners = 1
+area_m = [9000.0, 7000.0, 10.0]
+min_separation_m = 300.0
+founders_within_m = 3000.0
+[radio]
+tx_power_dbm = -5.0
+[tdma]
+cycle_s = 0.12
+slot_s = 0.01
+assignment = "distributed"
+cycle_slots = 12
+[init]
+sigma0_m = 10.0
+"""
+
+
+def test_bench_slots_on_a_scenario_runs_the_station_simulator(tmp_path):
+    """--scenario: the same figures from the station simulator (the cores, their navs' summaries and
+    the simulator's collisions), a late joiner included, beside the fixed plan's survey."""
+    scn = tmp_path / "small.toml"
+    scn.write_text(SMALL_FIELD)
+    out = tmp_path / "slots.json"
+    r = subprocess.run([sys.executable, "-m", "larns", "bench", "slots", "--scenario", str(scn), "--duration", "6",
+                        "--compare-fixed", "--json", str(out)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    res = json.loads(out.read_text())
+    t = res["trials"][0]
+    assert t["plan"] == "distributed" and t["cycle_slots"] == 12 and t["conflict_pairs_end"] == 0
+    assert t["converged_cycle"] is not None and t["unassigned_end"] == 0
+    assert len(t["joiner_hold_cycles"]) == 1 and t["joiner_hold_cycles"][0] is not None
+    assert res["fixed"]["plan"] == "fixed" and res["fixed"]["ranges"] > 0
+    assert "fixed plan:" in r.stdout and "distributed plan:" in r.stdout

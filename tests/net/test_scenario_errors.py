@@ -30,6 +30,9 @@ CASES = [
     ({"tdma": {"slot": 0.01}}, "[tdma] slot"),
     ({"tdma": {"slot_s": 0.0}}, "[tdma] slot_s"),
     ({"tdma": {"slot_s": 2.0, "cycle_s": 1.0}}, "[tdma] slot_s"),
+    ({"tdma": {"assignment": "dynamic"}}, "[tdma] assignment"),
+    ({"tdma": {"cycle_slots": 4}}, "[tdma] cycle_slots"),
+    ({"tdma": {"assignment": "distributed", "cycle_slots": 101}}, "[tdma] cycle_slots"),
     ({"net": {"loss": 0.1}}, "[net] loss"),
     ({"net": {"dup_prob": 2.0}}, "[net] dup_prob"),
     ({"net": {"delay_s": -1.0}}, "[net] delay_s"),
@@ -179,6 +182,9 @@ BROKEN = {
     "clock_model": ('[clock]\nmodel = "atomic"\n', "[clock]", "model"),
     "z_ref_missing": (_FIVE + "[frame]\nz_ref = 9\n", "[frame]", "z_ref"),
     "crlb_params": (_FIVE + _CRLB + 'params = "both"\n', "[aircraft.crlb]", "params"),
+    "slot_assignment": ('[tdma]\nassignment = "distribute"\n', "[tdma]", "assignment"),
+    "cycle_slots_beyond_cycle": ('[tdma]\ncycle_s = 0.4\nassignment = "distributed"\ncycle_slots = 41\n', "[tdma]",
+                                 "cycle_slots"),
 }
 
 
