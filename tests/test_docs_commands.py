@@ -259,6 +259,9 @@ TABLE: dict[str, Run | Skip] = {
     "larns bench slots --layout corridor --trials 5 --tx-power-dbm 0": Skip(BENCH),
     "larns bench slots --stations 40 --trials 1 --duration 20 --joiners 2 --tx-power-dbm -5 --cycle-slots 20":
         Run(expect=r"bar joiners_hold_within_3_cycles: PASS", timeout_s=60.0),
+    "larns bench slots --scenario docs/scenarios/slots-field.toml --duration 80 --compare-fixed":
+        Skip(BENCH + "; its small twin (--scenario, --compare-fixed) runs in tests/larns/test_bench_slots.py"),
+    "larns bench slots --scenario FILE --duration 60": Skip(SYNOPSIS, concrete=False),
     # --- docs/aircraft.md
     "larns crlb --scenario seed003 --png crlb.png [--height 1000] [--params posvel|pos] [--clock] [--json F]":
         Run("the [optional] parts dropped", edits=_short(" [--height 1000] [--params posvel|pos] [--clock] [--json F]", ""),
