@@ -141,8 +141,8 @@ def decode_input(data: bytes, cache: dict[bytes, dict]) -> dict:
         raise M.MessageError("shape", "entries")
     out = []
     for e in entries:
-        if isinstance(e, list) and len(e) == 2 and e[0] == "t":
-            out.append(["t", _time(e[1])])
+        if isinstance(e, list) and len(e) == 2 and e[0] in ("t", "g"):  # a timer, a collision heard
+            out.append([e[0], _time(e[1])])
         elif isinstance(e, list) and len(e) == 3 and e[0] == "m":
             key = msgpack.packb(e[2], use_bin_type=True)
             v = cache.get(key)
