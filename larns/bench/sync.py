@@ -47,7 +47,8 @@ def register(sub) -> None:
     )
     p.add_argument("--trials", type=int, default=100, help="Monte Carlo trials (default 100)")
     p.add_argument("--sigma-d", type=float, default=0.5, metavar="M", help="range noise sigma_d, m (default 0.5)")
-    p.add_argument("--stations", type=int, default=10, help="number of stations (default 10)")
+    p.add_argument("--stations", type=int, default=None,
+                   help="number of stations of a random layout (default: the scenario's; seed000: 10)")
     p.add_argument("--clock", default="tcxo", help="oscillator preset: tcxo, ocxo (default tcxo)")
     p.add_argument("--duration", type=float, default=None,
                    help="simulated seconds per trial (default 120: a minute after 60 s for sync_trial_max_ns; "
@@ -64,6 +65,9 @@ def register(sub) -> None:
                         "definitions of network time within 2 ns of each other from S + 30 s on")
     p.add_argument("--scenario", default="seed000", help="scenario name or TOML path (default seed000)")
     p.add_argument("--seed", type=int, default=1, help="base seed; trial k uses seed + k (default 1)")
+    p.add_argument("--hops-from", type=float, default=AFTER_S, metavar="S",
+                   help="the per-hop table (multi-hop fields) takes the samples from S s on (default 60; "
+                        "clipped to the last sample)")
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: all cores)")
     p.add_argument("--json", metavar="FILE", help="write the results as JSON")
     p.add_argument("--png-dir", metavar="DIR", default="bench-out/sync",
@@ -190,10 +194,82 @@ def _world(job: tuple):
     from stations.sim import Simulator
 
     scenario, clock, sigma_d, n, seed, duration, stop_s, start_s = job
-    scn = load(scenario, seed=seed, channel={"sigma_d_m": sigma_d}, layout={"n": n}, clock={"model": clock})
+    scn = load(scenario, seed=seed, channel={"sigma_d_m": sigma_d}, clock={"model": clock},
+               **({"layout": {"n": n}} if n else {}))
     sim = Simulator(scn, stop_s=stop_s, start_s=start_s)
     times = np.arange(1.0, duration + 1e-9, 1.0)
     return scn, sim, sim.run(duration, times), times
+
+
+def hops_from_founders(pairs, n: int, founders=(0, 1, 2)) -> np.ndarray:
+    """Hop count (n,) of each station from the founders (indices ``founders``, hop 0) in the realized
+    link graph: ``pairs`` the (initiator, responder) station indices of the exchanges that completed
+    (a link exists once one exchange completed, either way). -1: never linked to the founders."""
+    A = [set() for _ in range(n)]
+    for a, b in pairs:
+        if a != b:
+            A[a].add(b)
+            A[b].add(a)
+    hop = np.full(n, -1)
+    frontier = [f for f in founders if f < n]
+    hop[frontier] = 0
+    h = 0
+    while frontier:
+        h += 1
+        nxt = sorted({j for i in frontier for j in A[i] if hop[j] < 0})
+        hop[nxt] = h
+        frontier = nxt
+    return hop
+
+
+def common_time_errors(est_offset_s: np.ndarray, x_true_s: np.ndarray) -> np.ndarray:
+    """Each station's error (K, n) against *one* network time for the whole field.
+
+    ``est_offset_s`` (K, n): the stations' estimated offsets against network time (each against its own
+    definition, NaN: not alive); ``x_true_s`` (K, n): the true clock phases. Network time is a paper
+    clock (its definition is a choice), so the common part of ``d = est - x`` over the stations alive is
+    the field's choice, not an error; what is left, ``d - mean(d)``, is each station's error against
+    the field's common time (its definition's disagreement with the others' included). The bound
+    (:func:`crlb_offset_var`: the centralized filter's variance of ``theta_m - mean theta`` over the
+    stations alive) bounds exactly this statistic."""
+    d = est_offset_s - x_true_s
+    return d - np.nanmean(d, axis=1, keepdims=True)
+
+
+def per_hop_table(err_s: np.ndarray, bound_var_s2: np.ndarray, var_s2: np.ndarray, hop: np.ndarray,
+                  sel: np.ndarray) -> list[dict]:
+    """Clock error per hop count from the founders.
+
+    Parameters
+    ----------
+    err_s : (T, K, n) errors (trials, times, stations), s; NaN: not alive.
+    bound_var_s2 : (T, K, n) the bound's variance of the same errors, s^2.
+    var_s2 : (T, K, n) the stations' own stated variance, s^2.
+    hop : (T, n) hop count of each station in its trial (-1: not linked).
+    sel : (K,) bool, the samples taken.
+
+    Returns
+    -------
+    One row per hop present: ``hop``, ``stations`` (station-trials), ``rms_ns``, ``bound_ns``
+    (RMS of the bound), ``ratio``, ``nees`` (mean of ``e^2 / var``), ``growth_ns`` and
+    ``bound_growth_ns`` (increase of the RMS and of the bound from the previous hop present).
+    """
+    rows = []
+    for h in sorted(set(hop[hop >= 0].tolist())):
+        m = (hop == h)[:, None, :] & sel[None, :, None]  # (T, K, n)
+        e, b, v = err_s[m], bound_var_s2[m], var_s2[m]
+        ok = np.isfinite(e) & np.isfinite(b)
+        if not ok.any():
+            continue
+        rms, bnd = float(np.sqrt(np.mean(e[ok] ** 2))) * 1e9, float(np.sqrt(np.mean(b[ok]))) * 1e9
+        good = ok & (v > 0)
+        row = {"hop": int(h), "stations": int((hop == h).sum()), "rms_ns": rms, "bound_ns": bnd,
+               "ratio": rms / bnd if bnd > 0 else float("nan"),
+               "nees": float(np.mean(e[good] ** 2 / v[good])) if good.any() else float("nan")}
+        if rows:
+            row["growth_ns"], row["bound_growth_ns"] = rms - rows[-1]["rms_ns"], bnd - rows[-1]["bound_ns"]
+        rows.append(row)
+    return rows
 
 
 def _trial(job: tuple) -> dict:
@@ -207,6 +283,9 @@ def _trial(job: tuple) -> dict:
     steps = {}  # departed station -> largest |step| of network time over the stations' scales, s
     clocks = sim.true_clocks()
     spread = sim.definition_spread_s(r, times)
+    x = np.array([[clocks[sid].error_s(t) for sid in r.ids] for t in times])  # (K, n) true phases
+    common = common_time_errors(r.clock_err_s + r.clock_true_s, x)
+    hop = hops_from_founders([(a, b) for _t, a, b in sim.exchange_log], len(r.ids))
     for sid, log in r.time_scales.items():
         if sid in stop_s:
             continue
@@ -215,7 +294,8 @@ def _trial(job: tuple) -> dict:
                 # time leaves its own one-clock scale: not a departure)
                 steps[gone] = max(steps.get(gone, 0.0), abs(ensemble_step_s(clocks, prev, sc)))
     return {"err_s": r.clock_err_s, "var_s2": r.clock_var_s2, "crlb_s2": crlb, "bound_err_s": bound_err,
-            "corr_eig": eig, "steps_s": steps, "spread_s": spread}
+            "corr_eig": eig, "steps_s": steps, "spread_s": spread, "common_err_s": common, "hop": hop,
+            "n_states": [len(c.clk.index) for c in sim.cores if c is not None]}
 
 
 def correlated_band(corr_eig: np.ndarray, level: float = 0.95, draws: int = 20000) -> tuple[np.ndarray, np.ndarray]:
@@ -304,8 +384,31 @@ def summarize(results: list[dict], times: np.ndarray, table_times: list[float], 
         be = np.stack([r["bound_err_s"] for r in results]) * 1e9
         res["bound_trial_max_ns"] = np.nanmax(np.abs(be[:, after, :]), axis=(1, 2)).tolist()
         res["bound_rms_after_ns"] = float(np.sqrt(np.nanmean(be[:, after, :] ** 2)))
+    if "common_err_s" in results[0]:
+        _multihop_summary(res, results, times, crlb, var)
     res["bar"] = _bars(res, trial_max, hi)
     return res
+
+
+def _multihop_summary(res: dict, results: list[dict], times: np.ndarray, crlb_ns2: np.ndarray,
+                      var_ns2: np.ndarray) -> None:
+    """Into ``res``: the error against the field's one network time per table time
+    (``sync_common_rms_ns``), and per hop count from the founders (``per_hop``: :func:`per_hop_table`
+    over the samples from ``hops_from_s`` on, clipped to the last sample)."""
+    common = np.stack([r["common_err_s"] for r in results]) * 1e9
+    ti = [int(np.argmin(np.abs(times - t))) for t in res["times_s"]]
+    res["sync_common_rms_ns"] = np.sqrt(np.nanmean(common**2, axis=(0, 2)))[ti].tolist()
+    res["curve_sync_common_rms_ns"] = np.sqrt(np.nanmean(common**2, axis=(0, 2))).tolist()
+    t0 = min(float(res.get("hops_from_s") or AFTER_S), float(times[-1]))
+    sel = times >= t0
+    hop = np.stack([r["hop"] for r in results])
+    res["hops_from_s"] = t0
+    res["per_hop"] = per_hop_table(common * 1e-9, crlb_ns2 * 1e-18, var_ns2 * 1e-18, hop, sel)
+    own = per_hop_table(np.stack([r["err_s"] for r in results]), crlb_ns2 * 1e-18, var_ns2 * 1e-18, hop, sel)
+    for row in res["per_hop"]:  # the error against the station's own definition, for comparison
+        row["own_rms_ns"] = next((o["rms_ns"] for o in own if o["hop"] == row["hop"]), float("nan"))
+    res["clock_states_max"] = int(max(max(r["n_states"]) for r in results))
+    res["clock_states_median"] = float(np.median(np.concatenate([r["n_states"] for r in results])))
 
 
 def _bars(res: dict, trial_max: np.ndarray, nees_hi: float) -> dict[str, bool]:
@@ -339,18 +442,20 @@ def _bars(res: dict, trial_max: np.ndarray, nees_hi: float) -> dict[str, bool]:
 def print_table(res: dict) -> None:
     print(f"\nclock={res['clock']}  sigma_d={res['sigma_d_m']} m  trials={res['trials']}  stations={res['stations']}  "
           f"wall={res.get('wall_s', float('nan')):.1f} s")
-    hdr = ("t_s", "rms_ns", "crlb_ns", "ratio", "max_ns", "NEES", "band_lo", "band_hi", "CI_lo", "CI_hi", "spread")
+    hdr = ("t_s", "rms_ns", "crlb_ns", "ratio", "max_ns", "NEES", "band_lo", "band_hi", "CI_lo", "CI_hi", "spread",
+           "common")
     print("  ".join(f"{h:>8}" for h in hdr))
     for k, t in enumerate(res["times_s"]):
         row = [t, res["sync_rms_ns"][k], res["sync_crlb_rms_ns"][k], res["crlb_ratio"][k], res["sync_max_ns"][k],
                res["nees_mean"][k], *res["nees_band_95_correlated"][k], *res["nees_ci95"][k],
-               res["sync_spread_ns"][k]]
+               res["sync_spread_ns"][k], res.get("sync_common_rms_ns", [np.nan] * (k + 1))[k]]
         print("  ".join(f"{x:8.3f}" for x in row))
     lo, hi = res["nees_band_95"]
     print(f"band_lo/hi: 95% band of the mean NEES (1 dof) with the stations' correlation (centralized filter); "
           f"taken as independent it would be [{lo:.3f}, {hi:.3f}]; CI_lo/hi: 95% CI of the mean from the "
           f"trial-to-trial spread;  time to RMS <= 1 ns: {res['time_to_1ns_s']} s; spread: largest difference "
-          f"(over trials) between the stations' network times, each station's definition on the true clocks, ns")
+          f"(over trials) between the stations' network times, each station's definition on the true clocks, ns; "
+          f"common: RMS error against the field's one network time (common mode removed), ns")
     tm = np.asarray(res["sync_trial_max_ns"], float)
     if np.isfinite(tm).any():
         print(f"from {res['sync_after_s']:.0f} s on: RMS {res['sync_rms_after_ns']:.3f} ns; each trial's largest "
@@ -368,8 +473,25 @@ def print_table(res: dict) -> None:
               f"{100 * bd['trial_max_le_2ns']:.1f} +- {100 * bd['ci95']:.1f} % of trials (what the bound allows)")
     for sid, v in res.get("departure_step_ns", {}).items():
         print(f"station {sid} left: largest step of network time (stations, trials) {v:.3f} ns")
+    if res.get("per_hop"):
+        print_per_hop(res)
     for name, ok in res["bar"].items():
         print(f"  bar {name}: {'PASS' if ok else 'FAIL'}")
+
+
+def print_per_hop(res: dict) -> None:
+    """The per-hop table of :func:`per_hop_table` (``res['per_hop']``)."""
+    print(f"\nper hop from the founders (realized links), samples from {res['hops_from_s']:.0f} s on; error against the "
+          f"field's one network time (common mode of the stations removed), bound: centralized KF, same exchanges")
+    hdr = ("hop", "n", "rms_ns", "bound_ns", "ratio", "growth", "b_growth", "NEES", "own_ns")
+    print("  ".join(f"{h:>8}" for h in hdr))
+    for row in res["per_hop"]:
+        vals = [row["hop"], row["stations"], row["rms_ns"], row["bound_ns"], row["ratio"],
+                row.get("growth_ns", float("nan")), row.get("bound_growth_ns", float("nan")), row["nees"],
+                row["own_rms_ns"]]
+        print("  ".join(f"{v:8d}" if isinstance(v, int) else f"{v:8.3f}" for v in vals))
+    print(f"own_ns: against the station's own definition (what rms_ns above measures); clock states per station: "
+          f"median {res['clock_states_median']:.0f}, max {res['clock_states_max']}")
 
 
 def plot(res: dict, png_dir: Path) -> Path:
@@ -379,9 +501,13 @@ def plot(res: dict, png_dir: Path) -> Path:
     import matplotlib.pyplot as plt
 
     png_dir.mkdir(parents=True, exist_ok=True)
-    fig, ax = plt.subplots(figsize=(8, 5))
+    hops = res.get("per_hop") or []
+    fig, axes = plt.subplots(1, 2 if hops else 1, figsize=(13 if hops else 8, 5), squeeze=False)
+    ax = axes[0, 0]
     t = res["curve_times_s"]
     ax.plot(t, res["curve_sync_rms_ns"], label="RMS clock error vs network time")
+    if "curve_sync_common_rms_ns" in res:
+        ax.plot(t, res["curve_sync_common_rms_ns"], label="RMS vs the field's one network time")
     ax.plot(t, res["curve_sync_crlb_rms_ns"], ls="--", label="centralized bound (same exchanges)")
     ax.axhline(1.0, color="grey", lw=0.8)
     ax.set_yscale("log")
@@ -390,6 +516,16 @@ def plot(res: dict, png_dir: Path) -> Path:
     ax.set_title(f"Network time: {res['clock']} clocks, {res['stations']} stations, {res['trials']} trials")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
+    if hops:
+        ax2 = axes[0, 1]
+        h = [r["hop"] for r in hops]
+        ax2.plot(h, [r["rms_ns"] for r in hops], "o-", label="RMS vs the field's one network time")
+        ax2.plot(h, [r["bound_ns"] for r in hops], "s--", label="centralized bound")
+        ax2.set_xlabel("hops from the founders (realized links)")
+        ax2.set_ylabel("clock error, ns")
+        ax2.set_title(f"per hop, from {res['hops_from_s']:.0f} s")
+        ax2.grid(True, alpha=0.3)
+        ax2.legend()
     f = png_dir / "sync_convergence.png"
     fig.tight_layout()
     fig.savefig(f, dpi=110)
@@ -415,7 +551,10 @@ def main(args) -> int:
     res = summarize(results, times, table_times, {"clock": args.clock, "sigma_d_m": args.sigma_d,
                                                    "stations": args.stations, "scenario": args.scenario,
                                                    "founders_leave_s": {str(k): v for k, v in stop_s.items()},
-                                                   "late_founder_s": args.late_founder})
+                                                   "late_founder_s": args.late_founder,
+                                                   "hops_from_s": args.hops_from})
+    if res["stations"] is None:
+        res["stations"] = int(len(results[0]["hop"]))
     if args.bound_draws > 0 and args.duration > AFTER_S:
         res["bound_draws"] = bound_draws(jobs[0], args.bound_draws, args.jobs)
     res["wall_s"] = time.perf_counter() - t0
