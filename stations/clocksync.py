@@ -42,6 +42,17 @@ offset was last measured), and the weights are renormalized, continuous in phase
 class (one class per field: equal weights). Every station's filter is (up to the navs it missed) the
 centralized one, so every station computes the same scale; its changes are logged
 (``scale_log``) so the world side evaluates the same definition on the true clocks.
+
+**Multi-hop fields** (docs/sync.md "Multi-hop network time"). A station's filter holds the clocks it
+hears and those its neighbours' navs name (its two-hop neighbourhood, dense), not the field. A station
+that never hears station 1 defines time over the clocks around it (``_membership``), a definition
+that does not descend from the founders': until it takes one that does from a peer (in full, at its
+next steering) it broadcasts ``UNROOTED_SD_S`` more, and no station whose definition descends from
+the founders' steers on it (``on_peer_scale``). Its filter's time axis (station 1's clock, never
+measured there) is anchored on its peers' broadcasts (``_anchor``) whenever its own clock against it
+is unknown to the coarse gate. A clock enters a definition only once its frequency is known to
+``ENTER_FREQ_SD`` as well: a rate term frozen from worse frequencies drove the definitions of a
+multi-hop field apart.
 """
 
 from __future__ import annotations
@@ -56,6 +67,7 @@ from net.clock import TimeScale, ensemble_change, transition
 
 C = SPEED_OF_LIGHT_M_S
 ENTER_SD_S = 2e-9  # a clock enters the ensemble once its offset against it is known to 2 ns (1 sigma)
+ENTER_FREQ_SD = 1.5e-10  # ... and its frequency to 1.5e-10 (docs/sync.md "Multi-hop network time")
 # consensus on the definition (docs/sync.md "One time scale"): once per second of T the scale's phase
 # moves by STEER_P times the mean phase disagreement with the peers' definitions and its rate by
 # STEER_R times the mean rate disagreement, which the peers' corrections carry (their frequency term)
@@ -68,6 +80,11 @@ STEER_RATE_GATE = 1e-9  # ... and a rate disagreement used only where both rates
 AGREED_LIMIT_S = 1e-5  # largest disagreement an agreed definition steers on
 UNAGREED_LIMIT_S = 1.0  # ... and one not yet agreed adopts (a sanity bound: clocks are set to ms)
 UNAGREED_SD_S = 1e-6  # a definition not yet compared with any peer's: broadcast offsets carry 1 us more
+# a definition that does not descend from the founders' (docs/sync.md "Multi-hop network time"): formed by
+# a station that has heard neither station 1 nor a definition that does, over the clocks around it, it
+# lies as far from the field's as the mean of those clocks' offsets (milliseconds). Broadcast offsets
+# carry 1 ms more while it is so; no station whose definition descends from the founders' steers on it
+UNROOTED_SD_S = 1e-3
 SCALE_LOG_MAX = 4096  # definitions kept for the world side (the recent ones; about an hour of steering)
 LEAVE_S = 5.0  # a member not heard in any exchange for 5 s of network time leaves the ensemble
 # a station that powers on while station 1 (the filter's coordinate clock) is silent anchors its filter
@@ -239,6 +256,11 @@ class ClockEstimator:
         # until the first steering, which adopts the field's definition in full; then what is left of
         # the last measured disagreement
         self._scale_var_s2 = UNAGREED_SD_S**2
+        # does our definition descend from the founders' (station 1's clock at power-on, then the changes
+        # and steerings that keep it continuous)? Every station's does at power-on; one redefined over the
+        # clocks around it (none of its members heard: _membership) does not, until it takes the definition
+        # of a peer whose does (UNROOTED_SD_S)
+        self._rooted = True
         self._tick_T = math.floor(self.T_s)
         self._t0_local = float(t0_s)
         self._ref_heard_local = -math.inf  # local time of the last nav heard from station 1
@@ -388,7 +410,8 @@ class ClockEstimator:
         a, f, ptt, ptf, pff = self._ens(self.id)
         dt = self.network_time(t_local_s) - self.T_s  # 0 unless t_local_s lies in the filter's past
         return [float(t_local_s), float(a + f * dt), float(f),
-                float(ptt + 2 * dt * ptf + dt * dt * pff + self._scale_var_s2), float(ptf + dt * pff), float(pff)]
+                float(ptt + 2 * dt * ptf + dt * dt * pff + self._scale_var_s2
+                      + (0.0 if self._rooted else UNROOTED_SD_S**2)), float(ptf + dt * pff), float(pff)]
 
     def ensemble_offset_at(self, t_local_s: float) -> tuple[float, float]:
         """Estimated own offset against (ensemble) network time at local ``t_local_s`` and its variance
@@ -475,8 +498,11 @@ class ClockEstimator:
         dT = t_tx_src_s - corr[0]
         th_peer = corr[1] + corr[2] * dT
         var_peer = corr[3] + 2 * dT * corr[4] + dT * dT * corr[5]
-        agreed = var_peer <= STEER_GATE_S**2  # a peer still unagreed carries UNAGREED_SD_S in it
-        if not agreed and var_peer > UNAGREED_SD_S**2 + STEER_GATE_S**2:
+        # the peer's definition: agreed (0: its offset known to STEER_GATE_S), descending from the founders'
+        # but not agreed yet (1: it carries UNAGREED_SD_S), or not descending from them (2: UNROOTED_SD_S),
+        # used only while ours does not either
+        tier = 0 if var_peer <= STEER_GATE_S**2 else 1 if var_peer <= UNAGREED_SD_S**2 + STEER_GATE_S**2 else 2
+        if tier == 2 and (self._rooted or var_peer > UNROOTED_SD_S**2 + UNAGREED_SD_S**2 + STEER_GATE_S**2):
             return
         T, _ = self.peer_time(src, t_tx_src_s)
         e, f, ptt, ptf, pff = self._ens(src)
@@ -489,19 +515,23 @@ class ClockEstimator:
         # not yet agreed may lie as far from the field's as the clocks' offsets over the members (a
         # founder powering on after the others defined time without it: milliseconds), all of which the
         # first steering adopts
-        limit_s = UNAGREED_LIMIT_S if self._scale_var_s2 >= UNAGREED_SD_S**2 else AGREED_LIMIT_S
+        limit_s = UNAGREED_LIMIT_S if self._scale_var_s2 >= UNAGREED_SD_S**2 or not self._rooted else AGREED_LIMIT_S
         if math.isfinite(d) and abs(d) < limit_s:
-            self._disagree.append((d, r, agreed))
+            self._disagree.append((d, r, tier))
 
     def _steer(self) -> None:
         """Once per second of ``T``: move this station's definition toward its peers' (consensus)."""
         if not self._disagree:
             return
         # agreed peers' definitions first (a joiner takes the field's); none agreed yet (a cold start):
-        # the founders steer on each other's
-        agreed = [(d, r) for d, r, ok in self._disagree if ok]
-        use = agreed or [(d, r) for d, r, _ in self._disagree]
+        # the founders steer on each other's; definitions that do not descend from the founders' last,
+        # and only by a station whose own does not either (on_peer_scale)
+        # a definition that does not descend from the founders' takes one that does in full
+        tier = min(t for _, _, t in self._disagree)
+        use = [(d, r) for d, r, t in self._disagree if t == tier]
         self._disagree.clear()
+        full = self._scale_var_s2 >= UNAGREED_SD_S**2 or (not self._rooted and tier < 2)
+        self._rooted = self._rooted or tier < 2
         d = float(np.mean([x[0] for x in use]))
         rates = [x[1] for x in use if math.isfinite(x[1])]
         sc, T = self.scale, self.T_s
@@ -509,7 +539,6 @@ class ClockEstimator:
         # a departure can still be dated back before this tick, _membership); the first steering adopts
         # the field's definition in full, phase and rate (g = 1: a joiner, which starts from its own,
         # takes the field's at once)
-        full = self._scale_var_s2 >= UNAGREED_SD_S**2
         g = 1.0 if full else STEER_P
         db = (1.0 if full else STEER_R) * float(np.mean(rates)) if rates else 0.0
         self.scale = TimeScale(sc.weights, a_s=sc.a_s + g * d - db * (T - sc.T_ref_s), b=sc.b + db,
@@ -564,12 +593,15 @@ class ClockEstimator:
                                  and self._var([me, self.index[s]], [1.0, -1.0], 0.0) <= ENTER_SD_S**2}
             if len(alive) < 2:
                 return  # nobody to define time with yet: keep the scale (extrapolated)
+            self._rooted = False  # a definition over the clocks around us, not continuous with the founders'
+            self._scale_var_s2 = UNAGREED_SD_S**2
         w_alive = {s: 1.0 / len(alive) for s in alive}
         new = set(alive)
         for sid in [self.id, *self.index]:
             if sid in new or sid in stepped or (sid != self.id and T - heard.get(sid, -math.inf) > 1.5):
                 continue
-            if self._combo(self._coeffs(sid, w_alive))[2] <= ENTER_SD_S**2:
+            c = self._combo(self._coeffs(sid, w_alive))
+            if c[2] <= ENTER_SD_S**2 and c[4] <= ENTER_FREQ_SD**2:
                 new.add(sid)
         if new == set(old):
             return
@@ -769,7 +801,11 @@ class ClockEstimator:
             self._ref_heard_local = max(self._ref_heard_local, t_rx_s)
         T = self.network_time(t_rx_s)
         if self._coarse_var_at(T, src) <= self.coarse_gate_s**2:  # the common case once synced
-            return False  # (the filter stays where it is: the next input predicts it)
+            # (the filter stays where it is: the next input predicts it); a station that never hears
+            # station 1 knows its neighbours' clocks long before its own against station 1, the time
+            # axis its exchanges are placed on: anchored by the peers (_anchor) meanwhile
+            self._anchor(src, t_tx_src_s, corr, t_rx_s)
+            return False
         self._anchor(src, t_tx_src_s, corr, t_rx_s)
         self.predict(T)
         ks, signs, dt_h = self._terms(T, [(self.id, 1.0), (src, -1.0)])

@@ -66,8 +66,9 @@ def test_bench_sync_trial_maximum_and_departure_step():
 def test_bench_sync_late_founder_cell():
     """Station 1 powers on 5 s after the others (``--late-founder 5``), one 40 s trial: before it the
     bench measures nine stations (station 1's error is NaN), after it ten; the stations' definitions of
-    network time agree within the 2 ns bar from 35 s (the steering of docs/sync.md: a founder that
-    comes late takes the field's time instead of pulling it; before that rule 114-711 us)."""
+    network time agree within the 2 ns bar from 35 s (the steering of docs/sync.md; since the multi-hop
+    rules the nine take the founder's definition, whose descends from the founders', before them the
+    founder took theirs; before either rule 114-711 us)."""
     from larns.bench.sync import _trial, summarize
 
     res_t = _trial(("seed000", "tcxo", 0.5, 10, 2, 40.0, {}, {1: 5.0}))

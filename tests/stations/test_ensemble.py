@@ -125,7 +125,7 @@ def test_founders_leave_the_tcxo_field_without_a_step():
 def test_a_clock_enters_with_weight_zero_until_it_is_known():
     scn = load("seed000", seed=2)
     sim = Simulator(scn)
-    r = sim.run(12.0, [1.0, 12.0])
+    r = sim.run(20.0, [1.0, 20.0])  # (formed at ~13-15 s: entry asks the frequency known as well, ENTER_FREQ_SD)
     for sid, log in r.time_scales.items():
         assert log[0].w == {1: 1.0}
         assert scale_at(log, 1.0).w == {1: 1.0}  # at 1 s nobody else is known to 2 ns
