@@ -523,6 +523,7 @@ def plot(res: dict, png_dir: Path) -> Path:
         ax2.plot(h, [r["bound_ns"] for r in hops], "s--", label="centralized bound")
         ax2.set_xlabel("hops from the founders (realized links)")
         ax2.set_ylabel("clock error, ns")
+        ax2.set_yscale("log")
         ax2.set_title(f"per hop, from {res['hops_from_s']:.0f} s")
         ax2.grid(True, alpha=0.3)
         ax2.legend()
