@@ -1,5 +1,3 @@
-from net.cli import exit_process
+from .cli import entry
 
-from .cli import main
-
-exit_process(main())
+entry()

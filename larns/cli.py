@@ -83,5 +83,15 @@ def user_errors() -> tuple[type[Exception], ...]:
     return (ScenarioError, KeystoreError)
 
 
+
+def entry() -> None:
+    """The ``larns`` console script and ``python -m larns``: :func:`main`, then
+    :func:`net.cli.exit_process` (which skips the interpreter's finalization where a command asked
+    for it: ``net.cli.EXIT_AT_ONCE``)."""
+    from net.cli import exit_process
+
+    exit_process(main())
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

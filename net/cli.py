@@ -174,18 +174,23 @@ def serve(args: argparse.Namespace, bus: Any, make_node: Callable[[], Any],
     if args.report_json:
         print(json.dumps(rep), flush=True)
     if closed is False:  # the process entry points exit at once (exit_process): its data is out
-        global BUS_HUNG
-        BUS_HUNG = True
+        global EXIT_AT_ONCE
+        EXIT_AT_ONCE = True
     return rep
 
 
-BUS_HUNG = False  # a serve() whose Zenoh session did not close in time (net.bus.Bus.close)
+# exit without the interpreter's finalization (exit_process): set where a Zenoh session did not close in
+# time (net.bus.Bus.close; its thread would keep a stopped process alive), and by short commands whose
+# work is done once their session is closed: a Zenoh thread that calls into Python while the interpreter
+# finalizes aborts the process ("FATAL: exception not rethrown", exit 134), seen with `larns keys revoke
+# --publish` after it had published
+EXIT_AT_ONCE = False
 
 
 def exit_process(code: int) -> None:
-    """``sys.exit(code)`` for a ``python -m`` entry point; after a hung session close, ``os._exit`` (with
-    the streams flushed) so that the hung Zenoh thread cannot keep a stopped process alive."""
-    if BUS_HUNG:
+    """``sys.exit(code)`` for a ``python -m`` entry point; with ``EXIT_AT_ONCE`` (a hung session close, or
+    a short command whose work is done), ``os._exit`` with the streams flushed."""
+    if EXIT_AT_ONCE:
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(code)

@@ -148,6 +148,9 @@ def _publish_crl(a: argparse.Namespace, ks) -> int:
         time.sleep(1.0)
     bus.close()
     print(f"[keys] revocation list published on the bus ({', '.join(a.connect)})", file=sys.stderr)
+    import net.cli
+
+    net.cli.EXIT_AT_ONCE = True  # nothing left to do: no Zenoh thread may meet the interpreter's finalization
     return 0
 
 

@@ -208,7 +208,7 @@ def run_recorder(out: str, bus_kw: dict, keyexpr: str = "larns/**", duration_s: 
         if not bus.close():  # a hung Zenoh close: the entry point exits at once once the file is done
             import net.cli
 
-            net.cli.BUS_HUNG = True
+            net.cli.EXIT_AT_ONCE = True
         try:
             while failed is None:  # whatever arrived before the session closed
                 try:
