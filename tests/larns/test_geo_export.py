@@ -195,6 +195,7 @@ def test_nmea_checksums():
     assert valid(r) and ",A,4830.00000,N,00215.00000,E,19.44,90.0,010126,,,A*" in r
 
 
+@pytest.mark.e2e  # a real WebSocket served in real time (speed 20): run with the process tests, alone
 def test_location_fixes_over_the_foxglove_websocket(tmp_path):
     """The live view's Foxglove WebSocket (the SDK's typed LocationFix channels, protobuf) serving a
     recording of seed000-geo (``larns replay --view``'s path): a real client decodes every fix, and

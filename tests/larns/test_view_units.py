@@ -119,6 +119,7 @@ def test_tracks_and_typed_messages_decode_back_by_their_own_schema():
     assert kinds == {"foxglove.FrameTransform", "foxglove.SceneUpdate", "foxglove.Log"}
 
 
+@pytest.mark.e2e  # a real WebSocket client timed against the server (subscriptions within 0.5 s): alone
 def test_server_sends_what_the_view_makes_to_a_protocol_client():
     srv = FoxgloveServer(port=0)
     v = LiveView()
@@ -190,6 +191,7 @@ def test_json_schemas_generated_from_the_sdk_reject_what_the_sdk_would_not_encod
     assert set(json_schema("foxglove.Log")["properties"]) == {"timestamp", "level", "message", "name", "file", "line"}
 
 
+@pytest.mark.e2e  # a real WebSocket client timed against the server (subscriptions within 0.5 s): alone
 def test_a_late_subscriber_gets_each_channel_latest_message():
     srv = FoxgloveServer(port=0)
     v = LiveView()
