@@ -1,4 +1,5 @@
-"""Scenario TOML texts shared by the tests that launch real processes (e2e, compose, replay, aircraft)."""
+"""Scenario TOML texts shared by the tests: those that launch real processes (e2e, compose, replay,
+aircraft) and the multi-hop strips of tests/stations/test_multihop*.py (:func:`strip_toml`)."""
 
 from __future__ import annotations
 
@@ -81,3 +82,36 @@ height_m = 300.0
 q_acc = 1.0
 p0 = {{ pos_m = 30.0 }}
 """.replace("'", '"')
+
+
+def strip_toml(name: str, description: str, n: int, depth_m: float, cycle_s: float, tx_power_dbm: float,
+               sigma0_m: float, clock: str | None = None) -> str:
+    """A multi-hop strip (the far stations hear the founders only through their neighbours): scenario
+    text of ``n`` stations at random (500 m apart at least, founders within 2 km) on
+    12 km x ``depth_m``, 30 m of ground height, sigma_d 0.5 m, seed 2; ``clock``: a ``[clock] model``."""
+    clock_section = "" if clock is None else f'\n[clock]\nmodel = "{clock}"\n'
+    return f"""
+name = "{name}"
+description = "{description}"
+seed = 2
+
+[layout]
+kind = "random"
+n = {n}
+area_m = [12000.0, {depth_m!r}, 30.0]
+min_separation_m = 500.0
+founders_within_m = 2000.0
+
+[tdma]
+cycle_s = {cycle_s!r}
+slot_s = 0.01
+
+[channel]
+sigma_d_m = 0.5
+
+[radio]
+tx_power_dbm = {tx_power_dbm!r}
+{clock_section}
+[init]
+sigma0_m = {sigma0_m!r}
+"""

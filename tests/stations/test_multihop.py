@@ -12,33 +12,11 @@ from net.radio import link
 from net.scenario import ScenarioError, load, order_founders_near
 from stations.estimators import DistributedMap
 from stations.sim import Simulator
+from scenario_text import strip_toml
 
 # a 12 km x 2.5 km strip, 14 stations on 10 m masts at -6 dBm (links to ~2.5-3 km), no coarse fix
-STRIP = """
-name = "strip"
-description = "a 12 km strip of 14 stations, weak radio, no coarse fix"
-seed = 2
-
-[layout]
-kind = "random"
-n = 14
-area_m = [12000.0, 2500.0, 30.0]
-min_separation_m = 500.0
-founders_within_m = 2000.0
-
-[tdma]
-cycle_s = 0.2
-slot_s = 0.01
-
-[channel]
-sigma_d_m = 0.5
-
-[radio]
-tx_power_dbm = -6.0
-
-[init]
-sigma0_m = 0.0
-"""
+STRIP = strip_toml("strip", "a 12 km strip of 14 stations, weak radio, no coarse fix", n=14, depth_m=2500.0,
+                   cycle_s=0.2, tx_power_dbm=-6.0, sigma0_m=0.0)
 
 
 @pytest.fixture(scope="module")

@@ -9,37 +9,12 @@ from larns.bench.sync import common_time_errors, crlb_offset_var, hops_from_foun
 from net.scenario import load
 from stations.clocksync import UNROOTED_SD_S
 from stations.sim import Simulator
+from scenario_text import strip_toml
 
 # a 12 km x 1.5 km strip of 10 stations on 10 m masts at -8 dBm (links of ~2-3 km): hops 0-3 from the
 # founders; coarse fixes (10 m), so the clocks are measured on a surveyed field
-STRIP = """
-name = "strip-time"
-description = "a 12 km strip of 10 stations, weak radio, coarse fix 10 m"
-seed = 2
-
-[layout]
-kind = "random"
-n = 10
-area_m = [12000.0, 1500.0, 30.0]
-min_separation_m = 500.0
-founders_within_m = 2000.0
-
-[tdma]
-cycle_s = 0.5
-slot_s = 0.01
-
-[channel]
-sigma_d_m = 0.5
-
-[radio]
-tx_power_dbm = -8.0
-
-[clock]
-model = "tcxo"
-
-[init]
-sigma0_m = 10.0
-"""
+STRIP = strip_toml("strip-time", "a 12 km strip of 10 stations, weak radio, coarse fix 10 m", n=10, depth_m=1500.0,
+                   cycle_s=0.5, tx_power_dbm=-8.0, sigma0_m=10.0, clock="tcxo")
 
 
 def test_hops_from_founders_follow_the_realized_links():
