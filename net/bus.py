@@ -29,6 +29,7 @@ import argparse
 import json
 import logging
 import os
+import random
 import socket
 import threading
 import time
@@ -97,19 +98,40 @@ def bus_argv(listen: Iterable[str] = (), connect: Iterable[str] = (),
     return out
 
 
-def free_tcp_ports(n: int, host: str = "127.0.0.1") -> list[int]:
-    """``n`` distinct currently free TCP ports (bound and released; tiny race accepted)."""
-    socks, ports = [], []
+def _ephemeral_low(default: int = 32768) -> int:
+    """The lowest port the kernel hands out to outgoing connections (Linux; else IANA's 49152 would
+    do, ``default`` is Linux's)."""
     try:
-        for _ in range(n):
+        with open("/proc/sys/net/ipv4/ip_local_port_range") as f:
+            return int(f.read().split()[0])
+    except (OSError, ValueError, IndexError):
+        return default
+
+
+def free_tcp_ports(n: int, host: str = "127.0.0.1") -> list[int]:
+    """``n`` distinct currently free TCP ports (bound and released; a tiny race with other listeners
+    accepted). They are drawn below the kernel's ephemeral range: a port the kernel picked for
+    ``bind(0)`` is also a source port it gives to outgoing connections, and in a fleet the Zenoh
+    sessions that start first dial out many of those before the later ones listen ("Address already
+    in use" seen in CI). Falls back to ``bind(0)`` where the range is too small."""
+    low = _ephemeral_low()
+    pick = random.SystemRandom()
+    socks: list[socket.socket] = []
+    try:
+        tries = 0
+        while len(socks) < n:
+            tries += 1
             s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-            s.bind((host, 0))
             socks.append(s)
-            ports.append(s.getsockname()[1])
+            port = pick.randrange(10000, low) if low > 11000 and tries <= 50 * n else 0
+            try:
+                s.bind((host, port))
+            except OSError:
+                socks.pop().close()
+        return [s.getsockname()[1] for s in socks]
     finally:
         for s in socks:
             s.close()
-    return ports
 
 
 # Our Zenoh settings per mode (json5 values). Shared memory is off everywhere (containers, tests).
