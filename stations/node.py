@@ -54,13 +54,22 @@ from net import streams
 from net.channel import AirChannel, scenario_senders, station_rng
 from net.faults import WireFaults, merge_faults
 from net.procsched import add_sched_args, apply_sched_args
+from net.radio import may_link
 from net.scenario import Scenario, joiner_position
 from net.tiles import Tiling, parse_tile
 
 from .shell import PublishPolicy, true_clock_error_s
 from .shellfaults import ShellFaults
+from .slots import reception_in_slot
 
 log = logging.getLogger("larns.station")
+
+# distributed assignment: a nav is held this long (wall s) after the end of its slot before it is
+# judged (stations.slots.reception_in_slot), so that the navs sent in the same slot have reached us:
+# the bus takes about a millisecond on one host, but a loaded host runs a station's nav timer late by
+# tens of ms. Navs are not latency-critical (their timing comes from phy; with the fixed plan they
+# wait up to a cycle for the batch before the own nav)
+NAV_HOLD_WALL_S = 0.1
 
 AIR_KINDS = ("range_req", "range_rsp", "nav")
 PENDING_MAX = 4096  # messages held back by emulated wire delays (bounded under a flood)
@@ -145,6 +154,10 @@ class StationNode:
         self._nav_subs: list = []
         self._power_on_s: float | None = None  # fleet time of start_core (the bus counters' time base)
         self._last_drain = -math.inf
+        # distributed assignment, the world side of the radio in a slot (stations.slots.reception_in_slot):
+        # per sender of the world, the slot it last announced on the air (its nav's and request's
+        # ``slot``), the fleet time of that, and whether its radio reaches ours (true positions)
+        self._air_slots: dict[int, tuple[int, float, bool]] | None = {} if scn.tdma.distributed else None
         # (key, bytes) -> (msg, phy); --secure: rate limit, signature, replay first (net/security.py)
         sec = getattr(bus, "security", None)
         self._decode = (lambda key, data: M.decode(data)) if sec is None else \
@@ -179,11 +192,7 @@ class StationNode:
             core = self.core
             sched = (core.slot, core.state, len(core.pending))  # a message re-schedules the core via these
             self._ingest(recv, key, data)
-            if self._pending:
-                now = time.time()
-                while self._pending and self._pending[0][0] <= now:
-                    _, _, msg, phy = heapq.heappop(self._pending)
-                    self._deliver(msg, phy)
+            self._deliver_due()
             if self._pending or (core.slot, core.state, len(core.pending)) != sched:
                 self._wake.set()  # the main loop re-computes when to wake up (else: <= 0.1 s anyway)
 
@@ -225,10 +234,30 @@ class StationNode:
                 if self._stop.is_set():
                     return
                 self._ingest(time.time(), key, data)
-                now = time.time()
-                while self._pending and self._pending[0][0] <= now:
-                    _, _, msg, phy = heapq.heappop(self._pending)
-                    self._deliver(msg, phy)
+                if self._air_slots is None:
+                    now = time.time()
+                    while self._pending and self._pending[0][0] <= now:
+                        _, _, msg, phy = heapq.heappop(self._pending)
+                        self._deliver(msg, phy)
+        if self._air_slots is not None:  # the whole batch noted before any nav of it is judged
+            with self._lock:
+                if not self._stop.is_set():
+                    self._deliver_due()
+
+    def _deliver_due(self) -> None:
+        """Hand the core every held message that is due (lock held). With the distributed assignment
+        the navs waiting in the ring buffers are noted first (:meth:`_ingest`): a held nav is due
+        once the other navs of its slot have arrived, and they must be known when it is judged."""
+        if not self._pending or self._pending[0][0] > time.time():
+            return
+        if self._air_slots is not None:
+            self._last_drain = time.time()
+            for key, data in [kd for sub in self._nav_subs for kd in self.bus.drain(sub)]:
+                self._ingest(time.time(), key, data)
+        now = time.time()
+        while self._pending and self._pending[0][0] <= now:
+            _, _, msg, phy = heapq.heappop(self._pending)
+            self._deliver(msg, phy)
 
     def _check_key(self, key: str, msg: dict) -> bool:
         pk = M.parse_key(key)
@@ -259,9 +288,15 @@ class StationNode:
             return
         if msg["src"] == self.id:
             return
+        hold = recv_wall
+        if self._air_slots is not None and msg["kind"] != "range_rsp":
+            self._announced(msg)
+            if msg["kind"] == "nav":  # judged once the slot is over and its other navs are in
+                hold = min(max(recv_wall, self.wall_of(float(phy["t_true_s"]) + self.slot_s) + NAV_HOLD_WALL_S),
+                           recv_wall + 1.0)
         for delay in self.wire.deliveries():
             self._order += 1
-            heapq.heappush(self._pending, (recv_wall + delay / self.speed, self._order, msg, phy))
+            heapq.heappush(self._pending, (hold + delay / self.speed, self._order, msg, phy))
             if len(self._pending) > PENDING_MAX:  # bounded under a flood: the longest-waiting one goes
                 heapq.heappop(self._pending)
                 self.drops.drop("pending_full", f"more than {PENDING_MAX} messages held by wire delays")
@@ -286,6 +321,8 @@ class StationNode:
             self.drops.drop(tx, f"{msg['kind']} from station {msg['src']}: "
                             + ("stamped far from now" if tx == "time" else "not in the scenario"))
             return
+        if self._air_slots is not None and self._lost_in_slot(msg, tx[1]):
+            return
         t_rx_local = self.shell.arrival_local_s(self.air, msg["src"], tx[0], tx[1], self.true_pos, self.clock)
         if t_rx_local is None:
             self.stats["air_lost"] += 1
@@ -304,6 +341,36 @@ class StationNode:
         if self.core.counters["ignored"] + self.core.counters["late"] != lost:
             self.stats["core_late"] += 1
         self._send(outs)
+
+    def _announced(self, msg: dict) -> None:
+        """Note the slot a sender of the world transmits in (distributed assignment). The entry's
+        reach is the radio's between the two true positions (``net.radio.may_link``)."""
+        src, slot = msg["src"], msg.get("slot")
+        pos = self.senders.positions.get(src)
+        if pos is None or slot is None:
+            return
+        old = self._air_slots.get(src)
+        reach = old[2] if old is not None else bool(may_link(np.stack([pos, self.true_pos]), self.scn.channel.radio)[0, 1])
+        self._air_slots[src] = (int(slot), self.fleet_now(), reach)
+
+    def _lost_in_slot(self, msg: dict, t_tx_true_s: float) -> bool:
+        """Whether this radio loses ``msg`` to another sender in its slot (or to its own transmission
+        there): the holders are the senders that announced the slot within 1.5 cycles (each
+        announces it every cycle), so a slot claimed this cycle is seen a cycle late; the simulator
+        reads the cores' slots instead. A nav lost to another sender is garbage for the core."""
+        mine = self.core.slot
+        s = mine if msg["kind"] == "range_rsp" else msg.get("slot")
+        if s is None:
+            return False
+        src, now, horizon = msg["src"], self.fleet_now(), 1.5 * self.cycle_s
+        other = any(h != src and sl == s and reach and now - t <= horizon
+                    for h, (sl, t, reach) in self._air_slots.items())
+        lost, garbage = reception_in_slot(msg["kind"], mine == s, other)
+        if garbage:
+            self.stats["slot_garbage"] += 1
+            self.core.on_garbage(self.clock.to_local(t_tx_true_s + 1e-6))
+        self.stats["slot_lost"] += lost
+        return lost
 
     def _true_clock(self, sid: int):
         """Station ``sid``'s true oscillator, shared with the truth side (one realization per process:
@@ -522,10 +589,7 @@ class StationNode:
             with self._lock:
                 if t >= 0:
                     self._fire_timers()
-                now = time.time()
-                while self._pending and self._pending[0][0] <= now:
-                    _, _, msg, phy = heapq.heappop(self._pending)
-                    self._deliver(msg, phy)
+                self._deliver_due()
                 self._status(t)
                 wake = self._next_wake()
                 self._wake.clear()
@@ -557,7 +621,8 @@ class StationNode:
             "late": int(self.stats["core_late"]), "duplicates": int(self.stats["duplicates"]),
             "range_delay_ms": ({f"p{q}": float(np.percentile(self._wire_delay_s, q)) * 1e3 for q in (50, 90, 99)}
                                if self._wire_delay_s else {}),
-            "air_lost": int(self.stats["air_lost"]), "max_lateness_ms": self.max_lateness_s * 1e3,
+            "air_lost": int(self.stats["air_lost"]), "slot_lost": int(self.stats["slot_lost"]),
+            "slot_garbage": int(self.stats["slot_garbage"]), "max_lateness_ms": self.max_lateness_s * 1e3,
             "host_late": int(self.stats["host_late"]), "core_late": int(self.stats["core_late"]),
             "sync_err_ns": self._sync_ns(),
             "journal_dropped": int(self.stats["journal_dropped"]),

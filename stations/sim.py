@@ -26,6 +26,7 @@ from .admission import field_radius
 from .core import StationConfig, StationCore
 from .shell import PublishPolicy
 from .shellfaults import ShellFaults
+from .slots import reception_in_slot
 from .tdma import TdmaPlan
 
 
@@ -240,15 +241,12 @@ class Simulator:
         """Does receiver index ``j`` lose ``m`` to another sender in its slot (``holders``)? A station
         transmitting in the slot hears nothing in it (half duplex); one in range of another sender there
         decodes neither, and a nav lost that way is reported to its core as garbage (energy heard)."""
-        if m["kind"] != "range_rsp" and j in holders:
-            return True
-        if not any(self._reach[h][j] for h in holders if h != j):
-            return False
-        if m["kind"] == "nav" and self.cores[j] is not None:
+        lost, garbage = reception_in_slot(m["kind"], j in holders, any(self._reach[h][j] for h in holders if h != j))
+        if garbage and self.cores[j] is not None:
             self.collisions += 1
             self.collision_log.append((t_tx_true, k, j))
             self._push(t_tx_true + 1e-6, ("garbage", j, self.clocks[j].to_local(t_tx_true + 1e-6)))
-        return True
+        return lost
 
     def _publish_local(self, k: int, m: dict) -> None:
         """A core output that does not go on air: an estimate goes out decorated after its truth (the

@@ -56,6 +56,19 @@ import numpy as np
 FREE, CLEAN, SOFT, GARBAGE = 0, 1, 2, 3
 
 
+def reception_in_slot(kind: str, receiver_sends_there: bool, other_sender_in_reach: bool) -> tuple[bool, bool]:
+    """What the radio of a receiver makes of one transmission in a slot other stations also hold
+    (distributed assignment): ``(lost, garbage)``. A station transmitting in the slot hears nothing
+    in it (half duplex; a range reply falls in its requester's own slot, so the requester listens
+    there); a receiver in range of another sender in the slot decodes neither (the hidden terminal).
+    A nav lost to another sender is energy heard and nothing decoded: ``garbage``, what the core's
+    slot view records (:meth:`stations.core.StationCore.on_garbage`); a transmitting receiver hears
+    no energy. The world side of both shells decides with it: the simulator from the cores' slots,
+    the Zenoh station from the slots announced on the air."""
+    deaf = kind != "range_rsp" and receiver_sends_there
+    return deaf or other_sender_in_reach, not deaf and other_sender_in_reach and kind == "nav"
+
+
 @dataclass(frozen=True)
 class SlotConfig:
     """Parameters of the assignment. ``cycle_slots``: slots per TDMA cycle."""
