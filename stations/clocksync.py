@@ -226,6 +226,7 @@ class ClockEstimator:
         self._T0 = self.T_s
         self._q_dt, self._q = 0.0, (0.0, 0.0, 0.0)  # the last Q(dt) (_Q)
         self._members_of, self._members_w, self._members_neg = None, {}, np.zeros(0)  # (_members)
+        self._members_c: list[float] = []
         self.rebase_s = float(rebase_s)
         self.var_z = (sigma_d_m / C) ** 2
         self.coarse_var = (coarse_range_m / C) ** 2
@@ -317,27 +318,37 @@ class ClockEstimator:
                 var += si * sj * (tt + dt_h * (tf + ft) + dt_h * dt_h * ff)
         return var
 
-    def _PH(self, ks: list[int], signs: list[float], dt_h: float) -> np.ndarray:
+    def _PH(self, ks: list[int], signs: list[float], dt_h: float) -> tuple[np.ndarray, np.ndarray]:
         """``P(T_s) h`` (n,) for the sparse row ``h = sum_i s_i e_{k_i} (x) [1, dt_h]`` (block indices
-        ``ks``, signs ``s``): columns of ``P0`` mapped through ``F`` and ``Q``, O(n)."""
+        ``ks``, signs ``s``), and ``F^{-1} P(T_s) h`` (n,) (the same at the reference time ``T0``): columns
+        of ``P0`` mapped through ``F`` and ``Q``, O(n).
+
+        With ``F = [[1, dt], [0, 1]]`` per block over ``dt = T_s - T0`` and ``g = Q [1, dt_h]``:
+        ``P(T_s) h = F (P0 F^T h) + g (x) (sum_i s_i 1 + sum_i s_i e_{k_i})`` (network time's wander on
+        every block, each clock's own on its block), and ``F^{-1} P(T_s) h = P0 F^T h + F^{-1} g (x) (...)``.
+        ``P0 F^T h`` is one matrix-vector product with the dense ``F^T h``."""
         dt = self.T_s - self._T0
-        J, u = [], []
-        for k, sg in zip(ks, signs):  # F^T h on the touched blocks: s [1, dt + dt_h]
-            J += [2 * k, 2 * k + 1]
-            u += [sg, sg * (dt + dt_h)]
-        y = self._P0[:, J] @ np.array(u)
-        if dt > 0:
-            y[0::2] += dt * y[1::2]  # F (P0 F^T h)
-            qtt, qtf, qff = self._Q(dt)
-            gt, gf = qtt + dt_h * qtf, qtf + dt_h * qff  # Q [1, dt_h]
-            tot = float(sum(signs))  # network time's wander: every block gets Q sum_i h_i
-            if tot:
-                y[0::2] += tot * gt
-                y[1::2] += tot * gf
-            for k, sg in zip(ks, signs):
-                y[2 * k] += sg * gt
-                y[2 * k + 1] += sg * gf
-        return y
+        hf = np.zeros(len(self.x))  # F^T h: s [1, dt + dt_h] on the touched blocks
+        for k, sg in zip(ks, signs):
+            hf[2 * k] += sg
+            hf[2 * k + 1] += sg * (dt + dt_h)
+        y0 = self._P0 @ hf
+        if dt <= 0:
+            return y0, y0
+        qtt, qtf, qff = self._Q(dt)
+        gt, gf = qtt + dt_h * qtf, qtf + dt_h * qff  # Q [1, dt_h]
+        it = gt - dt * gf  # F^{-1} g: [gt - dt gf, gf]
+        tot = float(sum(signs))
+        Y0 = y0.reshape(-1, 2)
+        # F y0 plus the common wander, blockwise: [y_t + dt y_f + tot gt, y_f + tot gf]
+        y = (Y0 @ np.array(((1.0, 0.0), (dt, 1.0))) + (tot * gt, tot * gf)).reshape(-1)
+        v = (Y0 + (tot * it, tot * gf)).reshape(-1)
+        for k, sg in zip(ks, signs):
+            y[2 * k] += sg * gt
+            y[2 * k + 1] += sg * gf
+            v[2 * k] += sg * it
+            v[2 * k + 1] += sg * gf
+        return y, v
 
     def _add(self, sid: int) -> int:
         k = self.index.get(sid)
@@ -441,30 +452,33 @@ class ClockEstimator:
                 cs[self.index[k]] += c
         return self._combo_dense(_on_states(cs))
 
-    def _combo_dense(self, V: np.ndarray) -> tuple[float, float, float, float, float]:
+    def _combo_dense(self, V: np.ndarray, g: float | None = None) -> tuple[float, float, float, float, float]:
         """:meth:`_combo` of the coefficients ``c`` over every clock of the state, given as the two
         state-space rows ``V = [c (x) e_theta, c (x) e_f]`` (2n, 2) (:func:`_on_states`): dense, O(n^2).
 
         ``V^T x = [sum c theta, sum c f]``; ``V^T P0 V`` holds ``c^T B_tt c``, ``c^T B_tf c``, ``c^T B_ff c``
         over the blocks of ``P0``; through ``F`` over ``dt = T_s - T0``: ``P_ff = c^T B_ff c``,
         ``P_tf = c^T B_tf c + dt P_ff``, ``P_tt = c^T B_tt c + 2 dt c^T B_tf c + dt^2 P_ff``, plus ``Q(dt)``
-        times ``c^T (I + 1 1^T) c = sum c^2 + (sum c)^2`` (each clock's own wander and network time's)."""
-        cs = V[0::2, 0]
-        if not np.count_nonzero(cs):
-            return 0.0, 0.0, 0.0, 0.0, 0.0
+        times ``c^T (I + 1 1^T) c = sum c^2 + (sum c)^2`` (each clock's own wander and network time's;
+        ``g``: that value when the caller knows it and ``c != 0``)."""
+        if g is None:
+            cs = V[0::2, 0]
+            if not np.count_nonzero(cs):
+                return 0.0, 0.0, 0.0, 0.0, 0.0
+            g = float(cs @ cs + np.add.reduce(cs) ** 2)  # (np.add.reduce: cs.sum() without its wrapper)
         th, f = (self.x @ V).tolist()
         (ctt, ctf), (_, ff) = (V.T @ self._P0 @ V).tolist()
         dt = self.T_s - self._T0
         if dt <= 0:
             return th, f, ctt, ctf, ff
         a, b, q = self._Q(dt)
-        g = float(cs @ cs + np.add.reduce(cs) ** 2)  # (np.add.reduce: cs.sum() without its wrapper)
         return th, f, ctt + 2.0 * dt * ctf + dt * dt * ff + g * a, ctf + dt * ff + g * b, ff + g * q
 
     def _members(self) -> tuple[dict[int, float], np.ndarray]:
         """The time scale's weights ``{clock: w}`` and ``-w`` over the state's clocks as the rows of
         :meth:`_combo_dense` (2n, 2) (station 1 has no state): the ensemble's coefficients in a clock's
-        offset against it (:meth:`_coeffs`). Kept until the scale or the clocks change."""
+        offset against it (:meth:`_coeffs`). Kept until the scale or the clocks change, with the
+        coefficients ``-w`` (n,) as Python floats (``_members_c``)."""
         sc, n = self.scale, len(self.index)
         if self._members_of is not sc or len(self._members_neg) != 2 * n:
             w = sc.w
@@ -473,18 +487,22 @@ class ClockEstimator:
                 if k != 1:
                     neg[self.index[k]] += -c
             self._members_of, self._members_w, self._members_neg = sc, w, _on_states(neg)
+            self._members_c = neg.tolist()
         return self._members_w, self._members_neg
 
     def _ens(self, sid: int) -> tuple[float, float, float, float, float]:
         """Clock ``sid``'s offset and frequency against network time at ``T_s`` and their covariance
         ``(P_tt, P_tf, P_ff)``."""
         sc = self.scale
-        V = self._members()[1].copy()  # sid's coefficients (_coeffs) over the state's clocks
+        V = self._members()[1].copy()  # sid's coefficients c (_coeffs) over the state's clocks
+        c = list(self._members_c)
         if sid != 1:
-            k = 2 * self.index[sid]
-            V[k, 0] += 1.0
-            V[k + 1, 1] += 1.0
-        th, f, tt, tf, ff = self._combo_dense(V)
+            k = self.index[sid]
+            V[2 * k, 0] += 1.0
+            V[2 * k + 1, 1] += 1.0
+            c[k] += 1.0
+        # c^T (I + 1 1^T) c on floats (:meth:`_combo_dense`; c = 0: its zeros)
+        th, f, tt, tf, ff = self._combo_dense(V, sum(ci * ci for ci in c) + sum(c) ** 2 if any(c) else None)
         return th - sc.a_s - sc.b * (self.T_s - sc.T_ref_s), f - sc.b, tt, tf, ff
 
     def on_peer_scale(self, src: int, t_tx_src_s: float, corr) -> None:
@@ -647,7 +665,7 @@ class ClockEstimator:
         (above ``gate`` while both clocks are known to ``STEP_KNOWN_S``: returned, nothing updated)."""
         if self.T_s - self._T0 > self.rebase_s:
             self._rebase()
-        PH = self._PH(ks, signs, dt_h)
+        PH, v = self._PH(ks, signs, dt_h)
         x = self.x
         hph, hx = 0.0, 0.0
         for k, sg in zip(ks, signs):
@@ -661,10 +679,7 @@ class ClockEstimator:
         x += PH * (nu / S)
         # Joseph form with the optimal gain K = P h / S: (I - K h) P (I - K h)^T + r K K^T = P - w w^T,
         # w = P h / sqrt(S); at the reference time T0: P0 - v v^T, v = F^{-1} w (exactly symmetric)
-        v = PH * (1.0 / math.sqrt(S))
-        dt = self.T_s - self._T0
-        if dt > 0:
-            v[0::2] -= dt * v[1::2]
+        v = v * (1.0 / math.sqrt(S))
         self._P0 -= v[:, None] * v  # np.outer(v, v)
         self.n_updates += 1
         return nu * nu / S

@@ -80,6 +80,12 @@ def _skipped_mean_factor(c: float) -> float:
     return p / (p - 2.0 * c * phi)
 
 
+def _floats(a) -> list:
+    """An array-like (3,) or (3, 3) as nested lists of Python floats."""
+    return a.tolist() if isinstance(a, np.ndarray) else [_floats(v) if isinstance(v, (list, tuple, np.ndarray))
+                                                          else float(v) for v in a]
+
+
 def newest_mode(d: np.ndarray, half_width_m: float, factor: float, max_iter: int = 20) -> tuple[float, float] | None:
     """The cluster of the newest range ``d[-1]`` of a link's window ``d`` (k,): the ranges within
     ``half_width_m`` of a centre moved from the newest range to the mean of the ranges around it
@@ -223,12 +229,15 @@ class StationIntegrity:
         sets = self._clusters(st, self.sigma_d_m if self.radio is None else float(np.sqrt(var)))
         if not sets:  # no two ranges of the window agree (NLOS one-offs): inconclusive
             return None
-        diff = np.asarray(pos_m, float) - np.asarray(peer_pos_m, float)
-        pred = math.sqrt(diff @ diff)  # (np.linalg.norm's own sum for a vector)
+        # 3-vectors and 3 x 3 matrices as Python floats (NumPy's per-call cost dominates at this size)
+        a = _floats(pos_m)
+        diff = [a[i] - b for i, b in enumerate(_floats(peer_pos_m))]
+        pred = math.sqrt(diff[0] * diff[0] + diff[1] * diff[1] + diff[2] * diff[2])
         if pred <= 0.0:
             return None
-        u = diff / pred
-        pv = float(u @ (np.asarray(cov_m2, float) + np.asarray(peer_cov_m2, float)) @ u)
+        u = [d / pred for d in diff]
+        C, D = _floats(cov_m2), _floats(peer_cov_m2)  # u^T (P + C_j) u
+        pv = sum(u[i] * sum((C[i][j] + D[i][j]) * u[j] for j in range(3)) for i in range(3))
         return max(float((mean - pred) ** 2 / (var / n + pv)) for mean, n in sets)
 
     def evaluate(self, t_s: float, pos_m, cov_m2, peers: dict[int, tuple]) -> list[dict]:
