@@ -32,6 +32,7 @@ datum. A founder that (re)joins a running field is built free (``founder=False``
 
 from __future__ import annotations
 
+import math
 from typing import Protocol
 
 import numpy as np
@@ -200,10 +201,41 @@ def _spd_solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``A^-1 b`` for a symmetric positive definite ``A`` (n, n) and ``b`` (n,): Cholesky factor and
     triangular solves by LAPACK ``potrf`` / ``potrs`` (raises ``LinAlgError`` unless ``A`` is positive
     definite, like ``np.linalg.cholesky``)."""
+    if A.shape == (3, 3):
+        return np.array(_spd_solve3(A.tolist(), b.tolist()))
     x, info = dpotrs(chol_lower(A), b, lower=1)
     if info != 0:
         raise np.linalg.LinAlgError(f"potrs info {info}")
     return x
+
+
+def _spd_solve3(A: list, b: list) -> list[float]:
+    """:func:`_spd_solve` of a 3 x 3 system on Python floats (``A`` (3, 3) and ``b`` (3,) as lists;
+    LAPACK's call cost dominates at this size): ``A = L L^T`` from ``A``'s lower triangle (as
+    ``potrf``), then ``L y = b`` and ``L^T x = y``. Raises ``LinAlgError`` unless ``A`` is positive
+    definite (a non-positive or non-finite pivot)."""
+    (a00, _, _), (a10, a11, _), (a20, a21, a22) = A
+    b0, b1, b2 = b
+    d0 = a00
+    if not d0 > 0.0:
+        raise np.linalg.LinAlgError("matrix is not positive definite")
+    l00 = math.sqrt(d0)
+    l10, l20 = a10 / l00, a20 / l00
+    d1 = a11 - l10 * l10
+    if not d1 > 0.0:
+        raise np.linalg.LinAlgError("matrix is not positive definite")
+    l11 = math.sqrt(d1)
+    l21 = (a21 - l20 * l10) / l11
+    d2 = a22 - l20 * l20 - l21 * l21
+    if not (d2 > 0.0 and math.isfinite(d2)):
+        raise np.linalg.LinAlgError("matrix is not positive definite")
+    l22 = math.sqrt(d2)
+    y0 = b0 / l00
+    y1 = (b1 - l10 * y0) / l11
+    y2 = (b2 - l20 * y0 - l21 * y1) / l22
+    x2 = y2 / l22
+    x1 = (y1 - l21 * x2) / l11
+    return [(y0 - l10 * x1 - l20 * x2) / l00, x1, x2]
 
 
 def _chol_inv_factor(A: np.ndarray) -> np.ndarray:
@@ -252,11 +284,11 @@ class _SolveCache:
     covariances ``cov`` (m, 3, 3) m^2 (views), ``cov_sum = cov + P`` (m, 3, 3) m^2 with our own
     covariance of the last solve, the usable peers ``known`` (m,) bool (known estimate, not
     excluded) and, for the robust weights, the within-link consensus ``gate`` (nr,), the ranges
-    judged by the Huber loss ``huber_sel`` (nr,) bool and the inlier floor
+    judged by the Huber loss ``huber_sel`` (nr,) bool (``loss_mix``: 1 all, 0 none, None some) and the inlier floor
     ``min_inlier_frac * sum(gate)``. Formed once per solve, read by every IRLS iteration."""
 
-    __slots__ = ("m", "rk", "rv", "n_arch", "sum_arch", "pos", "cov", "cov_sum", "known", "gate", "huber_sel",
-                 "ones", "inlier_floor", "_x", "_dr", "_u")
+    __slots__ = ("m", "rk", "rv", "n_arch", "sum_arch", "pos", "cov", "cov_sum", "known", "all_known", "gate",
+                 "huber_sel", "loss_mix", "ones", "inlier_floor", "_x", "_dr", "_u")
 
     def __init__(self, est: "DistributedMap", robust: bool):
         m, nr = len(est._index), est._nr
@@ -266,12 +298,14 @@ class _SolveCache:
         self.pos, self.cov = est._pos[:m], est._cov[:m]
         self.cov_sum = self.cov + est.cov_m2
         self.known = est._peer_sel()
+        self.all_known = bool(self.known.all())
         if robust and est.robust is not None:
             if est.link_consensus:
                 self.gate, confirmed = est._consensus(self.rk, self.rv, m)
             else:
                 self.gate, confirmed = np.ones(nr), np.zeros(nr, bool)
             self.huber_sel = confirmed & (est.confirmed_loss is not None)
+            self.loss_mix = 1 if self.huber_sel.all() else 0 if not self.huber_sel.any() else None
             self.ones = np.ones(nr)
             self.inlier_floor = est.min_inlier_frac * self.gate.sum()
         self._x = self._dr = self._u = None
@@ -586,7 +620,12 @@ class DistributedMap:
         # the frame stations; the redescending Tukey loss judges the ranges of unconfirmed links
         zh = huber_weight(z, self.huber_k)
         zc = zh if self.confirmed_loss == "huber" else sc.ones
-        w = np.where(sc.huber_sel, zc, tukey_weight(z, self.tukey_c)) * sc.gate
+        if sc.loss_mix == 1:  # every range's link confirmed
+            w = zc * sc.gate
+        elif sc.loss_mix == 0:  # none
+            w = tukey_weight(z, self.tukey_c) * sc.gate
+        else:
+            w = np.where(sc.huber_sel, zc, tukey_weight(z, self.tukey_c)) * sc.gate
         if w.sum() < sc.inlier_floor:
             # far from everything: convex start (MM scheme), still within the links' consensus
             w = zh * sc.gate
@@ -682,7 +721,7 @@ class DistributedMap:
         m = sc.m
         n = sc.n_arch + np.bincount(sc.rk, weights=w, minlength=m)
         tot = sc.sum_arch + np.bincount(sc.rk, weights=w * sc.rv, minlength=m)
-        sel = (n > 1e-6) & sc.known
+        sel = (n > 1e-6) if sc.all_known else (n > 1e-6) & sc.known
         k = np.count_nonzero(sel)
         if k == m:  # every link: the stored arrays themselves
             return n, tot / n, sc.pos, sc.cov
@@ -736,8 +775,18 @@ class DistributedMap:
         elif r is None:
             diff = x - Pj
             r = np.sqrt(np.einsum("ki,ki->k", diff, diff))
-        d0 = x[:self.nf] - self.prior_mean
-        return float(d0 @ self.prior_info @ d0 + wl @ (dbar - r) ** 2)
+        return self._prior_term(x) + float(wl @ (dbar - r) ** 2)
+
+    def _prior_term(self, x: np.ndarray) -> float:
+        """``d^T prior_info d``, ``d = x_free - prior_mean`` (nf,) (the free coordinates are the first nf);
+        on Python floats for nf = 3."""
+        if self.nf != 3:
+            d = x[:self.nf] - self.prior_mean
+            return float(d @ self.prior_info @ d)
+        d0, d1, d2 = (a - b for a, b in zip(x.tolist(), self.prior_mean.tolist()))
+        (p00, p01, p02), (p10, p11, p12), (p20, p21, p22) = self.prior_info.tolist()
+        return (d0 * (p00 * d0 + p01 * d1 + p02 * d2) + d1 * (p10 * d0 + p11 * d1 + p12 * d2)
+                + d2 * (p20 * d0 + p21 * d1 + p22 * d2))
 
     def _irls(self, x: np.ndarray, iters: int, robust: bool, sc: "_SolveCache") -> np.ndarray | None:
         """Iteratively re-weighted, backtracked Gauss-Newton from ``x`` (3,); None if no usable link.
@@ -756,13 +805,16 @@ class DistributedMap:
             # quadratic in height, so a full Gauss-Newton step can overshoot far along z
             f0 = self._objective(x, n, dbar, Pj, wl, r)
             for _ in range(20):
-                xt = x.copy()
-                xt[:nf] += dx
+                if nf == 3:
+                    xt = x + dx
+                else:
+                    xt = x.copy()
+                    xt[:nf] += dx
                 if self._objective(xt, n, dbar, Pj, wl, sc=sc) <= f0 + 1e-12:
                     break
                 dx = 0.5 * dx
             x = xt
-            if np.abs(dx).max() < self.tol_m:
+            if max(map(abs, dx.tolist())) < self.tol_m:
                 break
         return x
 
