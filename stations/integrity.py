@@ -80,10 +80,9 @@ def _skipped_mean_factor(c: float) -> float:
     return p / (p - 2.0 * c * phi)
 
 
-def _floats(a) -> list:
-    """An array-like (3,) or (3, 3) as nested lists of Python floats."""
-    return a.tolist() if isinstance(a, np.ndarray) else [_floats(v) if isinstance(v, (list, tuple, np.ndarray))
-                                                          else float(v) for v in a]
+def _floats(a):
+    """An array (3,) or (3, 3) as (nested) lists of Python floats; a list or tuple as it is (indexed alike)."""
+    return a.tolist() if isinstance(a, np.ndarray) else a
 
 
 def newest_mode(d: np.ndarray, half_width_m: float, factor: float, max_iter: int = 20) -> tuple[float, float] | None:
@@ -230,14 +229,15 @@ class StationIntegrity:
         if not sets:  # no two ranges of the window agree (NLOS one-offs): inconclusive
             return None
         # 3-vectors and 3 x 3 matrices as Python floats (NumPy's per-call cost dominates at this size)
-        a = _floats(pos_m)
-        diff = [a[i] - b for i, b in enumerate(_floats(peer_pos_m))]
-        pred = math.sqrt(diff[0] * diff[0] + diff[1] * diff[1] + diff[2] * diff[2])
+        (a0, a1, a2), (b0, b1, b2) = _floats(pos_m), _floats(peer_pos_m)
+        d0, d1, d2 = a0 - b0, a1 - b1, a2 - b2
+        pred = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
         if pred <= 0.0:
             return None
-        u = [d / pred for d in diff]
-        C, D = _floats(cov_m2), _floats(peer_cov_m2)  # u^T (P + C_j) u
-        pv = sum(u[i] * sum((C[i][j] + D[i][j]) * u[j] for j in range(3)) for i in range(3))
+        u0, u1, u2 = d0 / pred, d1 / pred, d2 / pred
+        pv = 0.0  # u^T (P + C_j) u
+        for ui, ci, di in zip((u0, u1, u2), _floats(cov_m2), _floats(peer_cov_m2)):
+            pv += ui * ((ci[0] + di[0]) * u0 + (ci[1] + di[1]) * u1 + (ci[2] + di[2]) * u2)
         return max(float((mean - pred) ** 2 / (var / n + pv)) for mean, n in sets)
 
     def evaluate(self, t_s: float, pos_m, cov_m2, peers: dict[int, tuple]) -> list[dict]:
@@ -245,6 +245,7 @@ class StationIntegrity:
         from their latest broadcasts. Returns the decisions taken now (``integrity`` message bodies)."""
         out = []
         stats = {}
+        pos_m, cov_m2 = _floats(pos_m), _floats(cov_m2)  # (read by every peer's test)
         for pid, (ppos, pcov) in peers.items():
             T = self.statistic(pid, t_s, pos_m, cov_m2, ppos, pcov)
             if T is not None:
