@@ -164,7 +164,9 @@ def tukey_weight(z: np.ndarray, c: float) -> np.ndarray:
 
 def huber_weight(z: np.ndarray, k: float) -> np.ndarray:
     """Huber IRLS weights ``min(1, k/|z|)`` (monotone: a unique solution from any start)."""
-    # k / |z| >= 1 wherever |z| <= k, so the minimum is 1 there and k / |z| elsewhere
+    # k / max(|z|, k): exactly 1 wherever |z| <= k (k / k), k / |z| elsewhere
+    if k > 0:
+        return k / np.maximum(np.abs(np.asarray(z)), k)
     return np.minimum(k / np.maximum(np.abs(np.asarray(z)), 1e-300), 1.0)
 
 
@@ -764,7 +766,7 @@ class DistributedMap:
         w = 1.0 / (self._link_var(x, Pj) / n + gamma * np.einsum("ki,kij,kj->k", u, Cj, u))
         J = u[:, :nf] if nf < 3 else u
         A = self.prior_info + (J.T * w) @ J
-        b = self.prior_info @ (self.prior_mean - x[:nf]) + J.T @ (w * (dbar - r))
+        b = J.T @ (w * (dbar - r)) + self._prior_pull(x)
         return A, b, w, r
 
     def _objective(self, x, n, dbar, Pj, wl, r=None, sc: "_SolveCache | None" = None) -> float:
@@ -776,6 +778,14 @@ class DistributedMap:
             diff = x - Pj
             r = np.sqrt(np.einsum("ki,ki->k", diff, diff))
         return self._prior_term(x) + float(wl @ (dbar - r) ** 2)
+
+    def _prior_pull(self, x: np.ndarray):
+        """``prior_info (prior_mean - x_free)`` (nf,) (the free coordinates are the first nf); a list of
+        floats for nf = 3."""
+        if self.nf != 3:
+            return self.prior_info @ (self.prior_mean - x[:self.nf])
+        d0, d1, d2 = (b - a for a, b in zip(x.tolist(), self.prior_mean.tolist()))
+        return [p0 * d0 + p1 * d1 + p2 * d2 for p0, p1, p2 in self.prior_info.tolist()]
 
     def _prior_term(self, x: np.ndarray) -> float:
         """``d^T prior_info d``, ``d = x_free - prior_mean`` (nf,) (the free coordinates are the first nf);
