@@ -62,7 +62,10 @@ class ReceiverConfig:
     ``max_publish_sigma_m``: largest position sigma ``sqrt(tr P)`` of a published estimate;
     ``floor_lost_sigma``: a filter whose Gaussian lies this many sigma under the height floor is lost
     (rule 3; None: not tested); ``start_station_sigma_m`` / ``start_wait_s``: the start's survey level
-    and longest wait (rule 5)."""
+    and longest wait (rule 5); ``lsq_restart_s``: a snapshot LSQ whose fix rule 4 dropped starts from
+    the broadcasts again (multi-start) at most once in this time; in between it starts from that
+    multi-start's fix (None: every drop restarts from the broadcasts; docs/aircraft.md, "A runaway
+    warm start is dropped")."""
 
     max_broadcast_sigma_m: float = 30.0
     p_start: float = 1e-3
@@ -72,6 +75,7 @@ class ReceiverConfig:
     floor_lost_sigma: float | None = 5.0
     start_station_sigma_m: float = 3.0
     start_wait_s: float = 10.0
+    lsq_restart_s: float | None = 1.0
 
 
 def broadcast_sigma_m(clock_var_m2: float, station_cov_m2: np.ndarray | None) -> float:

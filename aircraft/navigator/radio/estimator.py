@@ -77,6 +77,10 @@ class AircraftEstimator:
         self.n_deferred = 0  # batches set aside in a row at the start (InitConfig.defer_batches)
         self.t_first_batch_s: float | None = None  # the first batch that could start a filter (rule 5)
         self.init = None  # the InitResult of the latest start (broadcast initializer)
+        # snapshot LSQ: (t_s, fix) of its latest start from the broadcasts, and the fix a dropped one
+        # restarts from at the next batch (receiver rule 4, ReceiverConfig.lsq_restart_s)
+        self._anchor: tuple[float, np.ndarray] | None = None
+        self._restart_from: np.ndarray | None = None
         self.fde = None if self.cfg.fde is None else FilterFde(self.cfg.fde)
         rcfg = self.cfg.receiver
         self.monitor = None if rcfg is None else rx.DivergenceMonitor(rcfg)
@@ -250,6 +254,9 @@ class AircraftEstimator:
     def _start(self, t_s, pos, cov, cov_snap, rho) -> None:
         """No filter yet: a snapshot fix from the batch (LSQ), or the filter's start. ``cov``: the
         broadcast covariances; ``cov_snap``: the snapshot's (:meth:`_snapshot_cov`)."""
+        if self.fix is None and self._restart_from is not None:  # LSQ: warm again from its anchor
+            self.fix, self._restart_from = self._restart_from, None
+            self.stats["lsq_anchor_restart"] += 1
         if self.cfg.guess_sigma_m is None and (self.fix is None or self.method != "lsq"):
             self._start_from_broadcasts(t_s, pos, cov, cov_snap, rho)
             return
@@ -304,7 +311,10 @@ class AircraftEstimator:
             init = consistent_start(self.model, self.cfg, self.stats, init, pos, cov_snap, rho)
             if init is None:
                 return
-        if not init.snapshot and len(rho) <= 4 and self.n_deferred < (self.cfg.init or InitConfig()).defer_batches:
+        # (an LSQ that has had a fix restarts at once: it starts no filter, and waiting repeats its
+        # multi-start for every batch set aside)
+        if not init.snapshot and len(rho) <= 4 and self._anchor is None and \
+                self.n_deferred < (self.cfg.init or InitConfig()).defer_batches:
             self.n_deferred += 1  # no redundancy, no snapshot: wait for a batch with more stations
             return
         self.n_deferred = 0
@@ -313,7 +323,9 @@ class AircraftEstimator:
         self.t_s = t_s
         self.n_updates += 1
         self.status = rx.TRACKING
-        if self.method != "lsq":
+        if self.method == "lsq":
+            self._anchor = (t_s, self.fix.copy())
+        else:
             self.tracker = CvTracker(self.method, self.model, init.x0, tu, t0_s=t_s, P0=init.P0,
                                      ref_m=crd.reference_point(pos),
                                      ref_radius_m=crd.array_radius(pos))
@@ -337,13 +349,19 @@ class AircraftEstimator:
         range (seed001's far field: four stations of a 50 m array, no redundancy) that chain can walk
         off along it, batch by batch, to hundreds of kilometres, with a covariance that says so: a fix
         that is not publishable is dropped, and the next batch starts from the broadcasts again
-        (multi-start, as the first; docs/aircraft.md, "A runaway warm start is dropped")."""
+        (multi-start, as the first), or, within ``ReceiverConfig.lsq_restart_s`` of the latest
+        multi-start, warm from that multi-start's fix: in that far field the warm chain is dropped
+        every few tenths of a second, and a multi-start each time cost about a second of CPU per
+        second of flight (docs/aircraft.md, "A runaway warm start is dropped")."""
         if self.cfg.receiver is None or self.fix is None:
             return
         C = self._fix_cov()
         if not rx.publishable(self.fix[:3], C, self.cfg.receiver):
             self.stats["lsq_runaway"] += 1
             self.fix = None
+            every = self.cfg.receiver.lsq_restart_s
+            if every is not None and self._anchor is not None and self.t_s - self._anchor[0] < every:
+                self._restart_from = self._anchor[1].copy()
 
     def _fix_cov(self) -> list | None:
         """The LSQ fix's position covariance (3 x 3 list; None where ``(H^T W H)`` is singular): its own
