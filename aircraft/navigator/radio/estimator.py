@@ -269,9 +269,9 @@ class AircraftEstimator:
         kw = dict(floor_z_m=tu.floor_z_m, iters=50 if first else 10, max_step_m=5000.0 if first else 200.0)
         if self.model == "pr":
             x0 = self.fix if self.fix.size == 4 else np.append(self.fix, 0.0)
-            self.fix = lsq_pr(rho[None], pos, x0[None], var, cov_snap, **kw)[0]
+            self.fix = lsq_pr(rho, pos, x0, var, cov_snap, **kw)  # one run: (4,)
         else:
-            self.fix = lsq_tdoa(rho[None], pos, self.fix[:3][None], var, cov_snap, **kw)[0]
+            self.fix = lsq_tdoa(rho, pos, self.fix[:3], var, cov_snap, **kw)  # (3,)
         self.t_s = t_s
         self.n_updates += 1
         if self.method == "lsq":

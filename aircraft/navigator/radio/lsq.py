@@ -38,6 +38,73 @@ def _limit(dx: np.ndarray, max_step_m: float) -> np.ndarray:
     return dx * np.minimum(1.0, max_step_m / np.maximum(nrm, 1e-300))
 
 
+def _one_run_weights(x: np.ndarray, stations_m: np.ndarray, station_cov_m2: np.ndarray | None,
+                     sig2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One run's ranges (m,), unit lines of sight station->aircraft (m, 3) and range variances
+    ``sigma^2 + u^T P u`` (m,) at position ``x`` (3,): what :func:`models.range_var` and
+    :func:`models.jac_pr` compute for many runs, in a few small operations."""
+    d = x - stations_m
+    r = np.sqrt(np.einsum("ij,ij->i", d, d))
+    u = d / r[:, None]
+    var = sig2 if station_cov_m2 is None else sig2 + np.einsum("mi,mij,mj->m", u, station_cov_m2, u)
+    return r, u, var
+
+
+def _one_run_step(H: np.ndarray, WH: np.ndarray, Wdz: np.ndarray, max_step_m: float) -> np.ndarray:
+    """One run's trust-region Gauss-Newton step (k,) from ``H`` (d, k), ``W H`` and ``W dz``: the
+    normal equations of :func:`_solve_normal` (same damping) and :func:`_limit`."""
+    N = H.T @ WH
+    N = 0.5 * (N + N.T)
+    N = N + 1e-9 * np.trace(N) * np.eye(N.shape[0])
+    g = H.T @ Wdz
+    try:
+        dx = chol_solve(N, g[:, None])[:, 0]
+    except np.linalg.LinAlgError:
+        dx = np.linalg.lstsq(N, g, rcond=None)[0]
+    nrm = float(np.linalg.norm(dx[:3]))
+    return dx * min(1.0, max_step_m / max(nrm, 1e-300))
+
+
+def _lsq_pr_one(rho_m, stations_m, x0, var_m2, station_cov_m2, iters, tol_m, floor_z_m, max_step_m):
+    """:func:`lsq_pr` for one run: rho_m (m,), x0 (4,); returns (4,). The same iteration with fewer,
+    smaller array operations (results agree to rounding)."""
+    x = np.array(x0, dtype=float)
+    sig2 = np.broadcast_to(np.asarray(var_m2, dtype=float), (stations_m.shape[0],))
+    H = np.ones((stations_m.shape[0], 4))
+    for _ in range(iters):
+        r, u, var = _one_run_weights(x[:3], stations_m, station_cov_m2, sig2)
+        H[:, :3] = u
+        dx = _one_run_step(H, H / var[:, None], (rho_m - r - x[3]) / var, max_step_m)
+        x = x + dx
+        if floor_z_m is not None and x[2] < floor_z_m:
+            x[2] = 2.0 * floor_z_m - x[2]
+        if np.all(np.abs(dx) < tol_m):
+            break
+    return x
+
+
+def _lsq_tdoa_one(rho_m, stations_m, x0, var_m2, station_cov_m2, base, iters, tol_m, floor_z_m, max_step_m):
+    """:func:`lsq_tdoa` for one run: rho_m (m,), x0 (3,); returns (3,). Differences against ``base``
+    weighted with ``(G R G^T)^-1`` as there, ``G R G^T = diag(var_j) + var_base`` (j != base)."""
+    x = np.array(x0, dtype=float)
+    m = stations_m.shape[0]
+    others = np.flatnonzero(np.arange(m) != base)
+    z = rho_m[others] - rho_m[base]
+    sig2 = np.broadcast_to(np.asarray(var_m2, dtype=float), (m,))
+    for _ in range(iters):
+        r, u, var = _one_run_weights(x, stations_m, station_cov_m2, sig2)
+        H = u[others] - u[base]
+        S = np.diag(var[others]) + var[base]
+        SiHdz = chol_solve(S, np.column_stack([H, z - (r[others] - r[base])]))
+        dx = _one_run_step(H, SiHdz[:, :3], SiHdz[:, 3], max_step_m)
+        x = x + dx
+        if floor_z_m is not None and x[2] < floor_z_m:
+            x[2] = 2.0 * floor_z_m - x[2]
+        if np.all(np.abs(dx) < tol_m):
+            break
+    return x
+
+
 def mirror_above(x: np.ndarray, floor_z_m: float | None, vel: bool = False) -> np.ndarray:
     """Reflect states whose height is below ``floor_z_m`` (the station plane) to its mirror image.
 
@@ -70,8 +137,11 @@ def lsq_pr(
 
     Returns
     -------
-    x : (M, 4) estimates ``[x y z b]``.
+    x : (M, 4) estimates ``[x y z b]``. One run (rho_m (m,), x0 (4,)) returns (4,).
     """
+    if np.ndim(x0) == 1 and np.ndim(rho_m) == 1:
+        return _lsq_pr_one(np.asarray(rho_m, dtype=float), stations_m, x0, var_m2, station_cov_m2, iters, tol_m,
+                           floor_z_m, max_step_m)
     x = np.array(x0, dtype=float)
     sigma = np.sqrt(np.broadcast_to(var_m2, (stations_m.shape[0],)))
     for _ in range(iters):
@@ -95,7 +165,11 @@ def lsq_tdoa(
     """Iterative range-difference LSQ weighted with ``(G R G^T)^-1`` (seed 001 eqs. 14, 17, 18).
 
     rho_m : (M, m) pseudoranges (differenced here against ``base``); x0 : (M, 3). Returns (M, 3).
+    One run (rho_m (m,), x0 (3,)) returns (3,).
     """
+    if np.ndim(x0) == 1 and np.ndim(rho_m) == 1:
+        return _lsq_tdoa_one(np.asarray(rho_m, dtype=float), stations_m, x0, var_m2, station_cov_m2, base, iters,
+                             tol_m, floor_z_m, max_step_m)
     x = np.array(x0, dtype=float)
     m = stations_m.shape[0]
     G = mdl.g_matrix(m, base)
