@@ -75,7 +75,7 @@ class ReceiverConfig:
     floor_lost_sigma: float | None = 5.0
     start_station_sigma_m: float = 3.0
     start_wait_s: float = 10.0
-    lsq_restart_s: float | None = 1.0
+    lsq_restart_s: float | None = 1.5
 
 
 def broadcast_sigma_m(clock_var_m2: float, station_cov_m2: np.ndarray | None) -> float:
