@@ -285,8 +285,14 @@ class AircraftEstimator:
         where it is still a snapshot; otherwise the fix without the motion, about which the start is
         the wide prior (:func:`.initializer.initial_state`): weighted with the motion, a small array's
         far-field fix spreads over kilometres and the wide prior would take that spread
-        (docs/aircraft.md, receiver rule 2)."""
+        (docs/aircraft.md, receiver rule 2). An LSQ restarting (it has had a fix) from a batch without
+        redundancy (at most 4 stations) takes the fix without the motion at once: the weights do not
+        move an exactly determined batch's root, and whether that root is a snapshot (what the motion
+        weights are for) decides nothing for it any more (it does not defer; each batch's published
+        covariance is judged by :meth:`_fix_cov`)."""
         tu = self.cfg.tuning
+        if self.method == "lsq" and self._anchor is not None and len(rho) <= 4:
+            return initial_state(self.model, tu, pos, cov, rho, self.cfg.init)
         init = initial_state(self.model, tu, pos, cov_snap, rho, self.cfg.init)
         if init.snapshot or cov_snap is cov:
             return init
