@@ -336,8 +336,10 @@ def test_a_far_field_lsq_without_redundancy_reports_what_it_can_defend(algo):
     wide prior's covariance instead: mean NEES of its estimates at most the 3-dof chi-square's 99.9 %
     point of one value (16.3), where the batches' own covariances give a median NEES in the hundreds
     on the same estimates (mean 1e5: docs/aircraft.md, "seed001's far field")."""
-    # 30-45 s of the turn: 104-106 estimates, median NEES of the batches' own covariances 224-268
-    # (the LSQ restarts from the broadcasts there several times a second: each flown second costs ~1 s)
+    # 30-45 s of the turn: 145 / 115 estimates (lsq-pr / lsq-tdoa), mean NEES 0.43 / 0.35, median NEES of
+    # the batches' own covariances 346 / 148; ~3-4 s of CPU for the 45 s flown (the LSQ's restarts from
+    # the broadcasts rationed, ReceiverConfig.lsq_restart_s; before, 104-108 estimates and ~1 s of CPU
+    # per second flown: docs/aircraft.md, "A runaway warm start is dropped")
     rows = list(_lsq_far_field(algo, 45.0, np.random.default_rng(1)))
     assert len(rows) >= 100, len(rows)
     nees = np.array([e @ np.linalg.solve(P, e) for e, P, _ in rows])
