@@ -347,6 +347,26 @@ def test_a_far_field_lsq_without_redundancy_reports_what_it_can_defend(algo):
     assert nees.mean() <= 16.3, (nees.mean(), np.median(nees))
     assert np.median(own) > 100.0, np.median(own)
 
+@pytest.mark.parametrize("algo", ["lsq-pr", "lsq-tdoa"])
+def test_a_far_field_lsq_rations_its_restarts_from_the_broadcasts(algo, monkeypatch):
+    """Receiver rule 4's restarts (ReceiverConfig.lsq_restart_s): in seed001's far field the warm chain
+    is dropped more than once a second; it starts from the broadcasts (a multi-start) at most once per
+    1.5 s and otherwise warm from that multi-start's fix, so its multi-starts stay within the first
+    start's (up to 5 batches, two each) plus one per 1.5 s, while estimates keep coming (the old code:
+    ~22 multi-starts a second, docs/aircraft.md "Its restarts are rationed")."""
+    from aircraft.navigator.radio import estimator as E
+
+    calls = []
+    real = E.initial_state
+    monkeypatch.setattr(E, "initial_state", lambda *a, **k: calls.append(1) or real(*a, **k))
+    seconds = 12.0
+    rows = list(_far_field_estimates(algo, seconds, np.random.default_rng(3)))
+    est = rows[-1][2]
+    assert est.stats["lsq_runaway"] >= seconds, dict(est.stats)  # dropped more than once a second
+    assert len(calls) <= 10 + int(seconds / 1.5) + 1, (len(calls), dict(est.stats))
+    assert len(rows) >= 10 * seconds, len(rows)
+
+
 def test_an_lsq_with_redundancy_keeps_its_own_covariance():
     """The eight stations of this module's field 1.5 km out: every batch defends its fix, and the
     published covariance is the batch's own ``(H^T W H)^-1`` to the bit."""
