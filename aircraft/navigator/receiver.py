@@ -64,8 +64,9 @@ class ReceiverConfig:
     (rule 3; None: not tested); ``start_station_sigma_m`` / ``start_wait_s``: the start's survey level
     and longest wait (rule 5); ``lsq_restart_s``: a snapshot LSQ whose fix rule 4 dropped starts from
     the broadcasts again (multi-start) at most once in this time; in between it starts from that
-    multi-start's fix (None: every drop restarts from the broadcasts; docs/aircraft.md, "A runaway
-    warm start is dropped")."""
+    multi-start's fix (None: every drop restarts from the broadcasts); ``lsq_retry_s``: where that
+    fix was itself not publishable (no anchor), the next multi-start after this time, the batches
+    between waiting (docs/aircraft.md, "Its restarts are rationed")."""
 
     max_broadcast_sigma_m: float = 30.0
     p_start: float = 1e-3
@@ -76,6 +77,7 @@ class ReceiverConfig:
     start_station_sigma_m: float = 3.0
     start_wait_s: float = 10.0
     lsq_restart_s: float | None = 1.5
+    lsq_retry_s: float = 0.5
 
 
 def broadcast_sigma_m(clock_var_m2: float, station_cov_m2: np.ndarray | None) -> float:

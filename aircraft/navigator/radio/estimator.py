@@ -79,8 +79,10 @@ class AircraftEstimator:
         self.init = None  # the InitResult of the latest start (broadcast initializer)
         # snapshot LSQ: (t_s, fix) of its latest start from the broadcasts, and the fix a dropped one
         # restarts from at the next batch (receiver rule 4, ReceiverConfig.lsq_restart_s)
-        self._anchor: tuple[float, np.ndarray] | None = None
+        # (the anchor also says whether that fix was publishable; ``_wait_until_s``: no multi-start before)
+        self._anchor: tuple[float, np.ndarray, bool] | None = None
         self._restart_from: np.ndarray | None = None
+        self._wait_until_s: float | None = None
         self.fde = None if self.cfg.fde is None else FilterFde(self.cfg.fde)
         rcfg = self.cfg.receiver
         self.monitor = None if rcfg is None else rx.DivergenceMonitor(rcfg)
@@ -257,6 +259,9 @@ class AircraftEstimator:
         if self.fix is None and self._restart_from is not None:  # LSQ: warm again from its anchor
             self.fix, self._restart_from = self._restart_from, None
             self.stats["lsq_anchor_restart"] += 1
+        elif self.fix is None and self._wait_until_s is not None and t_s < self._wait_until_s:
+            self.stats["lsq_restart_wait"] += 1  # the latest multi-start was not publishable: retry later
+            return
         if self.cfg.guess_sigma_m is None and (self.fix is None or self.method != "lsq"):
             self._start_from_broadcasts(t_s, pos, cov, cov_snap, rho)
             return
@@ -330,7 +335,8 @@ class AircraftEstimator:
         self.n_updates += 1
         self.status = rx.TRACKING
         if self.method == "lsq":
-            self._anchor = (t_s, self.fix.copy())
+            self._anchor = (t_s, self.fix.copy(), rx.publishable(self.fix[:3], self._fix_cov(), self.cfg.receiver
+                                                                 or rx.DEFAULT_RECEIVER))
         else:
             self.tracker = CvTracker(self.method, self.model, init.x0, tu, t0_s=t_s, P0=init.P0,
                                      ref_m=crd.reference_point(pos),
@@ -365,9 +371,14 @@ class AircraftEstimator:
         if not rx.publishable(self.fix[:3], C, self.cfg.receiver):
             self.stats["lsq_runaway"] += 1
             self.fix = None
-            every = self.cfg.receiver.lsq_restart_s
-            if every is not None and self._anchor is not None and self.t_s - self._anchor[0] < every:
-                self._restart_from = self._anchor[1].copy()
+            every, retry = self.cfg.receiver.lsq_restart_s, self.cfg.receiver.lsq_retry_s
+            if every is None or self._anchor is None:
+                return
+            t_a, fix_a, usable = self._anchor
+            if usable and self.t_s - t_a < every:
+                self._restart_from = fix_a.copy()
+            elif not usable:  # no anchor: the next multi-start after retry_s (far beyond the bar)
+                self._wait_until_s = t_a + retry
 
     def _fix_cov(self) -> list | None:
         """The LSQ fix's position covariance (3 x 3 list; None where ``(H^T W H)`` is singular): its own
