@@ -77,9 +77,9 @@ class AircraftEstimator:
         self.n_deferred = 0  # batches set aside in a row at the start (InitConfig.defer_batches)
         self.t_first_batch_s: float | None = None  # the first batch that could start a filter (rule 5)
         self.init = None  # the InitResult of the latest start (broadcast initializer)
-        # snapshot LSQ: (t_s, fix) of its latest start from the broadcasts, and the fix a dropped one
-        # restarts from at the next batch (receiver rule 4, ReceiverConfig.lsq_restart_s)
-        # (the anchor also says whether that fix was publishable; ``_wait_until_s``: no multi-start before)
+        # snapshot LSQ (receiver rule 4, ReceiverConfig.lsq_restart_s / lsq_retry_s): (t_s, fix,
+        # publishable) of its latest start from the broadcasts (the anchor), the fix a dropped one
+        # restarts from at the next batch, and the time before which it starts from nothing
         self._anchor: tuple[float, np.ndarray, bool] | None = None
         self._restart_from: np.ndarray | None = None
         self._wait_until_s: float | None = None
@@ -362,9 +362,10 @@ class AircraftEstimator:
         off along it, batch by batch, to hundreds of kilometres, with a covariance that says so: a fix
         that is not publishable is dropped, and the next batch starts from the broadcasts again
         (multi-start, as the first), or, within ``ReceiverConfig.lsq_restart_s`` of the latest
-        multi-start, warm from that multi-start's fix: in that far field the warm chain is dropped
-        every few tenths of a second, and a multi-start each time cost about a second of CPU per
-        second of flight (docs/aircraft.md, "A runaway warm start is dropped")."""
+        multi-start, warm from that multi-start's fix; where that fix was not publishable itself, the
+        batches wait ``lsq_retry_s`` after it for the next multi-start. In that far field the warm chain
+        is dropped every few tenths of a second, and a multi-start each time cost about a second of CPU
+        per second of flight (docs/aircraft.md, "Its restarts are rationed")."""
         if self.cfg.receiver is None or self.fix is None:
             return
         C = self._fix_cov()
