@@ -206,6 +206,7 @@ TABLE: dict[str, Run | Skip] = {
     "./dev bench speed --speeds 1,2,5,10": Skip(BENCH),
     "./dev bench wire --compare --json wire.json": Skip(BENCH),
     "larns bench wire --compare --speed 0.5 --duration 30 --json bench-out/wire.json --png-dir bench-out/wire": Skip(BENCH),
+    "larns bench speed --scenario docs/scenarios/field40.toml --worlds 1 --speeds 0.5 --duration 120 --json bench-out/field40-speed.json --png-dir bench-out/field40": Skip(BENCH),
     "larns bench survey --scenario seed003-radio --stations 8 --sigma-d 0.9 --estimator dmap --trials 20": Skip(BENCH),
     "larns bench survey --scenario field.toml --estimator dmap --sigma-d 0.9 --trials 2 --duration 300": Skip(BENCH),
     "larns bench sync --scenario seed003-radio --stations 8 --sigma-d 0.9 --trials 20": Skip(BENCH),

@@ -32,3 +32,9 @@ def test_summary_ratios_and_counters():
     assert math.isclose(rows[1]["ratio_sim"], rows[1]["rms_h_m"] / math.sqrt((0.3**2 + 0.4**2) / 2))
     assert not rows[1]["within_20pct"]
     assert rows[1]["lost"] == 4 and rows[1]["updates_min"] == 59
+    # without a run at speed 1 the simulator alone is the reference (a slow host's field: --speeds 0.5)
+    slow = [dict(r, speed=0.5) for r in runs[:2]]
+    (row,) = summarize(slow, {"world1": 0.3, "world2": 0.4}, [0.5])
+    assert row["ratio_speed1"] is None and row["within_20pct"]
+    (row,) = summarize(slow, {"world1": 0.2, "world2": 0.3}, [0.5])
+    assert not row["within_20pct"]
