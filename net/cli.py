@@ -173,17 +173,19 @@ def serve(args: argparse.Namespace, bus: Any, make_node: Callable[[], Any],
         closed = bus.close()
     if args.report_json:
         print(json.dumps(rep), flush=True)
-    if closed is False:  # the process entry points exit at once (exit_process): its data is out
-        global EXIT_AT_ONCE
-        EXIT_AT_ONCE = True
+    # the node's work is done and its data out (journal flushed, session closed or given up, report
+    # printed): the process entry point exits at once (exit_process), whether or not the close hung
+    global EXIT_AT_ONCE
+    EXIT_AT_ONCE = True
     return rep
 
 
 # exit without the interpreter's finalization (exit_process): set where a Zenoh session did not close in
-# time (net.bus.Bus.close; its thread would keep a stopped process alive), and by short commands whose
-# work is done once their session is closed: a Zenoh thread that calls into Python while the interpreter
-# finalizes aborts the process ("FATAL: exception not rethrown", exit 134), seen with `larns keys revoke
-# --publish` after it had published
+# time (net.bus.Bus.close; its thread would keep a stopped process alive), and by every process whose
+# work is done once its session is closed (the nodes of serve, the recorder once its file is finished,
+# short commands): a Zenoh thread that calls into Python while the interpreter finalizes aborts the
+# process ("FATAL: exception not rethrown", exit 134), seen with `larns keys revoke --publish` after it
+# had published and with recorders after their file was complete
 EXIT_AT_ONCE = False
 
 

@@ -205,10 +205,7 @@ def run_recorder(out: str, bus_kw: dict, keyexpr: str = "larns/**", duration_s: 
     except LogWriteError as e:  # full disk: the writer finished the file with what it had
         failed = e
     finally:
-        if not bus.close():  # a hung Zenoh close: the entry point exits at once once the file is done
-            import net.cli
-
-            net.cli.EXIT_AT_ONCE = True
+        bus.close()  # (a hung close too: the entry point exits at once once the file is done, below)
         try:
             while failed is None:  # whatever arrived before the session closed
                 try:
@@ -219,6 +216,9 @@ def run_recorder(out: str, bus_kw: dict, keyexpr: str = "larns/**", duration_s: 
             sink.finish()
         except LogWriteError as e:
             failed = e
+    import net.cli
+
+    net.cli.EXIT_AT_ONCE = True  # the file is finished: nothing is left for the interpreter's finalization
     stats = {"file": out, "messages": sink.count, "bytes": sink.bytes, "channels": len(sink.channels),
              "queue_dropped": q.dropped, "refused_keys": sink.refused_keys}
     if failed is not None:
