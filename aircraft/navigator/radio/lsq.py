@@ -65,44 +65,49 @@ def _one_run_step(H: np.ndarray, WH: np.ndarray, Wdz: np.ndarray, max_step_m: fl
     return dx * min(1.0, max_step_m / max(nrm, 1e-300))
 
 
-def _lsq_pr_one(rho_m, stations_m, x0, var_m2, station_cov_m2, iters, tol_m, floor_z_m, max_step_m):
-    """:func:`lsq_pr` for one run: rho_m (m,), x0 (4,); returns (4,). The same iteration with fewer,
-    smaller array operations (results agree to rounding)."""
-    x = np.array(x0, dtype=float)
-    sig2 = np.broadcast_to(np.asarray(var_m2, dtype=float), (stations_m.shape[0],))
-    H = np.ones((stations_m.shape[0], 4))
+def _iterate_one(x: np.ndarray, step, iters: int, tol_m: float, floor_z_m: float | None) -> np.ndarray:
+    """The one-run Gauss-Newton loop: ``x += step(x)``, the height mirrored above ``floor_z_m``, until
+    every component of the step is below ``tol_m`` or after ``iters`` steps."""
     for _ in range(iters):
-        r, u, var = _one_run_weights(x[:3], stations_m, station_cov_m2, sig2)
-        H[:, :3] = u
-        dx = _one_run_step(H, H / var[:, None], (rho_m - r - x[3]) / var, max_step_m)
+        dx = step(x)
         x = x + dx
         if floor_z_m is not None and x[2] < floor_z_m:
             x[2] = 2.0 * floor_z_m - x[2]
         if np.all(np.abs(dx) < tol_m):
             break
     return x
+
+
+def _lsq_pr_one(rho_m, stations_m, x0, var_m2, station_cov_m2, iters, tol_m, floor_z_m, max_step_m):
+    """:func:`lsq_pr` for one run: rho_m (m,), x0 (4,); returns (4,). The same iteration with fewer,
+    smaller array operations (results agree to rounding)."""
+    sig2 = np.broadcast_to(np.asarray(var_m2, dtype=float), (stations_m.shape[0],))
+    H = np.ones((stations_m.shape[0], 4))
+
+    def step(x):
+        r, u, var = _one_run_weights(x[:3], stations_m, station_cov_m2, sig2)
+        H[:, :3] = u
+        return _one_run_step(H, H / var[:, None], (rho_m - r - x[3]) / var, max_step_m)
+
+    return _iterate_one(np.array(x0, dtype=float), step, iters, tol_m, floor_z_m)
 
 
 def _lsq_tdoa_one(rho_m, stations_m, x0, var_m2, station_cov_m2, base, iters, tol_m, floor_z_m, max_step_m):
     """:func:`lsq_tdoa` for one run: rho_m (m,), x0 (3,); returns (3,). Differences against ``base``
     weighted with ``(G R G^T)^-1`` as there, ``G R G^T = diag(var_j) + var_base`` (j != base)."""
-    x = np.array(x0, dtype=float)
     m = stations_m.shape[0]
     others = np.flatnonzero(np.arange(m) != base)
     z = rho_m[others] - rho_m[base]
     sig2 = np.broadcast_to(np.asarray(var_m2, dtype=float), (m,))
-    for _ in range(iters):
+
+    def step(x):
         r, u, var = _one_run_weights(x, stations_m, station_cov_m2, sig2)
         H = u[others] - u[base]
         S = np.diag(var[others]) + var[base]
         SiHdz = chol_solve(S, np.column_stack([H, z - (r[others] - r[base])]))
-        dx = _one_run_step(H, SiHdz[:, :3], SiHdz[:, 3], max_step_m)
-        x = x + dx
-        if floor_z_m is not None and x[2] < floor_z_m:
-            x[2] = 2.0 * floor_z_m - x[2]
-        if np.all(np.abs(dx) < tol_m):
-            break
-    return x
+        return _one_run_step(H, SiHdz[:, :3], SiHdz[:, 3], max_step_m)
+
+    return _iterate_one(np.array(x0, dtype=float), step, iters, tol_m, floor_z_m)
 
 
 def mirror_above(x: np.ndarray, floor_z_m: float | None, vel: bool = False) -> np.ndarray:
