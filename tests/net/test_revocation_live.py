@@ -80,7 +80,7 @@ def test_revoked_station_dropped_within_one_cycle_of_the_list(tmp_path, topology
     ids = [1, 2, 3, 5]
     ports = dict(zip([*ids, "router"], free_tcp_ports(len(ids) + 1)))
     epoch = time.time() + 6.0
-    dur, t_revoke = 30.0, 14.0
+    dur, t_revoke = 24.0, 14.0
     router = None
     if topology == "router":
         router = subprocess.Popen([PY, "-m", "larns", "router", "--secure", str(ks), "--scenario", "seed000",
