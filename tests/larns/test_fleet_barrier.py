@@ -27,11 +27,9 @@ def _child(name: str, epoch_file, script: str) -> Child:
     return c
 
 
-def _ready_after(delay_s: float, epoch_file, wait: bool = True) -> str:
+def _ready_after(delay_s: float, epoch_file) -> str:
     """A child script: up after ``delay_s`` (the ready mark of net/cli.await_epoch), then it waits for
-    the epoch file and exits 0 (or exits 3 at once without saying it is up: ``wait`` False)."""
-    if not wait:
-        return f"import time, sys; time.sleep({delay_s}); sys.exit(3)"
+    the epoch file and exits 0."""
     return (f"import os, time, pathlib; time.sleep({delay_s}); "
             f"pathlib.Path('{epoch_file}.ready.' + str(os.getpid())).touch(); "
             f"[time.sleep(0.01) for _ in range(1000) if not pathlib.Path('{epoch_file}').exists()]")
@@ -50,9 +48,16 @@ def test_epoch_is_fixed_after_the_slowest_process_is_up(tmp_path):
     assert [c.proc.wait(10) for c in kids] == [0, 0]  # both read the epoch and ended
 
 
+def _dies_once_another_is_up(epoch_file) -> str:
+    """A child script that exits 3 without saying it is up, once another child has said so (on a
+    loaded host a fixed delay let it die first, and the barrier rightly stopped with both late)."""
+    return (f"import glob, sys, time; [time.sleep(0.01) for _ in range(1000) "
+            f"if not glob.glob('{epoch_file}.ready.*')]; sys.exit(3)")
+
+
 def test_a_process_that_dies_before_it_is_up_does_not_hold_the_field(tmp_path):
     f = tmp_path / "epoch"
-    kids = [_child("ok", f, _ready_after(0.1, f)), _child("dies", f, _ready_after(0.3, f, wait=False))]
+    kids = [_child("ok", f, _ready_after(0.1, f)), _child("dies", f, _dies_once_another_is_up(f))]
     t0 = time.time()
     epoch, late = start_barrier(kids, f, threading.Event(), timeout_s=60.0, lead_s=0.2)
     assert time.time() - t0 < 10.0 and late == ["dies"]
