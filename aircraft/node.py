@@ -8,7 +8,10 @@ stations' nav broadcasts, hands each to the core and publishes what the core ret
   position and transmit time), its navigator and its journal.
 * **time**: fleet time ``t = (wall - epoch) * speed`` like the stations (same ``--epoch``); the core
   is ticked ``lag_s`` (x speed) behind it between broadcasts (an inertial core integrates its IMU there).
-* **receive**: ``larns/station/*/nav/**`` -> strict decode (malformed: counted and dropped) -> key/src
+* **receive**: ``larns/station/*/nav/**`` into a Zenoh ring buffer drained once per TDMA cycle (a
+  nav's timing comes from its ``phy``, not from when it is read: batches keep the process from waking
+  and switching threads for every broadcast; a bus without ring buffers: one callback per nav into
+  a bounded inbox) -> strict decode (malformed: counted and dropped) -> key/src
   check -> the named sender's true position and transmit time from the scenario's truth, never the
   sender's ``phy`` claims (``net.channel.UserIntake``) -> ``core.on_nav``.
 * **publish**: ``larns/aircraft/<name>/estimate/<algo>`` (``ac_estimate``) after every update and
@@ -82,6 +85,9 @@ class AircraftNode:
         self.drops = M.DropCounter(f"aircraft {opts.name}")
         # bounded, drop-oldest (net/queues.py): a flood of samples costs old ones, never memory
         self._inbox = DropOldestQueue(INBOX_MAX)
+        self._ring = None  # the navs' Zenoh ring buffer (run), when the bus has them
+        # wall seconds between drains of the ring: one TDMA cycle, at most the core's own step
+        self._drain_s = min(float(self.core.step_s), float(scn.tdma.cycle_s) / opts.speed)
         self._stop = threading.Event()
         self._last_status = -math.inf
         # (key, bytes) -> (msg, phy); --secure: rate limit, signature, replay first (net/security.py)
@@ -99,6 +105,17 @@ class AircraftNode:
 
     def _on_bytes(self, key: str, data: bytes) -> None:
         self._inbox.put((key, data))
+
+    def _next_navs(self) -> list:
+        """The navs received since the last call: the ring's batch after a wait of one drain period
+        (the loop's pace), or the inbox's next sample (waits up to ``core.step_s``; none: empty)."""
+        if self._ring is not None:
+            self._stop.wait(self._drain_s)
+            return self.bus.drain(self._ring)
+        try:
+            return [self._inbox.get(timeout=self.core.step_s)]
+        except queue.Empty:
+            return []
 
     def _ingest(self, key: str, data: bytes) -> None:
         got = self.intake.take(key, data, self.fleet_now())
@@ -142,7 +159,10 @@ class AircraftNode:
                   flush=True)
 
     def run(self) -> dict:
-        self.bus.subscribe("larns/station/*/nav/**", self._on_bytes)
+        if hasattr(self.bus, "subscribe_ring"):
+            self._ring = self.bus.subscribe_ring("larns/station/*/nav/**", INBOX_MAX)
+        else:  # a bus without ring buffers (tests' fakes): one callback per nav
+            self.bus.subscribe("larns/station/*/nav/**", self._on_bytes)
         self.bus.declare_token(self.M.alive_key("aircraft", self.opts.name))
         end = math.inf if self.opts.duration_s is None else self.opts.duration_s
         if not self.opts.quiet:
@@ -157,16 +177,15 @@ class AircraftNode:
             self._status(t)
             try:
                 self._publish(self.core.tick(t - lag))
-                item = self._inbox.get(timeout=self.core.step_s)
-            except queue.Empty:
-                continue
+                items = self._next_navs()
             except Exception as e:  # the loop survives any core failure (counted, logged at a limited rate)
                 self.drops.drop("core", type(e).__name__)
                 continue
-            try:
-                self._ingest(*item)
-            except Exception as e:
-                self.drops.drop("core", type(e).__name__)
+            for item in items:
+                try:
+                    self._ingest(*item)
+                except Exception as e:
+                    self.drops.drop("core", type(e).__name__)
         self._publish(self._journal_msgs(close=True))  # the last journal entries
         return self.report()
 
