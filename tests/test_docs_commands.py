@@ -374,6 +374,7 @@ TABLE: dict[str, Run | Skip] = {
     "larns bench survey --trials 20": Skip(BENCH),
     "larns reestimate --algo": Skip(MENTION, concrete=False),
     "larns reestimate --check": Skip(MENTION, concrete=False),
+    "larns fleet --scenario s1.toml --duration 0": Skip(MENTION + "; s1.toml is the measurement's scratch copy of seed001", concrete=False),
     "larns reestimate --stations 99 -o": Skip(MENTION, concrete=False),
     "larns aircraft --scenario S --algo ekf-tdoa --epoch $(date +%s) --duration 3600 --listen tcp/127.0.0.1:7500 &": Skip(MANUAL + "; S is a placeholder", concrete=False),
     "larns replay run.mcap --topics 'larns/station/*/nav/**' --connect tcp/127.0.0.1:7500 --wait-for 'larns/alive/aircraft/*'": Skip(MANUAL + " (waits for the aircraft of the line above)"),
