@@ -102,14 +102,15 @@ def trial(job: tuple) -> dict:
     main_cycles = max(int(math.ceil(duration_s / cycle_s)), 2)
     start = np.concatenate([np.zeros(n, int), main_cycles + JOIN_WINDOW_CYCLES * np.arange(joiners)])
     res = simulate_graph(adj_all, SlotConfig(C), main_cycles + JOIN_WINDOW_CYCLES * joiners, rng, start)
-    return _score(res, adj_all, n, start, main_cycles, C, slot_s) | {
+    return _score(res, adj_all, n, start, main_cycles, cycle_s) | {
         "seed": seed, "graph": asdict(stats), "cycle_slots": C, "cycle_s": cycle_s, "pos_m": pos[:, :2].tolist()}
 
 
-def _score(res, adj_all, n: int, start: np.ndarray, main_cycles: int, C: int, slot_s: float) -> dict:
+def _score(res, adj_all, n: int, start: np.ndarray, main_cycles: int, cycle_s: float) -> dict:
+    """The figures of one run sampled once per cycle of ``cycle_s`` (a scenario's cycle may be longer
+    than its assigned slots: ``[tdma] cycle_slots`` of ``slot_s`` at its start)."""
     from stations.slotsim import converged_cycle, hold_cycle, two_hop
 
-    cycle_s = C * slot_s
     last = res.slot[main_cycles - 1, :n]
     held = last[last >= 0]
     used = int(held.max()) + 1 if held.size else 0
@@ -310,7 +311,7 @@ def station_trial(path: str, duration_s: float, fixed: bool = False) -> dict:
                                              for c in range(T)]),
                     unassigned=(on & (slot < 0)).sum(1), collided_tx=coll, tx=(slot >= 0).sum(1), slot=slot, cores=[])
     # (the fixed plan is sampled on the distributed cycle's clock too: only its survey is compared)
-    out = {} if fixed else _score(res, adj, n, start, main_cycles, C, slot_s)
+    out = {} if fixed else _score(res, adj, n, start, main_cycles, cycle_s)
     err = np.linalg.norm((r.pos_m[0] - r.truth_m)[:n, :2], axis=1)
     return out | {"seed": scn.seed, "graph": asdict(graph_stats(adj[:n, :n])), "cycle_slots": C if not fixed else len(scn.ids),
                   "cycle_s": scn.tdma.cycle_s, "pos_m": scn.pos_m[:, :2].tolist(), "plan": "fixed" if fixed else "distributed",
@@ -322,6 +323,8 @@ def station_trial(path: str, duration_s: float, fixed: bool = False) -> dict:
 
 
 def main_scenario(args) -> int:
+    from net.scenario import load
+
     t0 = time.perf_counter()
     trials = [station_trial(args.scenario, args.duration)]
     if args.compare_fixed:
@@ -329,7 +332,7 @@ def main_scenario(args) -> int:
     res = summarize(trials[:1], {"layout": f"scenario {args.scenario} (station simulator)", "stations": len(trials[0]["slot_end"]),
                                  "trial_count": 1, "tx_power_dbm": trials[0]["tx_power_dbm"],
                                  "antenna_height_m": trials[0]["antenna_height_m"],
-                                 "slot_s": trials[0]["cycle_s"] / trials[0]["cycle_slots"], "duration_s": args.duration,
+                                 "slot_s": load(args.scenario).tdma.slot_s, "duration_s": args.duration,
                                  "joiners": len(trials[0]["joiner_hold_cycles"])})
     res["wall_s"] = time.perf_counter() - t0
     res["fixed"] = trials[1] if args.compare_fixed else None

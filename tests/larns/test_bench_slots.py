@@ -52,7 +52,7 @@ founders_within_m = 3000.0
 [radio]
 tx_power_dbm = -5.0
 [tdma]
-cycle_s = 0.12
+cycle_s = 0.24
 slot_s = 0.01
 assignment = "distributed"
 cycle_slots = 12
@@ -74,6 +74,9 @@ def test_bench_slots_on_a_scenario_runs_the_station_simulator(tmp_path):
     t = res["trials"][0]
     assert t["plan"] == "distributed" and t["cycle_slots"] == 12 and t["conflict_pairs_end"] == 0
     assert t["converged_cycle"] is not None and t["unassigned_end"] == 0
+    # 12 slots of 10 ms at the start of a 0.24 s cycle: times in cycles of the scenario's length
+    assert t["cycle_s"] == 0.24 and abs(t["converged_s"] - 0.24 * t["converged_cycle"]) < 1e-9
+    assert res["slot_s"] == 0.01 and "slot=10 ms" in r.stdout
     assert len(t["joiner_hold_cycles"]) == 1 and t["joiner_hold_cycles"][0] is not None
     assert res["fixed"]["plan"] == "fixed" and res["fixed"]["ranges"] > 0
     assert "fixed plan:" in r.stdout and "distributed plan:" in r.stdout
