@@ -83,7 +83,6 @@ def user_errors() -> tuple[type[Exception], ...]:
     return (ScenarioError, KeystoreError)
 
 
-
 def entry() -> None:
     """The ``larns`` console script and ``python -m larns``: :func:`main`, then
     :func:`net.cli.exit_process` (which skips the interpreter's finalization where a command asked

@@ -32,6 +32,8 @@ from functools import lru_cache
 
 import numpy as np
 
+from nav.spd3 import chol3
+
 DAY_S = 86400.0
 
 
@@ -90,16 +92,7 @@ def cholesky3_ok(a) -> bool:
 
 def _chol3_ok(d0: float, a10: float, a20: float, a11: float, a21: float, a22: float) -> bool:
     """:func:`cholesky3_ok` on the lower triangle's six floats."""
-    if not d0 > 0.0:
-        return False
-    l0 = math.sqrt(d0)
-    l10, l20 = a10 / l0, a20 / l0
-    d1 = a11 - l10 * l10
-    if not d1 > 0.0:
-        return False
-    l1 = math.sqrt(d1)
-    l21 = (a21 - l20 * l10) / l1
-    return a22 - l20 * l20 - l21 * l21 > 0.0
+    return chol3(d0, a10, a20, a11, a21, a22) is not None
 
 
 def cov_ok(c, bound_m2: float) -> bool:

@@ -32,7 +32,6 @@ datum. A founder that (re)joins a running field is built free (``founder=False``
 
 from __future__ import annotations
 
-import math
 from typing import Protocol
 
 import numpy as np
@@ -40,6 +39,7 @@ from scipy.linalg.lapack import dpotrs, dtrtri
 
 from nav.geometry import frame_free_mask
 from nav.kalman import symmetrize, update
+from nav.spd3 import spd_solve3
 from nav.ut import SigmaParams, chol_lower, unscented_transform
 from net.radio import range_var_m2
 
@@ -203,41 +203,15 @@ def _spd_solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``A^-1 b`` for a symmetric positive definite ``A`` (n, n) and ``b`` (n,): Cholesky factor and
     triangular solves by LAPACK ``potrf`` / ``potrs`` (raises ``LinAlgError`` unless ``A`` is positive
     definite, like ``np.linalg.cholesky``)."""
-    if A.shape == (3, 3):
-        return np.array(_spd_solve3(A.tolist(), b.tolist()))
+    if A.shape == (3, 3):  # on Python floats (nav.spd3: the call costs exceed the arithmetic)
+        x = spd_solve3(A.tolist(), b.tolist())
+        if x is None:
+            raise np.linalg.LinAlgError("matrix is not positive definite")
+        return np.array(x)
     x, info = dpotrs(chol_lower(A), b, lower=1)
     if info != 0:
         raise np.linalg.LinAlgError(f"potrs info {info}")
     return x
-
-
-def _spd_solve3(A: list, b: list) -> list[float]:
-    """:func:`_spd_solve` of a 3 x 3 system on Python floats (``A`` (3, 3) and ``b`` (3,) as lists;
-    LAPACK's call cost dominates at this size): ``A = L L^T`` from ``A``'s lower triangle (as
-    ``potrf``), then ``L y = b`` and ``L^T x = y``. Raises ``LinAlgError`` unless ``A`` is positive
-    definite (a non-positive or non-finite pivot)."""
-    (a00, _, _), (a10, a11, _), (a20, a21, a22) = A
-    b0, b1, b2 = b
-    d0 = a00
-    if not d0 > 0.0:
-        raise np.linalg.LinAlgError("matrix is not positive definite")
-    l00 = math.sqrt(d0)
-    l10, l20 = a10 / l00, a20 / l00
-    d1 = a11 - l10 * l10
-    if not d1 > 0.0:
-        raise np.linalg.LinAlgError("matrix is not positive definite")
-    l11 = math.sqrt(d1)
-    l21 = (a21 - l20 * l10) / l11
-    d2 = a22 - l20 * l20 - l21 * l21
-    if not (d2 > 0.0 and math.isfinite(d2)):
-        raise np.linalg.LinAlgError("matrix is not positive definite")
-    l22 = math.sqrt(d2)
-    y0 = b0 / l00
-    y1 = (b1 - l10 * y0) / l11
-    y2 = (b2 - l20 * y0 - l21 * y1) / l22
-    x2 = y2 / l22
-    x1 = (y1 - l21 * x2) / l11
-    return [(y0 - l10 * x1 - l20 * x2) / l00, x1, x2]
 
 
 def _chol_inv_factor(A: np.ndarray) -> np.ndarray:

@@ -227,22 +227,22 @@ class StationNode:
         """Feed the navs waiting in the ring buffer through the normal receive path. The node lock
         is taken per nav, not for the whole batch: a range request or reply arriving meanwhile on
         a Zenoh thread gets in between two navs instead of waiting for the batch."""
-        self._last_drain = time.time()
-        batch = [kd for sub in self._nav_subs for kd in self.bus.drain(sub)]
-        for key, data in batch:
+        for key, data in self._ring_batch():
             with self._lock:
                 if self._stop.is_set():
                     return
                 self._ingest(time.time(), key, data)
                 if self._air_slots is None:
-                    now = time.time()
-                    while self._pending and self._pending[0][0] <= now:
-                        _, _, msg, phy = heapq.heappop(self._pending)
-                        self._deliver(msg, phy)
+                    self._deliver_due()
         if self._air_slots is not None:  # the whole batch noted before any nav of it is judged
             with self._lock:
                 if not self._stop.is_set():
                     self._deliver_due()
+
+    def _ring_batch(self) -> list:
+        """Every ``(key, bytes)`` waiting in the navs' ring buffers (the drain's time noted)."""
+        self._last_drain = time.time()
+        return [kd for sub in self._nav_subs for kd in self.bus.drain(sub)]
 
     def _deliver_due(self) -> None:
         """Hand the core every held message that is due (lock held). With the distributed assignment
@@ -251,8 +251,7 @@ class StationNode:
         if not self._pending or self._pending[0][0] > time.time():
             return
         if self._air_slots is not None:
-            self._last_drain = time.time()
-            for key, data in [kd for sub in self._nav_subs for kd in self.bus.drain(sub)]:
+            for key, data in self._ring_batch():
                 self._ingest(time.time(), key, data)
         now = time.time()
         while self._pending and self._pending[0][0] <= now:

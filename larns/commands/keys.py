@@ -41,6 +41,7 @@ import argparse
 import json
 import sys
 
+import net.cli
 from net.keystore import (DEFAULT_HOSTS, DEFAULT_RESERVE, VALID_DAYS, WritableKeystore,  # noqa: F401
                           add_to_keystore, init_keystore)
 from net.security import Keystore, KeystoreError
@@ -148,8 +149,6 @@ def _publish_crl(a: argparse.Namespace, ks) -> int:
         time.sleep(1.0)
     bus.close()
     print(f"[keys] revocation list published on the bus ({', '.join(a.connect)})", file=sys.stderr)
-    import net.cli
-
     net.cli.EXIT_AT_ONCE = True  # nothing left to do: no Zenoh thread may meet the interpreter's finalization
     return 0
 

@@ -29,6 +29,8 @@ import time
 from pathlib import Path
 from typing import Callable
 
+import net.cli
+
 log = logging.getLogger("larns.record")
 
 MESSAGE_ENCODING = "msgpack"
@@ -216,8 +218,6 @@ def run_recorder(out: str, bus_kw: dict, keyexpr: str = "larns/**", duration_s: 
             sink.finish()
         except LogWriteError as e:
             failed = e
-    import net.cli
-
     net.cli.EXIT_AT_ONCE = True  # the file is finished: nothing is left for the interpreter's finalization
     stats = {"file": out, "messages": sink.count, "bytes": sink.bytes, "channels": len(sink.channels),
              "queue_dropped": q.dropped, "refused_keys": sink.refused_keys}
