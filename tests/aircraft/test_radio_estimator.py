@@ -132,7 +132,8 @@ def test_start_waits_for_a_batch_with_redundancy():
             rho = np.linalg.norm(p_ac - st[i - 1]) + b_m + 0.5 * rng.standard_normal()
             est.on_measurement(t0 + 0.05 * k, i, st[i - 1] + err[i - 1], np.eye(3) * 0.09, rho)
 
-    no_hold = EstimatorConfig(fde=None, receiver=rx.ReceiverConfig(start_station_sigma_m=np.inf))
+    # (the one-cycle start: which cycle it takes; the batch start takes the cycles it passes)
+    no_hold = EstimatorConfig(fde=None, receiver=rx.ReceiverConfig(start_station_sigma_m=np.inf), batch_start=None)
     for algo in ("ukf-pr", "ekf-tdoa", "lsq-pr"):
         e = AircraftEstimator(algo, no_hold)
         for k, i in enumerate(ids0):

@@ -23,6 +23,9 @@ STATIONS = np.column_stack([RNG_STATIONS.uniform(0, 2000, 8), RNG_STATIONS.unifo
 TRUTH = np.array([3500.0, 900.0, 60.0])
 SIGMA_M = 1.0
 CLOCK_M = 250.0  # the receiver's clock offset, m
+# the rules that choose the cycle a filter starts from are tested on the one-cycle start (without the
+# batch start over many cycles, tests/aircraft/test_batch_start.py, which takes the cycles they pass)
+ONE_CYCLE = {"batch_start": None}
 
 
 def _slots(n_cycles: int, clock_sd_m, rng, bias_m=None):
@@ -46,7 +49,7 @@ def test_unsynchronized_broadcasts_are_not_used_for_the_first_fix():
     the filter starts from cycle 2's synchronized broadcasts and its first estimate is near the truth.
     Without the gate the same broadcasts start it hundreds of kilometres off."""
     sd = lambda c, j: {0: 1e5, 1: 1e3}.get(c, 0.5)  # noqa: E731
-    est = AircraftEstimator("ekf-pr", EstimatorConfig())
+    est = AircraftEstimator("ekf-pr", EstimatorConfig(**ONE_CYCLE))
     _feed(est, _slots(2, sd, np.random.default_rng(1)))
     assert est.tracker is None and est.status == rx.WAITING
     assert est.stats["nav_unsynchronized"] == 16
@@ -55,7 +58,7 @@ def test_unsynchronized_broadcasts_are_not_used_for_the_first_fix():
     assert est.status == rx.TRACKING and e is not None
     assert np.linalg.norm(np.array(e["pos_m"]) - TRUTH) < 100.0
 
-    off = AircraftEstimator("ekf-pr", EstimatorConfig(receiver=None))
+    off = AircraftEstimator("ekf-pr", EstimatorConfig(receiver=None, **ONE_CYCLE))
     _feed(off, _slots(4, sd, np.random.default_rng(1)))
     assert np.linalg.norm(np.array(off.estimate()["pos_m"]) - TRUTH) > 1e3
 
@@ -63,12 +66,12 @@ def test_unsynchronized_broadcasts_are_not_used_for_the_first_fix():
 def test_a_start_set_with_one_inconsistent_station_leaves_it_out_or_is_refused():
     """Station 3 is 400 m off beyond what it claims: the start leaves it out (the other 7 agree), and
     with two such stations the set is refused until they agree."""
-    est = AircraftEstimator("ekf-pr", EstimatorConfig(fde=None))
+    est = AircraftEstimator("ekf-pr", EstimatorConfig(fde=None, **ONE_CYCLE))
     _feed(est, _slots(2, lambda c, j: 0.5, np.random.default_rng(2), bias_m=lambda c, j: 400.0 * (j == 2)))
     assert est.stats["start_left_one_out"] == 1
     assert np.linalg.norm(est.init.fix[:3] - TRUTH) < 3.0 * est.init.fix_sigma_m  # 400 m off: not from station 3
 
-    two = AircraftEstimator("ekf-pr", EstimatorConfig(fde=None))
+    two = AircraftEstimator("ekf-pr", EstimatorConfig(fde=None, **ONE_CYCLE))
     bad = lambda c, j: 400.0 * (j in (2, 5)) * (c < 3)  # noqa: E731
     _feed(two, _slots(3, lambda c, j: 0.5, np.random.default_rng(3), bias_m=bad))
     assert two.tracker is None and two.stats["start_inconsistent"] >= 2
@@ -87,7 +90,7 @@ def test_a_moving_aircraft_is_judged_by_the_weights_its_start_fix_was_given():
     rng = np.random.default_rng(11)
     refused = 0
     for k in range(40):
-        est = AircraftEstimator("ekf-pr", EstimatorConfig(fde=None))
+        est = AircraftEstimator("ekf-pr", EstimatorConfig(fde=None, **ONE_CYCLE))
         th0 = 2.0 * np.pi * k / 40
         for slot in range(8):
             t = 0.1 * slot
@@ -131,7 +134,7 @@ def test_one_absurd_measurement_is_not_read_as_a_lost_filter():
 
 
 def test_estimator_restarts_when_its_filter_has_lost_the_aircraft():
-    est = AircraftEstimator("ukf-pr", EstimatorConfig())
+    est = AircraftEstimator("ukf-pr", EstimatorConfig(**ONE_CYCLE))
     _feed(est, _slots(6, lambda c, j: 0.5, np.random.default_rng(5)))
     assert est.status == rx.TRACKING
     x = est.tracker.x.copy()
@@ -211,7 +214,7 @@ def test_start_waits_for_a_surveyed_field():
     rng = np.random.default_rng(5)
 
     def run(algo, sigma_5_m, n_cycles, n_st=5):
-        e = AircraftEstimator(algo, EstimatorConfig(fde=None))
+        e = AircraftEstimator(algo, EstimatorConfig(fde=None, **ONE_CYCLE))
         for c in range(n_cycles):
             for k in range(n_st):
                 s = sigma_5_m if k == 4 else 0.3

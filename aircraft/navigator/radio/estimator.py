@@ -13,6 +13,7 @@ import numpy as np
 from .. import receiver as rx
 from . import coords as crd
 from . import models as mdl
+from .batch_start import BatchStart, BatchStartConfig
 from .fde import FdeConfig, FilterFde, fault_vectors, protection_levels, snooping
 from .initializer import InitConfig, defended, initial_state, wide_cov
 from .lsq import lsq_cov, lsq_pr, lsq_tdoa
@@ -43,6 +44,9 @@ class EstimatorConfig:
     # the receiver rules (aircraft/navigator/receiver.py): usable broadcasts, consistent start,
     # divergence restart, publishable estimates; None = off (the benches feed synthetic epochs)
     receiver: rx.ReceiverConfig | None = field(default_factory=rx.ReceiverConfig)
+    # filters: start from a fit of many cycles with the motion modelled (aircraft/navigator/radio/batch_start.py);
+    # None = from one cycle's start
+    batch_start: BatchStartConfig | None = field(default_factory=BatchStartConfig)
 
 
 class AircraftEstimator:
@@ -88,6 +92,9 @@ class AircraftEstimator:
         self.monitor = None if rcfg is None else rx.DivergenceMonitor(rcfg)
         self.stats: Counter[str] = Counter()  # broadcasts not used, refused starts, restarts (by reason)
         self.status = rx.WAITING
+        bcfg = self.cfg.batch_start
+        self.batch_start = None if bcfg is None or self.method == "lsq" else \
+            BatchStart(bcfg, self.cfg.tuning, (self.cfg.init or InitConfig()).vel_sigma_m_s)
 
     # -- input
     def on_epoch(self, t_s: float, station_pos_m, station_cov_m2, rho_m, station_ids=None,
@@ -166,7 +173,7 @@ class AircraftEstimator:
             self.n_dropped += 1
             return
         if self.tracker is None:
-            self._start(t_s, pos, cov, cov_snap, rho)
+            self._start(t_s, pos, cov, cov_snap, rho, dt, ids)
             return
         try:
             self.tracker.predict_to(t_s)
@@ -253,7 +260,7 @@ class AircraftEstimator:
         motion = ((v_sig * np.asarray(dt, float)) ** 2)[:, None, None] * np.eye(3)
         return motion if cov is None else cov + motion
 
-    def _start(self, t_s, pos, cov, cov_snap, rho) -> None:
+    def _start(self, t_s, pos, cov, cov_snap, rho, dt=None, ids=None) -> None:
         """No filter yet: a snapshot fix from the batch (LSQ), or the filter's start. ``cov``: the
         broadcast covariances; ``cov_snap``: the snapshot's (:meth:`_snapshot_cov`)."""
         if self.fix is None and self._restart_from is not None:  # LSQ: warm again from its anchor
@@ -263,7 +270,7 @@ class AircraftEstimator:
             self.stats["lsq_restart_wait"] += 1  # the latest multi-start was not publishable: retry later
             return
         if self.cfg.guess_sigma_m is None and (self.fix is None or self.method != "lsq"):
-            self._start_from_broadcasts(t_s, pos, cov, cov_snap, rho)
+            self._start_from_broadcasts(t_s, pos, cov, cov_snap, rho, dt, ids)
             return
         tu = self.cfg.tuning
         var = tu.sigma_m**2
@@ -303,10 +310,15 @@ class AircraftEstimator:
             return init
         return initial_state(self.model, tu, pos, cov, rho, self.cfg.init)
 
-    def _start_from_broadcasts(self, t_s, pos, cov, cov_snap, rho) -> None:
+    def _start_from_broadcasts(self, t_s, pos, cov, cov_snap, rho, dt=None, ids=None) -> None:
         """Start from the broadcasts alone: multi-start snapshot fix (or a wide prior), from a batch that
         passes the start test when the receiver rules are on. The fix is weighted by ``cov_snap``; the
-        members' survey is judged by ``cov``."""
+        members' survey is judged by ``cov``. A filter with a batch start (``EstimatorConfig.batch_start``)
+        starts from the fit of the batches that passed, when it says so (:meth:`_batch_started`);
+        ``dt`` (m,) the members' times relative to ``t_s``, ``ids`` (m,) their station ids."""
+        m = len(rho)
+        dt = np.zeros(m) if dt is None else np.asarray(dt, float)
+        ids = np.arange(m) if ids is None else np.asarray(ids)
         tu = self.cfg.tuning
         init = self._initial(pos, cov, cov_snap, rho)
         if self.cfg.receiver is not None:
@@ -314,7 +326,7 @@ class AircraftEstimator:
             if keep is None:
                 return
             if not keep.all():  # the surveyed stations alone (enough for a snapshot with redundancy)
-                pos, rho = pos[keep], rho[keep]
+                pos, rho, dt, ids = pos[keep], rho[keep], dt[keep], ids[keep]
                 same = cov_snap is cov  # (no motion: one array, kept one)
                 cov = None if cov is None else cov[keep]
                 cov_snap = cov if same else cov_snap[keep]
@@ -329,6 +341,10 @@ class AircraftEstimator:
             self.n_deferred += 1  # no redundancy, no snapshot: wait for a batch with more stations
             return
         self.n_deferred = 0
+        if self.batch_start is not None:
+            init = self._batch_started(t_s, pos, cov, rho, dt, ids, init)
+            if init is None:
+                return
         self.fix = init.fix.copy()
         self.init = init
         self.t_s = t_s
@@ -342,6 +358,20 @@ class AircraftEstimator:
                                      ref_m=crd.reference_point(pos),
                                      ref_radius_m=crd.array_radius(pos))
 
+    def _batch_started(self, t_s, pos, cov, rho, dt, ids, init):
+        """One more cycle that passed the start rules into the batch start
+        (:class:`.batch_start.BatchStart`): the start to use now (the fit, or ``init`` where the fit failed
+        over a full window), or None to wait for more cycles."""
+        rcfg = self.cfg.receiver
+
+        def test(cost, dof):
+            return rcfg is None or rx.consistent(cost, dof, rcfg.p_start)
+
+        start = self.batch_start.offer(self.model, t_s, t_s + dt, pos, cov, rho, ids, init, test, self.stats)
+        if start is not None:
+            self.batch_start.reset()
+        return start
+
     def _reset(self) -> None:
         """A filter whose covariance lost positive definiteness restarts from the next batch's fix."""
         if self.tracker is not None:
@@ -350,6 +380,8 @@ class AircraftEstimator:
         self.fix = None
         self.n_resets += 1
         self._pending.clear()
+        if self.batch_start is not None:
+            self.batch_start.reset()
         if self.monitor is not None:
             self.monitor.reset()
         if self.fde is not None:  # exclusions stand; the new filter's transient passes before the gate
