@@ -49,13 +49,16 @@ class BatchStartConfig:
     cycles; ``window_s``: at the latest once the window spans this long (then from the fit if its sigma
     is at most ``max_sigma_m``, the bar of a snapshot's own covariance, ``InitConfig.max_fix_sigma_m``;
     otherwise, or if the fit fails, from the latest cycle's own start, e.g. the wide prior of a far
-    field where the fit's linearization is not to be trusted); ``iters`` / ``tol_m``: the
+    field where the fit's linearization is not to be trusted); ``max_ranges``: the window is full at
+    this many ranges too (the fit's cost grows with their cube: seed001's 10 ms slots fill 4 s with 400,
+    and its live aircraft, refitting every 40 ms cycle, fell a minute behind and was killed); ``iters`` / ``tol_m``: the
     Gauss-Newton iterations and the step at which it has converged; ``max_step_m``: the largest
     position step of one iteration (a trust region: the first linearization point is one cycle's fix)."""
 
     target_sigma_m: float = 15.0
     window_s: float = 4.0
     max_sigma_m: float = 300.0
+    max_ranges: int = 120
     min_cycles: int = 1
     iters: int = 30
     tol_m: float = 1e-4
@@ -193,7 +196,7 @@ class BatchStart:
         t, p, c, r, i = (np.concatenate([cy[j] for cy in self.cycles]) for j in range(5))
         fit = batch_fix(t, p, c, r, i, x0, t_s, self.tuning, self.vel_sigma_m_s, self.cfg)
         good = fit.ok and consistent(fit.cost, fit.dof)
-        full = t_s - float(self.cycles[0][0].min()) >= self.cfg.window_s
+        full = t_s - float(self.cycles[0][0].min()) >= self.cfg.window_s or len(r) >= self.cfg.max_ranges
         if good:
             self.x, self.t_s = fit.x, t_s
             if (full and fit.sigma_m <= self.cfg.max_sigma_m) or \

@@ -341,8 +341,11 @@ class AircraftEstimator:
             self.n_deferred += 1  # no redundancy, no snapshot: wait for a batch with more stations
             return
         self.n_deferred = 0
-        if self.batch_start is not None:
-            init = self._batch_started(t_s, pos, cov, rho, dt, ids, init)
+        if self.batch_start is not None and (len(rho) > self.cfg.min_stations or self.batch_start.cycles):
+            # cycles with redundancy only (docs/aircraft.md: seed001's 4-station far field fitted over many
+            # cycles was overconfident); one without, while a window is collected, is waited past
+            init = self._batch_started(t_s, pos, cov, rho, dt, ids, init) if len(rho) > self.cfg.min_stations \
+                else None
             if init is None:
                 return
         self.fix = init.fix.copy()
