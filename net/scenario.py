@@ -35,6 +35,9 @@ Format (see docs/scenarios.md for the full reference)::
     [tdma]
     cycle_s = 1.0
     slot_s = 0.01
+    # ranging = "poll"            # protocol v2 (docs/protocol.md): one poll per slot, every member replies
+    # reply_spacing_s = 0.0005    # ... in its sub-slot turnaround_s + k reply_spacing_s after the poll
+    # frame_s = 0.0001            # ... one frame on air; guard_s = 0.0001 the slot-timing margin
 
     [channel]
     sigma_d_m = 0.5               # two-way range noise (1 sigma)
@@ -91,6 +94,7 @@ from .clock import PRESETS, ClockParams, clock_params
 from .radio import RadioParams
 from .radio import parse as parse_radio
 from .sidefile import read_beside
+from .slotplan import check_slot_plan
 
 
 class ScenarioError(ValueError):
@@ -154,12 +158,25 @@ class NetFaults:
 class Tdma:
     """``[tdma]``. ``assignment``: "fixed" (station ``id`` owns slot ``id - 1``, one slot per station)
     or "distributed" (each station picks a slot free in its two-hop view, ``stations/slots.py``, among
-    the first ``cycle_slots`` slots of the cycle; 0: all of them; docs/slots.md)."""
+    the first ``cycle_slots`` slots of the cycle; 0: all of them; docs/slots.md).
+
+    ``ranging`` (issue 31, docs/protocol.md "Protocol v2"): "addressed" (one ``range_req`` to one peer
+    per slot, the default) or "poll" (one ``poll`` answered by every member in its reply sub-slot,
+    ``turnaround_s + k reply_spacing_s`` after the poll; ``frame_s`` one frame's time on air,
+    ``guard_s`` the slot-timing margin - the loader checks that poll, replies and final fit, rule V8)."""
 
     cycle_s: float = 1.0
     slot_s: float = 0.01
     assignment: str = "fixed"
     cycle_slots: int = 0
+    ranging: str = "addressed"
+    reply_spacing_s: float = 0.0005
+    frame_s: float = 0.0001
+    guard_s: float = 0.0001
+
+    @property
+    def poll(self) -> bool:
+        return self.ranging == "poll"
 
     @property
     def slots_per_cycle(self) -> int:
@@ -622,6 +639,7 @@ def from_dict(raw: dict[str, Any], base_dir: str | Path | None = None) -> Scenar
                             "plane); here it is on the right (expected swapped ids 1 and 2, or sigma0_m > 0)")
     survey = raw.get("survey", {})
     channel = ChannelParams(**raw.get("channel", {}))
+    _check_poll_slot(Tdma(**raw.get("tdma", {})), channel, pos)
     if "radio" in raw:  # links and their timing noise from the radio (net/radio.py)
         radio = parse_radio(raw["radio"], ScenarioError, base_dir=base_dir)  # [radio] terrain beside the file
         channel = replace(channel, radio=radio.in_frame(R, t))
@@ -803,7 +821,8 @@ def _clock(raw: dict, channel: ChannelParams) -> ClockParams:
 
 _NONNEG, _PROB, _POS = "a number >= 0", "a probability in [0, 1]", "a number > 0"
 _SECTION_RULES: dict[str, tuple[type, dict[str, str]]] = {
-    "tdma": (Tdma, {"cycle_s": _POS, "slot_s": _POS}),  # assignment, cycle_slots: _validate_tdma
+    "tdma": (Tdma, {"cycle_s": _POS, "slot_s": _POS, "reply_spacing_s": _POS, "frame_s": _NONNEG,
+                    "guard_s": _NONNEG}),  # assignment, cycle_slots, ranging: _validate_tdma
     "channel": (ChannelParams, {"sigma_d_m": _NONNEG, "nlos_prob": _PROB, "nlos_bias_m": _NONNEG,
                                 "loss_prob": _PROB, "clock_offset_s": _NONNEG, "clock_drift_ppm": _NONNEG,
                                 "turnaround_s": _NONNEG}),
@@ -884,6 +903,7 @@ def _validate_params(raw: dict) -> None:
 
 
 ASSIGNMENTS = ("fixed", "distributed")
+RANGINGS = ("addressed", "poll")  # [tdma] ranging: the addressed exchange (v1) or one poll per slot (v2)
 MAX_CYCLE_SLOTS = 1024  # net.messages.MAX_SLOTS: a nav's slot summary has one entry per slot at most
 
 
@@ -907,6 +927,29 @@ def _validate_tdma(tdma: dict) -> None:
     if how != "distributed" and n:
         raise ScenarioError(f"[tdma] cycle_slots: {n} with assignment {how!r} (expected it only with "
                             "assignment = \"distributed\"; the fixed plan gives station id slot id - 1)")
+    ranging = tdma.get("ranging", "addressed")
+    if ranging not in RANGINGS:
+        raise ScenarioError(f"[tdma] ranging: got {ranging!r} (expected one of {', '.join(RANGINGS)}"
+                            f"{_did_you_mean(str(ranging), RANGINGS)})")
+    if ranging == "poll" and how == "distributed":
+        raise ScenarioError("[tdma] ranging: \"poll\" with assignment \"distributed\" (expected assignment "
+                            "\"fixed\" with the poll: protocol v2's first phase runs on the fixed plan)")
+
+
+def _check_poll_slot(tdma: Tdma, channel: ChannelParams, pos_m: np.ndarray) -> None:
+    """``[tdma] ranging = "poll"``: the poll, one reply per other station and the final fit in one slot
+    (rule V8, ``net.slotplan.check_slot_plan``) at the field's diameter (the longest path between two
+    stations that may hear each other); refused with the keys named."""
+    if not tdma.poll:
+        return
+    p = np.asarray(pos_m, float)
+    diameter_m = float(np.max(np.linalg.norm(p[:, None, :] - p[None, :, :], axis=-1))) if len(p) else 0.0
+    try:
+        check_slot_plan(tdma.slot_s, len(p) - 1, channel.turnaround_s, tdma.reply_spacing_s, diameter_m,
+                        tdma.frame_s, tdma.guard_s)
+    except ValueError as e:
+        raise ScenarioError(f"{e} ([tdma] ranging = \"poll\", {len(p)} stations, field diameter "
+                            f"{diameter_m:.0f} m)") from None
 
 
 def _validate_layout(raw: dict) -> None:
