@@ -157,6 +157,22 @@ def _members(v: Any, name: str) -> list[int]:
     return list(v)
 
 
+def _poll_final(v: Any, name: str) -> dict[str, Any]:
+    """A nav's ``poll`` (protocol v2, the final of the sender's poll): ``{"seq": the poll's seq, "t1": its
+    transmit stamp, "rx": [[member, T4: the sender's receive stamp of its reply], ...]}``."""
+    if not isinstance(v, dict) or set(v) != {"seq", "t1", "rx"}:
+        raise MessageError("shape", f"{name} must be a map with exactly ['rx', 'seq', 't1']")
+    rx = v["rx"]
+    if not isinstance(rx, (list, tuple)) or len(rx) > MAX_LIST:
+        raise MessageError("shape", f"{name}.rx must be a list of <= {MAX_LIST} entries")
+    out = []
+    for e in rx:
+        if not isinstance(e, (list, tuple)) or len(e) != 2:
+            raise MessageError("shape", f"{name}.rx entries must be [member, t4_s]")
+        out.append([_station_id(e[0], name), _num(e[1], name)])
+    return {"seq": _count(v["seq"], name), "t1": _num(v["t1"], name), "rx": out}
+
+
 MAX_SLOTS = 1024  # slots of a distributed assignment's cycle (net.scenario.MAX_CYCLE_SLOTS)
 SLOT_STATES = (1, 2, 3)  # stations.slots CLEAN, SOFT, GARBAGE (FREE slots are not sent)
 
@@ -210,7 +226,7 @@ def _extra(v: Any, name: str) -> dict[str, float]:
 
 
 # core journal (docs/protocol.md "Core journal"): what a station core consumed, for offline replay
-AIR_MSG_KINDS = ("range_req", "range_rsp", "nav")
+AIR_MSG_KINDS = ("range_req", "range_rsp", "nav", "poll", "reply")
 MAX_JOURNAL = 4 * MAX_LIST  # entries per core_input message
 
 
@@ -413,7 +429,12 @@ SCHEMAS: dict[str, tuple[dict[str, Callable], dict[str, Callable]]] = {
                    "state": _state}, {"t_tx_s": _num, "t_rx_s": _num, "clock": _clock}),
     "nav": ({**_COMMON_STATION, "cycle": _count, "slot": _slot, "t_tx_s": _num, "pos_m": _vec3,
              "cov_m2": _cov33, "n_updates": _count, "state": _state, "ranges": _ranges,
-             "members": _members}, {"clock": _clock, "excluded": _members, "slots": _slot_summary}),
+             "members": _members}, {"clock": _clock, "excluded": _members, "slots": _slot_summary,
+                                    "poll": _poll_final}),
+    # protocol v2 (docs/protocol.md "Protocol v2"): one poll naming its members, one reply per member
+    "poll": ({**_COMMON_STATION, "cycle": _count, "slot": _slot, "t_tx_s": _num, "members": _members}, {}),
+    "reply": ({**_COMMON_STATION, "dst": _station_id, "poll_seq": _count, "t_rx_s": _num, "t_tx_s": _num,
+               "pos_m": _vec3, "cov_m2": _cov33, "n_updates": _count, "state": _state}, {"clock": _clock}),
     "estimate": ({**_COMMON_STATION, "t_s": _num, "pos_m": _vec3, "cov_m2": _cov33,
                   "n_updates": _count, "estimator": _text, "state": _state},
                  {"slot": _slot, "cycle": _count, "dropped": _count, "clock_offset_s": _num,
@@ -624,7 +645,8 @@ def vehicle_key(name: str, *rest: str) -> str:
 # navs on ``nav/<tile>``, ``nav`` is the key of :func:`key_for` and of recordings from before tiles).
 # The access rules (net/security.py) allow exactly these, so an invented sub-key is refused by every receiver's Zenoh.
 OWN_KEYS = {
-    "station": ("nav/*", "nav", "estimate", "truth", "init", "input", "integrity", "range/req/*", "range/rsp/*"),
+    "station": ("nav/*", "nav", "estimate", "truth", "init", "input", "integrity", "range/req/*", "range/rsp/*",
+                "poll", "reply/*"),
     "aircraft": ("estimate/*", "truth", "status/*", "init", "input"),
     "vehicle": ("estimate", "truth", "init", "input"),
 }
@@ -642,8 +664,10 @@ def key_for(msg: dict[str, Any]) -> str:
         return station_key(src, "range", "req", msg["dst"])
     if kind == "range_rsp":
         return station_key(src, "range", "rsp", msg["dst"])
-    if kind in ("nav", "estimate", "truth"):
+    if kind in ("nav", "estimate", "truth", "poll"):
         return station_key(src, kind)
+    if kind == "reply":
+        return station_key(src, "reply", msg["dst"])
     if kind == "core_init":
         return station_key(src, "init")
     if kind == "core_input":

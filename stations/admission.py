@@ -12,6 +12,8 @@ checks it against physical bounds that come from the scenario (:class:`Bounds`):
 * station ids: a sender is admitted while the number of peers is below the TDMA's slot count;
   an id named in a nav's ``ranges`` must have announced itself (we heard it), apart from a small
   budget of new ids per sender and cycle (a station that has just joined);
+* protocol v2 (``poll``, ``reply``, a nav's ``poll``): member lists without repeats and within the peer
+  bound, reply delays and the final's stamps within one slot;
 * slot claims: a nav's slot must be the slot in which it was received (on our estimate of network
   time), and a sender may change its claimed slot only a few times per window.
 
@@ -146,6 +148,28 @@ class Admission:
             t2 = msg.get("t_rx_s")
             if t2 is not None and t_tx is not None and not 0.0 <= t_tx - t2 <= b.turnaround_s:
                 return "turnaround"
+        return self._poll_fields(msg, t_tx)
+
+    def _poll_fields(self, msg: dict, t_tx: float | None) -> str | None:
+        """Protocol v2's fields: a poll's member list (no id twice, at most one per peer: ``members``);
+        a reply's delay ``T3 - T2`` within a slot (``turnaround``); a nav's final (``poll``): at most one
+        receive stamp per peer, each and the poll's T1 within the slot before the nav's transmit time
+        (T1 <= T4 <= T5 <= T1 + slot)."""
+        kind, b = msg["kind"], self.b
+        if kind == "poll":
+            mem = msg["members"]
+            if len(mem) > self.max_peers or len(set(mem)) != len(mem):
+                return "members"
+        elif kind == "reply":
+            if not 0.0 <= msg["t_tx_s"] - msg["t_rx_s"] <= b.turnaround_s:
+                return "turnaround"
+        elif kind == "nav" and "poll" in msg:
+            pf = msg["poll"]
+            t1, rx = pf["t1"], pf["rx"]
+            if not 0.0 <= t_tx - t1 <= b.turnaround_s or len(rx) > self.max_peers:
+                return "poll"
+            if len({p for p, _ in rx}) != len(rx) or not all(t1 <= t4 <= t_tx for _, t4 in rx):
+                return "poll"
         return None
 
     def clock_ok(self, corr, t_tx_s: float) -> bool:

@@ -20,6 +20,17 @@ Timeline of the own slot (offsets from the slot start, local clock)::
     nav_offset   nav broadcast: own estimate, the ranges measured since the last nav, members
     slot end     a reply not heard by then is lost
 
+Protocol v2 (``ranging="poll"``, issue 31, docs/protocol.md "Protocol v2")::
+
+    0                      poll: the member list, in order (the poller stamps T1)
+    o_k = turnaround + k S member k replies (its T2_k: poll heard, T3_k = T2_k + o_k: reply sent)
+    o_N                    nav = the final: the poller's T1, T5 (its ``t_tx_s``) and its stamp T4_k of
+                           every reply heard in its sub-slot, and the ranges / time transfers it formed
+
+The poller forms each range single-sided (T1..T4, frequencies from the clock filter: it lacks T6_k),
+member ``k`` the asymmetric double-sided one from its own T2, T3, T6 and the final's T1, T4_k, T5
+(``stations/dstwr.py``) and the time transfer (V7) from T1..T4; listeners take the nav's entries.
+
 Joining (``join=True``): listen for ``listen_cycles`` cycles, collecting the slots in use from the
 nav broadcasts heard; claim the default slot (``id - 1``) if free, else the first free slot after it.
 Two newcomers claiming the same slot both hear each other's nav in that slot: the lower id keeps it,
@@ -53,6 +64,7 @@ from .admission import Admission, Bounds
 from .clocksync import ClockEstimator, ClockModel
 from .estimators import SurveyEstimator, make_estimator
 from .integrity import StationIntegrity
+from .dstwr import ds_twr_range_m, in_reply_window, reply_offset_s, time_transfer_s
 from .slots import FREE, Heard, SlotConfig, SlotCore, SlotSummary
 from .tdma import TdmaPlan
 
@@ -102,9 +114,16 @@ class StationConfig:
     slot_assignment: str = "fixed"
     cycle_slots: int = 0
     slot_seed: int = 0
+    # the ranging exchange ([tdma] ranging, docs/protocol.md): "addressed" (one range_req per slot) or
+    # "poll" (protocol v2: one poll, every member replies turnaround_s + k reply_spacing_s after it;
+    # guard_s widens each reply's sub-slot window, rule V2)
+    ranging: str = "addressed"
+    reply_spacing_s: float = 0.0005
+    guard_s: float = 0.0001
 
 
 SLOT_KEYS = ("slot_assignment", "cycle_slots", "slot_seed")  # in the init record only when distributed
+POLL_KEYS = ("ranging", "reply_spacing_s", "guard_s")  # in the init record only with the poll
 HEARD_CYCLES = 3  # cycles of receptions kept for the slot assignment's cycle ends (late timers)
 
 
@@ -119,7 +138,8 @@ class StationCore:
         self._inputs: list[list] = []
         self.init_record = {
             "cfg": {k: (list(v) if isinstance(v, tuple) else v) for k, v in cfg.__dict__.items()
-                    if k != "tdma" and (k not in SLOT_KEYS or cfg.slot_assignment != "fixed")},
+                    if k != "tdma" and (k not in SLOT_KEYS or cfg.slot_assignment != "fixed")
+                    and (k not in POLL_KEYS or cfg.ranging != "addressed")},
             "tdma": [cfg.tdma.cycle_s, cfg.tdma.slot_s],
             "init_pos_m": None if init_pos_m is None else np.asarray(init_pos_m, float).tolist(),
             "init_cov_m2": None if init_cov_m2 is None else np.asarray(init_cov_m2, float).tolist(),
@@ -150,7 +170,7 @@ class StationCore:
         self._peer_hist: dict[int, deque] = {}
         self._hold_from_s = self._hold_until_s = -math.inf
         self.known: dict[int, float] = {p: start_s for p in cfg.known_ids if p != cfg.id}
-        self.seq = {"range_req": 0, "range_rsp": 0, "nav": 0, "estimate": 0}
+        self.seq = {"range_req": 0, "range_rsp": 0, "nav": 0, "estimate": 0, "poll": 0, "reply": 0}
         self.pending: dict[int, tuple[int, float, float]] = {}  # req seq -> (dst, t_tx, slot end)
         # our own exchanges, newest last: [t_tx_s, addressee, replied in time] (reports, tests)
         self.exchanges: deque[list] = deque(maxlen=EXCHANGE_LOG)
@@ -158,6 +178,14 @@ class StationCore:
         self.ranges_out: list[list] = []
         self.counters = {"requests": 0, "responses": 0, "lost": 0, "ranges_in": 0, "ignored": 0,
                          "rejected_ranges": 0, "late": 0, "sync_in": 0, "implausible": 0}
+        # protocol v2: our open poll {seq, t1, index: member -> k, rx: member -> T4, entries}; the polls
+        # we answered, poller -> (poll seq, T2, T3, k, N); the longest path a reply travels (window V2)
+        self.poll = cfg.ranging == "poll"
+        self._poll_out: dict | None = None
+        self._polled: dict[int, tuple[int, float, float, int, int]] = {}
+        self._path_m = min(cfg.max_range_m, 2.0 * cfg.field_radius_m) if cfg.field_radius_m > 0 else cfg.max_range_m
+        if self.poll:
+            self.counters.update(reply_window=0, final_window=0, final_lost=0, polls_answered=0)
         # plausibility before trust: senders, ids, values and slot claims (stations/admission.py)
         self.slots: SlotCore | None = None  # the distributed assignment (None: the fixed plan)
         peer_bound = self.plan.slots_per_cycle + 1
@@ -265,6 +293,11 @@ class StationCore:
         own = self.integrity.own_excluded
         if own:  # the quorum's input at the other stations (stations/integrity.py)
             m["excluded"] = sorted(own)
+        po = self._poll_out
+        if po is not None:  # the final of our poll: T1 and our stamp T4_k of each reply heard in time
+            m["poll"] = {"seq": po["seq"], "t1": po["t1"], "rx": [[p, t4] for p, t4 in po["rx"].items()]}
+            self.counters["lost"] += len(po["index"]) - len(po["rx"])
+            self._poll_out = None
         self.ranges_out = []
         return m
 
@@ -387,6 +420,8 @@ class StationCore:
         if self.slots is None and self.state == "joining" and self.slot is None and t_s >= self.listen_until_s - 1e-12:
             self._claim_slot(t_s)
         if t_s >= self._nav_s - 1e-12:
+            # the poll's final leaves at its sub-slot however late the host (its T5: its own stamp)
+            t_nav = self._nav_s if self._poll_out is not None else t_s
             self._nav_s = float("inf")
             if self._hold_until_s != -math.inf and t_s >= self._hold_until_s:
                 self._release_peers()
@@ -396,14 +431,16 @@ class StationCore:
             self._datum(t_s)
             self._hold_frame(t_s)
             self._refresh_state()
-            out.append(self._nav_msg(t_s))
+            out.append(self._nav_msg(t_nav))
             out.append(self.estimate_msg(t_s))
         if t_s >= self._next_req_s - 1e-9:
             t0 = self._next_req_s  # the radio transmits at the slot start, however late the host
             T0 = self._next_req_T
             cycle, _ = self.plan.locate(T0 + 1e-9)
             mem = self.members(t0)
-            if mem:
+            if self.poll:
+                out += self._send_poll(t0, cycle, mem)
+            elif mem:
                 # the addressee rotates over the members from cycle to cycle
                 dst = mem[(cycle + self.id) % len(mem)]
                 m = self._base("range_req", t0)
@@ -413,7 +450,8 @@ class StationCore:
                 self.exchanges.append(entry)
                 self.counters["requests"] += 1
                 out.append(m)
-            self._nav_s = t0 + self.cfg.nav_offset_s
+            if self._poll_out is None:
+                self._nav_s = t0 + self.cfg.nav_offset_s
             self._next_req_T = self.plan.slot_start_s(cycle + 1, self.slot)
             if self._next_req_s <= t0:  # the network-time estimate jumped ahead: next cycle's slot
                 self._next_req_T, _ = self._schedule_after(t0)
@@ -425,6 +463,25 @@ class StationCore:
                 self._exchange_of.pop(s, None)
                 self.counters["lost"] += 1
         return out
+
+    def _send_poll(self, t0: float, cycle: int, mem: list[int]) -> list[dict]:
+        """Protocol v2: the poll at the slot start ``t0`` (T1) naming the members in order; the final
+        (our nav) is due in sub-slot N, ``turnaround_s + N reply_spacing_s`` later (rule V1)."""
+        if self._poll_out is not None:  # a poll whose final never left (a slot collision): its replies lost
+            self.counters["lost"] += len(self._poll_out["index"]) - len(self._poll_out["rx"])
+            self._poll_out = None
+        if not mem:
+            return []
+        m = self._base("poll", t0)
+        m.update(cycle=cycle, slot=self.slot, t_tx_s=float(t0), members=list(mem))
+        self._poll_out = {"seq": m["seq"], "t1": float(t0), "index": {p: k for k, p in enumerate(mem)}, "rx": {},
+                          "entries": {}}
+        for p in mem:
+            self._exchange_of[p] = entry = [float(t0), int(p), False]
+            self.exchanges.append(entry)
+        self.counters["requests"] += len(mem)
+        self._nav_s = t0 + float(reply_offset_s(len(mem), self.cfg.turnaround_s, self.cfg.reply_spacing_s))
+        return [m]
 
     def _claim_slot(self, t_s: float) -> None:
         used = set(self.heard_slots.values())
@@ -518,21 +575,76 @@ class StationCore:
         _, t_tx, _ = pend
         if done is not None:
             done[2] = True
+        t3 = msg.get("t_tx_s")
+        t2 = None if t3 is None else msg.get("t_rx_s", t3 - msg["turnaround_s"])
+        return self._own_exchange(src, msg, t_tx, t2, t3, msg["turnaround_s"], t_rx_s)
+
+    def _on_poll(self, msg: dict, t_rx_s: float) -> list[dict]:
+        """Protocol v2: a poll naming us answers in our sub-slot ``T3 = T2 + o_k`` (rule V1), if we hold
+        a slot and have announced ourselves (a joiner answers only then) and it still falls in the slot."""
+        src = msg["src"]
+        self._heard(src, t_rx_s)
+        mem = msg["members"]
+        if not self.poll or self.id not in mem:
+            return []
+        if self.slot is None or self.seq["nav"] == 0:
+            self.counters["ignored"] += 1
+            return []
+        k = mem.index(self.id)
+        t3 = t_rx_s + float(reply_offset_s(k, self.cfg.turnaround_s, self.cfg.reply_spacing_s))
+        if not self._in_slot(msg, t3):
+            self.counters["late"] += 1
+            return []
+        self._polled[src] = (msg["seq"], float(t_rx_s), t3, k, len(mem))
+        self.counters["polls_answered"] += 1
+        m = self._base("reply", t3)
+        m.update(dst=src, poll_seq=msg["seq"], t_rx_s=float(t_rx_s), t_tx_s=t3, pos_m=self.est.pos_m.tolist(),
+                 cov_m2=self.est.cov_m2.tolist(), n_updates=int(self.est.n_updates), state=self.state,
+                 clock=self.clk.correction(t_rx_s))
+        return [m]
+
+    def _on_reply(self, msg: dict, t_rx_s: float) -> list[dict]:
+        """Protocol v2: a member's reply to our open poll (T4 = ``t_rx_s``), taken only inside its own
+        sub-slot window (rule V2; else dropped and counted ``reply_window``): the single-sided range
+        and the time transfer, as for an addressed reply, with the reply delay ``Db = T3 - T2``."""
+        src = msg["src"]
+        self._heard(src, t_rx_s)
+        po = self._poll_out
+        if msg["dst"] != self.id:
+            return []
+        if po is None or msg["poll_seq"] != po["seq"] or src not in po["index"] or src in po["rx"]:
+            self.counters["ignored"] += 1
+            return []
+        c = self.cfg
+        if not in_reply_window(po["t1"], t_rx_s, po["index"][src], c.turnaround_s, c.reply_spacing_s,
+                               self._path_m, c.guard_s):
+            self.counters["reply_window"] += 1
+            return []
+        po["rx"][src] = float(t_rx_s)
+        done = self._exchange_of.pop(src, None)
+        if done is not None:
+            done[2] = True
+        t2, t3 = msg["t_rx_s"], msg["t_tx_s"]
+        return self._own_exchange(src, msg, po["t1"], t2, t3, t3 - t2, t_rx_s)
+
+    def _own_exchange(self, src: int, msg: dict, t_tx: float, t2: float | None, t3: float | None,
+                      delay_s: float, t_rx_s: float) -> list[dict]:
+        """An exchange we initiated (request / poll sent at local ``t_tx``, reply heard at ``t_rx_s``;
+        the responder's stamps ``t2`` (heard), ``t3`` (replied), its delay ``delay_s`` on its clock):
+        the single-sided two-way range with both clocks' frequencies, the time transfer, the nav entry."""
         corr = msg.get("clock")
         f_me, f_peer = self.clk.freq(), (corr[2] if corr is not None else 0.0)
         # two-way ranging on each end's own clock, durations scaled to network seconds
-        range_m = 0.5 * SPEED_OF_LIGHT_M_S * ((t_rx_s - t_tx) / (1.0 + f_me) - msg["turnaround_s"] / (1.0 + f_peer))
+        range_m = 0.5 * SPEED_OF_LIGHT_M_S * ((t_rx_s - t_tx) / (1.0 + f_me) - delay_s / (1.0 + f_peer))
         if not (0.0 < range_m < self.cfg.max_range_m):
             self.counters["rejected_ranges"] += 1
             return []
         self.counters["responses"] += 1
         pos, cov = self._peer_for_solve(src, *self._update_peer(src, msg), t_rx_s)
         entry = [src, float(range_m), float(t_rx_s)]
-        t3 = msg.get("t_tx_s")
         if t3 is not None:
             # two-way time transfer: theta_me - theta_peer at the exchange midpoint (both ends'
             # midpoints are the same instant); the nav entry carries it to the other stations
-            t2 = msg.get("t_rx_s", t3 - msg["turnaround_s"])
             dtheta = 0.5 * ((t_rx_s - t3) - (t2 - t_tx))
             t_mid = 0.5 * (t_tx + t_rx_s)
             entry = [src, float(range_m), float(t_mid), float(dtheta)]
@@ -576,22 +688,59 @@ class StationCore:
             if not self._plausible_entry(src, r, msg.get("t_tx_s", t_rx_s), t_rx_s):
                 continue
             peer, range_m = r[0], r[1]
-            if len(r) == 4 and corr is not None and 0.0 < range_m < self.cfg.max_range_m:
+            if len(r) == 4 and corr is not None and 0.0 < range_m < self.cfg.max_range_m and not (
+                    self.poll and peer == self.id):  # (poll: our end of it is formed from our stamps)
                 # every exchange the network makes refines the network clock filter: ours (the
                 # responder's end) and the others' alike
                 T_mid, T_var = self.clk.peer_time(src, r[2], corr)  # our prior view of src's clock
                 if self.clk.on_exchange(src, peer, T_mid, float(r[3]), T_var,
                                         self._transfer_var_s2(src, peer)) is not None:
                     self.counters["sync_in"] += 1
-            if peer == self.id and 0.0 < range_m < self.cfg.max_range_m:
+            if peer == self.id and 0.0 < range_m < self.cfg.max_range_m and not self.poll:
                 self.counters["ranges_in"] += 1
                 if self.est.name.startswith("dmap"):  # dmap, dmap-ls: ranges used at both ends
                     self.est.on_range(src, float(range_m), t_rx_s, False, pos, cov)
                 self.integrity.on_range(src, float(range_m), t_rx_s)
+        if src in self._polled:
+            self._on_final(src, msg, t_rx_s, corr, pos, cov)
         self._refresh_state()
         return []
 
-    _HANDLERS = {"range_req": _on_range_req, "range_rsp": _on_range_rsp, "nav": _on_nav}
+    def _on_final(self, src: int, msg: dict, t_rx_s: float, corr, pos: np.ndarray, cov: np.ndarray) -> None:
+        """Protocol v2: the nav of a poller we answered is the final (T5 its ``t_tx_s``, T6 = ``t_rx_s``),
+        taken inside its sub-slot N (rule V2, else ``final_window``): with its T1 and T4 of our reply,
+        the double-sided range (V4, both clocks' frequencies) and the time transfer (V7) - ours."""
+        seq, t2, t3, k, n = self._polled.pop(src)
+        pf = msg.get("poll")
+        if pf is None or pf["seq"] != seq:
+            self.counters["final_lost"] += 1
+            return
+        t4 = next((t for p, t in pf["rx"] if p == self.id), None)
+        if t4 is None:  # the poller did not hear our reply (in its window)
+            self.counters["final_lost"] += 1
+            return
+        c = self.cfg
+        if not in_reply_window(t2, t_rx_s, n, c.turnaround_s, c.reply_spacing_s, self._path_m, c.guard_s):
+            self.counters["final_window"] += 1
+            return
+        t1, t5 = pf["t1"], msg["t_tx_s"]
+        f_src = corr[2] if corr is not None else 0.0
+        range_m = ds_twr_range_m(t1, t2, t3, t4, t5, t_rx_s, f_src, self.clk.freq()).item()
+        if not (0.0 < range_m < self.cfg.max_range_m):
+            self.counters["rejected_ranges"] += 1
+            return
+        self.counters["ranges_in"] += 1
+        dtheta = time_transfer_s(t1, t2, t3, t4)[0].item()  # the poller's clock minus ours
+        # the exchange's midpoint on our clock (the same instant as (T1 + T4) / 2 on the poller's)
+        if self.clk.on_exchange(src, self.id, self.clk.network_time(0.5 * (t2 + t3)), dtheta,
+                                self.clk.offset_var_s2, self._transfer_var_s2(src, self.id)) is not None:
+            self.counters["sync_in"] += 1
+        if self.est.name.startswith("dmap"):  # dmap, dmap-ls: ranges used at both ends
+            self.est.on_range(src, range_m, t_rx_s, False, pos, cov)
+        self.integrity.on_range(src, range_m, t_rx_s)
+
+    _HANDLERS = {"range_req": _on_range_req, "range_rsp": _on_range_rsp, "nav": _on_nav, "poll": _on_poll,
+                 "reply": _on_reply}
 
     def _in_slot(self, req: dict, t_tx_s: float) -> bool:
         """Does a reply sent at local ``t_tx_s`` still fall inside the request's slot, on our estimate

@@ -17,7 +17,7 @@ from nav.geometry import SPEED_OF_LIGHT_M_S
 from net.channel import AirChannel, with_clock_faults
 from net.scenario import Scenario
 
-LIE_KINDS = ("nav", "range_rsp")  # air messages that carry the sender's position
+LIE_KINDS = ("nav", "range_rsp", "reply")  # air messages that carry the sender's position
 
 
 class ShellFaults:

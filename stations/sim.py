@@ -29,6 +29,8 @@ from .shellfaults import ShellFaults
 from .slots import reception_in_slot
 from .tdma import TdmaPlan
 
+AIR_KINDS = ("range_req", "range_rsp", "nav", "poll", "reply")  # what goes on air (the rest is published)
+
 
 @dataclass
 class SimResult:
@@ -98,6 +100,8 @@ def make_core(scn: Scenario, station_id: int, *, estimator: str | None = None, j
         radio=radio_dict(scn.channel.radio),
         **({"slot_assignment": "distributed", "cycle_slots": scn.tdma.assigned_slots, "slot_seed": int(seed)}
            if scn.tdma.distributed else {}),
+        **({"ranging": "poll", "reply_spacing_s": scn.tdma.reply_spacing_s, "guard_s": scn.tdma.guard_s}
+           if scn.tdma.poll else {}),
     )
     return StationCore(cfg, pos0, cov0, start_s=clock.to_local(start_s)), clock
 
@@ -191,7 +195,7 @@ class Simulator:
         ids, index, loss = self.scn.ids, self._index, self.scn.net.loss_prob
         for m in outs:
             kind = m["kind"]
-            if kind not in ("range_req", "range_rsp", "nav"):
+            if kind not in AIR_KINDS:
                 self._publish_local(k, m)
                 continue
             t_tx_true = self.clocks[k].to_true(m["t_tx_s"])
@@ -203,9 +207,10 @@ class Simulator:
                 for peer, rng_m, *_ in m["ranges"]:
                     if peer in index:
                         self.range_log.append((t_tx_true, k, index[peer], float(rng_m)))
+            if kind in ("nav", "poll"):  # broadcasts
                 # a wire loss is drawn for every station, so only then are the others all visited
                 targets = [j for j in range(len(ids)) if j != k] if loss > 0 else self._hear[k]
-            else:
+            else:  # to the addressee only (a v2 reply: no other core uses it in protocol v2's first phase)
                 targets = [index[m["dst"]]] if m["dst"] in index else []
             holders = self._holders(k, m) if self.scn.tdma.distributed else None
             for j in targets:
