@@ -410,6 +410,10 @@ class ClockEstimator:
     def freq(self) -> float:
         return float(self._own_x()[1])
 
+    def freq_var(self) -> float:
+        """Variance of the own fractional frequency against network time (0 for the reference clock)."""
+        return float(self._own()[4])
+
     def variance_at(self, t_local_s: float) -> float:
         """Own offset variance at local ``t_local_s`` (predicted; the state unchanged), s^2."""
         _, _, ptt, ptf, pff = self._own()

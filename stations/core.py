@@ -185,7 +185,7 @@ class StationCore:
         self._polled: dict[int, tuple[int, float, float, int, int]] = {}
         self._path_m = min(cfg.max_range_m, 2.0 * cfg.field_radius_m) if cfg.field_radius_m > 0 else cfg.max_range_m
         if self.poll:
-            self.counters.update(reply_window=0, final_window=0, final_lost=0, polls_answered=0)
+            self.counters.update(reply_window=0, final_window=0, final_lost=0, polls_answered=0, ss_gated=0)
         # plausibility before trust: senders, ids, values and slot claims (stations/admission.py)
         self.slots: SlotCore | None = None  # the distributed assignment (None: the fixed plan)
         peer_bound = self.plan.slots_per_cycle + 1
@@ -480,7 +480,7 @@ class StationCore:
             self._exchange_of[p] = entry = [float(t0), int(p), False]
             self.exchanges.append(entry)
         self.counters["requests"] += len(mem)
-        self._nav_s = t0 + float(reply_offset_s(len(mem), self.cfg.turnaround_s, self.cfg.reply_spacing_s))
+        self._nav_s = float(t0) + float(reply_offset_s(len(mem), self.cfg.turnaround_s, self.cfg.reply_spacing_s))
         return [m]
 
     def _claim_slot(self, t_s: float) -> None:
@@ -591,7 +591,7 @@ class StationCore:
             self.counters["ignored"] += 1
             return []
         k = mem.index(self.id)
-        t3 = t_rx_s + float(reply_offset_s(k, self.cfg.turnaround_s, self.cfg.reply_spacing_s))
+        t3 = float(t_rx_s) + float(reply_offset_s(k, self.cfg.turnaround_s, self.cfg.reply_spacing_s))
         if not self._in_slot(msg, t3):
             self.counters["late"] += 1
             return []
@@ -652,10 +652,21 @@ class StationCore:
                                     self.clk.offset_var_s2, self._transfer_var_s2(self.id, src)) is not None:
                 self.counters["sync_in"] += 1
         self.ranges_out.append(entry)
+        if self.poll and self._rate_bias_m(corr, delay_s) > SS_BIAS_GATE * self.cfg.sigma_d_m:
+            self.counters["ss_gated"] += 1  # the time transfer stands (V7 needs no frequency); the range not
+            self._refresh_state()
+            return []
         self.est.on_range(src, range_m, t_rx_s, True, pos, cov)
         self.integrity.on_range(src, range_m, t_rx_s)
         self._refresh_state()
         return []
+
+    def _rate_bias_m(self, corr, delay_s: float) -> float:
+        """Protocol v2, the poller's single-sided range: 1-sigma of its error from the two clocks'
+        frequency uncertainty, ``c Db sqrt(P_ff,me + P_ff,peer) / 2`` (eq. V6 with the estimated
+        frequencies; the peer's variance from its reply's clock correction, else the oscillator class)."""
+        pff_peer = corr[5] if corr is not None else self.cfg.clock_freq_sigma ** 2
+        return 0.5 * SPEED_OF_LIGHT_M_S * delay_s * math.sqrt(max(self.clk.freq_var(), 0.0) + max(pff_peer, 0.0))
 
     def _on_nav(self, msg: dict, t_rx_s: float) -> list[dict]:
         """A peer's nav broadcast: its estimate, slot, clock correction and the ranges it measured."""
@@ -959,6 +970,10 @@ def _moved_beyond(d_m: np.ndarray, cov_m2: np.ndarray, free: np.ndarray) -> bool
         return False
     return bool(q > chdtri(int(f.sum()), ROLLBACK_P))
 
+
+# protocol v2: the poller's single-sided range enters the survey only once the clocks' frequency
+# uncertainty biases it by at most this fraction of sigma_d (StationCore._rate_bias_m; docs/protocol.md)
+SS_BIAS_GATE = 0.25
 
 FOUNDERS = (1, 2, 3)  # the stations whose estimates define the frame until one of them is gone
 

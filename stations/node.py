@@ -109,6 +109,9 @@ class StationNode:
         if opts.station_id not in scn.ids:
             raise ValueError(f"station {opts.station_id} is not in scenario {scn.name} (ids {scn.ids}); "
                              "a station from outside the scenario hot-joins with --join")
+        if scn.tdma.poll:  # protocol v2's first phase: the core and the simulator (docs/protocol.md)
+            raise ValueError("[tdma] ranging: \"poll\" runs in the simulator only for now (expected \"addressed\" "
+                             "for the station process: protocol v2 on Zenoh is issue 31's second phase)")
         if opts.speed <= 0:
             raise ValueError("--speed must be > 0")
         self.scn = scn
