@@ -22,14 +22,14 @@ from stations.tdma import TdmaPlan
 POS = np.array([[0.0, 0.0, 0.0], [900.0, 0.0, 5.0], [300.0, 1100.0, -20.0], [-700.0, 600.0, 40.0]])
 
 
-def _cores(clocks, ranging="poll", spacing_s=0.0005):
+def _cores(clocks, ranging="poll", spacing_s=0.0005, freq_sigma=2e-5):
     """Four founders (ids 1-4) at ``POS``, each with its oscillator (``clocks``); cores on their local time."""
     ids = list(range(1, len(POS) + 1))
     cores = []
     for k, sid in enumerate(ids):
         cfg = StationConfig(id=sid, tdma=TdmaPlan(1.0, 0.01), known_ids=tuple(i for i in ids if i != sid),
                             ranging=ranging, reply_spacing_s=spacing_s, guard_s=0.0001, field_radius_m=1300.0,
-                            clock_offset_sigma_s=1e-4, clock_freq_sigma=2e-5)
+                            clock_offset_sigma_s=1e-4, clock_freq_sigma=freq_sigma)
         pos0 = np.zeros(3) if sid == 1 else POS[k] + 3.0
         cov0 = np.zeros((3, 3)) if sid == 1 else np.eye(3) * 100.0
         cores.append(StationCore(cfg, pos0, cov0, start_s=clocks[k].to_local(0.0)))
@@ -131,6 +131,8 @@ def test_each_member_forms_the_double_sided_range_exactly(offsets_s, drifts, mon
             bound = d * (abs(drifts[peer - 1] - fp) + abs(drifts[k] - fr)) / 2 * 1.01 + 1e-5
             assert abs(r - d) <= bound, (c.id, peer, r - d, bound)
     assert n_ds >= 3 * 4 * 2  # every member of every poll, two cycles at least
+    # a 20 ppm class: the first single-sided ranges wait for the frequencies (rate gate, counted)
+    assert sum(c.counters["ss_gated"] for c in cores) > 0
     if any(drifts):
         assert max(ss_err) > 1.0  # the rate difference acts on the whole reply delay (V6)
 
@@ -140,7 +142,7 @@ def test_a_reply_outside_its_sub_slot_is_dropped_and_counted_never_misattributed
     window, not its own: station 1 drops them (``reply_window``), forms no range with 3, and still
     ranges 2 and 4; station 3 forms no range to 1 either (its stamp is not in the final)."""
     clocks = [Clock() for _ in POS]
-    cores = _cores(clocks)
+    cores = _cores(clocks, freq_sigma=2e-6)  # (a TCXO's class: its single-sided ranges pass the rate gate)
     taken = _run(cores, clocks, 3.0, delay_s={(3, 1): 0.0005})
     c1 = cores[0]
     assert c1.counters["reply_window"] >= 2
