@@ -46,6 +46,8 @@ def register(sub) -> None:
                    help="estimators to run (default: dmap seed-ukf; dmap-nlos = dmap hardened for many NLOS legs; dmap-ls = dmap without robust weights)")
     p.add_argument("--duration", type=float, default=60.0, help="simulated seconds per trial (default 60)")
     p.add_argument("--scenario", default="seed000", help="scenario name or TOML path (default seed000)")
+    p.add_argument("--ranging", choices=["addressed", "poll"], default=None,
+                   help="[tdma] ranging: the addressed exchange or protocol v2's poll (default: the scenario's)")
     p.add_argument("--seed", type=int, default=1, help="base seed; trial k uses seed + k (default 1)")
     p.add_argument("--clock", default=None, metavar="MODEL",
                    help="station oscillators: perfect, tcxo, ocxo (default: the scenario's [clock])")
@@ -107,9 +109,10 @@ def _trial(job: tuple) -> dict:
     from stations.estimators import holds_fix
     from stations.sim import Simulator
 
-    scenario, estimator, sigma_d, n, seed, duration, table_times, with_map, clock = job
+    scenario, estimator, sigma_d, n, seed, duration, table_times, with_map, clock, *opt = job
+    ranging = opt[0] if opt else None  # (jobs without it: the scenario's [tdma] ranging)
     scn = load(scenario, seed=seed, channel={"sigma_d_m": sigma_d}, **({"layout": {"n": n}} if n else {}),
-               **({"clock": {"model": clock}} if clock else {}))
+               **({"clock": {"model": clock}} if clock else {}), **({"tdma": {"ranging": ranging}} if ranging else {}))
     sim = Simulator(scn, estimator=estimator)
     times = np.arange(1.0, duration + 1e-9, 1.0)
     r = sim.run(duration, times)
@@ -428,12 +431,14 @@ def main(args) -> int:
         for est in args.estimator:
             for sd in args.sigma_d:
                 jobs = [(args.scenario, est, sd, args.stations, args.seed + k, args.duration, table_times,
-                         not args.no_map, getattr(args, "clock", None)) for k in range(args.trials)]
+                         not args.no_map, getattr(args, "clock", None), getattr(args, "ranging", None))
+                        for k in range(args.trials)]
                 t0 = time.perf_counter()
                 results = list(progress(pool.imap(_trial, jobs), f"survey {est} sigma_d={sd}", total=len(jobs)))
                 res = summarize(results, sd, est, times, table_times)
                 res["wall_s"] = time.perf_counter() - t0
                 res["jobs"] = args.jobs
+                res["ranging"] = getattr(args, "ranging", None)
                 res["bar"] = bar_checks(res)
                 print_table(res)
                 all_res.append(res)

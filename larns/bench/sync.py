@@ -64,6 +64,8 @@ def register(sub) -> None:
                         "time without it (docs/sync.md, the time scale's steering); bar: the stations' "
                         "definitions of network time within 2 ns of each other from S + 30 s on")
     p.add_argument("--scenario", default="seed000", help="scenario name or TOML path (default seed000)")
+    p.add_argument("--ranging", choices=["addressed", "poll"], default=None,
+                   help="[tdma] ranging: the addressed exchange or protocol v2's poll (default: the scenario's)")
     p.add_argument("--seed", type=int, default=1, help="base seed; trial k uses seed + k (default 1)")
     p.add_argument("--hops-from", type=float, default=AFTER_S, metavar="S",
                    help="the per-hop table (multi-hop fields) takes the samples from S s on (default 60; "
@@ -193,9 +195,10 @@ def _world(job: tuple):
     from net.scenario import load
     from stations.sim import Simulator
 
-    scenario, clock, sigma_d, n, seed, duration, stop_s, start_s = job
+    scenario, clock, sigma_d, n, seed, duration, stop_s, start_s, *opt = job
+    ranging = opt[0] if opt else None  # (jobs without it: the scenario's [tdma] ranging)
     scn = load(scenario, seed=seed, channel={"sigma_d_m": sigma_d}, clock={"model": clock},
-               **({"layout": {"n": n}} if n else {}))
+               **({"layout": {"n": n}} if n else {}), **({"tdma": {"ranging": ranging}} if ranging else {}))
     sim = Simulator(scn, stop_s=stop_s, start_s=start_s)
     times = np.arange(1.0, duration + 1e-9, 1.0)
     return scn, sim, sim.run(duration, times), times
@@ -543,14 +546,15 @@ def main(args) -> int:
     start_s = {1: float(args.late_founder)} if args.late_founder else {}
     table_times = [t for t in TABLE_TIMES_S if t <= args.duration]
     times = np.arange(1.0, args.duration + 1e-9, 1.0)
-    jobs = [(args.scenario, args.clock, args.sigma_d, args.stations, args.seed + k, args.duration, stop_s, start_s)
-            for k in range(args.trials)]
+    jobs = [(args.scenario, args.clock, args.sigma_d, args.stations, args.seed + k, args.duration, stop_s, start_s,
+             getattr(args, "ranging", None)) for k in range(args.trials)]
     t0 = time.perf_counter()
     ctx = mp.get_context("fork")
     with ctx.Pool(max(1, args.jobs)) as pool:
         results = list(progress(pool.imap(_trial, jobs), f"sync {args.clock}", total=len(jobs)))
     res = summarize(results, times, table_times, {"clock": args.clock, "sigma_d_m": args.sigma_d,
                                                    "stations": args.stations, "scenario": args.scenario,
+                                                   "ranging": getattr(args, "ranging", None),
                                                    "founders_leave_s": {str(k): v for k, v in stop_s.items()},
                                                    "late_founder_s": args.late_founder,
                                                    "hops_from_s": args.hops_from})
