@@ -370,6 +370,7 @@ TABLE: dict[str, Run | Skip] = {
     "larns bench replay": Skip(BENCH + " (a 10-station, 10-minute log first)"),
     "larns bench replay --repeat 3": Skip(BENCH),
     "larns bench replay --duration 60": Skip(BENCH),
+    "larns bench replay --duration 60 --ranging poll": Skip(BENCH),
     "larns bench sync --trials 40": Skip(BENCH),
     "larns bench survey --trials 20": Skip(BENCH),
     "larns reestimate --algo": Skip(MENTION, concrete=False),

@@ -22,15 +22,16 @@ from pathlib import Path
 
 
 def synth_log(path: str | Path, scenario: str = "seed000", duration_s: float = 600.0, seed: int | None = None,
-              estimator: str | None = None) -> dict:
-    """Simulate the scenario with journals on and write a recording-like MCAP; returns statistics."""
+              estimator: str | None = None, ranging: str | None = None) -> dict:
+    """Simulate the scenario with journals on and write a recording-like MCAP; returns statistics.
+    ``ranging``: override the scenario's ``[tdma] ranging`` ("addressed" or protocol v2's "poll")."""
     from net import messages as M
     from net.scenario import load
     from stations.sim import Simulator
 
     from ..log import LogWriter
 
-    scn = load(scenario)
+    scn = load(scenario, **({"tdma": {"ranging": ranging}} if ranging else {}))
     epoch = 1.7e9
     speed = 1.0
     rows: list[tuple[int, str, bytes, int]] = []  # (log ns, key, data, publish ns)
@@ -67,10 +68,11 @@ def run(args: argparse.Namespace) -> int:
         log = Path(args.from_file)
         gen = {}
     else:
-        log = out_dir / f"{args.scenario}_{int(args.duration)}s.mcap"
+        ranging = getattr(args, "ranging", None)
+        log = out_dir / f"{Path(args.scenario).stem}{'_' + ranging if ranging else ''}_{int(args.duration)}s.mcap"
         print(f"[bench replay] simulating {args.scenario} for {args.duration:g} s with journals -> {log}",
               file=sys.stderr, flush=True)
-        gen = synth_log(log, args.scenario, args.duration, args.seed)
+        gen = synth_log(log, args.scenario, args.duration, args.seed, ranging=ranging)
         print(f"[bench replay] {gen['messages']} messages, {gen['bytes'] / 1e6:.1f} MB, simulated in "
               f"{gen['sim_s']:.1f} s", file=sys.stderr, flush=True)
     rows = []
@@ -110,6 +112,9 @@ def register(sub) -> None:
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--scenario", default="seed000", help="scenario to simulate (default seed000: 10 stations)")
     p.add_argument("--duration", type=float, default=600.0, help="simulated fleet seconds (default 600)")
+    p.add_argument("--ranging", choices=["addressed", "poll"], default=None,
+                   help="[tdma] ranging of the simulated log: the addressed exchange or protocol v2's poll "
+                        "(default: the scenario's)")
     p.add_argument("--seed", type=int, default=None, help="world seed (default: the scenario's)")
     p.add_argument("--from", dest="from_file", default=None, metavar="FILE.mcap",
                    help="benchmark an existing recording instead of simulating one")
