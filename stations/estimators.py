@@ -223,6 +223,32 @@ def _chol_inv_factor(A: np.ndarray) -> np.ndarray:
     return Linv
 
 
+def common_lower_bound(C: np.ndarray, rel_floor: float = 1e-9) -> np.ndarray | None:
+    """A common part ``X`` (3, 3) of the covariances ``C`` (k, 3, 3): ``0 <= X <= C_j`` for every j
+    (Loewner order), a large one (no unique largest exists) found by taking, peer after peer, the
+    joint-eigenbasis minimum
+    ``X' = X^(1/2) V min(D, I) V^T X^(1/2)``, ``V D V^T = X^(-1/2) C_j X^(-1/2)``, from the peer
+    of smallest trace. None if some ``C_j`` is zero (a peer without error shares none).
+    Coordinates a peer's covariance pins (a founder's) are floored at ``rel_floor`` of the trace.
+    """
+    tr = np.einsum("kii->k", C)
+    if not len(C) or tr.min() <= 0.0:
+        return None
+    order = np.argsort(tr)
+    X = C[order[0]]
+    for j in order[1:]:
+        lam, V = np.linalg.eigh(X + rel_floor * tr[j] * np.eye(3))
+        R = (V * np.sqrt(lam)) @ V.T  # X^(1/2) (floored)
+        Ri = (V / np.sqrt(lam)) @ V.T
+        d, Q = np.linalg.eigh(Ri @ C[j] @ Ri)
+        if d.max() >= 1.0 and d.min() >= 1.0:
+            continue  # C_j >= X already
+        B = R @ Q
+        X = (B * np.minimum(d, 1.0)) @ B.T
+        X = 0.5 * (X + X.T)
+    return X
+
+
 # the mirror test of a first fix without a coarse fix (DistributedMap._flip_ambiguous): iterations
 # from the mirror image, and the cost margin (chi-square units: 3 sigma) the solution must win by
 FLIP_ITERS = 10
@@ -336,8 +362,13 @@ class DistributedMap:
                  confirm_n: int = 3, weak_below: int = 3, confirmed_loss: str | None = "huber",
                  restart_from_prior: bool = True, restart_iter: int = 6,
                  weak_below_nlos: int | None = None, nlos_min_outliers: int = 2, nlos_min_frac: float = 0.02,
-                 clean_after_n: int = 0, founder: bool = True, peer_corr_datum: float = 0.5):
+                 clean_after_n: int = 0, founder: bool = True, peer_corr_datum: float = 0.5,
+                 common_mode: bool = True):
         self.id = station_id
+        # reported covariance with the error the peers share (in a multi-hop field they inherit the
+        # same upstream error), not only independent per-link consider terms (_common_mode_cov;
+        # docs/survey.md); off in the datum mode
+        self.common_mode = common_mode
         self.free = free_mask(station_id, founder)
         # None while the prior is the coarse fix (or the founders' frame); else the damping sigma of
         # the datum mode (:meth:`hold_datum`)
@@ -413,6 +444,8 @@ class DistributedMap:
         self._sdl = self.sigma_d_m  # the links' noise sigma of the last consensus (_link_sigma)
         self.range_weight = np.zeros(0)
         self._dirty = False
+        # (3, 3) the last solve's covariance relative to the peers (without the error shared with them)
+        self._cov_local = np.zeros((3, 3))
         if pos0_m is None or cov0_m2 is None or not np.any(np.diag(cov0_m2)[self.free] > 0) and self.nf:
             # no coarse fix: trilaterate once enough peers are known
             self.initialized = self.nf == 0
@@ -858,6 +891,39 @@ class DistributedMap:
         except np.linalg.LinAlgError:  # a degenerate geometry (e.g. a start on a peer): no update
             return False
 
+    def _common_mode_cov(self, x, n, Pj, Cj, gamma: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """(nf, nf) covariances of the solution at ``x`` relative to the peers (``A^-1``) and with the
+        error the peers share; None when they share none (a peer without error, station 1: the
+        per-link terms alone).
+
+        Peers of a multi-hop field inherit the same upstream error. Peer j's error is taken as
+        ``e_j = e_c + eps_j``: a part ``e_c ~ N(0, C_c)`` common to all the peers and an independent
+        rest. ``C_c`` (3, 3) is as large a common part as the peers' covariances ``C_j`` (k, 3, 3)
+        (extrinsic) allow, ``C_c <= C_j`` for every j (:func:`common_lower_bound`): the most the peers
+        can share. The rest enters each link's variance as ``gamma u_j^T (C_j - C_c) u_j`` (the
+        per-link consider term, ``gamma = peer_corr``). Linearized, a
+        common shift of all peers moves the solution by ``G e_c``,
+        ``G = A^-1 sum_j w_j J_j^T u_j^T`` (nf, 3) (``= I`` with three free coordinates and no prior:
+        ranges cannot tell a common shift of all the peers), so the covariance is
+        ``A^-1 + G C_c G^T``, where per-link terms alone average ``e_c`` away over the k links.
+        (Without a fix the height prior, the plane through the peers' estimates, rises with them too;
+        counting that made the heights' variance grow hop by hop, and through ``u_z^2 C_j`` in every
+        link's weight it cost the horizontal: docs/survey.md.)
+        """
+        Cc = common_lower_bound(Cj)
+        if Cc is None:
+            return None
+        nf = self.nf
+        diff = x - Pj
+        u = diff / np.linalg.norm(diff, axis=1)[:, None]  # (k, 3)
+        rest = np.maximum(np.einsum("ki,kij,kj->k", u, Cj, u) - np.einsum("ki,ij,kj->k", u, Cc, u), 0.0)
+        w = 1.0 / (self._link_var(x, Pj) / n + gamma * rest)
+        J = u[:, :nf]
+        Linv = _chol_inv_factor(self.prior_info + (J.T * w) @ J)
+        Ainv = Linv.T @ Linv
+        G = Ainv @ ((J.T * w) @ u)  # (nf, 3): the solution's shift per common shift of the peers
+        return Ainv, Ainv + G @ Cc @ G.T
+
     def _flip_ambiguous(self, sc: "_SolveCache") -> bool:
         """A first fix from ranges alone is ambiguous if the located peers lie nearly on a line: the
         solution's mirror image across their principal line fits about as well. Re-solve from the
@@ -878,7 +944,9 @@ class DistributedMap:
         if x2 is None or not np.all(np.isfinite(x2)):
             return False
 
-        if np.hypot(*(x2[:2] - x[:2])) <= FLIP_SAME_M + 3.0 * np.sqrt(self.cov_m2[0, 0] + self.cov_m2[1, 1]):
+        # (our sigma relative to these peers: the error we share with them moves the mirror image too)
+        P = self._cov_local
+        if np.hypot(*(x2[:2] - x[:2])) <= FLIP_SAME_M + 3.0 * np.sqrt(P[0, 0] + P[1, 1]):
             return False  # back to the same solution: there is one
 
         def cost(y: np.ndarray) -> float:
@@ -910,13 +978,22 @@ class DistributedMap:
             return False
         n, dbar, Pj, Cj = arr
         Cx = self._extrinsic(x, n, Pj, Cj) if self.extrinsic and self.initialized else Cj
-        gamma = self.peer_corr if self.datum_sigma_m is None else self.peer_corr_datum
-        A = self._normal(x, n, dbar, Pj, Cx, gamma)[0]
-        Linv = _chol_inv_factor(A)
+        cov = np.zeros((3, 3))
+        Cm = None
+        if self.common_mode and self.datum_sigma_m is None:
+            Cm = self._common_mode_cov(x, n, Pj, Cx, self.peer_corr)
+        if Cm is not None:
+            cov[:self.nf, :self.nf] = Cm[1]
+            self._cov_local = np.zeros((3, 3))
+            self._cov_local[:self.nf, :self.nf] = Cm[0]
+        else:
+            gamma = self.peer_corr if self.datum_sigma_m is None else self.peer_corr_datum
+            A = self._normal(x, n, dbar, Pj, Cx, gamma)[0]
+            Linv = _chol_inv_factor(A)
+            cov[:self.nf, :self.nf] = Linv.T @ Linv  # (the free coordinates are the first nf)
+            self._cov_local = cov
         self.range_weight = w
         self.pos_m = x
-        cov = np.zeros((3, 3))
-        cov[:self.nf, :self.nf] = Linv.T @ Linv  # (the free coordinates are the first nf)
         self.cov_m2 = symmetrize(cov)
         self.initialized = True
         self.n_updates += 1

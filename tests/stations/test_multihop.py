@@ -156,3 +156,52 @@ def test_the_sparse_fisher_information_equals_the_per_link_sum():
                     ref += tot[i, j] / sig[i, j] ** 2 * np.outer(g, g)
         np.testing.assert_allclose(survey_fim(P, C, sig, free, 10.0), ref, rtol=1e-12, atol=1e-12)
     assert np.all(np.isfinite(survey_crlb(P, C, sig, free, 10.0)))
+
+
+def test_the_common_part_of_the_peers_covariances_lies_below_each():
+    from stations.estimators import common_lower_bound
+
+    rng = np.random.default_rng(11)
+    for _ in range(20):
+        L = rng.normal(0.0, 1.0, (5, 3, 3))
+        C = L @ np.swapaxes(L, 1, 2)
+        X = common_lower_bound(C)
+        assert np.linalg.eigvalsh(X).min() >= -1e-12
+        # X <= C_j for every peer (up to the floor of 1e-9 of a trace on pinned coordinates)
+        assert min(np.linalg.eigvalsh(Cj - X).min() / np.trace(Cj) for Cj in C) >= -1e-8
+    C = np.stack([np.diag([4.0, 9.0, 100.0])] * 3)
+    np.testing.assert_allclose(common_lower_bound(C), C[0], atol=1e-9)  # equal peers: all of it is common
+    C[1] = np.diag([4.0, 0.0, 0.0])  # a founder pins y and z: they share x only
+    np.testing.assert_allclose(common_lower_bound(C), np.diag([4.0, 0.0, 0.0]), atol=1e-6)
+    C[2] = 0.0  # station 1 shares no error
+    assert common_lower_bound(C) is None
+
+
+def test_a_shift_all_peers_share_stays_in_the_reported_covariance():
+    """Peers two hops out carry the same upstream error: all of them are off by one shift drawn from
+    their (equal) covariance. The station's solve moves with them, and its covariance must say so:
+    with the common part the mean NEES is about 3 (3 dof), per-link consider terms alone report the
+    shift averaged away over the twelve links."""
+    truth = np.array([1200.0, 900.0, 30.0])
+    ang = np.arange(12) * np.pi / 6.0
+    rad = np.where(np.arange(12) % 2, 2500.0, 1500.0)
+    peers = np.column_stack([truth[0] + rad * np.cos(ang), truth[1] + rad * np.sin(ang),
+                             np.random.default_rng(5).uniform(0.0, 60.0, 12)])
+    Cp = np.diag([2.0**2, 2.0**2, 5.0**2])
+    rng = np.random.default_rng(4)
+    nees = {True: [], False: []}
+    for _ in range(200):
+        shift = rng.multivariate_normal(np.zeros(3), Cp)
+        noise = rng.normal(0.0, 0.5, (12, 10))
+        fix = truth + rng.normal(0.0, 10.0, 3)
+        for common in (True, False):
+            est = DistributedMap(9, fix, np.eye(3) * 100.0, 0.5, common_mode=common)
+            for k in range(12):
+                for r in range(10):
+                    d = float(np.linalg.norm(truth - peers[k])) + noise[k, r]
+                    est.on_range(k + 10, d, 0.0, True, peers[k] + shift, Cp)
+            assert est.refresh()
+            e = est.pos_m - truth
+            nees[common].append(float(e @ np.linalg.solve(est.cov_m2, e)))
+    assert 2.4 < np.mean(nees[True]) < 3.6  # honest (3 dof; measured 3.2)
+    assert np.mean(nees[False]) > 5.0  # the shift averaged away: overconfident (measured 6.7)

@@ -14,6 +14,7 @@ from net import messages as M
 from net.radio import may_link
 from net.scenario import ScenarioError, from_dict, load
 from stations.core import StationConfig, StationCore
+from stations.estimators import DistributedMap
 from stations.sim import Simulator
 from stations.slots import GARBAGE
 from stations.tdma import TdmaPlan
@@ -191,6 +192,7 @@ def test_the_fixed_plan_is_unchanged(monkeypatch):
     import stations.clocksync as cs
 
     monkeypatch.setattr(cs, "ENTER_FREQ_SD", float("inf"))
+    monkeypatch.setitem(DistributedMap.__init__.__kwdefaults__, "common_mode", False)
     sim = Simulator(load("seed000"))
     r = sim.run(10.0, [5.0, 10.0])
     h = hashlib.sha256()
