@@ -188,7 +188,9 @@ def test_the_fixed_plan_is_unchanged(monkeypatch):
     """seed000, 10 s: the hash of the estimates and the range log (rounded: 1 um, 1e-9 m^2) is the
     one the simulator gave before the distributed assignment was wired in (ea898e7). The clock
     filter's frequency gate for entering a definition (stations/clocksync.py ENTER_FREQ_SD, multi-hop
-    time) came later and changes seed000 on purpose: it is off here, as it was then."""
+    time) came later and changes seed000 on purpose: it is off here, as it was then. So does the error
+    the peers share in the survey's reported covariance (stations/estimators.py ``common_mode``,
+    issue 33: a station whose usable peers do not include station 1 yet, in the first seconds)."""
     import stations.clocksync as cs
 
     monkeypatch.setattr(cs, "ENTER_FREQ_SD", float("inf"))
