@@ -363,11 +363,12 @@ class DistributedMap:
                  restart_from_prior: bool = True, restart_iter: int = 6,
                  weak_below_nlos: int | None = None, nlos_min_outliers: int = 2, nlos_min_frac: float = 0.02,
                  clean_after_n: int = 0, founder: bool = True, peer_corr_datum: float = 0.5,
-                 common_mode: bool = True):
+                 common_mode: bool | None = None):
         self.id = station_id
         # reported covariance with the error the peers share (in a multi-hop field they inherit the
         # same upstream error), not only independent per-link consider terms (_common_mode_cov;
-        # docs/survey.md); off in the datum mode
+        # docs/survey.md); off in the datum mode. None: with a coarse fix only (without one it cost
+        # the horizontal: docs/survey.md)
         self.common_mode = common_mode
         self.free = free_mask(station_id, founder)
         # None while the prior is the coarse fix (or the founders' frame); else the damping sigma of
@@ -456,8 +457,10 @@ class DistributedMap:
             # (no coarse fix to restart from: the prior set at the first solve only regularizes it)
             self.restart_from_prior = False
             self.no_fix = True
+            self.common_mode = bool(common_mode)
         else:
             self.no_fix = False
+            self.common_mode = bool(common_mode is None or common_mode)
             self.initialized = True
             self.pos_m = np.asarray(pos0_m, dtype=float).copy()
             self.cov_m2 = _clean_cov(cov0_m2, self.free)
