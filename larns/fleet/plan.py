@@ -160,6 +160,11 @@ def plan_fleet(args: argparse.Namespace) -> FleetPlan:
     from net.bus import free_tcp_ports
 
     scn = S.load_cli(args.scenario, args.n_stations)
+    if scn.tdma.poll:  # protocol v2's first phase runs in the simulator only (docs/protocol.md)
+        print(f"larns fleet: {args.scenario}: [tdma] ranging: \"poll\" runs in the simulator only for now "
+              f"(expected \"addressed\" for a fleet of processes: protocol v2 on Zenoh is issue 31's second phase)",
+              file=sys.stderr)
+        raise SystemExit(2)
     joins = parse_joins(args, scn)
     scn = with_outside_joiners(scn, joins)
     join_ids = {j for j, _ in joins}
