@@ -55,7 +55,7 @@ from net.channel import AirChannel, scenario_senders, station_rng
 from net.faults import WireFaults, merge_faults
 from net.procsched import add_sched_args, apply_sched_args
 from net.radio import may_link
-from net.scenario import Scenario, joiner_position
+from net.scenario import POLL_NOT_IN_PROCESSES, Scenario, joiner_position
 from net.tiles import Tiling, parse_tile
 
 from .shell import PublishPolicy, true_clock_error_s
@@ -110,8 +110,7 @@ class StationNode:
             raise ValueError(f"station {opts.station_id} is not in scenario {scn.name} (ids {scn.ids}); "
                              "a station from outside the scenario hot-joins with --join")
         if scn.tdma.poll:  # protocol v2's first phase: the core and the simulator (docs/protocol.md)
-            raise ValueError("[tdma] ranging: \"poll\" runs in the simulator only for now (expected \"addressed\" "
-                             "for the station process: protocol v2 on Zenoh is issue 31's second phase)")
+            raise ValueError(POLL_NOT_IN_PROCESSES)
         if opts.speed <= 0:
             raise ValueError("--speed must be > 0")
         self.scn = scn

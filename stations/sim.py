@@ -19,6 +19,7 @@ import numpy as np
 from net import streams
 from net.channel import AirChannel, Clock, coarse_fix, draw_clock, station_rng
 from net.clock import true_network_offset_s
+from net.messages import AIR_MSG_KINDS
 from net.radio import may_link, radio_dict
 from net.scenario import DEPARTURE_KINDS, Scenario
 
@@ -28,8 +29,6 @@ from .shell import PublishPolicy
 from .shellfaults import ShellFaults
 from .slots import reception_in_slot
 from .tdma import TdmaPlan
-
-AIR_KINDS = ("range_req", "range_rsp", "nav", "poll", "reply")  # what goes on air (the rest is published)
 
 
 @dataclass
@@ -195,7 +194,7 @@ class Simulator:
         ids, index, loss = self.scn.ids, self._index, self.scn.net.loss_prob
         for m in outs:
             kind = m["kind"]
-            if kind not in AIR_KINDS:
+            if kind not in AIR_MSG_KINDS:  # (published, not on air)
                 self._publish_local(k, m)
                 continue
             t_tx_true = self.clocks[k].to_true(m["t_tx_s"])

@@ -161,9 +161,7 @@ def plan_fleet(args: argparse.Namespace) -> FleetPlan:
 
     scn = S.load_cli(args.scenario, args.n_stations)
     if scn.tdma.poll:  # protocol v2's first phase runs in the simulator only (docs/protocol.md)
-        print(f"larns fleet: {args.scenario}: [tdma] ranging: \"poll\" runs in the simulator only for now "
-              f"(expected \"addressed\" for a fleet of processes: protocol v2 on Zenoh is issue 31's second phase)",
-              file=sys.stderr)
+        print(f"larns fleet: {args.scenario}: {S.POLL_NOT_IN_PROCESSES}", file=sys.stderr)
         raise SystemExit(2)
     joins = parse_joins(args, scn)
     scn = with_outside_joiners(scn, joins)

@@ -37,6 +37,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.linalg import solve_triangular
+
+from nav.kalman import chol_solve, symmetrize
 
 from .initializer import InitResult
 from .tuning import Tuning
@@ -103,18 +106,9 @@ def residual_cov(u: np.ndarray, s_m: np.ndarray, same: np.ndarray, lag_s: np.nda
     return R
 
 
-def _chol_solve(L: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """``A^-1 B`` for ``A = L L^T`` (lower Cholesky factor ``L``)."""
-    from scipy.linalg import solve_triangular  # (at call: the command line starts without scipy)
-
-    return solve_triangular(L, solve_triangular(L, B, lower=True), lower=True, trans="T")
-
-
 def _linearize(x, t_s, sta_m, cov_m2, rho_m, same, t_ref_s, tuning):
     """Whitened residuals (N,) and Jacobian (N, 8) of the window at ``x`` (8,), and the Cholesky factor
     of ``R``."""
-    from scipy.linalg import solve_triangular
-
     tau = t_s - t_ref_s  # (N,) <= 0
     d = x[:3] + x[3:6] * tau[:, None] - sta_m  # (N, 3) station -> aircraft
     r = np.linalg.norm(d, axis=1)
@@ -123,7 +117,8 @@ def _linearize(x, t_s, sta_m, cov_m2, rho_m, same, t_ref_s, tuning):
     L = np.linalg.cholesky(residual_cov(u, s, same, -tau, tuning))
     res = rho_m - (r + x[6] + x[7] * tau)
     J = np.concatenate([u, u * tau[:, None], np.ones((len(tau), 1)), tau[:, None]], axis=1)
-    return solve_triangular(L, res, lower=True), solve_triangular(L, J, lower=True)
+    W = solve_triangular(L, np.column_stack([res, J]), lower=True)  # whitened: L^-1 [res J]
+    return W[:, 0], W[:, 1:]
 
 
 def batch_fix(t_s: np.ndarray, sta_m: np.ndarray, cov_m2: np.ndarray, rho_m: np.ndarray, ids: np.ndarray,
@@ -148,8 +143,7 @@ def batch_fix(t_s: np.ndarray, sta_m: np.ndarray, cov_m2: np.ndarray, rho_m: np.
             rw, Jw = _linearize(x, t_s, sta_m, cov_m2, rho_m, same, t_ref_s, tuning)
             A = Jw.T @ Jw + info_prior
             g = Jw.T @ rw - info_prior @ x
-            La = np.linalg.cholesky(A)
-            dx = _chol_solve(La, g)
+            dx = chol_solve(A, g[:, None])[:, 0]
             step = float(np.linalg.norm(dx[:3]))
             if step > cfg.max_step_m:
                 dx = dx * (cfg.max_step_m / step)
@@ -159,12 +153,11 @@ def batch_fix(t_s: np.ndarray, sta_m: np.ndarray, cov_m2: np.ndarray, rho_m: np.
             if step < cfg.tol_m:
                 break
         rw, Jw = _linearize(x, t_s, sta_m, cov_m2, rho_m, same, t_ref_s, tuning)
-        La = np.linalg.cholesky(Jw.T @ Jw + info_prior)
-        P = _chol_solve(La, np.eye(8))
+        P = chol_solve(Jw.T @ Jw + info_prior, np.eye(8))
     except np.linalg.LinAlgError:
         return fail
     cost = float(rw @ rw + np.sum((x[[3, 4, 5, 7]] / prior_sd) ** 2))
-    return BatchFit(x, 0.5 * (P + P.T), cost, n - 4, bool(np.all(np.isfinite(P))), float(t_ref_s))
+    return BatchFit(x, symmetrize(P), cost, n - 4, bool(np.all(np.isfinite(P))), float(t_ref_s))
 
 
 @dataclass
