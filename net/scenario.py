@@ -904,10 +904,6 @@ def _validate_params(raw: dict) -> None:
 
 ASSIGNMENTS = ("fixed", "distributed")
 RANGINGS = ("addressed", "poll")  # [tdma] ranging: the addressed exchange (v1) or one poll per slot (v2)
-# protocol v2's first phase runs in the station core and the simulator only: what the station process
-# and `larns fleet` say to a scenario with the poll (docs/protocol.md "What phase 1 implements")
-POLL_NOT_IN_PROCESSES = ('[tdma] ranging: "poll" runs in the simulator only for now (expected "addressed" '
-                         "for station processes: protocol v2 on Zenoh is issue 31's second phase)")
 MAX_CYCLE_SLOTS = 1024  # net.messages.MAX_SLOTS: a nav's slot summary has one entry per slot at most
 
 

@@ -196,8 +196,9 @@ _OBSERVE = ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_q
 def station_subscriptions(sid: int) -> list[str]:
     """What a station may subscribe to (docs/protocol.md): the navs of any tile (net/tiles.py: it
     subscribes to those within its radio reach) or of none (a replayed recording from before tiles),
-    and the requests and replies addressed to it."""
-    return ["larns/station/*/nav/**", f"larns/station/*/range/req/{sid}", f"larns/station/*/range/rsp/{sid}"]
+    and the requests and replies addressed to it (protocol v2: every poll, the replies to its own)."""
+    return ["larns/station/*/nav/**", f"larns/station/*/range/req/{sid}", f"larns/station/*/range/rsp/{sid}",
+            "larns/station/*/poll", f"larns/station/*/reply/{sid}"]
 
 
 def access_control(ks: Keystore, me: str) -> dict:
@@ -339,7 +340,8 @@ def flood_guard(cycle_s: float, slot_s: float, speed: float = 1.0, ids=(), me: i
     """Zenoh ``downsampling`` for a peer's or the router's ingress. Zenoh keeps one state per rule
     *and per link*, and peers link directly to each other (a client only to its router), so on a
     peer and on the router each rule caps one remote process. A LARNS station sends each of these
-    keys at most once per cycle (a reply once per requesting slot); the caps leave 4x headroom and
+    keys at most once per cycle (an addressed reply once per requesting slot; protocol v2: a poll per
+    cycle, a reply to each poller per cycle); the caps leave 4x headroom and
     drop the rest in Rust, before any Python runs. Not for clients: their one link carries
     everyone's traffic (the router caps it per client).
 
@@ -365,17 +367,19 @@ def flood_guard(cycle_s: float, slot_s: float, speed: float = 1.0, ids=(), me: i
             if k == me:
                 continue
             rules += [{"key_expr": x, "freq": per_cycle} for x in navs(k)]
-            rules += [{"key_expr": f"larns/station/{k}/range/req/{me}", "freq": per_cycle},
-                      {"key_expr": f"larns/station/{k}/range/rsp/{me}", "freq": per_cycle}]
+            rules += [{"key_expr": f"larns/station/{k}/{x}", "freq": per_cycle}
+                      for x in (f"range/req/{me}", f"range/rsp/{me}", "poll", f"reply/{me}")]
         else:
             rules += [{"key_expr": x, "freq": per_cycle} for x in navs(k)]
-            rules += [{"key_expr": f"larns/station/{k}/{x}", "freq": per_cycle} for x in ("estimate", "truth", "init")]
+            rules += [{"key_expr": f"larns/station/{k}/{x}", "freq": per_cycle}
+                      for x in ("estimate", "truth", "init", "poll")]
     if me is None:
         for k in pair_ids:
             for j in pair_ids:
                 if j != k:
                     rules += [{"key_expr": f"larns/station/{k}/range/req/{j}", "freq": per_cycle},
-                              {"key_expr": f"larns/station/{k}/range/rsp/{j}", "freq": per_slot}]
+                              {"key_expr": f"larns/station/{k}/range/rsp/{j}", "freq": per_slot},
+                              {"key_expr": f"larns/station/{k}/reply/{j}", "freq": per_cycle}]
     if not rules:
         return []
     return [{"id": "larns-flood-guard", "flows": ["ingress"], "messages": ["put"], "rules": rules}]
@@ -834,7 +838,8 @@ class Security:
                             now_s, own)
 
     def station_guard(self, cycle_s: float, now_s: Callable[[], float], speed: float | None = None) -> ReceiveGuard:
-        """A station hears from each peer at most a nav, a request and a reply per cycle: budget 4
+        """A station hears from each peer at most a nav, a request and a reply per cycle (protocol v2: a
+        nav, a poll and its reply to our poll): budget 4
         per cycle, burst 8; stamps more than :data:`STALE_S` (or 20 cycles) away from our fleet
         clock are stale. The window is wide on purpose: replays inside it are caught by the
         ``(stamp, seq)`` order, and a nav delivered seconds late on a loaded machine (speed 5: a

@@ -179,10 +179,11 @@ class StationCore:
         self.counters = {"requests": 0, "responses": 0, "lost": 0, "ranges_in": 0, "ignored": 0,
                          "rejected_ranges": 0, "late": 0, "sync_in": 0, "implausible": 0}
         # protocol v2: our open poll {seq, t1, index: member -> k, rx: member -> T4, entries}; the polls
-        # we answered, poller -> (poll seq, T2, T3, k, N); the longest path a reply travels (window V2)
+        # we answered, poller -> {poll seq: (T2, T3, k, N)} (the latest POLLED_KEEP per poller: a process
+        # may hear a poller's next poll before its final); the longest path a reply travels (window V2)
         self.poll = cfg.ranging == "poll"
         self._poll_out: dict | None = None
-        self._polled: dict[int, tuple[int, float, float, int, int]] = {}
+        self._polled: dict[int, dict[int, tuple[float, float, int, int]]] = {}
         self._path_m = min(cfg.max_range_m, 2.0 * cfg.field_radius_m) if cfg.field_radius_m > 0 else cfg.max_range_m
         if self.poll:
             self.counters.update(reply_window=0, final_window=0, final_lost=0, polls_answered=0, ss_gated=0)
@@ -246,6 +247,13 @@ class StationCore:
     def network_time(self, t_s: float) -> float:
         """Estimated network time (station 1's clock) at local time ``t_s``."""
         return self.clk.network_time(t_s)
+
+    def awaiting(self) -> int:
+        """Replies still expected by our open exchange: the addressed request's (``pending``) or the
+        members of our poll not heard yet (protocol v2). The Zenoh node holds the own nav's timer
+        for them (a bounded wait, ``--lookahead``), as the simulator delivers in emulated-time order."""
+        po = self._poll_out
+        return len(self.pending) + (0 if po is None else len(po["index"]) - len(po["rx"]))
 
     def next_deadline(self) -> float | None:
         """Local time of the next ``on_timer`` call the core needs."""
@@ -595,7 +603,11 @@ class StationCore:
         if not self._in_slot(msg, t3):
             self.counters["late"] += 1
             return []
-        self._polled[src] = (msg["seq"], float(t_rx_s), t3, k, len(mem))
+        answered = self._polled.setdefault(src, {})
+        answered[msg["seq"]] = (float(t_rx_s), t3, k, len(mem))
+        if len(answered) > POLLED_KEEP:  # the oldest one's final never came
+            del answered[min(answered)]
+            self.counters["final_lost"] += 1
         self.counters["polls_answered"] += 1
         m = self._base("reply", t3)
         m.update(dst=src, poll_seq=msg["seq"], t_rx_s=float(t_rx_s), t_tx_s=t3, pos_m=self.est.pos_m.tolist(),
@@ -721,11 +733,18 @@ class StationCore:
         """Protocol v2: the nav of a poller we answered is the final (T5 its ``t_tx_s``, T6 = ``t_rx_s``),
         taken inside its sub-slot N (rule V2, else ``final_window``): with its T1 and T4 of our reply,
         the double-sided range (V4, both clocks' frequencies) and the time transfer (V7) - ours."""
-        seq, t2, t3, k, n = self._polled.pop(src)
+        answered = self._polled[src]
         pf = msg.get("poll")
-        if pf is None or pf["seq"] != seq:
+        seq = -1 if pf is None else pf["seq"]
+        for s in [s for s in answered if s < seq or pf is None]:  # polls whose final this nav is not
+            del answered[s]
             self.counters["final_lost"] += 1
+        mine = answered.pop(seq, None)
+        if not answered:
+            del self._polled[src]
+        if mine is None:
             return
+        t2, t3, k, n = mine
         t4 = next((t for p, t in pf["rx"] if p == self.id), None)
         if t4 is None:  # the poller did not hear our reply (in its window)
             self.counters["final_lost"] += 1
@@ -971,6 +990,9 @@ def _moved_beyond(d_m: np.ndarray, cov_m2: np.ndarray, free: np.ndarray) -> bool
     return bool(q > chdtri(int(f.sum()), ROLLBACK_P))
 
 
+# protocol v2: the polls of one poller a member keeps waiting for their finals (the poll of this cycle
+# and the previous one's, whose final a process may take after the next poll: navs are read in batches)
+POLLED_KEEP = 2
 # protocol v2: the poller's single-sided range enters the survey only once the clocks' frequency
 # uncertainty biases it by at most this fraction of sigma_d (StationCore._rate_bias_m; docs/protocol.md)
 SS_BIAS_GATE = 0.25

@@ -55,7 +55,7 @@ from net.channel import AirChannel, scenario_senders, station_rng
 from net.faults import WireFaults, merge_faults
 from net.procsched import add_sched_args, apply_sched_args
 from net.radio import may_link
-from net.scenario import POLL_NOT_IN_PROCESSES, Scenario, joiner_position
+from net.scenario import Scenario, joiner_position
 from net.tiles import Tiling, parse_tile
 
 from .shell import PublishPolicy, true_clock_error_s
@@ -71,7 +71,8 @@ log = logging.getLogger("larns.station")
 # wait up to a cycle for the batch before the own nav)
 NAV_HOLD_WALL_S = 0.1
 
-AIR_KINDS = ("range_req", "range_rsp", "nav")
+AIR_KINDS = M.AIR_MSG_KINDS  # addressed: range_req / range_rsp; protocol v2: poll / reply; nav
+EXCHANGE_KINDS = ("range_req", "range_rsp", "poll", "reply")  # latency-critical: a callback each
 PENDING_MAX = 4096  # messages held back by emulated wire delays (bounded under a flood)
 SWITCH_INTERVAL_S = 0.0005  # GIL hand-over interval of a station process (Python default 5 ms)
 
@@ -109,8 +110,6 @@ class StationNode:
         if opts.station_id not in scn.ids:
             raise ValueError(f"station {opts.station_id} is not in scenario {scn.name} (ids {scn.ids}); "
                              "a station from outside the scenario hot-joins with --join")
-        if scn.tdma.poll:  # protocol v2's first phase: the core and the simulator (docs/protocol.md)
-            raise ValueError(POLL_NOT_IN_PROCESSES)
         if opts.speed <= 0:
             raise ValueError("--speed must be > 0")
         self.scn = scn
@@ -192,10 +191,10 @@ class StationNode:
             if self.core is None or self._stop.is_set():
                 return
             core = self.core
-            sched = (core.slot, core.state, len(core.pending))  # a message re-schedules the core via these
+            sched = (core.slot, core.state, core.awaiting())  # a message re-schedules the core via these
             self._ingest(recv, key, data)
             self._deliver_due()
-            if self._pending or (core.slot, core.state, len(core.pending)) != sched:
+            if self._pending or (core.slot, core.state, core.awaiting()) != sched:
                 self._wake.set()  # the main loop re-computes when to wake up (else: <= 0.1 s anyway)
 
     def _drain_every_s(self) -> float:
@@ -272,6 +271,10 @@ class StationNode:
             return rest == ["range", "req", str(self.id)] and msg["dst"] == self.id
         if kind == "range_rsp":
             return rest == ["range", "rsp", str(self.id)] and msg["dst"] == self.id
+        if kind == "poll":
+            return rest == ["poll"]
+        if kind == "reply":
+            return rest == ["reply", str(self.id)] and msg["dst"] == self.id
         return False
 
     def _ingest(self, recv_wall: float, key: str, data: bytes) -> None:
@@ -290,7 +293,7 @@ class StationNode:
         if msg["src"] == self.id:
             return
         hold = recv_wall
-        if self._air_slots is not None and msg["kind"] != "range_rsp":
+        if self._air_slots is not None and msg["kind"] not in ("range_rsp", "reply"):
             self._announced(msg)
             if msg["kind"] == "nav":  # judged once the slot is over and its other navs are in
                 hold = min(max(recv_wall, self.wall_of(float(phy["t_true_s"]) + self.slot_s) + NAV_HOLD_WALL_S),
@@ -314,7 +317,7 @@ class StationNode:
         self._seen_q.append(ident)
         if len(self._seen_q) > 4096:
             self._seen.discard(self._seen_q.popleft())
-        if msg["kind"] in ("range_req", "range_rsp"):
+        if msg["kind"] in EXCHANGE_KINDS:
             self._wire_delay_s.append((self.fleet_now() - phy["t_true_s"]) / self.speed)  # wall: tx -> here
         # the channel owns physics: the named sender's true position and clock, not its phy claims
         tx = self.senders.receive(msg, phy, self.fleet_now())
@@ -329,7 +332,7 @@ class StationNode:
             self.stats["air_lost"] += 1
             return
         self.stats["rx_" + msg["kind"]] += 1
-        if msg["kind"] in ("range_req", "range_rsp"):  # (navs are fed in batches by design)
+        if msg["kind"] in EXCHANGE_KINDS:  # (navs are fed in batches by design)
             if t_rx_local < self._last_input_s:
                 self.stats["host_late"] += 1  # behind the core's clock: handed over anyway, the core decides
             self._last_input_s = max(self._last_input_s, t_rx_local)
@@ -360,7 +363,7 @@ class StationNode:
         announces it every cycle), so a slot claimed this cycle is seen a cycle late; the simulator
         reads the cores' slots instead. A nav lost to another sender is garbage for the core."""
         mine = self.core.slot
-        s = mine if msg["kind"] == "range_rsp" else msg.get("slot")
+        s = mine if msg["kind"] in ("range_rsp", "reply") else msg.get("slot")
         if s is None:
             return False
         src, now, horizon = msg["src"], self.fleet_now(), 1.5 * self.cycle_s
@@ -490,8 +493,8 @@ class StationNode:
                 return
             lateness = now - wall
             is_req = self._is_slot_start(dl)
-            if not is_req and self.core.pending and now < wall + self.opts.lookahead_s:
-                return  # emulated-time order: the outstanding reply first (bounded wait)
+            if not is_req and self.core.awaiting() and now < wall + self.opts.lookahead_s:
+                return  # emulated-time order: the outstanding replies first (bounded wait)
             self._last_input_s = max(self._last_input_s, dl)
             try:
                 outs = self.core.on_timer(dl)
@@ -510,8 +513,8 @@ class StationNode:
         dl = self.core.next_deadline()
         if dl is not None:
             w = self.wall_of(self.clock.to_true(dl))
-            if not self._is_slot_start(dl) and self.core.pending and time.time() >= w:
-                w += self.opts.lookahead_s  # waiting for the outstanding reply
+            if not self._is_slot_start(dl) and self.core.awaiting() and time.time() >= w:
+                w += self.opts.lookahead_s  # waiting for the outstanding replies
             t = min(t, w)
         if self._pending:
             t = min(t, self._pending[0][0])
@@ -564,8 +567,12 @@ class StationNode:
             if self._stop.is_set():
                 return self.report()
         self.start_core()
-        bus.subscribe(f"larns/station/*/range/req/{me}", self._on_bytes)
-        bus.subscribe(f"larns/station/*/range/rsp/{me}", self._on_bytes)
+        if self.scn.tdma.poll:  # protocol v2: every poll (a broadcast), the replies to ours
+            bus.subscribe("larns/station/*/poll", self._on_bytes)
+            bus.subscribe(f"larns/station/*/reply/{me}", self._on_bytes)
+        else:
+            bus.subscribe(f"larns/station/*/range/req/{me}", self._on_bytes)
+            bus.subscribe(f"larns/station/*/range/rsp/{me}", self._on_bytes)
         # navs (one per neighbour and cycle, not latency-critical: their timing comes from phy) go
         # through Zenoh ring buffers drained in batches, one per tile within radio reach
         # (net/tiles.py); range requests/replies wake us immediately

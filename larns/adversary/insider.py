@@ -97,7 +97,7 @@ def absurd_message(rng: np.random.Generator, kind: str, src: int, seq: int, stam
     t = float(_pick(rng, (stamp_s, *EXTREMES)))
     if kind == "nav":
         n = _n_list(rng, p_long)
-        ids = np.where(rng.random(n) < 0.5, rng.choice(IDS, n), rng.integers(1, M.MAX_ID + 1, n)).tolist()
+        ids = _ids(rng, n, None)
         rs = rng.choice(NONNEG, n).tolist()
         ts = rng.choice((stamp_s, *EXTREMES), n).tolist()
         dth = rng.choice(EXTREMES, n).tolist()
@@ -109,6 +109,10 @@ def absurd_message(rng: np.random.Generator, kind: str, src: int, seq: int, stam
                  members=rng.integers(1, M.MAX_ID + 1, _n_list(rng, p_long)).tolist())
         if rng.random() < 0.8:
             m["clock"] = _clock(rng, stamp_s)
+        if rng.random() < 0.3:  # a final (protocol v2)
+            rx = _ids(rng, _n_list(rng, p_long), None)
+            m["poll"] = {"seq": int(_pick(rng, (0, 1, M.MAX_SEQ))), "t1": float(_pick(rng, (stamp_s, *EXTREMES))),
+                         "rx": [[i, float(_pick(rng, (stamp_s, *EXTREMES)))] for i in rx]}
         return m
     if kind == "range_req":
         return dict(base, dst=int(dst or 1), cycle=int(_pick(rng, (0, M.MAX_SEQ, int(stamp_s)))),
@@ -123,7 +127,23 @@ def absurd_message(rng: np.random.Generator, kind: str, src: int, seq: int, stam
         if rng.random() < 0.8:
             m["clock"] = _clock(rng, stamp_s)
         return m
+    if kind == "poll":
+        return dict(base, cycle=int(_pick(rng, (0, M.MAX_SEQ, int(stamp_s)))), slot=int(_pick(rng, (0, src - 1, M.MAX_ID))),
+                    t_tx_s=t, members=_ids(rng, _n_list(rng, p_long), dst))
+    if kind == "reply":
+        m = dict(base, dst=int(dst or 1), poll_seq=int(_pick(rng, (0, 1, M.MAX_SEQ))),
+                 t_rx_s=float(_pick(rng, (stamp_s, *EXTREMES))), t_tx_s=t, pos_m=_vec(rng), cov_m2=_cov(rng),
+                 n_updates=int(_pick(rng, (0, M.MAX_SEQ))), state=str(_pick(rng, M.STATES)))
+        if rng.random() < 0.8:
+            m["clock"] = _clock(rng, stamp_s)
+        return m
     raise ValueError(f"absurd_message: no absurd {kind}")
+
+
+def _ids(rng: np.random.Generator, n: int, dst: int | None) -> list[int]:
+    """``n`` station ids, half of them the scenario's (``IDS``), with ``dst`` among them if given."""
+    ids = np.where(rng.random(n) < 0.5, rng.choice(IDS, n), rng.integers(1, M.MAX_ID + 1, n)).tolist()
+    return ids if dst is None or not ids else [int(dst), *ids[1:]]
 
 
 def absurd_phy(rng: np.random.Generator, t_s: float, pos_m) -> dict:
@@ -287,7 +307,7 @@ class Insider:
         if self._within_budget(nav_key, t):
             out.append(self._out(absurd_message(self.rng, "nav", self.me, self._next_seq(), t), self._phy(t), "absurd"))
         for v in self.victims:
-            for kind in ("range_req", "range_rsp"):
+            for kind in ("range_req", "range_rsp", "poll", "reply"):
                 m = absurd_message(self.rng, kind, self.me, self._next_seq(), t, dst=v)
                 if self._within_budget(M.key_for(m), t):
                     out.append(self._out(m, self._phy(t), "absurd"))

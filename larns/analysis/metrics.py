@@ -175,9 +175,24 @@ def aircraft_accuracy(track: dict, truth: dict, t_from_s: float = 30.0, t_to_s: 
 
 
 def tdma_numbers(requests: Sequence[tuple], replies: set) -> dict[str, Any]:
-    """Range requests recorded and how many were answered (a reply with the request's seq)."""
+    """Exchanges recorded (``(stamp_s, initiator, responder, seq, cycle)``: a range request, or a
+    poll's member) and how many were answered (``(initiator, responder, seq)`` in ``replies``); per
+    initiator (``by_station``): its exchanges answered and its polls answered by every member named
+    (``complete_pct``; with the addressed exchange each request is a poll of one)."""
     n_ans = sum(1 for r in requests if (r[1], r[2], r[3]) in replies)
-    return {"requests": len(requests), "answered": n_ans, "answered_pct": 100.0 * n_ans / len(requests)}
+    polls: dict[tuple[int, int], list[bool]] = {}
+    for r in requests:
+        polls.setdefault((r[1], r[3]), []).append((r[1], r[2], r[3]) in replies)
+    by: dict[int, list[int]] = {}
+    for (src, _), ok in polls.items():
+        n = by.setdefault(src, [0, 0, 0, 0])  # polls, complete, exchanges, answered
+        n[0] += 1
+        n[1] += all(ok)
+        n[2] += len(ok)
+        n[3] += sum(ok)
+    return {"requests": len(requests), "answered": n_ans, "answered_pct": 100.0 * n_ans / len(requests),
+            "by_station": {src: {"polls": n[0], "complete_pct": 100.0 * n[1] / n[0],
+                                 "answered_pct": 100.0 * n[3] / n[2]} for src, n in sorted(by.items())}}
 
 
 # --------------------------------------------------------------------------- aircraft bounds

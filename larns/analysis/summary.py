@@ -189,14 +189,22 @@ def station_row(s) -> dict[str, Any]:
     if "pos_m" in row and "truth_m" in row:
         row["err_m"] = math.dist(row["pos_m"], row["truth_m"])
     sync_summary(row, s.clock())
-    if s.navs:
+    if s.polled:  # protocol v2: the members' replies its polls got (heard in their sub-slots)
+        row["exchanges_pct"] = 100.0 * s.answered / s.polled
+    elif s.navs:
         row["exchanges_pct"] = 100.0 * s.ranges / s.navs  # own slots whose exchange completed
     return row
 
 
 def station_table(rec) -> dict[int, dict]:
     """:func:`station_row` of every station, with who excludes whom (integrity)."""
+    from .metrics import tdma_numbers
+
     stations = {sid: station_row(s) for sid, s in sorted(rec.stations.items())}
+    if rec.range_requests:  # its polls (a request is a poll of one) answered by every member named
+        for sid, n in tdma_numbers(rec.range_requests, rec.range_replies)["by_station"].items():
+            if sid in stations:
+                stations[sid].update(polls=n["polls"], polls_complete_pct=n["complete_pct"])
     for sid, s in stations.items():
         by = [o for o, v in stations.items() if sid in v.get("excludes", ())]
         if by:

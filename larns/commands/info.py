@@ -81,6 +81,11 @@ def station_lines(s: dict[str, Any]) -> list[str]:
                  f"{_num(v.get('sigma_m'), '.2f', 8)} {_num(v.get('err_m'), '.2f', 8)} "
                  f"{'yes' if v.get('journal') else 'no':>7} {v.get('dropped') if v.get('dropped') is not None else '-':>7} "
                  f"{_num(v.get('exchanges_pct'), '.1f', 7)} {_num(v.get('sync_ns'), '.2f', 8)} {late}")
+    polls = {sid: v["polls_complete_pct"] for sid, v in st.items() if v.get("polls")}
+    if polls:
+        worst = min(polls, key=polls.get)
+        L.append(f"  exchanges complete (a poll answered by every member it named; a request answered): "
+                 f"{min(polls.values()):.1f} % (station {worst}) .. {max(polls.values()):.1f} %")
     for sid, v in st.items():
         if v.get("excluded_by"):
             L.append(f"  integrity: station {sid} EXCLUDED by {','.join(map(str, v['excluded_by']))}")

@@ -160,9 +160,6 @@ def plan_fleet(args: argparse.Namespace) -> FleetPlan:
     from net.bus import free_tcp_ports
 
     scn = S.load_cli(args.scenario, args.n_stations)
-    if scn.tdma.poll:  # protocol v2's first phase runs in the simulator only (docs/protocol.md)
-        print(f"larns fleet: {args.scenario}: {S.POLL_NOT_IN_PROCESSES}", file=sys.stderr)
-        raise SystemExit(2)
     joins = parse_joins(args, scn)
     scn = with_outside_joiners(scn, joins)
     join_ids = {j for j, _ in joins}

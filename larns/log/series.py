@@ -214,6 +214,8 @@ class StationSeries:
     truths: list[dict] = field(default_factory=list)                  # truth msgs
     navs: int = 0
     ranges: int = 0
+    polled: int = 0    # protocol v2: members named in its polls ...
+    answered: int = 0  # ... and replies its finals list (heard in their sub-slots)
     nav: list[tuple[int, dict]] = field(default_factory=list)       # (log_time_ns, nav broadcast)
     journal: bool = False
     init: dict | None = None          # the first recorded core_init record
@@ -418,8 +420,11 @@ class Recording:
     vehicles: dict[str, VehicleSeries] = field(default_factory=dict)
     net: NetworkStats = field(default_factory=NetworkStats)
     records: list[tuple[Msg, dict | None]] = field(default_factory=list)
-    range_requests: list[tuple] = field(default_factory=list)  # (stamp_s, src, dst, seq, cycle)
-    range_replies: set = field(default_factory=set)             # (initiator, responder, req_seq)
+    # the exchanges: (stamp_s, initiator, responder, seq, cycle) per range request, or per member a poll
+    # names (protocol v2); answered: (initiator, responder, seq) per reply recorded, or per member
+    # whose reply the poller's final lists (the poller heard it in its sub-slot)
+    range_requests: list[tuple] = field(default_factory=list)
+    range_replies: set = field(default_factory=set)
     nav_truth: list[tuple[float, list[float]]] = field(default_factory=list)  # (t_true_s, sender pos_m)
     init_record: dict | None = None  # the first core_init journal record recorded (any station)
 
@@ -466,6 +471,10 @@ class Recording:
             self.range_requests.append((msg["stamp_s"], src, msg["dst"], msg["seq"], msg["cycle"]))
         elif kind == "range_rsp":
             self.range_replies.add((msg["dst"], src, msg["req_seq"]))
+        elif kind == "poll":
+            self.range_requests += [(msg["stamp_s"], src, p, msg["seq"], msg["cycle"]) for p in msg["members"]]
+        elif kind == "nav" and "poll" in msg:
+            self.range_replies.update((src, p, msg["poll"]["seq"]) for p, _ in msg["poll"]["rx"])
         if isinstance(src, int):
             self._add_station(self.stations.setdefault(src, StationSeries(src)), m, msg, phy)
         elif kind.startswith("veh_"):
@@ -484,8 +493,11 @@ class Recording:
             s.nav.append((m.log_time, msg))
             s.navs += 1
             s.ranges += len(msg["ranges"])
+            s.answered += len(msg["poll"]["rx"]) if "poll" in msg else 0
             if phy is not None and msg["state"] in ("frame", "surveying"):
                 self.nav_truth.append((phy["t_true_s"], phy["pos_m"]))
+        elif kind == "poll":
+            s.polled += len(msg["members"])
         elif kind in ("core_init", "core_input"):
             s.journal = True
             if kind == "core_init" and s.init is None:

@@ -188,6 +188,9 @@ class LiveView:
             out += self._truth_again(msg, ns, bool(out)) + self._sync_from_truth(msg)
         elif kind == "range_req":
             out += self._exchange(msg, ns)
+        elif kind == "poll":  # protocol v2: one exchange per member named
+            for p in msg["members"]:
+                out += self._exchange(dict(msg, dst=p), ns, f"exchange/{msg['src']}/{p}")
         elif kind == "integrity":
             out += self._integrity(msg, ns)
         elif kind in ("ac_estimate", "veh_estimate", "ac_truth", "veh_truth"):
@@ -257,14 +260,16 @@ class LiveView:
         rec["sync_err_s"] = _f(rec["clock_offset_s"] - clock_error_s)
         return Out(f"larns/foxglove/station/{rec['id']}/sync", "larns.StationSync", rec, max(ns, 0))
 
-    def _exchange(self, msg: dict, ns: int) -> list[Out]:
+    def _exchange(self, msg: dict, ns: int, entity: str | None = None) -> list[Out]:
+        """A range request (or a poll's member, ``entity`` its line's id): the TDMA record and a line
+        initiator -> responder in the 3-D scene."""
         src, dst = msg["src"], msg["dst"]
         rec = {"t_s": ns * 1e-9, "cycle": int(msg["cycle"]), "slot": int(msg["slot"]), "src": int(src),
                "dst": int(dst)}
         out = [Out(TDMA_TOPIC, "larns.Exchange", rec, ns)]
         a, b = self.station_pos.get(src), self.station_pos.get(dst)
         if a is not None and b is not None:
-            ent = _line_entity(ns, f"exchange/{src}", [a, b], (1.0, 1.0, 1.0, 0.8), 2.0, EXCHANGE_LIFETIME_S)
+            ent = _line_entity(ns, entity or f"exchange/{src}", [a, b], (1.0, 1.0, 1.0, 0.8), 2.0, EXCHANGE_LIFETIME_S)
             out.append(Out(SCENE_TOPIC, "foxglove.SceneUpdate", {"deletions": [], "entities": [ent]}, ns))
         return out
 

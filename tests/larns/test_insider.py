@@ -151,7 +151,7 @@ def test_absurd_mode_sends_every_field_at_its_limits_and_the_core_survives():
         if msg["kind"] == "nav" and any(e[1] == M.MAX_ABS for e in msg["ranges"]):
             at_limit["ranges"] += 1
         core.on_message(msg, msg["stamp_s"] + 1e-6)  # no exception may escape
-    assert set(kinds) == {"nav", "range_req", "range_rsp"}
+    assert set(kinds) == {"nav", "range_req", "range_rsp", "poll", "reply"}  # (both protocols)
     assert all(at_limit[f] > 0 for f in ("pos_m", "t_tx_s", "turnaround_s", "clock", "ranges")), at_limit
     assert max(_per_key_cycle(bus, ins).values()) <= ins.budget
     assert sum(core.admission.dropped.values()) > 0.5 * kinds["nav"]

@@ -34,6 +34,37 @@ def test_a_request_stamped_far_from_now_is_dropped_before_the_senders_clock_is_r
     assert clock is None or len(clock._x) < 10_000  # the sender's emulated oscillator was not drawn out there
 
 
+def test_fuzz_absurd_polls_replies_and_finals_through_a_poll_node():
+    """Protocol v2: 3,000 wire-valid polls, replies and navs (finals among them) from station 3 with
+    every field at its limits through station 2's node on the poll: none raises or costs more than
+    1 s of CPU, the core records no error, its per-poller table of answered polls stays bounded."""
+    from dataclasses import replace
+
+    node, bus, scn = make_node()
+    node.scn = replace(scn, tdma=replace(scn.tdma, ranging="poll"))
+    node.start_core()  # (the core again, on the poll)
+    assert node.core.poll
+    rng = np.random.default_rng(31)
+    pos3 = scn.true_pos(3)
+    worst = 0.0
+    for k in range(3000):
+        t = node.fleet_now()
+        kind = ("nav", "poll", "reply")[k % 3]
+        m = absurd_message(rng, kind, 3, k + 1, t, dst=2, p_long=0.01)
+        data = M.encode(m, absurd_phy(rng, t, pos3))
+        t0 = time.process_time()
+        node._on_bytes(M.key_for(m), data)
+        if kind == "nav":
+            node._nav_subs = []
+            node._deliver(*M.decode(data))
+        worst = max(worst, time.process_time() - t0)
+    assert worst < 1.0, worst
+    assert node.stats["core_errors"] == 0
+    core = node.core
+    assert all(len(v) <= 2 for v in core._polled.values()) and len(core._polled) <= core.admission.max_peers
+    assert sum(core.admission.dropped.values()) + node.drops.total > 1500
+
+
 def test_fuzz_absurd_requests_replies_and_navs_through_the_node():
     """3,000 wire-valid messages from station 3 with every field at its limits (and 30 % of them with
     a ``phy`` at its limits too) through station 2's node: none raises, none costs more than 1 s

@@ -36,9 +36,11 @@ def _cores(clocks, ranging="poll", spacing_s=0.0005, freq_sigma=2e-5):
     return cores
 
 
-def _run(cores, clocks, until_s, delay_s=None):
+def _run(cores, clocks, until_s, delay_s=None, nav_late_s=0.0):
     """A tiny channel: every air message reaches every other core after its exact time of flight (plus
-    ``delay_s[(src, dst)]`` on air for a reply); records every range each core's survey takes."""
+    ``delay_s[(src, dst)]`` on air for a reply); records every range each core's survey takes.
+    ``nav_late_s``: navs are handed over that much later than they were heard, their receive stamps
+    unchanged (a process reading its navs in batches, as the Zenoh node does)."""
     n = len(cores)
     taken = {c.id: [] for c in cores}
     for c in cores:
@@ -69,7 +71,8 @@ def _run(cores, clocks, until_s, delay_s=None):
                 tof = np.linalg.norm(POS[k] - POS[j]) / SPEED_OF_LIGHT_M_S
                 extra = (delay_s or {}).get((k + 1, j + 1), 0.0) if m["kind"] == "reply" else 0.0
                 t = float(t_tx + tof + extra)
-                push(t, ("rx", j, M.validate_msg(m), float(clocks[j].to_local(t))))
+                push(t + (nav_late_s if m["kind"] == "nav" else 0.0),
+                     ("rx", j, M.validate_msg(m), float(clocks[j].to_local(t))))
 
     for k in range(n):
         arm(k)
@@ -151,6 +154,23 @@ def test_a_reply_outside_its_sub_slot_is_dropped_and_counted_never_misattributed
     assert cores[2].counters["final_lost"] >= 2
     # the others' exchanges with station 1 are untouched
     assert {p for p, _, ini in taken[2] if not ini} >= {1}
+
+
+def test_a_final_read_after_the_next_poll_still_closes_its_exchange():
+    """A process that reads its navs in batches can hear a poller's next poll before the final of the
+    previous one: each member keeps its latest polls per poller (``POLLED_KEEP``), so every final
+    still closes its own exchange (by the poll's seq), and none is counted lost."""
+    clocks = [Clock() for _ in POS]
+    on_time = _cores(clocks, freq_sigma=2e-6)
+    late = _cores(clocks, freq_sigma=2e-6)
+    taken = _run(on_time, clocks, 4.0)
+    taken_late = _run(late, clocks, 4.0, nav_late_s=1.3)  # after the next cycle's poll
+    for a, b in zip(on_time, late):
+        assert b.counters["final_lost"] == 0 and b.counters["final_window"] == 0, b.counters
+        ds = sorted(p for p, _, ini in taken[a.id] if not ini)
+        ds_late = sorted(p for p, _, ini in taken_late[b.id] if not ini)
+        assert ds_late and set(ds_late) == set(ds), (a.id, ds, ds_late)
+        assert len(ds_late) >= len(ds) - 3  # only the finals still in flight at the end are missing
 
 
 def test_a_poll_plan_that_cannot_fit_the_slot_is_refused_naming_the_keys():
