@@ -70,6 +70,7 @@ MATRIX: dict[str, Case] = {
     "seed000-join": Case(joiners=(11,), **TCXO),
     "seed000-liar": Case(faulty=(6,)),
     "seed000-nlos5": Case(),
+    "seed000-poll": Case(**TCXO),  # protocol v2: one poll per slot, every member replies (issue 31)
     "seed000-range-bias": Case(faulty=(6,)),
     # a 50 m array seen from 1 km with no prior: one batch's fix is off by kilometres and the curvature
     # that carries the range takes minutes; the filters must stay honest, their accuracy is the start's
