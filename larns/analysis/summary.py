@@ -189,9 +189,7 @@ def station_row(s) -> dict[str, Any]:
     if "pos_m" in row and "truth_m" in row:
         row["err_m"] = math.dist(row["pos_m"], row["truth_m"])
     sync_summary(row, s.clock())
-    if s.polled:  # protocol v2: the members' replies its polls got (heard in their sub-slots)
-        row["exchanges_pct"] = 100.0 * s.answered / s.polled
-    elif s.navs:
+    if s.navs and not s.polled:  # (protocol v2: station_table's, from its polls)
         row["exchanges_pct"] = 100.0 * s.ranges / s.navs  # own slots whose exchange completed
     return row
 
@@ -205,6 +203,8 @@ def station_table(rec) -> dict[int, dict]:
         for sid, n in tdma_numbers(rec.range_requests, rec.range_replies)["by_station"].items():
             if sid in stations:
                 stations[sid].update(polls=n["polls"], polls_complete_pct=n["complete_pct"])
+                if rec.stations[sid].polled:  # protocol v2: the replies its recorded polls got
+                    stations[sid]["exchanges_pct"] = n["answered_pct"]
     for sid, s in stations.items():
         by = [o for o, v in stations.items() if sid in v.get("excludes", ())]
         if by:

@@ -214,8 +214,7 @@ class StationSeries:
     truths: list[dict] = field(default_factory=list)                  # truth msgs
     navs: int = 0
     ranges: int = 0
-    polled: int = 0    # protocol v2: members named in its polls ...
-    answered: int = 0  # ... and replies its finals list (heard in their sub-slots)
+    polled: int = 0    # protocol v2: members named in its polls
     nav: list[tuple[int, dict]] = field(default_factory=list)       # (log_time_ns, nav broadcast)
     journal: bool = False
     init: dict | None = None          # the first recorded core_init record
@@ -493,7 +492,6 @@ class Recording:
             s.nav.append((m.log_time, msg))
             s.navs += 1
             s.ranges += len(msg["ranges"])
-            s.answered += len(msg["poll"]["rx"]) if "poll" in msg else 0
             if phy is not None and msg["state"] in ("frame", "surveying"):
                 self.nav_truth.append((phy["t_true_s"], phy["pos_m"]))
         elif kind == "poll":
