@@ -25,9 +25,10 @@ Two estimators share one interface:
 
 Coordinates constrained by the frame (station 1 all, station 2 y/z, station 3 z) are not state
 while the founders hold the frame; ``DistributedMap.hold_datum`` ends that (docs/architecture.md,
-"The frame datum"): the station becomes free in x, y, z and its prior becomes a damping term
-centred on its own latest estimate, so the field's configuration, not any one station, carries the
-datum. A founder that (re)joins a running field is built free (``founder=False``).
+"The frame datum"): the station becomes free in x, y, z and keeps its prior, moved with the field's
+datum corrections (a founder's newly freed coordinates: a prior at the frame's values), so the field's
+configuration, not any one station, carries the datum. A founder that (re)joins a running field is
+built free (``founder=False``).
 """
 
 from __future__ import annotations
@@ -551,17 +552,27 @@ class DistributedMap:
     def hold_datum(self, damping_sigma_m: float) -> None:
         """From now on the field carries the datum (docs/architecture.md, "The frame datum").
 
-        A founder's frame constraints end: all of x, y, z become free (the constrained coordinates keep
-        their value as the starting point, with a small variance until the next solve). The prior (the
-        coarse fix) is replaced by a damping term ``|c - c_last|^2 / damping_sigma_m^2`` centred on the
-        station's own latest estimate at every solve: the estimate is then a fixed point of the ranges
-        to its peers alone, with no pull toward any external point, so a field whose estimates agree
-        with its ranges stays where it is whoever leaves.
+        A founder's frame constraints end: all of x, y, z become free. The station keeps its prior
+        (the coarse fix, or without one the weak start prior and the ground height): the ranges are
+        all kept and re-solved, so the information a solve has apart from its ranges is exactly that
+        prior, and counting anything else (a damping term centred on the previous solve of the same
+        ranges) would count the ranges twice. A founder's newly freed coordinates get a prior
+        ``N(current value, damping_sigma_m^2)``: the founders' frame they held, known in the field's
+        datum to the frame error of the hand-over. The datum corrections move the prior's mean with
+        the estimate (:meth:`shift`), so the prior is in the field's datum too.
         """
         if self.datum_sigma_m is not None:
             return
         self.datum_sigma_m = float(damping_sigma_m)
         if self.nf < 3:
+            nf = self.nf  # the free coordinates are the first nf
+            info = np.zeros((3, 3))
+            info[:nf, :nf] = self.prior_info
+            info[np.arange(nf, 3), np.arange(nf, 3)] = 1.0 / self.datum_sigma_m**2
+            mean = self.pos_m.copy()
+            if self.prior_mean is not None:
+                mean[:nf] = self.prior_mean
+            self.prior_info, self.prior_mean = info, mean
             self.free = np.ones(3, bool)
             self.nf = 3
             cov = self.cov_m2.copy()
@@ -577,8 +588,12 @@ class DistributedMap:
         self._dirty = True
 
     def shift(self, delta_m: np.ndarray) -> None:
-        """Move the estimate by ``delta_m`` (3,) (the datum correction of the core, datum mode only)."""
-        self.pos_m = self.pos_m + np.asarray(delta_m, float) * self.free
+        """Move the estimate by ``delta_m`` (3,) (the datum correction of the core, datum mode only), and
+        the prior's mean with it (the prior is in the field's datum: :meth:`hold_datum`)."""
+        d = np.asarray(delta_m, float) * self.free
+        self.pos_m = self.pos_m + d
+        if self.prior_mean is not None:
+            self.prior_mean = self.prior_mean + d[self.free]
 
     def refresh(self) -> bool:
         """Re-solve if new ranges arrived since the last solve (the core calls this before its nav)."""
@@ -862,9 +877,6 @@ class DistributedMap:
             return False
         iters = self.max_iter
         robust = self.initialized
-        if self.datum_sigma_m is not None:  # datum mode: damping centred on the latest estimate
-            self.prior_mean = self.pos_m[self.free].copy()
-            self.prior_info = np.eye(self.nf) / self.datum_sigma_m**2
         if not self.initialized:
             arr = self._arrays(np.ones(self._nr))
             # enough fixed peers: nf for a founder (station 2 from station 1, station 3 from 1 and 2, on
@@ -877,7 +889,7 @@ class DistributedMap:
             sig = np.where(np.arange(3)[self.free] == 2, self.no_fix_height_sigma_m, self.no_fix_sigma_m)
             self.prior_info = np.diag(1.0 / sig**2)
             iters = 50
-        elif self.no_fix and self.nf == 3 and self.datum_sigma_m is None:
+        elif self.no_fix and self.nf == 3:
             self.prior_mean[2] = self._ground_height_m(self.pos_m)
         sc = _SolveCache(self, robust)
         first = not self.initialized
@@ -965,7 +977,7 @@ class DistributedMap:
         if x is None or not np.all(np.isfinite(x)):
             return False
         if (robust and self.robust is not None and self.restart_from_prior and self.prior_mean is not None
-                and self.datum_sigma_m is None):  # (in datum mode the prior is the start itself)
+                and self.datum_sigma_m is None):  # (not in the datum mode: converged by then)
             # second start from the coarse fix: IRLS with a redescending loss only finds a local
             # minimum, and early NLOS ranges (not yet separable from a 10 m fix error) can drag the
             # weakly observed height into a wrong basin that later clean ranges keep consistent.
