@@ -99,7 +99,8 @@ class StationConfig:
     # converged when its horizontal sigma is at most datum_converged_m (0: sigma_d / 2) after at least
     # datum_min_updates own navs (45: 45 cycles, after the survey's 40 s bar); a founder
     # hands the frame to the field once it hears datum_quorum converged stations free in x, y, z;
-    # datum_damping_m: sigma of the damping term of the datum mode; datum_converged_m < 0: never
+    # datum_damping_m: sigma of the prior on a founder's coordinates freed at the hand-over (at the
+    # frame's values; DistributedMap.hold_datum); datum_converged_m < 0: never
     datum_converged_m: float = 0.0
     datum_min_updates: int = 45
     datum_quorum: int = 4

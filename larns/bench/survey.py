@@ -325,7 +325,8 @@ def _leave_trial(job: tuple) -> dict:
     from stations.sim import Simulator
 
     scenario, sigma_d, n, seed, duration, clock = job
-    scn = load(scenario, seed=seed, channel={"sigma_d_m": sigma_d}, layout={"n": n}, survey={"datum": "field"},
+    scn = load(scenario, seed=seed, channel={"sigma_d_m": sigma_d}, **({"layout": {"n": n}} if n else {}),
+               survey={"datum": "field"},
                **({"clock": {"model": clock}} if clock else {}))
     stop = {sid: t for sid, t in FOUNDERS_LEAVE_S.items() if t < duration}
     times = sorted({min(t + LEAVE_AFTER_S, duration) for t in stop.values()} | {duration}
