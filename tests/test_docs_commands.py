@@ -459,6 +459,13 @@ TABLE: dict[str, Run | Skip] = {
     "larns bench sync --late-founder 5 --trials 100 --duration 60 --jobs 2": Skip(BENCH),
     "larns bench sync --trials 100 --founders-leave --json bench-out/sync/founders-leave.json": Skip(BENCH),
     "./dev larns bench survey --founders-leave --trials 18 --sigma-d 0.5 --seed 1": Skip(BENCH),
+    "./dev larns bench survey --founders-leave --trials 6 --sigma-d 0.5 --seed 1 --jobs 1": Skip(BENCH),
+    "scripts/datum_nees.py seed000 --trials 8 --duration 300 --sigma-d 0.5 --founders-leave": Skip(BENCH + "; path checked"),
+    "scripts/datum_nees.py seed001 --trials 10 --duration 90": Skip(BENCH + "; path checked"),
+    "scripts/datum_nees.py --world7": Skip("a few seconds, but a measurement script, not a product line; its 59 s check is "
+                                           "tests/stations/test_datum.py::test_seven_station_world_survivors_within_4_sigma"),
+    "scripts/datum_nees.py --world7 --fleet-timing": Skip("a few seconds, but a measurement script, not a product line; "
+                                                          "path checked"),
     "./dev larns bench integrity --trials 20 --jobs 2": Skip(BENCH),
     "larns fleet --scenario seed001 --aircraft": Skip(BENCH + " (the live aircraft's CPU, read from /proc over 30 s)"),
     "larns bench sync --trials 100 --json bench-out/sync/sync.json": Skip(BENCH),
