@@ -710,21 +710,53 @@ class ClockEstimator:
         if self.exact or (a == 1 and b == 1):
             return None
         nis = self._exchange(a, b, T_s, dtheta_s, t_var_s2, z_var_s2)
-        if nis is None:
-            k = self.index.get(a)
-            if k is None:  # placed by a broadcast correction we cannot re-evaluate
-                self.n_untimed += 1
-            else:  # back to clock a's local time (the inverse of peer_time / network_time)
-                t_loc = T_s + self.x[2 * k] + self.x[2 * k + 1] * (T_s - self.T_s)
-                self._pending.append((a, b, float(t_loc), float(dtheta_s), float(T_s), z_var_s2))
-                self.n_deferred += 1
-                return None
+        if nis is None and self._defer(a, b, T_s, dtheta_s, z_var_s2):
+            return None
         self._retry()
         return nis
+
+    def _defer(self, a: int, b: int, T_s: float, dtheta_s: float, z_var_s2: float | None) -> bool:
+        """An exchange whose time is too uncertain: kept on clock ``a``'s local time (True), or
+        dropped (``n_untimed``) when ``a`` is not in the filter (placed by a broadcast correction)."""
+        k = self.index.get(a)
+        if k is None:  # placed by a broadcast correction we cannot re-evaluate
+            self.n_untimed += 1
+            return False
+        # back to clock a's local time (the inverse of peer_time / network_time)
+        t_loc = T_s + self.x[2 * k] + self.x[2 * k + 1] * (T_s - self.T_s)
+        self._pending.append((a, b, float(t_loc), float(dtheta_s), float(T_s), z_var_s2))
+        self.n_deferred += 1
+        return True
 
     def _exchange(self, a: int, b: int, T_s: float, dtheta_s: float, t_var_s2: float,
                   z_var_s2: float | None = None) -> float | None:
         """The update of ``on_exchange``; None (nothing changed) if its time is too uncertain."""
+        r = self._transfer_r(a, b, t_var_s2, z_var_s2)
+        if r is None:
+            return None
+        self.predict(T_s)
+        ks, signs, dt_h = self._terms(T_s, [(a, 1.0), (b, -1.0)])
+        n_before = self.n_updates
+        w = self._members()[0]  # steps are judged between members of the time scale (acquired clocks)
+        nis = self._update(ks, signs, dt_h, dtheta_s, r, gate=self.step_nis if a in w and b in w else math.inf)
+        if self.n_updates == n_before:  # refused: a step of a or b (whichever keeps failing with every partner)
+            self.n_step_refused += 1
+            for sid, other, jump in ((a, b, self._last_nu), (b, a, -self._last_nu)):
+                seen = self._refused.setdefault(sid, [])
+                seen.append((jump, other))
+                del seen[:-STEP_N]
+                if sid != 1 and len(seen) == STEP_N and _one_jump(seen):
+                    self._reinit(sid)
+            return nis
+        for sid in (a, b):
+            self._heard_T[sid] = max(self._heard_T.get(sid, -math.inf), T_s)
+            self._refused.pop(sid, None)
+        return nis
+
+    def _transfer_r(self, a: int, b: int, t_var_s2: float, z_var_s2: float | None) -> float | None:
+        """Variance of a time transfer ``theta_a - theta_b`` whose network time has variance ``t_var_s2``
+        (s^2): its noise (``z_var_s2``, None: ``(sigma_d / c)^2``) plus ``E[(f_a - f_b)^2] t_var`` on the
+        filter as it is; None if that term exceeds ``time_gate`` times the noise (:meth:`on_exchange`)."""
         r = self.var_z if z_var_s2 is None else float(z_var_s2)
         if t_var_s2 > 0:
             ef, vf, ks, sg = 0.0, 0.0, [], []
@@ -744,24 +776,118 @@ class ClockEstimator:
             if r_t > self.time_gate * r:
                 return None
             r += r_t
-        self.predict(T_s)
-        ks, signs, dt_h = self._terms(T_s, [(a, 1.0), (b, -1.0)])
-        n_before = self.n_updates
+        return r
+
+    def on_exchanges(self, items: list[tuple]) -> list[float | None]:
+        """The time transfers of one slot (a nav's entries) at once: each item ``(a, b, T_s, dtheta_s,
+        t_var_s2, z_var_s2)`` as the arguments of :meth:`on_exchange`; their NIS (None: not used).
+
+        One batch update (:meth:`_batch`): the filter predicted to the latest of their times, the
+        earlier ones as late rows ``h = [1, dt]`` (as :meth:`on_exchange` takes a late input; no process
+        noise between exchanges of one slot, milliseconds apart), ``R`` diagonal, one Cholesky factor of
+        the (m, m) innovation covariance. Per exchange as in the sequential form: the time gate (and
+        deferral) on the filter before the batch, the step gate on each exchange's *sequential* NIS -
+        the squared whitened innovations ``L^-1 nu`` of the batch are exactly those (``S = L L^T``: the
+        innovation of exchange ``i`` given ``1..i-1`` over its variance ``L_ii^2``). A step refused, or a
+        clock not in the filter yet (the first seconds), makes the slot sequential: :meth:`on_exchange`
+        for each. One item: :meth:`on_exchange` itself. Equal to the sequential updates to rounding
+        (``tests/stations/test_clock_batch.py``)."""
+        if self.exact or len(items) < 2 or any(s != 1 and s not in self.index for it in items for s in it[:2]):
+            return [self.on_exchange(*it) for it in items]
+        out: list[float | None] = [None] * len(items)
+        use = []  # (item index, a, b, T_s, dtheta_s, r)
+        for i, (a, b, T_s, z, t_var, z_var) in enumerate(items):
+            if a == 1 and b == 1:
+                continue
+            r = self._transfer_r(a, b, t_var, z_var)
+            if r is None:
+                self._defer(a, b, T_s, z, z_var)
+            else:
+                use.append((i, a, b, T_s, z, r))
+        nis = self._batch(use) if use else []
+        if nis is None:  # a step refused in the slot: the sequential form (after the same prediction)
+            for i, *_ in use:
+                out[i] = self.on_exchange(*items[i])
+            return out
+        for (i, *_), v in zip(use, nis):
+            out[i] = v
+        self._retry()
+        return out
+
+    def _batch(self, use: list[tuple[int, int, int, float, float, float]]) -> list[float] | None:
+        """The batch update of :meth:`on_exchanges` (``use``: item index, a, b, T_s, dtheta_s, r); the
+        sequential NIS of each, or None (the filter predicted, nothing updated) if the step gate
+        refuses one.
+
+        Row ``i`` is ``h_i = e_a (x) [1, dt_i] - e_b (x) [1, dt_i]`` (``dt_i`` from the filter's time
+        ``T_s``; station 1 has no state). With ``F`` over ``dt = T_s - T0`` (:meth:`_rows`):
+        ``V = H P(T_s) F^-T`` (m, n) from one product ``(H F) P0``; ``P(T_s) H^T = F V^T``, so
+        ``S = (H F) V^T + R = L L^T``; ``[e, B] = L^-1 [nu, V]``; ``x += F B^T e`` and ``P0 -= B^T B``
+        (at ``T_s``: ``P - K S K^T`` with the optimal gain ``K = P H^T S^-1``, the Joseph form's value)."""
+        self.predict(max(u[3] for u in use))
+        if self.T_s - self._T0 > self.rebase_s:
+            self._rebase()
         w = self._members()[0]  # steps are judged between members of the time scale (acquired clocks)
-        nis = self._update(ks, signs, dt_h, dtheta_s, r, gate=self.step_nis if a in w and b in w else math.inf)
-        if self.n_updates == n_before:  # refused: a step of a or b (whichever keeps failing with every partner)
-            self.n_step_refused += 1
-            for sid, other, jump in ((a, b, self._last_nu), (b, a, -self._last_nu)):
-                seen = self._refused.setdefault(sid, [])
-                seen.append((jump, other))
-                del seen[:-STEP_N]
-                if sid != 1 and len(seen) == STEP_N and _one_jump(seen):
-                    self._reinit(sid)
-            return nis
-        for sid in (a, b):
-            self._heard_T[sid] = max(self._heard_T.get(sid, -math.inf), T_s)
-            self._refused.pop(sid, None)
-        return nis
+        HF, V, nu = self._rows(use)
+        m = len(use)
+        S = HF @ V.T
+        S = 0.5 * (S + S.T)
+        r = [u[5] for u in use]
+        S.flat[:: m + 1] += r
+        # NumPy's LAPACK (SciPy's triangular solve starts OpenBLAS threads: milliseconds a call on a
+        # loaded machine for this 8 x 19 system)
+        L = np.linalg.cholesky(S)
+        Z = np.linalg.solve(L, np.concatenate([np.array(nu)[:, None], V], axis=1))
+        e = Z[:, 0].tolist()
+        d = [v * v for v in np.diagonal(L).tolist()]  # each exchange's sequential S; minus r: its h P h^T
+        for (_, a, b, _, _, _), ei, di, ri in zip(use, e, d, r):
+            if ei * ei > (self.step_nis if a in w and b in w else math.inf) and di - ri <= STEP_KNOWN_S**2:
+                return None
+        B = Z[:, 1:]
+        dx = Z[:, 0] @ B  # F^-1 P H^T S^-1 nu
+        dx[0::2] += (self.T_s - self._T0) * dx[1::2]
+        self.x += dx
+        D = B.T @ B
+        self._P0 -= 0.5 * (D + D.T)
+        self.n_updates += m
+        self._last_nu = e[-1] * math.sqrt(d[-1])
+        for _, a, b, T_s, _, _ in use:
+            for sid in (a, b):
+                self._heard_T[sid] = max(self._heard_T.get(sid, -math.inf), T_s)
+                self._refused.pop(sid, None)
+        return [ei * ei for ei in e]
+
+    def _rows(self, use: list[tuple[int, int, int, float, float, float]]
+              ) -> tuple[np.ndarray, np.ndarray, list[float]]:
+        """For :meth:`_batch`: ``H F`` (m, n), ``V = H P(T_s) F^-T`` (m, n) and the innovations (m) of the
+        transfers ``theta_a - theta_b``. ``V = (H F) P0 + C``: network time's wander and each clock's own
+        (``Q (x) (I + 1 1^T)``), row ``i``: ``(s_i + sum s_i) (x) (F^-1 Q [1, dt_i])`` (as :meth:`_PH`)."""
+        idx, T_s = self.index, self.T_s
+        dt = T_s - self._T0
+        n = len(self.x)
+        xs = self.x.tolist()
+        qtt, qtf, qff = self._Q(dt) if dt > 0 else (0.0, 0.0, 0.0)
+        hf, cs, gs, nu = [], [], [], []
+        for _, a, b, T, z, _ in use:
+            dth = T - T_s
+            row, inc, hx = [0.0] * n, [0.0] * (n // 2), 0.0
+            for sid, s in ((a, 1.0), (b, -1.0)):
+                if sid != 1:
+                    k = idx[sid]
+                    row[2 * k], row[2 * k + 1] = s, s * (dt + dth)
+                    inc[k] = s
+                    hx += s * (xs[2 * k] + dth * xs[2 * k + 1])
+            hf.append(row)
+            nu.append(z - hx)
+            tot = sum(inc)
+            cs.append([c + tot for c in inc])
+            gt, gf = qtt + dth * qtf, qtf + dth * qff  # Q [1, dt_i]; F^-1 of it: [gt - dt gf, gf]
+            gs.append((gt - dt * gf, gf))
+        HF = np.array(hf)
+        V = HF @ self._P0  # (P0 F^T h)^T: P0 is symmetric
+        if dt > 0:
+            V += (np.array(cs)[:, :, None] * np.array(gs)[:, None, :]).reshape(V.shape)
+        return HF, V, nu
 
     def _freq_diff(self, ks: list[int], signs: list[float]) -> tuple[float, float]:
         """Mean and variance of ``sum_i s_i f_{k_i}`` at ``T_s`` (block indices ``ks``, signs ``s``): the

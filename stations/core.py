@@ -708,6 +708,7 @@ class StationCore:
         if corr is not None:
             self.clk.on_nav(src, t_rx_s, msg["t_tx_s"], corr)  # coarse, only while unknown
             self.clk.on_peer_scale(src, msg["t_tx_s"], corr)  # one time scale: consensus on its definition
+        transfers = []  # the nav's time transfers: one batch update of the clock filter (on_exchanges)
         for r in msg.get("ranges", ()):
             if not self._plausible_entry(src, r, msg.get("t_tx_s", t_rx_s), t_rx_s):
                 continue
@@ -717,14 +718,13 @@ class StationCore:
                 # every exchange the network makes refines the network clock filter: ours (the
                 # responder's end) and the others' alike
                 T_mid, T_var = self.clk.peer_time(src, r[2], corr)  # our prior view of src's clock
-                if self.clk.on_exchange(src, peer, T_mid, float(r[3]), T_var,
-                                        self._transfer_var_s2(src, peer)) is not None:
-                    self.counters["sync_in"] += 1
+                transfers.append((src, peer, T_mid, float(r[3]), T_var, self._transfer_var_s2(src, peer)))
             if peer == self.id and 0.0 < range_m < self.cfg.max_range_m and not self.poll:
                 self.counters["ranges_in"] += 1
                 if self.est.name.startswith("dmap"):  # dmap, dmap-ls: ranges used at both ends
                     self.est.on_range(src, float(range_m), t_rx_s, False, pos, cov)
                 self.integrity.on_range(src, float(range_m), t_rx_s)
+        self.counters["sync_in"] += sum(v is not None for v in self.clk.on_exchanges(transfers))
         if src in self._polled:
             self._on_final(src, msg, t_rx_s, corr, pos, cov)
         self._refresh_state()
