@@ -867,26 +867,30 @@ class ClockEstimator:
         n = len(self.x)
         xs = self.x.tolist()
         qtt, qtf, qff = self._Q(dt) if dt > 0 else (0.0, 0.0, 0.0)
-        hf, cs, gs, nu = [], [], [], []
-        for _, a, b, T, z, _ in use:
+        ri, ki, sv, dts, gs, nu = [], [], [], [], [], []
+        for i, (_, a, b, T, z, _) in enumerate(use):
             dth = T - T_s
-            row, inc, hx = [0.0] * n, [0.0] * (n // 2), 0.0
+            hx = 0.0
             for sid, s in ((a, 1.0), (b, -1.0)):
                 if sid != 1:
                     k = idx[sid]
-                    row[2 * k], row[2 * k + 1] = s, s * (dt + dth)
-                    inc[k] = s
+                    ri.append(i)
+                    ki.append(k)
+                    sv.append(s)
                     hx += s * (xs[2 * k] + dth * xs[2 * k + 1])
-            hf.append(row)
             nu.append(z - hx)
-            tot = sum(inc)
-            cs.append([c + tot for c in inc])
+            dts.append(dt + dth)
             gt, gf = qtt + dth * qtf, qtf + dth * qff  # Q [1, dt_i]; F^-1 of it: [gt - dt gf, gf]
             gs.append((gt - dt * gf, gf))
-        HF = np.array(hf)
+        inc = np.zeros((len(use), n // 2))  # each row's signs over the clocks
+        inc[ri, ki] = sv
+        HF = np.empty((len(use), n))  # rows s [1, dt + dt_i] on the clocks: F^T h
+        HF[:, 0::2] = inc
+        HF[:, 1::2] = inc * np.array(dts)[:, None]
         V = HF @ self._P0  # (P0 F^T h)^T: P0 is symmetric
         if dt > 0:
-            V += (np.array(cs)[:, :, None] * np.array(gs)[:, None, :]).reshape(V.shape)
+            c = inc + inc.sum(axis=1, keepdims=True)
+            V += (c[:, :, None] * np.array(gs)[:, None, :]).reshape(V.shape)
         return HF, V, nu
 
     def _freq_diff(self, ks: list[int], signs: list[float]) -> tuple[float, float]:
@@ -1008,6 +1012,21 @@ class ClockEstimator:
         if dt > 0:  # each clock's own wander, plus the common one where it does not cancel
             var += (len(ks) + sum(signs) ** 2) * self._Q(dt)[0]
         return var
+
+    def peer_times(self, sid: int, ts_peer_s: list[float], corr=None) -> list[tuple[float, float]]:
+        """:meth:`peer_time` at several local times of station ``sid`` (a nav's exchanges): its clock's
+        state and 2x2 covariance block read once; the same values."""
+        k = self.index.get(sid)
+        if k is None:
+            return [self.peer_time(sid, t, corr) for t in ts_peer_s]
+        a, f, T_s = self.x.item(2 * k), self.x.item(2 * k + 1), self.T_s
+        ptt, ptf, _, pff = self._cov(k, k)
+        out = []
+        for t in ts_peer_s:
+            T = (t - a + f * T_s) / (1.0 + f)
+            dt = T - T_s
+            out.append((T, max(ptt + 2 * dt * ptf + dt * dt * pff, 0.0)))
+        return out
 
     def peer_time(self, sid: int, t_peer_s: float, corr=None) -> tuple[float, float]:
         """Network time at station ``sid``'s local time ``t_peer_s`` and its variance, from this filter's

@@ -717,18 +717,26 @@ class StationCore:
                     self.poll and peer == self.id):  # (poll: our end of it is formed from our stamps)
                 # every exchange the network makes refines the network clock filter: ours (the
                 # responder's end) and the others' alike
-                T_mid, T_var = self.clk.peer_time(src, r[2], corr)  # our prior view of src's clock
-                transfers.append((src, peer, T_mid, float(r[3]), T_var, self._transfer_var_s2(src, peer)))
+                transfers.append((peer, r[2], float(r[3])))
             if peer == self.id and 0.0 < range_m < self.cfg.max_range_m and not self.poll:
                 self.counters["ranges_in"] += 1
                 if self.est.name.startswith("dmap"):  # dmap, dmap-ls: ranges used at both ends
                     self.est.on_range(src, float(range_m), t_rx_s, False, pos, cov)
                 self.integrity.on_range(src, float(range_m), t_rx_s)
-        self.counters["sync_in"] += sum(v is not None for v in self.clk.on_exchanges(transfers))
+        if transfers:
+            self._nav_transfers(src, corr, transfers)
         if src in self._polled:
             self._on_final(src, msg, t_rx_s, corr, pos, cov)
         self._refresh_state()
         return []
+
+    def _nav_transfers(self, src: int, corr, entries: list[tuple[int, float, float]]) -> None:
+        """A nav's time transfers ``(peer, t_mid on src's clock, dtheta_s)``: placed in network time by
+        our prior view of src's clock, then one batch update of the clock filter (``on_exchanges``)."""
+        times = self.clk.peer_times(src, [t for _, t, _ in entries], corr)
+        items = [(src, peer, T_mid, z, T_var, self._transfer_var_s2(src, peer))
+                 for (peer, _, z), (T_mid, T_var) in zip(entries, times)]
+        self.counters["sync_in"] += sum(v is not None for v in self.clk.on_exchanges(items))
 
     def _on_final(self, src: int, msg: dict, t_rx_s: float, corr, pos: np.ndarray, cov: np.ndarray) -> None:
         """Protocol v2: the nav of a poller we answered is the final (T5 its ``t_tx_s``, T6 = ``t_rx_s``),
