@@ -29,6 +29,13 @@ import numpy as np
 from nav.geometry import SPEED_OF_LIGHT_M_S
 
 
+def _scalars(*xs) -> bool:
+    """All Python (or NumPy) float / int scalars: one exchange, computed on floats (the same
+    operations in the same order as the array path, so the same values; NumPy's per-call cost is
+    most of a station core's per-exchange time)."""
+    return all(isinstance(x, (float, int)) for x in xs)
+
+
 def _poller(x) -> np.ndarray:
     """A poller quantity of batch shape ``B`` as ``B + (1,)``, to broadcast against ``B + (N,)``."""
     return np.asarray(x, float)[..., None]
@@ -77,6 +84,13 @@ def ds_twr_tof_s(t_poll_tx_s, t_poll_rx_s, t_reply_tx_s, t_reply_rx_s, t_final_t
 def ds_twr_range_m(t_poll_tx_s, t_poll_rx_s, t_reply_tx_s, t_reply_rx_s, t_final_tx_s, t_final_rx_s,
                    freq_poller=0.0, freq_responder=0.0) -> np.ndarray:
     """Range per responder, m: ``c`` times :func:`ds_twr_tof_s` (same arguments and shapes), eq. (V4)."""
+    stamps = (t_poll_tx_s, t_poll_rx_s, t_reply_tx_s, t_reply_rx_s, t_final_tx_s, t_final_rx_s)
+    if _scalars(*stamps, freq_poller, freq_responder):  # one exchange (the station core's final)
+        t1, t2, t3, t4, t5, t6 = (float(t) for t in stamps)
+        kp, kr = 1.0 + float(freq_poller), 1.0 + float(freq_responder)
+        ra, db = (t4 - t1) / kp, (t3 - t2) / kr
+        da, rb = (t5 - t4) / kp, (t6 - t3) / kr
+        return np.float64(SPEED_OF_LIGHT_M_S * ((ra * rb - da * db) / (ra + rb + da + db)))
     return SPEED_OF_LIGHT_M_S * ds_twr_tof_s(t_poll_tx_s, t_poll_rx_s, t_reply_tx_s, t_reply_rx_s,
                                              t_final_tx_s, t_final_rx_s, freq_poller, freq_responder)
 
@@ -107,6 +121,9 @@ def time_transfer_s(t_poll_tx_s, t_poll_rx_s, t_reply_tx_s, t_reply_rx_s) -> tup
     both ways it is exact at that instant, whatever the offsets and frequencies; taken as the offset
     at the poll instant instead it is off by ``(fa - fb) (T4 - T1) / 2`` to first order.
     """
+    if _scalars(t_poll_tx_s, t_poll_rx_s, t_reply_tx_s, t_reply_rx_s):  # one exchange
+        t1, t2, t3, t4 = float(t_poll_tx_s), float(t_poll_rx_s), float(t_reply_tx_s), float(t_reply_rx_s)
+        return np.float64(0.5 * ((t4 - t3) - (t2 - t1))), np.float64(0.5 * (t1 + t4))
     t1, t4 = _poller(t_poll_tx_s), np.asarray(t_reply_rx_s, float)
     t2, t3 = np.asarray(t_poll_rx_s, float), np.asarray(t_reply_tx_s, float)
     dtheta = 0.5 * ((t4 - t3) - (t2 - t1))
@@ -122,6 +139,8 @@ def reply_offset_s(index, turnaround_s: float, reply_spacing_s: float) -> np.nda
     sub-slot ``k = N``. A responder transmits reply ``k`` at ``T3_k = T2_k + o_k`` on its own clock (from
     its reception of the poll). ``index``: any integer array shape; the result has that shape.
     """
+    if _scalars(index):
+        return np.float64(turnaround_s + float(index) * reply_spacing_s)
     return turnaround_s + np.asarray(index, float) * reply_spacing_s
 
 
@@ -142,5 +161,8 @@ def in_reply_window(t_ref_s, t_rx_s, index, turnaround_s: float, reply_spacing_s
     member whose window it happens to fall in. The final checks the same way with ``index = N``.
     """
     o = reply_offset_s(index, turnaround_s, reply_spacing_s)
+    if _scalars(t_ref_s, t_rx_s, index):  # one reply: a Python bool
+        dt = float(t_rx_s) - float(t_ref_s)
+        return o - guard_s <= dt <= o + 2.0 * max_range_m / SPEED_OF_LIGHT_M_S + guard_s
     dt = np.asarray(t_rx_s, float) - np.asarray(t_ref_s, float)
     return (dt >= o - guard_s) & (dt <= o + 2.0 * max_range_m / SPEED_OF_LIGHT_M_S + guard_s)
