@@ -200,6 +200,7 @@ class ClockEstimator:
     exactly symmetric. ``P0`` is moved to ``T_s`` (one O(n^2) prediction, symmetrized) when
     ``T_s - T0`` exceeds ``rebase_s`` (about once per TDMA cycle) or when ``P`` is read. Equal to the
     dense filter (predict every input, expanded Joseph update) to rounding: ``tests/stations/test_sync.py``.
+    A slot's transfers (a nav's entries under the poll) are one batch update (:meth:`on_exchanges`).
 
     Parameters
     ----------
