@@ -77,6 +77,17 @@ PENDING_MAX = 4096  # messages held back by emulated wire delays (bounded under 
 SWITCH_INTERVAL_S = 0.0005  # GIL hand-over interval of a station process (Python default 5 ms)
 
 
+def lookahead_default(scn: Scenario) -> float:
+    """Wall seconds the own nav (a poll's final) waits for replies still awaited. The addressed
+    exchange's one reply arrives within 3 ms on this host (p99, seed000 at speed 1); a poll's nine
+    members all reply at once, contending for the cores: on the quiet 2-core box (seed000-poll, 60 s
+    at speed 1) replies came 3.3 / 16.6 / 47 ms after the poll (p50 / p90 / p99), and a 50 ms wait let
+    56-95 % of the polls be answered by every member against 96.6-98.3 % with 150 ms (the rest: the
+    first and the last cycle; docs/protocol.md). Physics does not change (stamps come from ``phy``);
+    the nav only leaves later in wall time."""
+    return 0.15 if scn.tdma.poll else 0.05
+
+
 def default_epoch(now_s: float | None = None) -> float:
     """Start of the current UTC day: a common epoch for processes started without ``--epoch``
     (fleet times stay small, so time differences keep sub-millimetre float resolution)."""
@@ -98,7 +109,7 @@ class NodeOptions:
     status_every_s: float = 5.0       # fleet seconds between status lines (0 = never)
     quiet: bool = False
     journal: bool = True              # publish the core journal (larns/station/<id>/init, .../input)
-    lookahead_s: float = 0.05         # wall seconds the nav timer waits for an outstanding range reply
+    lookahead_s: float | None = None  # wall seconds the nav timer waits for outstanding replies (None: lookahead_default)
 
 
 class StationNode:
@@ -137,6 +148,7 @@ class StationNode:
         self.shell = ShellFaults(scn, self.id)  # per-link channel, [[faults]] (as in the simulator)
         self.wire = WireFaults(scn.net, station_rng(self.seed, self.id, streams.WIRE))
         self.slot_s = scn.tdma.slot_s
+        self.lookahead_s = lookahead_default(scn) if opts.lookahead_s is None else float(opts.lookahead_s)
         self.cycle_s = scn.tdma.cycle_s
         self.drops = M.DropCounter(f"station {self.id}")
         self.stats: Counter[str] = Counter()
@@ -493,7 +505,7 @@ class StationNode:
                 return
             lateness = now - wall
             is_req = self._is_slot_start(dl)
-            if not is_req and self.core.awaiting() and now < wall + self.opts.lookahead_s:
+            if not is_req and self.core.awaiting() and now < wall + self.lookahead_s:
                 return  # emulated-time order: the outstanding replies first (bounded wait)
             self._last_input_s = max(self._last_input_s, dl)
             try:
@@ -514,7 +526,7 @@ class StationNode:
         if dl is not None:
             w = self.wall_of(self.clock.to_true(dl))
             if not self._is_slot_start(dl) and self.core.awaiting() and time.time() >= w:
-                w += self.opts.lookahead_s  # waiting for the outstanding replies
+                w += self.lookahead_s  # waiting for the outstanding replies
             t = min(t, w)
         if self._pending:
             t = min(t, self._pending[0][0])
@@ -664,8 +676,8 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--nice", type=int, default=0, metavar="N",
                    help="change the scheduling niceness by N (negative = higher priority, needs privileges); "
                         "helps real-time behaviour on a busy machine")
-    p.add_argument("--lookahead", type=float, default=0.05, metavar="S",
-                   help="wall seconds the own nav waits for an outstanding range reply (default 0.05)")
+    p.add_argument("--lookahead", type=float, default=None, metavar="S",
+                   help="wall seconds the own nav waits for outstanding replies (default 0.05, 0.15 with the poll)")
     p.add_argument("--no-journal", action="store_true",
                    help="do not publish the core journal (larns/station/<id>/init and .../input, "
                         "needed for bit-exact offline re-estimation)")
@@ -726,7 +738,7 @@ def main_args(args: argparse.Namespace) -> int:
                        estimator=args.estimator, seed=args.seed,
                        status_every_s=args.status_every, quiet=args.quiet,
                        journal=not getattr(args, "no_journal", False),
-                       lookahead_s=getattr(args, "lookahead", 0.05))
+                       lookahead_s=getattr(args, "lookahead", None))
     args.secure_cn = f"station-{args.id}"
     bus = cli.open_bus(f"station {args.id}", lambda: Bus(**_bus_kwargs(args, scn)))
     # larns fleet's start barrier (--epoch-from): the epoch once every process is up

@@ -383,6 +383,11 @@ TABLE: dict[str, Run | Skip] = {
     "larns bench survey --trials 20": Skip(BENCH),
     "larns reestimate --algo": Skip(MENTION, concrete=False),
     "larns reestimate --check": Skip(MENTION, concrete=False),
+    "larns info --json": Skip(MENTION, concrete=False),
+    "larns info REC --json": Skip(MENTION, concrete=False),
+    "larns fleet --scenario seed000-poll --duration 60 --speed 1 --record poll.mcap --json poll.json":
+        Skip(BENCH + " (a 60 s fleet at speed 1 measured on a quiet machine; seed000-poll runs whole in the matrix)"),
+    "larns info poll.mcap": Skip(BENCH + " (reads the recording of the fleet line above)"),
     "larns fleet --scenario s1.toml --duration 0": Skip(MENTION + "; s1.toml is the measurement's scratch copy of seed001", concrete=False),
     "larns reestimate --stations 99 -o": Skip(MENTION, concrete=False),
     "larns aircraft --scenario S --algo ekf-tdoa --epoch $(date +%s) --duration 3600 --listen tcp/127.0.0.1:7500 &": Skip(MANUAL + "; S is a placeholder", concrete=False),
@@ -469,6 +474,8 @@ TABLE: dict[str, Run | Skip] = {
     "scripts/datum_nees.py --world7 --fleet-timing": Skip("a few seconds, but a measurement script, not a product line; "
                                                           "path checked"),
     "./dev larns bench integrity --trials 20 --jobs 2": Skip(BENCH),
+    "larns fleet --scenario seed000-poll": Skip("a fleet run whole by the defaults matrix (tests/test_defaults_matrix.py, "
+                                                 "seed000-poll, with the aircraft)"),
     "larns fleet --scenario seed001 --aircraft": Skip(BENCH + " (the live aircraft's CPU, read from /proc over 30 s)"),
     "larns bench sync --trials 100 --json bench-out/sync/sync.json": Skip(BENCH),
     "larns fleet --scenario seed000 --duration 600 --speed 1 --record ten.mcap": Skip("a 10-minute measurement run; the same line with --duration 15 RUNs as docs/fleet.md's 'larns fleet --scenario seed000 --duration 60 --speed 1 --record run.mcap'"),
