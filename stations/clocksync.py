@@ -52,7 +52,9 @@ the founders' steers on it (``on_peer_scale``). Its filter's time axis (station 
 measured there) is anchored on its peers' broadcasts (``_anchor``) whenever its own clock against it
 is unknown to the coarse gate. A clock enters a definition only once its frequency is known to
 ``ENTER_FREQ_SD`` as well: a rate term frozen from worse frequencies drove the definitions of a
-multi-hop field apart.
+multi-hop field apart. Once per second each station moves its definition to the lazy inverse-variance
+weighted average of its neighbourhood's (:func:`consensus_step`), so the definitions' disagreement
+falls geometrically over the graph.
 """
 
 from __future__ import annotations
@@ -68,12 +70,12 @@ from net.clock import TimeScale, ensemble_change, transition
 C = SPEED_OF_LIGHT_M_S
 ENTER_SD_S = 2e-9  # a clock enters the ensemble once its offset against it is known to 2 ns (1 sigma)
 ENTER_FREQ_SD = 1.5e-10  # ... and its frequency to 1.5e-10 (docs/sync.md "Multi-hop network time")
-# consensus on the definition (docs/sync.md "One time scale"): once per second of T the scale's phase
-# moves by STEER_P times the mean phase disagreement with the peers' definitions and its rate by
-# STEER_R times the mean rate disagreement, which the peers' corrections carry (their frequency term)
-# against our estimate of the same clocks' rates: a definition that drifts against the field's is
-# corrected from the drift measured, not learnt by integrating the phase error (docs/sync.md)
-STEER_P = 0.3
+# consensus on the definition (docs/sync.md "One time scale", "Multi-hop network time"): once per second
+# of T the scale's phase moves by the lazy weighted average of the phase disagreements with the peers'
+# definitions (consensus_step) and its rate by STEER_R times the weighted mean rate disagreement, which
+# the peers' corrections carry (their frequency term) against our estimate of the same clocks' rates: a
+# definition that drifts against the field's is corrected from the drift measured, not learnt by
+# integrating the phase error (docs/sync.md)
 STEER_R = 0.3
 STEER_GATE_S = 2e-9  # a peer's correction and our estimate of its clock both known to 2 ns (1 sigma)
 STEER_RATE_GATE = 1e-9  # ... and a rate disagreement used only where both rates are known to 1 ns/s
@@ -105,6 +107,37 @@ STEP_PARTNERS = 3
 STEP_KNOWN_S = 1e-7  # ... judged only where the predicted transfer is known to 100 ns, not while the
 # clocks are acquired (seed000 world seed 2: the first seconds' transfers, known to ~1 us after the
 # coarse sync, come out ~6 sigma off, NIS 32-38, until the exchanges have refined them)
+
+
+def consensus_step(d_s: np.ndarray, var_s2: np.ndarray) -> tuple[float, float, float]:
+    """One steering of a definition of network time toward its neighbourhood's (pure).
+
+    Parameters
+    ----------
+    d_s : (n,) measured disagreements ``N_peer - N_me`` with the peers' definitions, s (n >= 1).
+    var_s2 : (n,) their noise variances, s^2 (> 0).
+
+    Returns
+    -------
+    ``(d, g, R)``: the inverse-variance weighted mean disagreement ``d`` (s), the gain ``g`` by which the
+    definition's phase moves (``N_me += g d``) and the variance ``R`` of ``d`` (s^2).
+
+    The new definition is the weighted average of the neighbourhood's, ours counted as one more member
+    with the peers' mean weight: ``g = n / (n + 1)`` (a lazy average: on a connected graph the
+    disagreement falls geometrically every cycle, at the rate of the graph's second eigenvalue, instead of
+    a fixed 0.3 of it, the rule until issue 33's item 3). Its noise is kept out by the scalar Wiener factor ``d^2 / (d^2 + R)``:
+    a disagreement no larger than its measurement noise moves little. The measurement errors of one
+    station's disagreements share that station's estimate of its own definition (its members' clocks),
+    so they are not taken as independent: ``R = (sum_j w_j sigma_j)^2 / (sum_j w_j)^2``, ``w_j = 1 /
+    sigma_j^2``, the variance of the weighted mean whatever their correlation.
+    """
+    w = 1.0 / np.maximum(np.asarray(var_s2, float), 1e-30)
+    sw = float(w.sum())
+    d = float(w @ np.asarray(d_s, float)) / sw
+    R = (float(np.sqrt(w).sum()) / sw) ** 2
+    n = len(w)
+    g = n / (n + 1.0) * d * d / (d * d + R) if d * d + R > 0 else 0.0
+    return d, g, R
 
 
 def _one_jump(seen: list[tuple[float, int]]) -> bool:
@@ -252,8 +285,8 @@ class ClockEstimator:
         self._heard_T: dict[int, float] = {}  # network time of the last exchange of each clock
         self._stepped_T: dict[int, float] = {}  # re-initialized clock -> its last exchange before the step
         self._stepped_state: dict[int, tuple[float, float, float]] = {}  # ... and (T, theta, f) before it
-        # (N_peer - N_me (s), its rate (s/s; nan: not known well enough), peer agreed) since the last tick
-        self._disagree: list[tuple[float, float, bool]] = []
+        # (N_peer - N_me (s), its rate (s/s; nan: not known well enough), peer's tier, variance s^2) since the last tick
+        self._disagree: list[tuple[float, float, int, float]] = []
         # variance of our definition against the field's, added to the broadcast offset's: unknown (1 us)
         # until the first steering, which adopts the field's definition in full; then what is left of
         # the last measured disagreement
@@ -535,7 +568,8 @@ class ClockEstimator:
         T, _ = self.peer_time(src, t_tx_src_s)
         e, f, ptt, ptf, pff = self._ens(src)
         dt = T - self.T_s
-        if ptt + 2 * dt * ptf + dt * dt * pff > STEER_GATE_S**2:
+        v_me = ptt + 2 * dt * ptf + dt * dt * pff
+        if v_me > STEER_GATE_S**2:
             return
         d = (e + f * dt) - th_peer
         r = f - corr[2] if pff + corr[5] <= STEER_RATE_GATE**2 else math.nan
@@ -545,7 +579,10 @@ class ClockEstimator:
         # first steering adopts
         limit_s = UNAGREED_LIMIT_S if self._scale_var_s2 >= UNAGREED_SD_S**2 or not self._rooted else AGREED_LIMIT_S
         if math.isfinite(d) and abs(d) < limit_s:
-            self._disagree.append((d, r, tier))
+            # the variance of d: our estimate of the clock against our definition and the peer's of the
+            # same clock against its own, taken as large as ours (its broadcast variance also carries its
+            # definition's last disagreement: what is measured here, not the noise of the measurement)
+            self._disagree.append((d, r, tier, max(2.0 * v_me, 1e-30)))  # (0: one-clock definitions)
 
     def _steer(self) -> None:
         """Once per second of ``T``: move this station's definition toward its peers' (consensus)."""
@@ -555,26 +592,30 @@ class ClockEstimator:
         # the founders steer on each other's; definitions that do not descend from the founders' last,
         # and only by a station whose own does not either (on_peer_scale)
         # a definition that does not descend from the founders' takes one that does in full
-        tier = min(t for _, _, t in self._disagree)
-        use = [(d, r) for d, r, t in self._disagree if t == tier]
+        tier = min(x[2] for x in self._disagree)
+        use = [x for x in self._disagree if x[2] == tier]
         self._disagree.clear()
         full = self._scale_var_s2 >= UNAGREED_SD_S**2 or (not self._rooted and tier < 2)
         self._rooted = self._rooted or tier < 2
-        d = float(np.mean([x[0] for x in use]))
-        rates = [x[1] for x in use if math.isfinite(x[1])]
+        d, g, R = consensus_step(np.array([x[0] for x in use]), np.array([x[3] for x in use]))
+        wr = [(1.0 / x[3], x[1]) for x in use if math.isfinite(x[1])]  # rates, with the phases' weights
         sc, T = self.scale, self.T_s
-        # the phase at T moves by g d and the rate by g_r times the mean rate disagreement (T_ref_s kept:
-        # a departure can still be dated back before this tick, _membership); the first steering adopts
-        # the field's definition in full, phase and rate (g = 1: a joiner, which starts from its own,
-        # takes the field's at once)
-        g = 1.0 if full else STEER_P
-        db = (1.0 if full else STEER_R) * float(np.mean(rates)) if rates else 0.0
+        # the phase at T moves by g d (consensus_step: the lazy weighted average of the neighbourhood's
+        # definitions) and the rate by STEER_R times the weighted mean rate disagreement (T_ref_s kept: a
+        # departure can still be dated back before this tick, _membership); the first steering adopts the
+        # field's definition in full, phase and rate (g = 1: a joiner, which starts from its own, takes
+        # the field's at once)
+        if full:
+            g = 1.0
+        rate = sum(w * x for w, x in wr) / sum(w for w, _ in wr) if wr else 0.0
+        db = (1.0 if full else STEER_R) * rate
         self.scale = TimeScale(sc.weights, a_s=sc.a_s + g * d - db * (T - sc.T_ref_s), b=sc.b + db,
                                T_ref_s=sc.T_ref_s, jump_s=0.0)
         # a definition is agreed once the field's phase and rate are both taken: adopted without the
         # rate (the clocks' rates not yet known to STEER_RATE_GATE) it stays unagreed and the next tick
-        # adopts again (else the rate left over pulls it microseconds away, undone only at STEER_P)
-        self._scale_var_s2 = UNAGREED_SD_S**2 if full and not rates else ((1.0 - g) * d) ** 2
+        # adopts again (else the rate left over pulls it microseconds away); then its variance against
+        # the neighbourhood's mean: what is left of the disagreement and the noise of the step
+        self._scale_var_s2 = UNAGREED_SD_S**2 if full and not wr else ((1.0 - g) * d) ** 2 + g * g * R
         self.scale_log.append(self.scale)
         if len(self.scale_log) > SCALE_LOG_MAX:
             del self.scale_log[: len(self.scale_log) - SCALE_LOG_MAX]
@@ -1046,3 +1087,4 @@ class ClockEstimator:
         ptt, ptf, _, pff = self._cov(k, k)
         var = ptt + 2 * dt * ptf + dt * dt * pff
         return float(T), float(max(var, 0.0))
+
