@@ -76,6 +76,7 @@ ENTER_FREQ_SD = 1.5e-10  # ... and its frequency to 1.5e-10 (docs/sync.md "Multi
 # the peers' corrections carry (their frequency term) against our estimate of the same clocks' rates: a
 # definition that drifts against the field's is corrected from the drift measured, not learnt by
 # integrating the phase error (docs/sync.md)
+STEER_P = 0.3  # the least gain of the phase (consensus_step)
 STEER_R = 0.3
 STEER_GATE_S = 2e-9  # a peer's correction and our estimate of its clock both known to 2 ns (1 sigma)
 STEER_RATE_GATE = 1e-9  # ... and a rate disagreement used only where both rates are known to 1 ns/s
@@ -125,8 +126,10 @@ def consensus_step(d_s: np.ndarray, var_s2: np.ndarray) -> tuple[float, float, f
     The new definition is the weighted average of the neighbourhood's, ours counted as one more member
     with the peers' mean weight: ``g = n / (n + 1)`` (a lazy average: on a connected graph the
     disagreement falls geometrically every cycle, at the rate of the graph's second eigenvalue, instead of
-    a fixed 0.3 of it, the rule until issue 33's item 3). Its noise is kept out by the scalar Wiener factor ``d^2 / (d^2 + R)``:
-    a disagreement no larger than its measurement noise moves little. The measurement errors of one
+    a fixed ``STEER_P`` = 0.3 of it, the rule until issue 33's item 3). Its noise is kept out by the
+    scalar Wiener factor ``d^2 / (d^2 + R)`` down to ``STEER_P``, the former fixed gain, as the least
+    gain: below it a definition within its noise of the neighbourhood's is hardly steered and drifts
+    with its members' rates (mh60 world seeds 3-4: a plateau of 4 ns, docs/sync.md). The measurement errors of one
     station's disagreements share that station's estimate of its own definition (its members' clocks),
     so they are not taken as independent: ``R = (sum_j w_j sigma_j)^2 / (sum_j w_j)^2``, ``w_j = 1 /
     sigma_j^2``, the variance of the weighted mean whatever their correlation.
@@ -137,7 +140,7 @@ def consensus_step(d_s: np.ndarray, var_s2: np.ndarray) -> tuple[float, float, f
     R = (float(np.sqrt(w).sum()) / sw) ** 2
     n = len(w)
     g = n / (n + 1.0) * d * d / (d * d + R) if d * d + R > 0 else 0.0
-    return d, g, R
+    return d, max(g, STEER_P), R
 
 
 def _one_jump(seen: list[tuple[float, int]]) -> bool:
@@ -1087,4 +1090,5 @@ class ClockEstimator:
         ptt, ptf, _, pff = self._cov(k, k)
         var = ptt + 2 * dt * ptf + dt * dt * pff
         return float(T), float(max(var, 0.0))
+
 

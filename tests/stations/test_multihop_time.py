@@ -7,7 +7,7 @@ import pytest
 
 from larns.bench.sync import common_time_errors, crlb_offset_var, hops_from_founders, per_hop_table
 from net.scenario import load
-from stations.clocksync import UNROOTED_SD_S, consensus_step
+from stations.clocksync import STEER_P, UNROOTED_SD_S, consensus_step
 from stations.sim import Simulator
 from scenario_text import strip_toml
 
@@ -19,7 +19,7 @@ STRIP = strip_toml("strip-time", "a 12 km strip of 10 stations, weak radio, coar
 
 def test_consensus_step_lazy_average_and_its_noise_gate():
     """The weighted mean of the disagreements, the lazy gain n / (n + 1) where they are far above their
-    noise, little gain where they are within it, and R the variance of the mean whatever the errors'
+    noise, the least gain STEER_P where they are within it, and R the variance of the mean whatever the errors'
     correlation (equal variances: one disagreement's, not 1 / n of it)."""
     sd = 1e-9
     d, g, R = consensus_step(np.array([20e-9, 40e-9, 30e-9]), np.array([sd**2, sd**2, 4 * sd**2]))
@@ -27,7 +27,7 @@ def test_consensus_step_lazy_average_and_its_noise_gate():
     assert R == pytest.approx(((2 * sd + 0.5 * sd) / 2.25) ** 2)
     assert g == pytest.approx(0.75 * d * d / (d * d + R)) and g > 0.74
     d, g, R = consensus_step(np.full(4, 0.3 * sd), np.full(4, sd**2))
-    assert R == pytest.approx(sd**2) and g < 0.1
+    assert R == pytest.approx(sd**2) and g == STEER_P  # within its noise: the least gain
 
 
 def test_consensus_on_a_path_falls_geometrically():
