@@ -459,6 +459,11 @@ TABLE: dict[str, Run | Skip] = {
     "larns bench sync --trials 100 --jobs 2 --bound-draws 4000": Skip(BENCH),
     "larns bench sync --scenario mh60.toml --sigma-d 0.9 --trials 4 --jobs 2 --duration 240 --hops-from 120 "
     "--png-dir bench-out/mh": Skip(BENCH),
+    "larns bench sync --scenario mh60.toml --sigma-d 0.9 --trials 2 --jobs 2 --duration 240 --hops-from 120": Skip(BENCH),
+    "larns bench sync --scenario mh60.toml --sigma-d 0.9 --trials 2 --seed 3 --jobs 2 --duration 240 "
+    "--hops-from 120": Skip(BENCH),
+    "larns bench sync --trials 20 --duration 60 --jobs 1": Skip(BENCH),
+    "larns bench sync --trials 20 --duration 60 --ranging poll --jobs 1": Skip(BENCH),
     "larns bench sync --trials 20 --jobs 2": Skip(BENCH),
     "larns bench sync --late-founder 5 --trials 20 --duration 60 --jobs 2": Skip(BENCH),
     "larns bench integrity --trials 20": Skip(BENCH),
