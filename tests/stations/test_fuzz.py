@@ -34,6 +34,25 @@ def test_a_request_stamped_far_from_now_is_dropped_before_the_senders_clock_is_r
     assert clock is None or len(clock._x) < 10_000  # the sender's emulated oscillator was not drawn out there
 
 
+def _absurd_through(node, scn, kinds: tuple[str, ...], rng: np.random.Generator, n: int = 3000) -> float:
+    """``n`` absurd messages of ``kinds`` in turn from station 3 through station 2's node (its receive
+    path; navs handed to the core as the node's batches do); returns the largest CPU seconds one took."""
+    pos3 = scn.true_pos(3)
+    worst = 0.0
+    for k in range(n):
+        t = node.fleet_now()
+        kind = kinds[k % len(kinds)]
+        m = absurd_message(rng, kind, 3, k + 1, t, dst=2, p_long=0.01)
+        data = M.encode(m, absurd_phy(rng, t, pos3))
+        t0 = time.process_time()
+        node._on_bytes(M.key_for(m), data)
+        if kind == "nav":  # navs reach the core in the node's batches
+            node._nav_subs = []
+            node._deliver(*M.decode(data))
+        worst = max(worst, time.process_time() - t0)
+    return worst
+
+
 def test_fuzz_absurd_polls_replies_and_finals_through_a_poll_node():
     """Protocol v2: 3,000 wire-valid polls, replies and navs (finals among them) from station 3 with
     every field at its limits through station 2's node on the poll: none raises or costs more than
@@ -44,20 +63,7 @@ def test_fuzz_absurd_polls_replies_and_finals_through_a_poll_node():
     node.scn = replace(scn, tdma=replace(scn.tdma, ranging="poll"))
     node.start_core()  # (the core again, on the poll)
     assert node.core.poll
-    rng = np.random.default_rng(31)
-    pos3 = scn.true_pos(3)
-    worst = 0.0
-    for k in range(3000):
-        t = node.fleet_now()
-        kind = ("nav", "poll", "reply")[k % 3]
-        m = absurd_message(rng, kind, 3, k + 1, t, dst=2, p_long=0.01)
-        data = M.encode(m, absurd_phy(rng, t, pos3))
-        t0 = time.process_time()
-        node._on_bytes(M.key_for(m), data)
-        if kind == "nav":
-            node._nav_subs = []
-            node._deliver(*M.decode(data))
-        worst = max(worst, time.process_time() - t0)
+    worst = _absurd_through(node, scn, ("nav", "poll", "reply"), np.random.default_rng(31))
     assert worst < 1.0, worst
     assert node.stats["core_errors"] == 0
     core = node.core
@@ -71,20 +77,7 @@ def test_fuzz_absurd_requests_replies_and_navs_through_the_node():
     of CPU, the core records no error, the sender's emulated clock stays bounded, and the core's
     state stays bounded (peers, clocks)."""
     node, bus, scn = make_node()
-    rng = np.random.default_rng(32)
-    pos3 = scn.true_pos(3)
-    worst = 0.0
-    for k in range(3000):
-        t = node.fleet_now()
-        kind = ("nav", "range_req", "range_rsp")[k % 3]
-        m = absurd_message(rng, kind, 3, k + 1, t, dst=2, p_long=0.01)
-        data = M.encode(m, absurd_phy(rng, t, pos3))
-        t0 = time.process_time()
-        node._on_bytes(M.key_for(m), data)
-        if kind == "nav":  # navs reach the core in the node's batches
-            node._nav_subs = []
-            node._deliver(*M.decode(data))
-        worst = max(worst, time.process_time() - t0)
+    worst = _absurd_through(node, scn, ("nav", "range_req", "range_rsp"), np.random.default_rng(32))
     # no message hangs the node (a claim drawing the sender's emulated clock out to 1e12 s would take
     # minutes); a typical message costs ~0.1 ms, so 1 s leaves room for a slow or loaded machine
     assert worst < 1.0, worst

@@ -30,11 +30,30 @@ def exchanges(navs, slot_s: float, cycle_s: float, nav_offset_s: float = 0.005) 
     return out
 
 
-def test_fleet_and_simulator_make_the_same_exchanges_and_sync(tmp_path):
+def live_and_simulated(rec, scn, duration_s: float, first_cycle: int):
+    """The exchanges of a fleet's recording ``rec`` and of the simulator's run of the same world
+    (:func:`exchanges` of each), and the keys of each in the cycles from ``first_cycle`` to two
+    before the end: ``(live, ref, live_c, ref_c)``."""
     from larns.log import read_log
     from net import messages as M
-    from net.scenario import load
     from stations.sim import Simulator
+
+    navs = []
+    for m in read_log(rec).messages:
+        if M.is_nav_key(m.topic):
+            msg, phy = M.decode(m.data)
+            navs.append((msg["src"], phy["t_true_s"], msg["ranges"]))
+    live = exchanges(navs, scn.tdma.slot_s, scn.tdma.cycle_s)
+    sim = Simulator(scn)
+    sim.run(duration_s, [duration_s])
+    ref = exchanges(((scn.ids[k], t, [[scn.ids[j], r]]) for t, k, j, r in sim.range_log), scn.tdma.slot_s,
+                    scn.tdma.cycle_s)
+    cycles = range(first_cycle, int(duration_s / scn.tdma.cycle_s) - 2)  # away from the power-on and the end
+    return live, ref, {e for e in live if e[2] in cycles}, {e for e in ref if e[2] in cycles}
+
+
+def test_fleet_and_simulator_make_the_same_exchanges_and_sync(tmp_path):
+    from net.scenario import load
 
     scn_path = tmp_path / "sync_e2e.toml"
     scn_path.write_text(five_stations("sync_e2e", 3, extra='\n[clock]\nmodel = "tcxo"\n'))
@@ -46,20 +65,8 @@ def test_fleet_and_simulator_make_the_same_exchanges_and_sync(tmp_path):
     # start barrier; before it, a fixed 4.25 s lead once let the recording begin after cycle 2)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     scn = load(scn_path)
-    navs = []
-    for m in read_log(rec).messages:
-        if M.is_nav_key(m.topic):
-            msg, phy = M.decode(m.data)
-            navs.append((msg["src"], phy["t_true_s"], msg["ranges"]))
-    live = exchanges(navs, scn.tdma.slot_s, scn.tdma.cycle_s)
-    sim = Simulator(scn)
-    sim.run(DURATION, [DURATION])
-    ref = exchanges(((scn.ids[k], t, [[scn.ids[j], r]]) for t, k, j, r in sim.range_log), scn.tdma.slot_s,
-                    scn.tdma.cycle_s)
-    cycles = range(2, int(DURATION / scn.tdma.cycle_s) - 2)  # away from the power-on and the end
-    live_c = {e for e in live if e[2] in cycles}
-    ref_c = {e for e in ref if e[2] in cycles}
-    assert len(ref_c) == len(scn.ids) * len(cycles)  # every station, every cycle
+    live, ref, live_c, ref_c = live_and_simulated(rec, scn, DURATION, 2)
+    assert len(ref_c) == len(scn.ids) * (int(DURATION / scn.tdma.cycle_s) - 4)  # every station, every cycle
     assert live_c == ref_c, (sorted(ref_c - live_c)[:10], sorted(live_c - ref_c)[:10])
     # the same ranges, noise included (sigma_d 0.5 m): the air draws are keyed by the transmission.
     # The two runs' clock filters can differ in their frequency estimates, which scale the ~1 ms
