@@ -251,10 +251,15 @@ class StationCore:
 
     def awaiting(self) -> int:
         """Replies still expected by our open exchange: the addressed request's (``pending``) or the
-        members of our poll not heard yet (protocol v2). The Zenoh node holds the own nav's timer
-        for them (a bounded wait, ``--lookahead``), as the simulator delivers in emulated-time order."""
+        members of our poll not heard yet whose broadcast we have taken (protocol v2: a member answers
+        only once it has sent a nav, so one never heard from - a scenario's station at power-on - is
+        not waited for). The Zenoh node holds the own nav's timer for them (a bounded wait,
+        ``--lookahead``), as the simulator delivers in emulated-time order; the results do not depend
+        on it (only when the final leaves in wall time)."""
         po = self._poll_out
-        return len(self.pending) + (0 if po is None else len(po["index"]) - len(po["rx"]))
+        if po is None:
+            return len(self.pending)
+        return len(self.pending) + sum(1 for p in po["index"] if p not in po["rx"] and p in self.peers)
 
     def next_deadline(self) -> float | None:
         """Local time of the next ``on_timer`` call the core needs."""
