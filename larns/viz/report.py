@@ -300,8 +300,8 @@ def _exchange_matrix(fig, b, reqs: list, rsps: set, ids: list[int]) -> None:
 
 def fig_tdma(d: dict, path: Path) -> dict[str, Any]:
     """One TDMA cycle at the scale of its slots: slot boundaries drawn and labelled with their owner,
-    each range request as an arrow initiator -> addressee at its time in the cycle (green: the reply
-    was recorded), each nav broadcast as a diamond; the free slots after the last used one are left
+    each range request (protocol v2: each member a poll names) as an arrow initiator -> addressee at
+    its time in the cycle (green: the reply was recorded; a poll's: its final lists the reply), each nav broadcast as a diamond; the free slots after the last used one are left
     out (stated). Beside it the answered exchanges of the whole run per pair."""
     plt = _plt()
     reqs = sorted(d["reqs"])
@@ -336,8 +336,8 @@ def fig_tdma(d: dict, path: Path) -> dict[str, Any]:
              if m.get("cycle") == c0 and "t_tx_s" in m]
     if nav_x:
         a.plot([x for x, _ in nav_x], [s for _, s in nav_x], "D", color="tab:purple", ms=4, label="nav broadcast")
-    a.plot([], [], color="tab:green", label="range request -> addressee, reply recorded")
-    a.plot([], [], color="tab:red", label="range request, no reply recorded")
+    a.plot([], [], color="tab:green", label="range request -> addressee (poll -> member), answered")
+    a.plot([], [], color="tab:red", label="range request (poll member), no answer recorded")
     a.set_xlim(-0.2 * slot_s * 1e3, (n_show + 0.2) * slot_s * 1e3)
     a.set_ylim(min(ids) - 0.7, max(ids) + 0.7)
     a.set_yticks(ids)
