@@ -1060,15 +1060,15 @@ class ClockEstimator:
 
     def peer_times(self, sid: int, ts_peer_s: list[float], corr=None) -> list[tuple[float, float]]:
         """:meth:`peer_time` at several local times of station ``sid`` (a nav's exchanges): its clock's
-        state and 2x2 covariance block read once; the same values."""
+        state and 2x2 covariance block read once (:meth:`peer_time` of a clock in the filter is this at one time)."""
         k = self.index.get(sid)
         if k is None:
             return [self.peer_time(sid, t, corr) for t in ts_peer_s]
-        a, f, T_s = self.x.item(2 * k), self.x.item(2 * k + 1), self.T_s
-        ptt, ptf, _, pff = self._cov(k, k)
+        a, f, T_s = self.x.item(2 * k), self.x.item(2 * k + 1), float(self.T_s)
+        ptt, ptf, _, pff = (float(v) for v in self._cov(k, k))
         out = []
         for t in ts_peer_s:
-            T = (t - a + f * T_s) / (1.0 + f)
+            T = (float(t) - a + f * T_s) / (1.0 + f)
             dt = T - T_s
             out.append((T, max(ptt + 2 * dt * ptf + dt * dt * pff, 0.0)))
         return out
@@ -1084,11 +1084,6 @@ class ClockEstimator:
                 return float(t_peer_s), self.model.offset_sigma_s**2
             th, var = predict_correction(corr, t_peer_s, self.model)
             return t_peer_s - th, var
-        a, f = self.x[2 * k], self.x[2 * k + 1]
-        T = (t_peer_s - a + f * self.T_s) / (1.0 + f)
-        dt = T - self.T_s
-        ptt, ptf, _, pff = self._cov(k, k)
-        var = ptt + 2 * dt * ptf + dt * dt * pff
-        return float(T), float(max(var, 0.0))
+        return self.peer_times(sid, [t_peer_s])[0]
 
 
