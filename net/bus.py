@@ -145,21 +145,30 @@ MAX_ZENOH_MESSAGE_BYTES = 2 * 64 * 1024
 # Bus.reopen); Zenoh's default (1 s, x2 up to 4 s) lost 1-3 s of traffic
 _FAST_RETRY = {"connect/retry": '{"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2}'}
 ROUTER_BLOCK_CLOSE_US = 500_000
+# a message sent with congestion control DROP (every air message) waits this long (us) for room in a
+# link's queue before it is dropped. Zenoh's 1 ms lost 1.4 % of a poll fleet's air messages on their
+# way to the recorder alone (seed000-poll, 20 s: 37 of 2 633; every station had taken them): on a
+# loaded 2-core host the link's sending task is not scheduled within 1 ms of a burst (a poll's nine
+# replies, a nav, its estimate and truth). 50 ms (Zenoh's own wait for fragments): none lost. A reader
+# that stops reading costs a publisher one such wait, not one per message: while the link stays
+# congested Zenoh drops at once (tests/net/test_bus.py, docs/fleet.md "Recording loss")
+WAIT_BEFORE_DROP_US = 50_000
+_DROP_WAIT = {"transport/link/tx/queue/congestion_control/drop/wait_before_drop": str(WAIT_BEFORE_DROP_US)}
 _MODE_SETTINGS: dict[str, dict[str, str]] = {
     # peers: full mesh through gossip (Zenoh >= 1.9 peers do not relay); keep retrying seeds that
     # are not up yet (processes start in any order)
-    "peer": {"mode": '"peer"', **_NO_SHM, **_FAST_RETRY,
+    "peer": {"mode": '"peer"', **_NO_SHM, **_FAST_RETRY, **_DROP_WAIT,
              "scouting/gossip/enabled": "true",
              "scouting/gossip/multihop": "false",
              "scouting/gossip/autoconnect": '{"router": [], "peer": ["router", "peer"]}',
              "connect/timeout_ms": '{"router": -1, "peer": -1, "client": 0}',
              "connect/exit_on_failure": '{"router": false, "peer": false, "client": true}'},
     # clients of a router: wait for a router that is not up yet instead of failing
-    "client": {"mode": '"client"', **_NO_SHM, **_FAST_RETRY,
+    "client": {"mode": '"client"', **_NO_SHM, **_FAST_RETRY, **_DROP_WAIT,
                "connect/timeout_ms": '{"router": -1, "peer": -1, "client": -1}',
                "connect/exit_on_failure": '{"router": false, "peer": false, "client": false}'},
     # router: no gossip; we never use storages or timestamps, so no HLC stamp per routed sample
-    "router": {"mode": '"router"', **_NO_SHM,
+    "router": {"mode": '"router"', **_NO_SHM, **_DROP_WAIT,
                "scouting/gossip/enabled": "false",
                "scouting/delay": "0",  # a router waited 0.5 s after binding its port, its clients with it
                "timestamping/enabled": '{"router": false, "peer": false, "client": false}',
@@ -172,6 +181,12 @@ _MODE_SETTINGS: dict[str, dict[str, str]] = {
                "connect/timeout_ms": '{"router": -1, "peer": -1, "client": 0}',
                "connect/exit_on_failure": '{"router": false, "peer": false, "client": true}'},
 }
+
+
+def _exchange_key(key: str) -> bool:
+    """A ranging exchange's message (addressed request / response, poll, reply): whose timing decides
+    whether the exchange closes in its slot, sent before navs and estimates (Zenoh priority REAL_TIME)."""
+    return "/range/" in key or key.endswith("/poll") or "/reply/" in key
 
 
 def make_config(listen: Sequence[str] = (), connect: Sequence[str] = (),
@@ -344,7 +359,7 @@ class Bus:
                         pub = self.session.declare_publisher(
                             key, express=self._express and not block,
                             congestion_control=cc.BLOCK if block else cc.DROP,
-                            priority=self._z.Priority.REAL_TIME if "/range/" in key
+                            priority=self._z.Priority.REAL_TIME if _exchange_key(key)
                             else self._z.Priority.DATA)
                     except Exception:
                         if self._reopening:  # the old session is closed, the new one not yet here

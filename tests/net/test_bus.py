@@ -157,3 +157,30 @@ def test_a_message_over_the_size_bound_is_refused_by_zenoh():
             time.sleep(0.05)
     assert MAX_ZENOH_MESSAGE_BYTES < 200_000
     assert got == [100_000, 10], got
+
+
+def test_a_reader_that_stops_reading_costs_one_drop_wait_not_one_per_message():
+    """Air messages go out with congestion control DROP after waiting up to ``WAIT_BEFORE_DROP_US``
+    for room (net/bus.py). A subscriber that stops reading (a stalled or hostile process) must not
+    hold every publish that long: Zenoh waits once, then drops at once while the link stays full.
+    Real sessions: 20 000 puts of 2 kB to a subscriber whose callback never returns."""
+    import threading
+    import time
+
+    from net.bus import WAIT_BEFORE_DROP_US, Bus
+
+    port = free_tcp_ports(1)[0]
+    stall = threading.Event()
+    with Bus(listen=[f"tcp/127.0.0.1:{port}"]) as a, Bus(connect=[f"tcp/127.0.0.1:{port}"]) as b:
+        a.subscribe("larns/test/**", lambda k, d: stall.wait(30.0))
+        t0 = time.time()
+        while not b.peers() and time.time() - t0 < 10:
+            time.sleep(0.05)
+        time.sleep(0.5)
+        t0 = time.monotonic()
+        for _ in range(20_000):
+            b.publish("larns/test/x", b"x" * 2048)
+        took_s = time.monotonic() - t0
+        stall.set()
+    # one wait per congestion episode: 20 000 waits would take 1000 s
+    assert took_s < 200 * WAIT_BEFORE_DROP_US * 1e-6, took_s
