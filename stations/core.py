@@ -171,6 +171,7 @@ class StationCore:
         self._peer_hist: dict[int, deque] = {}
         self._hold_from_s = self._hold_until_s = -math.inf
         self.known: dict[int, float] = {p: start_s for p in cfg.known_ids if p != cfg.id}
+        self._power_on_s = float(start_s)
         self.seq = {"range_req": 0, "range_rsp": 0, "nav": 0, "estimate": 0, "poll": 0, "reply": 0}
         self.pending: dict[int, tuple[int, float, float]] = {}  # req seq -> (dst, t_tx, slot end)
         # our own exchanges, newest last: [t_tx_s, addressee, replied in time] (reports, tests)
@@ -251,15 +252,17 @@ class StationCore:
 
     def awaiting(self) -> int:
         """Replies still expected by our open exchange: the addressed request's (``pending``) or the
-        members of our poll not heard yet whose broadcast we have taken (protocol v2: a member answers
-        only once it has sent a nav, so one never heard from - a scenario's station at power-on - is
-        not waited for). The Zenoh node holds the own nav's timer for them (a bounded wait,
+        members of our poll not heard yet that have transmitted since our power-on (protocol v2: a
+        member answers only once it has transmitted in its slot, so one never heard from - a
+        scenario's station at power-on - is not waited for). The Zenoh node holds the own nav's timer for them (a bounded wait,
         ``--lookahead``), as the simulator delivers in emulated-time order; the results do not depend
         on it (only when the final leaves in wall time)."""
         po = self._poll_out
         if po is None:
             return len(self.pending)
-        return len(self.pending) + sum(1 for p in po["index"] if p not in po["rx"] and p in self.peers)
+        t0 = self._power_on_s
+        return len(self.pending) + sum(1 for p in po["index"]
+                                       if p not in po["rx"] and (p in self.peers or self.known.get(p, t0) > t0))
 
     def next_deadline(self) -> float | None:
         """Local time of the next ``on_timer`` call the core needs."""
@@ -595,13 +598,16 @@ class StationCore:
 
     def _on_poll(self, msg: dict, t_rx_s: float) -> list[dict]:
         """Protocol v2: a poll naming us answers in our sub-slot ``T3 = T2 + o_k`` (rule V1), if we hold
-        a slot and have announced ourselves (a joiner answers only then) and it still falls in the slot."""
+        a slot and have announced ourselves by transmitting in it (our poll, or our nav: in emulated time
+        the final follows the poll within our own slot, so the two are one rule; in wall time a final
+        held for its replies would otherwise make us ignore the next slot's poll) and the reply still
+        falls in the poll's slot."""
         src = msg["src"]
         self._heard(src, t_rx_s)
         mem = msg["members"]
         if not self.poll or self.id not in mem:
             return []
-        if self.slot is None or self.seq["nav"] == 0:
+        if self.slot is None or self.seq["nav"] + self.seq["poll"] == 0:
             self.counters["ignored"] += 1
             return []
         k = mem.index(self.id)

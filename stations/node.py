@@ -37,6 +37,7 @@ from __future__ import annotations
 import argparse
 import gc
 import heapq
+import importlib
 import logging
 import math
 import os
@@ -149,6 +150,7 @@ class StationNode:
         self.wire = WireFaults(scn.net, station_rng(self.seed, self.id, streams.WIRE))
         self.slot_s = scn.tdma.slot_s
         self.lookahead_s = lookahead_default(scn) if opts.lookahead_s is None else float(opts.lookahead_s)
+        self._end_s = math.inf  # fleet time the run stops (run(): --until or --duration)
         self.cycle_s = scn.tdma.cycle_s
         self.drops = M.DropCounter(f"station {self.id}")
         self.stats: Counter[str] = Counter()
@@ -230,6 +232,12 @@ class StationNode:
             return False
         dl = self.core.next_deadline()
         return dl is not None and not self._is_slot_start(dl) and self.wall_of(self.clock.to_true(dl)) <= now
+
+    def _closes_too_late(self, t_local_s: float) -> bool:
+        """Whether the own slot starting at ``t_local_s`` would end, with its final's bounded wait for
+        the replies (``--lookahead``), after the run's end: such a slot is not begun, so a run stopped
+        at its duration leaves no poll or request whose nav never went out."""
+        return self.clock.to_true(t_local_s) + self.slot_s + self.lookahead_s * self.speed > self._end_s
 
     def _is_slot_start(self, t_local_s: float) -> bool:
         """The core's own-slot (request) timer: its slot start on network time, on its local clock."""
@@ -505,6 +513,8 @@ class StationNode:
                 return
             lateness = now - wall
             is_req = self._is_slot_start(dl)
+            if is_req and self._closes_too_late(dl):
+                return
             if not is_req and self.core.awaiting() and now < wall + self.lookahead_s:
                 return  # emulated-time order: the outstanding replies first (bounded wait)
             self._last_input_s = max(self._last_input_s, dl)
@@ -523,6 +533,8 @@ class StationNode:
     def _next_wake(self) -> float:
         t = time.time() + 0.1
         dl = self.core.next_deadline()
+        if dl is not None and self._is_slot_start(dl) and self._closes_too_late(dl):
+            dl = None  # not begun: wake at the end (run())
         if dl is not None:
             w = self.wall_of(self.clock.to_true(dl))
             if not self._is_slot_start(dl) and self.core.awaiting() and time.time() >= w:
@@ -597,6 +609,7 @@ class StationNode:
         end = math.inf if self.opts.duration_s is None else self.opts.duration_s
         if self.opts.run_s is not None:  # --duration: counted from power-on, after the start-up
             end = max(0.0, self.fleet_now()) + self.opts.run_s
+        self._end_s = end
         if not self.opts.quiet:
             print(f"[station {me}] scenario {self.scn.name}, join={self.opts.join}, speed={self.speed}, "
                   f"epoch={self.epoch:.3f}, slot={self.core.slot}", file=sys.stderr, flush=True)
@@ -741,7 +754,10 @@ def main_args(args: argparse.Namespace) -> int:
                        lookahead_s=getattr(args, "lookahead", None))
     args.secure_cn = f"station-{args.id}"
     bus = cli.open_bus(f"station {args.id}", lambda: Bus(**_bus_kwargs(args, scn)))
-    # larns fleet's start barrier (--epoch-from): the epoch once every process is up
+    # larns fleet's start barrier (--epoch-from): the epoch once every process is up - its imports
+    # included: the node's own (the core, the simulator's world, scipy) took 0.9 s on an idle machine
+    # and 2 s under load after the epoch, so stations powered on after their cycle-0 slots
+    importlib.import_module("stations.sim")
     opts = replace(opts, epoch_unix_s=cli.await_epoch(args, f"station {args.id}", stop_early))
     rep = cli.serve(args, bus, lambda: StationNode(scn, opts, bus), run=_run, stop=stop_early)
     if rep is None:
