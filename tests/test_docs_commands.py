@@ -390,6 +390,9 @@ TABLE: dict[str, Run | Skip] = {
     "larns info poll.mcap": Skip(BENCH + " (reads the recording of the fleet line above)"),
     "larns fleet --scenario s1.toml --duration 0": Skip(MENTION + "; s1.toml is the measurement's scratch copy of seed001", concrete=False),
     "larns reestimate --stations 99 -o": Skip(MENTION, concrete=False),
+    "larns reestimate REC --stations 99 -o OUT": Skip(MENTION + "; REC / OUT: a measurement's recordings", concrete=False),
+    "larns fleet --scenario seed000 --duration 90 --aircraft":
+        Skip(BENCH + " (90 s fleets recorded for a re-flight measurement in docs/aircraft.md)"),
     "larns aircraft --scenario S --algo ekf-tdoa --epoch $(date +%s) --duration 3600 --listen tcp/127.0.0.1:7500 &": Skip(MANUAL + "; S is a placeholder", concrete=False),
     "larns replay run.mcap --topics 'larns/station/*/nav/**' --connect tcp/127.0.0.1:7500 --wait-for 'larns/alive/aircraft/*'": Skip(MANUAL + " (waits for the aircraft of the line above)"),
     "larns report out.mcap": Run("out.mcap (a reestimate -o output): " + DEMO, expect=r"figures \+ report.md", slow=True),

@@ -4,22 +4,34 @@ After the broadcast clock correction each station's range keeps a slowly varying
 (docs/sync.md). Each station heard gets one first-order Gauss-Markov range bias, stationary variance
 = its broadcast clock variance ``c^2 P_theta``, correlation time ``clock_bias_tau_s``; added as the
 station is first heard, dropped (marginalized) after ``clock_bias_drop_s`` without a measurement.
+
+A station's broadcast position error persists too (its survey's error, minutes): with
+``Tuning.survey_bias_tau_s > 0`` each station heard also gets a range bias ``u^T e_j`` (``e_j`` its
+position error, ``u`` the line of sight) of stationary variance ``u^T C_j u`` (its broadcast position
+covariance ``C_j`` at the filter's estimate), correlation time ``survey_bias_tau_s``, held as a
+*consider* (Schmidt) state: its covariance with the rest is carried, so the filter does not average
+that error away, but it is never estimated (its mean stays 0): a station whose survey is wrong and
+whose covariance does not say so is not absorbed, its innovations keep the bias the integrity test
+must see. Its id is ``(POS_ERROR, station_id)``; the clock bias's is the station id.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from nav.pcrb import gauss_markov_diag
+POS_ERROR = "pos"  # the first element of a position-error state's id
 
 
 class ClockBiases:
-    """``ids``: station ids of the bias states, in state order after the ``n_base`` base states;
-    ``var`` their stationary variances (latest broadcast), m^2; ``t`` when each was last measured."""
+    """``ids``: ids of the bias states (a station id: its clock bias; ``(POS_ERROR, station id)``: its
+    position error, a consider state), in state order after the ``n_base`` base states; ``var`` their
+    stationary variances (latest broadcast), m^2; ``t`` when each was last measured. ``tau_s`` /
+    ``pos_tau_s``: the correlation times of the clock and position-error states."""
 
-    def __init__(self, n_base: int, tau_s: float, drop_s: float):
+    def __init__(self, n_base: int, tau_s: float, drop_s: float, pos_tau_s: float = 0.0):
         self.n_base = n_base
         self.tau_s = tau_s
+        self.pos_tau_s = pos_tau_s
         self.drop_s = drop_s
         self.ids: list = []
         self.var = np.zeros(0)
@@ -30,12 +42,29 @@ class ClockBiases:
         nb, n = len(self.ids), F.shape[-1]
         if not nb:
             return F, Q
-        a, qb = gauss_markov_diag(nb, self.var, self.tau_s, dt)
+        tau = np.array([self.pos_tau_s if isinstance(i, tuple) else self.tau_s for i in self.ids])
+        a = np.exp(-dt / tau)
+        qb = (1.0 - a * a) * self.var
         Fx, Qx = np.zeros((2, n + nb, n + nb))
         Fx[:n, :n], Qx[:n, :n] = F, Q
         k = np.arange(n, n + nb)
         Fx[k, k], Qx[k, k] = a, qb
         return Fx, Qx
+
+    def consider(self) -> np.ndarray:
+        """State indices (k,) of the consider states (the position errors), in the full state."""
+        return np.array([self.n_base + k for k, i in enumerate(self.ids) if isinstance(i, tuple)], dtype=int)
+
+    def _rescale(self, P: np.ndarray, ids, idx: np.ndarray, var: np.ndarray) -> np.ndarray:
+        """``P`` with the position errors' rows and columns scaled to their new variances ``var`` (m,)
+        (states ``idx``): such a variance follows the broadcast covariance and the line of sight, and the
+        error is taken to scale with it (its covariance with the rest too); a clock bias keeps its state."""
+        pe = np.array([isinstance(sid, tuple) for sid in ids], dtype=bool)
+        if not pe.any():
+            return P
+        f = np.ones(P.shape[-1])
+        f[self.n_base + idx[pe]] = np.sqrt(var[pe] / self.var[idx[pe]])
+        return P * f[:, None] * f[None, :]
 
     def use(self, x: np.ndarray, P: np.ndarray, ids, var_m2, t_s: float):
         """Bias states for the stations ``ids`` (m,) with broadcast variances ``var_m2`` (m,) at ``t_s``:
@@ -78,6 +107,7 @@ class ClockBiases:
             changed = True
         idx = np.array([self.ids.index(sid) for sid in ids], dtype=int)
         if not np.array_equal(self.var[idx], var):
+            P = self._rescale(P, ids, idx, var)
             self.var[idx] = var
             changed = True
         self.t[idx] = t_s

@@ -18,14 +18,14 @@ from nav.ut import SigmaParams
 
 from . import coords as crd
 from . import models as mdl
-from .biases import ClockBiases
+from .biases import POS_ERROR, ClockBiases
 from .chart import InverseChart
 from .floor import HeightFloor
 from .lag import LaggedJacobian
 from .measurements import make_model, second_order
 from .repeats import RepeatCount
 from .snapshot import TrackerSnapshot
-from .state import StateLayout
+from .state import POS, StateLayout
 from .tuning import Tuning
 from .update import STRATEGIES
 
@@ -60,7 +60,8 @@ class CvTracker:
         if x0.shape[-1] != self.layout.n:
             raise ValueError(f"x0 must have {self.layout.n} states for {model}, got {x0.shape}")
         self.n_base = self.layout.n  # states after these: the stations' clock biases (bias_ids order)
-        self.biases = ClockBiases(self.n_base, tuning.clock_bias_tau_s, tuning.clock_bias_drop_s)
+        self.biases = ClockBiases(self.n_base, tuning.clock_bias_tau_s, tuning.clock_bias_drop_s,
+                                  tuning.survey_bias_tau_s)
         self._x = x0.copy()
         P0 = tuning.prior_cov(self.layout) if P0 is None else np.asarray(P0, dtype=float)
         self._P = np.broadcast_to(P0, x0.shape[:-1] + (self.layout.n,) * 2).copy()
@@ -231,7 +232,7 @@ class CvTracker:
             self.chart.set_reference(crd.reference_point(stations_m), crd.array_radius(stations_m))
             self._switch()
         sig = self.tuning.sigma_m if sigma_m is None else sigma_m
-        D, sig = self._bias_map(stations_m, sig, bias_ids, bias_var_m2)
+        D, sig, station_cov_m2 = self._bias_map(stations_m, sig, bias_ids, bias_var_m2, station_cov_m2)
         model = make_model(self.layout.kind, stations_m, self.n_base, self.base, dt_s, D)
         R, z = self._noise(model, station_cov_m2, sig), model.z(rho_m)
         self.lag.update_direction(model.jacobian, lambda: self._cart(self._constrained()[0]), self.chart.inv,
@@ -239,6 +240,10 @@ class CvTracker:
         keys = self.repeats.keys(stations_m, bias_ids)
         k = self.repeats.count(keys, self.t_s, self._step_s, self.base if self.layout.kind == "tdoa" else None)
         x1, P1, nu, S = self.strategy(self, model, z, R, k)
+        c = self.biases.consider()
+        if c.size:  # Schmidt: the consider states keep their prior mean and covariance
+            x1[..., c] = self._x[..., c]
+            P1[..., c[:, None], c] = self._P[..., c[:, None], c]
         self.repeats.record(keys, self.t_s, self._P, P1)
         self._x, self._P = x1, P1
         if self.chart.ref is not None:
@@ -247,13 +252,24 @@ class CvTracker:
             self.lag.advance(*self._constrained(), self._cart, self._T, self._step_s)
         return nu, S  # innovation and its covariance of the first (plain) linearization
 
-    def _bias_map(self, stations_m, sig, bias_ids, bias_var_m2):
-        """``(D, sig)`` of one batch: the map (m, nb) of the clock-bias states to its stations (None:
-        no bias states) and the range sigma (the broadcast clock variance added with ``"white"``)."""
+    def _bias_map(self, stations_m, sig, bias_ids, bias_var_m2, station_cov_m2=None):
+        """``(D, sig, station_cov_m2)`` of one batch: the map (m, nb) of the bias states to its stations
+        (None: no bias states), the range sigma (the broadcast clock variance added with ``"white"``)
+        and the station covariances still to be counted as white range noise (None where the
+        position-error states carry them)."""
         D = None
         if bias_ids is not None and bias_var_m2 is not None:
             if self.tuning.clock_bias == "states":
-                self._x, self._P, D, changed = self.biases.use(self._x, self._P, bias_ids, bias_var_m2, self.t_s)
+                ids, var = bias_ids, bias_var_m2
+                pe = self._position_errors(stations_m, bias_ids, station_cov_m2)
+                if pe is not None:
+                    m = len(bias_ids)
+                    ids = list(bias_ids) + [None if sid is None else (POS_ERROR, sid) for sid in bias_ids]
+                    var = np.concatenate([np.broadcast_to(np.asarray(bias_var_m2, float), (m,)), pe])
+                    station_cov_m2 = None
+                self._x, self._P, D, changed = self.biases.use(self._x, self._P, ids, var, self.t_s)
+                if pe is not None:
+                    D = D[:m] + D[m:]
                 if changed:
                     self._bias_changed()
             else:
@@ -262,7 +278,20 @@ class CvTracker:
             D = np.zeros((stations_m.shape[0], len(self.bias_ids)))
         if D is not None and D.shape[-1] == 0:
             D = None
-        return D, sig
+        return D, sig, station_cov_m2
+
+    def _position_errors(self, stations_m, bias_ids, station_cov_m2) -> np.ndarray | None:
+        """The stationary variances (m,) ``u^T C_j u`` of the stations' position errors along the lines
+        of sight from the filter's estimate (the mean of its runs), on a grid of 2^(1/8) steps (a
+        variance that changes rescales its state: :meth:`.biases.ClockBiases.use`); None without
+        position-error states (``survey_bias_tau_s`` 0, no covariances, a station without an id)."""
+        if not self.tuning.survey_bias_tau_s > 0 or station_cov_m2 is None or any(s is None for s in bias_ids):
+            return None
+        p = self._cart(self._x)[..., POS].reshape(-1, 3).mean(axis=0)
+        d = p - stations_m
+        u = d / np.linalg.norm(d, axis=1)[:, None]
+        v = np.einsum("mi,mij,mj->m", u, np.asarray(station_cov_m2, float), u)
+        return np.where(v > 0, np.exp2(np.round(np.log2(np.maximum(v, 1e-300)) * 8.0) / 8.0), 0.0)
 
     def _noise(self, model, station_cov_m2, sig) -> np.ndarray:
         """The batch's noise covariance; cached while it does not depend on the state (pseudoranges

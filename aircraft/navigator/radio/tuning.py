@@ -43,7 +43,7 @@ class Prior:
 
 @dataclass(frozen=True)
 class Tuning:
-    """One filter tuning (shared by all trajectories); eight knobs.
+    """One filter tuning (shared by all trajectories); nine knobs.
 
     ``q_acc`` white-acceleration density (m^2/s^3, every axis); ``q_clock`` receiver clock offset random
     walk (m^2/s); ``q_drift`` its rate random walk (m^2/s^3); ``sigma_m`` nominal pseudorange noise (m);
@@ -53,7 +53,11 @@ class Tuning:
     errors after the broadcast correction (docs/sync.md): each station heard gets a first-order
     Gauss-Markov range-bias state of stationary variance ``c^2 P_theta`` (its broadcast clock variance),
     0 = that variance added to each range as white noise instead (wrong for a slowly varying sync
-    error: 4-8 x the bound, docs/sync.md); ``rules`` the linearization rules on (:data:`RULES`).
+    error: 4-8 x the bound, docs/sync.md); ``survey_bias_tau_s`` the correlation time of the stations'
+    broadcast position errors, carried as consider range-bias states of stationary variance
+    ``u^T C_j u`` (:mod:`.biases`; only with ``clock_bias_tau_s > 0`` and station covariances given),
+    0 = ``u^T C_j u`` added to each range as white noise instead; ``rules`` the linearization rules on
+    (:data:`RULES`).
 
     The settings the rules imply are read-only properties below (``iterations``, ``coords``, ...).
     """
@@ -65,6 +69,7 @@ class Tuning:
     p0: Prior = field(default_factory=Prior)
     floor_z_m: float | None = 0.0
     clock_bias_tau_s: float = CLOCK_BIAS_TAU_S
+    survey_bias_tau_s: float = 0.0  # off by default: docs/aircraft.md, Known limits (live CPU in seed001)
     rules: tuple[str, ...] = RULES
 
     def __post_init__(self):
