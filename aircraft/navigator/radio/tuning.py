@@ -69,7 +69,7 @@ class Tuning:
     p0: Prior = field(default_factory=Prior)
     floor_z_m: float | None = 0.0
     clock_bias_tau_s: float = CLOCK_BIAS_TAU_S
-    survey_bias_tau_s: float = 0.0  # off by default: docs/aircraft.md, Known limits (live CPU in seed001)
+    survey_bias_tau_s: float = 0.0  # off by default: docs/aircraft.md, Known limits ("Why off by default")
     rules: tuple[str, ...] = RULES
 
     def __post_init__(self):
