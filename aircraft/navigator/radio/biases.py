@@ -19,7 +19,15 @@ from __future__ import annotations
 
 import numpy as np
 
+from nav.pcrb import gauss_markov_diag
+
 POS_ERROR = "pos"  # the first element of a position-error state's id
+_NO_STATES = np.zeros(0, dtype=int)
+
+
+def _position_errors(ids) -> np.ndarray:
+    """Which of the state ids ``ids`` (m,) are position errors (``(POS_ERROR, station id)``): bool (m,)."""
+    return np.array([isinstance(i, tuple) for i in ids], dtype=bool)
 
 
 class ClockBiases:
@@ -42,9 +50,11 @@ class ClockBiases:
         nb, n = len(self.ids), F.shape[-1]
         if not nb:
             return F, Q
-        tau = np.array([self.pos_tau_s if isinstance(i, tuple) else self.tau_s for i in self.ids])
-        a = np.exp(-dt / tau)
-        qb = (1.0 - a * a) * self.var
+        pe = _position_errors(self.ids) if self.pos_tau_s > 0 else np.zeros(nb, dtype=bool)
+        a, qb = np.empty((2, nb))
+        for tau_s, m in ((self.tau_s, ~pe), (self.pos_tau_s, pe)):
+            if m.any():
+                a[m], qb[m] = gauss_markov_diag(int(m.sum()), self.var[m], tau_s, dt)
         Fx, Qx = np.zeros((2, n + nb, n + nb))
         Fx[:n, :n], Qx[:n, :n] = F, Q
         k = np.arange(n, n + nb)
@@ -53,13 +63,15 @@ class ClockBiases:
 
     def consider(self) -> np.ndarray:
         """State indices (k,) of the consider states (the position errors), in the full state."""
-        return np.array([self.n_base + k for k, i in enumerate(self.ids) if isinstance(i, tuple)], dtype=int)
+        if not self.pos_tau_s > 0:  # (no position-error states without their correlation time)
+            return _NO_STATES
+        return self.n_base + np.flatnonzero(_position_errors(self.ids))
 
     def _rescale(self, P: np.ndarray, ids, idx: np.ndarray, var: np.ndarray) -> np.ndarray:
         """``P`` with the position errors' rows and columns scaled to their new variances ``var`` (m,)
         (states ``idx``): such a variance follows the broadcast covariance and the line of sight, and the
         error is taken to scale with it (its covariance with the rest too); a clock bias keeps its state."""
-        pe = np.array([isinstance(sid, tuple) for sid in ids], dtype=bool)
+        pe = _position_errors(ids)
         if not pe.any():
             return P
         f = np.ones(P.shape[-1])
