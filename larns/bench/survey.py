@@ -324,10 +324,10 @@ def _leave_trial(job: tuple) -> dict:
     from stations.core import rigid_motion
     from stations.sim import Simulator
 
-    scenario, sigma_d, n, seed, duration, clock = job
+    scenario, sigma_d, n, seed, duration, clock, ranging = job
     scn = load(scenario, seed=seed, channel={"sigma_d_m": sigma_d}, **({"layout": {"n": n}} if n else {}),
                survey={"datum": "field"},
-               **({"clock": {"model": clock}} if clock else {}))
+               **({"clock": {"model": clock}} if clock else {}), **({"tdma": {"ranging": ranging}} if ranging else {}))
     stop = {sid: t for sid, t in FOUNDERS_LEAVE_S.items() if t < duration}
     times = sorted({min(t + LEAVE_AFTER_S, duration) for t in stop.values()} | {duration}
                    | {t - 1.0 for t in stop.values()})
@@ -404,10 +404,11 @@ def leave_main(args) -> int:
     out = []
     with mp.get_context("fork").Pool(max(1, args.jobs)) as pool:
         for sd in args.sigma_d:
-            jobs = [(args.scenario, sd, args.stations, args.seed + k, duration, getattr(args, "clock", None))
-                    for k in range(args.trials)]
+            jobs = [(args.scenario, sd, args.stations, args.seed + k, duration, getattr(args, "clock", None),
+                     getattr(args, "ranging", None)) for k in range(args.trials)]
             res = leave_summary(list(progress(pool.imap(_leave_trial, jobs), f"founders-leave sigma_d={sd}",
                                               total=len(jobs))), sd)
+            res["ranging"] = getattr(args, "ranging", None)
             print_leave(res)
             out.append(res)
     if args.json:
