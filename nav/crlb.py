@@ -9,7 +9,8 @@ coordinates and ``-u`` on j's, ``u = (c_i - c_j)/|c_i - c_j|``. The Bayesian inf
     J = P0^-1 + sum_links n_ij / sigma_d^2 g_ij g_ij^T,
 
 and the bound on the covariance of any estimator is ``J^-1`` (prior ``P0 = sigma0^2 I`` on free
-coordinates of the stations that have a coarse fix).
+coordinates of the stations that have a coarse fix). ``n_ij`` counts two-way ranges' information: one
+per addressed exchange, 4/3 per protocol v2 exchange closed by its final (:func:`poll_exchange_counts`).
 """
 
 from __future__ import annotations
@@ -33,7 +34,9 @@ def survey_fim(pos_m: np.ndarray, counts: np.ndarray, sigma_d_m: float | np.ndar
     Parameters
     ----------
     pos_m : (n, 3) true positions (network frame). counts : (n, n) ranges measured per ordered pair
-        (initiator, responder); the pair total ``counts + counts.T`` is what matters.
+        (initiator, responder), in units of one two-way range's information (float: protocol v2's
+        exchanges count 4/3 when closed by their final, :func:`poll_exchange_counts`); the pair total
+        ``counts + counts.T`` is what matters.
     sigma_d_m : range noise, scalar or (n, n) per link (a radio's SNR-dependent noise; only the pairs
         measured are read). free : (n, 3) bool. sigma0_m : prior sigma per coordinate, scalar or (n,)
         (``np.inf`` / None for no prior).
@@ -68,6 +71,47 @@ def survey_fim(pos_m: np.ndarray, counts: np.ndarray, sigma_d_m: float | np.ndar
     np.add.at(J, (np.broadcast_to(r[:, :, None], blocks.shape), np.broadcast_to(r[:, None, :], blocks.shape)),
               blocks)
     return J
+
+
+#: Fisher information on the distance of one protocol v2 exchange closed by its final, in units of one
+#: two-way range's ``1 / sigma_d^2`` (:func:`poll_exchange_counts`)
+POLL_EXCHANGE_INFO = 4.0 / 3.0
+
+
+def poll_exchange_counts(replies: np.ndarray, finals: np.ndarray | None) -> np.ndarray:
+    """Range-equivalent counts (n, n) of protocol v2's exchanges, for :func:`survey_fim` / :func:`survey_crlb`.
+
+    One exchange between poller A and member B has three one-way receptions (poll A->B, reply
+    B->A, final A->B), each arrival stamp with independent noise ``sigma_t = sqrt(2) sigma_d / c``
+    (net/channel.py: a two-way range of two legs has ``sigma_d``). In range units, with durations on
+    frequency-corrected clocks and ``theta`` the clocks' offset (B minus A) over the exchange::
+
+        y1 = c (T2 - T1) = d + theta + e1      (poll)
+        y2 = c (T4 - T3) = d - theta + e2      (reply)
+        y3 = c (T6 - T5) = d + theta + e3      (final),   e ~ N(0, 2 sigma_d^2)
+
+    The information on ``(d, theta)`` is ``H^T H / (2 sigma_d^2)``, ``H = [[1, 1], [1, -1], [1, 1]]``,
+    i.e. ``[[3, 1], [1, 3]] / (2 sigma_d^2)``, whose inverse bounds ``d`` at ``3/4 sigma_d^2``: an
+    exchange closed by its final carries ``4/3`` ranges' information (:data:`POLL_EXCHANGE_INFO`),
+    attained by the mean of its two single-sided ranges (``stations.dstwr.sym_twr_range_m``). Without
+    the final (``y1, y2``) it is one range: ``sigma_d^2``, the poller's single-sided range, and the
+    addressed exchange's. The offset is a nuisance per exchange (the clocks are not assumed known to
+    a fraction of a leg's noise between exchanges); the frequencies are the clock filter's.
+
+    Parameters
+    ----------
+    replies : (n, n) replies heard by the poller, [poller, member] (the simulator's ``link_counts``).
+    finals : (n, n) finals the member closed its exchange with, [member, poller]; None: none (the
+        addressed protocol).
+
+    Returns
+    -------
+    (n, n) float counts: ``replies + (4/3 - 1) finals^T`` (a final is only taken with its reply heard).
+    """
+    counts = np.asarray(replies, dtype=float)
+    if finals is None:
+        return counts
+    return counts + (POLL_EXCHANGE_INFO - 1.0) * np.asarray(finals, dtype=float).T
 
 
 def survey_crlb(pos_m, counts, sigma_d_m, free, sigma0_m) -> np.ndarray:

@@ -95,6 +95,34 @@ def ds_twr_range_m(t_poll_tx_s, t_poll_rx_s, t_reply_tx_s, t_reply_rx_s, t_final
                                              t_final_tx_s, t_final_rx_s, freq_poller, freq_responder)
 
 
+def sym_twr_range_m(t_poll_tx_s, t_poll_rx_s, t_reply_tx_s, t_reply_rx_s, t_final_tx_s, t_final_rx_s,
+                    freq_poller=0.0, freq_responder=0.0) -> np.ndarray:
+    """The exchange's two single-sided ranges averaged, m; same arguments and shapes as
+    :func:`ds_twr_tof_s`, eq. (V4b)::
+
+        range = c (Ra - Db + Rb - Da) / 4
+
+    the mean of the poller's single-sided range ``(Ra - Db) / 2`` and the one the final closes on the
+    responder's side, ``(Rb - Da) / 2``. In range units the poll, reply and final legs carry
+    independent noise ``e1, e2, e3`` of variance ``2 sigma_d^2`` each (net/channel.py); this range's
+    error is ``(e1 + 2 e2 + e3) / 4``, variance ``3/4 sigma_d^2`` - the exchange's bound
+    (``nav.crlb.poll_exchange_counts``) - where the single-sided range has ``sigma_d^2`` and DS-TWR
+    (V4) ``sigma_d^2 (1 + w^2 + (1 - w)^2) / 2``, ``w = Da / (Da + Db)`` (3/4 to 0.92 in seed000's
+    plan). It needs the clocks' frequencies: an error ``dfa, dfb`` in them biases it by
+    ``c (dfb - dfa) (Db - Da) / 4`` (half the single-sided range's ``c (dfb - dfa) Db / 2`` at most),
+    where DS-TWR is first-order free of them (V5).
+    """
+    stamps = (t_poll_tx_s, t_poll_rx_s, t_reply_tx_s, t_reply_rx_s, t_final_tx_s, t_final_rx_s)
+    if _scalars(*stamps, freq_poller, freq_responder):  # one exchange (the station core's final)
+        t1, t2, t3, t4, t5, t6 = (float(t) for t in stamps)
+        kp, kr = 1.0 + float(freq_poller), 1.0 + float(freq_responder)
+        return np.float64(0.25 * SPEED_OF_LIGHT_M_S * ((t4 - t1 - t5 + t4) / kp + (t6 - t3 - t3 + t2) / kr))
+    ra, db, kp, kr = _durations(t_poll_tx_s, t_poll_rx_s, t_reply_tx_s, t_reply_rx_s, freq_poller, freq_responder)
+    da = (_poller(t_final_tx_s) - np.asarray(t_reply_rx_s, float)) / kp
+    rb = (np.asarray(t_final_rx_s, float) - np.asarray(t_reply_tx_s, float)) / kr
+    return 0.25 * SPEED_OF_LIGHT_M_S * (ra - db + rb - da)
+
+
 def ss_twr_tof_s(t_poll_tx_s, t_poll_rx_s, t_reply_tx_s, t_reply_rx_s,
                  freq_poller=0.0, freq_responder=0.0) -> np.ndarray:
     """Single-sided two-way time of flight (what the addressed protocol measures), s; ``B + (N,)``.

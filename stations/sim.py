@@ -42,6 +42,9 @@ class SimResult:
     cov_m2: np.ndarray  # (K, n, 3, 3)
     n_updates: np.ndarray  # (K, n)
     link_counts: np.ndarray  # (K, n, n) cumulative ranges measured, [initiator, responder]
+    # (K, n, n) protocol v2: cumulative exchanges a member closed with the poller's final, [member,
+    # poller] (its own range of the exchange); None in the addressed protocol
+    final_counts: np.ndarray | None = None
     counters: dict[int, dict] = field(default_factory=dict)
     clock_err_s: np.ndarray | None = None  # (K, n) estimated minus true clock offset vs network time
     clock_var_s2: np.ndarray | None = None  # (K, n) the estimator's offset variance
@@ -155,12 +158,17 @@ class Simulator:
         self.shell = [ShellFaults(scn, i) for i in scn.ids]  # per-link channel, [[faults]]
         self.net_rng = np.random.default_rng([self.seed, 0, 3])
         self.links = np.zeros((n, n), dtype=np.int64)
+        self.finals = np.zeros((n, n), dtype=np.int64)  # protocol v2: [member, poller], see SimResult
         self._index = {sid: k for k, sid in enumerate(scn.ids)}
         # [k]: the stations that may hear station k (the radio's horizon and budget; static positions)
         reach = may_link(scn.pos_m, scn.channel.radio)
         self._hear = [[j for j in range(n) if j != k and reach[k, j]] for k in range(n)]
         self._reach = reach.tolist()
         self.range_log: list[tuple[float, int, int, float]] = []  # (t_true, initiator idx, responder idx, range_m)
+        # indices into range_log of the protocol v2 pollers' single-sided ranges that their survey did
+        # not take (ss_gated: the clocks' frequencies not known yet; their nav still carries them)
+        self.gated_log: set[int] = set()
+        self._gated_peers: list[set[int]] = [set() for _ in range(n)]  # per station, since its last nav
         self.exchange_log: list[tuple[float, int, int]] = []  # (t_true reply rx, initiator idx, responder idx)
         self.collisions = 0  # distributed assignment: navs lost at a receiver to another sender in their slot
         self.collision_log: list[tuple[float, int, int]] = []  # (t_true tx, sender idx, receiver idx) of each
@@ -203,8 +211,11 @@ class Simulator:
                 self.publish(self.now_s, ids[k], m, {"pos_m": self.scn.pos_m[k], "t_true_s": t_tx_true})
             self.policy[k].sent(kind)
             if kind == "nav":
+                gated, self._gated_peers[k] = self._gated_peers[k], set()
                 for peer, rng_m, *_ in m["ranges"]:
                     if peer in index:
+                        if index[peer] in gated:
+                            self.gated_log.add(len(self.range_log))
                         self.range_log.append((t_tx_true, k, index[peer], float(rng_m)))
             if kind in ("nav", "poll"):  # broadcasts
                 # a wire loss is drawn for every station, so only then are the others all visited
@@ -293,11 +304,17 @@ class Simulator:
             outs = core.on_timer(self.clocks[k].to_local(t))
         else:  # rx
             m, t_local = ev[2], ev[3]
-            before = core.counters["responses"]
+            cnt = core.counters
+            before, fin, gated = cnt["responses"], cnt["ranges_in"], cnt.get("ss_gated", 0)
             outs = core.on_message(m, t_local)
-            if core.counters["responses"] != before:
-                self.links[k, self._index[m["src"]]] += 1
-                self.exchange_log.append((t, k, self._index[m["src"]]))
+            src = self._index.get(m["src"])
+            if cnt["responses"] != before:
+                self.links[k, src] += 1
+                self.exchange_log.append((t, k, src))
+            if self.scn.tdma.poll and cnt["ranges_in"] != fin:  # (v2: only a final adds to ranges_in)
+                self.finals[k, src] += 1
+            if cnt.get("ss_gated", 0) != gated:
+                self._gated_peers[k].add(src)
         self._emit(k, outs)
         self._arm(k)
 
@@ -310,6 +327,7 @@ class Simulator:
         cov = np.full((K, n, 3, 3), np.nan)
         nup = np.zeros((K, n), dtype=np.int64)
         links = np.zeros((K, n, n), dtype=np.int64)
+        finals = np.zeros((K, n, n), dtype=np.int64)
         cerr = np.full((K, n), np.nan)
         cvar = np.full((K, n), np.nan)
         ctrue = np.full((K, n), np.nan)
@@ -327,6 +345,7 @@ class Simulator:
                         off, cvar[si, k] = c.clk.ensemble_offset_at(t_loc)
                         cerr[si, k] = off - ctrue[si, k]
                 links[si] = self.links
+                finals[si] = self.finals
                 si += 1
                 continue
             t, _, ev = heapq.heappop(self._heap)
@@ -334,6 +353,7 @@ class Simulator:
             self._handle(t, ev)
         return SimResult(ids=list(self.scn.ids), times_s=snaps, truth_m=self.scn.pos_m.copy(), pos_m=pos,
                          cov_m2=cov, n_updates=nup, link_counts=links,
+                         final_counts=finals if self.scn.tdma.poll else None,
                          counters={sid: dict(c.counters) for sid, c in zip(self.scn.ids, self.cores) if c},
                          clock_err_s=cerr, clock_var_s2=cvar, clock_true_s=ctrue,
                          time_scales={sid: list(c.clk.scale_log) for sid, c in zip(self.scn.ids, self.cores) if c})

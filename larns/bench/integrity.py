@@ -309,7 +309,7 @@ def _h2_nees(r, keep) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _trial(job: tuple) -> dict:
-    from nav.crlb import survey_crlb
+    from nav.crlb import poll_exchange_counts, survey_crlb
     from nav.geometry import frame_free_mask
 
     from .survey import link_sigma_m
@@ -321,8 +321,9 @@ def _trial(job: tuple) -> dict:
     k_at = np.searchsorted(t, at)
     h2, nees = _h2_nees(r, keep)
     free = frame_free_mask(len(scn.ids))
-    crlb = np.stack([survey_crlb(r.truth_m, r.link_counts[k], link_sigma_m(scn, r.truth_m, scn.channel.sigma_d_m),
-                                 free, scn.sigma0_m)
+    fin = r.final_counts  # protocol v2: an exchange closed by its final counts 4/3 (nav.crlb.poll_exchange_counts)
+    crlb = np.stack([survey_crlb(r.truth_m, poll_exchange_counts(r.link_counts[k], None if fin is None else fin[k]),
+                                 link_sigma_m(scn, r.truth_m, scn.channel.sigma_d_m), free, scn.sigma0_m)
                      for k in k_at])[:, keep]
     out = {"h2": h2[k_at], "crlb_h2": crlb[..., 0, 0] + crlb[..., 1, 1], "nees": nees[k_at]}
     out.update(fault_metrics(sim, scn.faults, duration))

@@ -3,7 +3,9 @@
 Each trial draws a fresh random layout (10 stations in 2 x 2 km x 80 m by default), coarse fixes,
 clocks and range noise from its own seed, runs the in-process simulator (the same station cores
 as the Zenoh fleet) and compares the estimates with the truth, with the centralized Bayesian CRLB
-of the *same* realized measurements, and with the centralized batch MAP on the same ranges.
+of the *same* realized exchanges (``nav.crlb.poll_exchange_counts``), and with the centralized batch
+MAP on the initiators' ranges the surveys took (protocol v2: the pollers' single-sided ranges, whose
+own bound is one range per exchange, above the exchanges' 4/3).
 """
 
 from __future__ import annotations
@@ -102,7 +104,7 @@ def multihop_stats(scn) -> dict:
 
 
 def _trial(job: tuple) -> dict:
-    from nav.crlb import batch_map, survey_crlb
+    from nav.crlb import batch_map, poll_exchange_counts, survey_crlb
     from nav.geometry import frame_free_mask
     from net.channel import coarse_fix, station_rng
     from net.scenario import load
@@ -127,7 +129,10 @@ def _trial(job: tuple) -> dict:
     # without a coarse fix the estimators' own weak prior (their no-fix sigma) keeps the bound finite
     # for a station whose links cannot locate it; a located station's bound does not feel it
     s0 = scn.sigma0_m if scn.sigma0_m > 0 else NO_FIX_SIGMA_M
-    crlb = np.stack([survey_crlb(r.truth_m, r.link_counts[k], sig, free, s0) for k in ti])
+    # the exchanges that happened: one range each, 4/3 for a protocol v2 exchange closed by its final
+    fin = r.final_counts
+    crlb = np.stack([survey_crlb(r.truth_m, poll_exchange_counts(r.link_counts[k], None if fin is None else fin[k]),
+                                 sig, free, s0) for k in ti])
     # NEES over stations 4..n (3 dof each)
     e4 = err[:, 3:]
     P4 = r.cov_m2[:, 3:]
@@ -148,6 +153,8 @@ def _trial(job: tuple) -> dict:
         prior = np.stack([coarse_fix(scn.pos_m[i], sid, scn.sigma0_m, station_rng(scn.seed, sid, 1))[0]
                           for i, sid in enumerate(scn.ids)])
         log = np.array(sim.range_log) if sim.range_log else np.zeros((0, 4))
+        # the ranges the surveys took: not the v2 pollers' ranges gated on unknown clock frequencies
+        log = np.delete(log, sorted(sim.gated_log), axis=0)
         maps = []
         for k in ti:
             sel = log[:, 0] <= times[k]
