@@ -64,7 +64,7 @@ from .admission import Admission, Bounds
 from .clocksync import ClockEstimator, ClockModel
 from .estimators import SurveyEstimator, make_estimator
 from .integrity import StationIntegrity
-from .dstwr import ds_twr_range_m, in_reply_window, reply_offset_s, time_transfer_s
+from .dstwr import ds_twr_range_m, in_reply_window, reply_offset_s, sym_twr_range_m, time_transfer_s
 from .slots import FREE, Heard, SlotConfig, SlotCore, SlotSummary
 from .tdma import TdmaPlan
 
@@ -775,7 +775,12 @@ class StationCore:
             return
         t1, t5 = pf["t1"], msg["t_tx_s"]
         f_src = corr[2] if corr is not None else 0.0
-        range_m = ds_twr_range_m(t1, t2, t3, t4, t5, t_rx_s, f_src, self.clk.freq()).item()
+        # the exchange's bound (3/4 sigma_d^2): its two single-sided ranges averaged (V4b) once the
+        # clocks' frequencies are known well enough for it (its rate bias acts on |Db - Da|, the gate
+        # of the poller's range), else DS-TWR (V4), first-order free of them
+        twr = sym_twr_range_m if self._rate_bias_m(corr, 0.5 * abs((t3 - t2) - (t5 - t4))) <= (
+            SS_BIAS_GATE * self.cfg.sigma_d_m) else ds_twr_range_m
+        range_m = twr(t1, t2, t3, t4, t5, t_rx_s, f_src, self.clk.freq()).item()
         if not (0.0 < range_m < self.cfg.max_range_m):
             self.counters["rejected_ranges"] += 1
             return

@@ -113,6 +113,9 @@ def test_each_member_forms_the_double_sided_range_exactly(offsets_s, drifts, mon
 
     core_mod_ds = core_mod.ds_twr_range_m
     monkeypatch.setattr(core_mod, "ds_twr_range_m", ds)
+    # the members on DS-TWR throughout: these frequency-blind cores' filters would pass the gate of the
+    # averaged single-sided ranges (V4b), which needs the frequencies they are made to ignore
+    monkeypatch.setattr(core_mod, "sym_twr_range_m", ds)
     clocks = [Clock(offset_s=o, drift=f) for o, f in zip(offsets_s, drifts)]
     cores = _cores(clocks)
     for c in cores:  # the single-sided ranges frequency-blind (the filters' estimates still broadcast)
@@ -138,6 +141,31 @@ def test_each_member_forms_the_double_sided_range_exactly(offsets_s, drifts, mon
     assert sum(c.counters["ss_gated"] for c in cores) > 0
     if any(drifts):
         assert max(ss_err) > 1.0  # the rate difference acts on the whole reply delay (V6)
+
+
+def test_members_average_the_two_single_sided_ranges_once_the_frequencies_are_known(monkeypatch):
+    """Noiseless exchanges, drifting clocks, the cores' own frequency estimates: the first finals (the
+    frequencies not known yet) give DS-TWR ranges (V4), the later ones the averaged single-sided
+    ranges (V4b, the exchange's bound 3/4 sigma_d^2), whose rate bias the gate keeps within
+    0.25 sigma_d (1-sigma): every member range within 3 x that of the truth."""
+    import stations.core as core_mod
+
+    kinds = []
+    for name in ("ds_twr_range_m", "sym_twr_range_m"):
+        def rec(*a, _f=getattr(core_mod, name), _n=name):
+            kinds.append(_n)
+            return _f(*a)
+        monkeypatch.setattr(core_mod, name, rec)
+    drifts = (1.8e-5, -1.9e-5, 7e-6, -1.2e-5)
+    clocks = [Clock(offset_s=o, drift=f) for o, f in zip((2e-5, -3e-5, 5e-5, -1e-5), drifts)]
+    cores = _cores(clocks)
+    taken = _run(cores, clocks, 6.0)
+    assert kinds[0] == "ds_twr_range_m" and kinds[-1] == "sym_twr_range_m"
+    sigma_d = cores[0].cfg.sigma_d_m
+    for k, c in enumerate(cores):
+        for peer, r, initiated in taken[c.id]:
+            if not initiated:
+                assert abs(r - float(np.linalg.norm(POS[k] - POS[peer - 1]))) < 3 * 0.25 * sigma_d
 
 
 def test_a_reply_outside_its_sub_slot_is_dropped_and_counted_never_misattributed():
