@@ -153,7 +153,8 @@ class StationCore:
         self.radio = radio_from_dict(cfg.radio)
         self.est: SurveyEstimator = make_estimator(cfg.estimator, cfg.id, init_pos_m, init_cov_m2,
                                                    cfg.sigma_d_m, cfg.ranges_per_update, founder=not cfg.join,
-                                                   radio=self.radio)
+                                                   radio=self.radio,
+                                                   peer_corr_est=POLL_PEER_CORR_EST if cfg.ranging == "poll" else None)
         self.clk = ClockEstimator(cfg.id, ClockModel(cfg.clock_q_wf_s, cfg.clock_q_rw_per_s, cfg.clock_offset_sigma_s,
                                                      cfg.clock_freq_sigma), start_s, cfg.sigma_d_m)
         self.peers: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # peer -> its latest broadcast (pos_m, cov_m2)
@@ -1021,6 +1022,12 @@ POLLED_KEEP = 2
 # protocol v2: the poller's single-sided range enters the survey only once the clocks' frequency
 # uncertainty biases it by at most this fraction of sigma_d (StationCore._rate_bias_m; docs/protocol.md)
 SS_BIAS_GATE = 0.25
+# protocol v2: the dmap solve's consider factor of the peers' covariances (DistributedMap.peer_corr_est,
+# 0.5 in the addressed protocol). With nine ranges per link where the addressed protocol had one,
+# sigma_d^2 / n falls nine times faster and the peer term u^T C_j u soon sets every link's weight;
+# charged at 0.5 it let the field's collective errors persist (RMS_h 1.18 x the single-range-count
+# CRLB at 40 s, 20 trials); the factor was measured, not derived (docs/survey.md, "Protocol v2's poll")
+POLL_PEER_CORR_EST = 3.0
 
 FOUNDERS = (1, 2, 3)  # the stations whose estimates define the frame until one of them is gone
 
