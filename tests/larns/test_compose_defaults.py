@@ -1,5 +1,6 @@
 """Compose as users run it (issue 28): the README's own container commands on the default scenario, secure
-(the default) and with ``LARNS_SECURE=`` (plain tcp), checked from the MCAP the recorder leaves in ./runs.
+(the default) and with ``LARNS_SECURE=`` (plain tcp), and secure on protocol v2 (``LARNS_SCENARIO=seed000-poll
+LARNS_JOIN_SCENARIO=seed000-poll``, issue 31), checked from the MCAP the recorder leaves in ./runs.
 
 Timeline of each run, wall time from when every station process has started (containers take tens of
 seconds to come up on a 2-core machine; fleet time runs from the epoch service's first run):
@@ -64,23 +65,26 @@ def image() -> str:
     return larns_image()
 
 
-@pytest.mark.parametrize("secure", [True, False], ids=["secure", "plain"])
-def test_compose_up_as_the_readme_says(secure, image):
+@pytest.mark.parametrize("secure, poll", [(True, False), (False, False), (True, True)],
+                         ids=["secure", "plain", "secure-poll"])
+def test_compose_up_as_the_readme_says(secure, poll, image):
     from larns.analysis.metrics import aircraft_accuracy
     from larns.log.series import load
     from net import messages as M
     from net.bus import free_tcp_ports
 
     cmds = readme_container_lines()
-    name = f"defaults-{'secure' if secure else 'plain'}"
+    name = f"defaults-{'secure' if secure else 'plain'}{'-poll' if poll else ''}"
     mcap = ROOT / "runs" / f"{name}.mcap"
     (ROOT / "runs").mkdir(exist_ok=True)
     mcap.unlink(missing_ok=True)
     env = {**os.environ, "LARNS_IMAGE": image, "LARNS_RUN": name, "LARNS_UID": str(os.getuid()),
            "LARNS_GID": str(os.getgid()), "LARNS_VIEW_PORT": str(free_tcp_ports(1)[0]),
-           "COMPOSE_PROJECT_NAME": f"l28{os.getpid()}{'s' if secure else 'p'}"}
+           "COMPOSE_PROJECT_NAME": f"l28{os.getpid()}{'s' if secure else 'p'}{'v2' if poll else ''}"}
     if not secure:
         env["LARNS_SECURE"] = ""
+    if poll:  # protocol v2 (docs/deploy.md): the field and the hot-joiner (placed as seed000-join places it)
+        env.update(LARNS_SCENARIO="seed000-poll", LARNS_JOIN_SCENARIO="seed000-poll")
 
     def dc(line_or_args, timeout=240, check=True):
         argv = _argv(line_or_args) if isinstance(line_or_args, str) else [*COMPOSE, *line_or_args]
