@@ -8,8 +8,10 @@ a filter started there stalled under the repeat count (docs/aircraft.md, "A wide
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from aircraft.navigator.radio.batch_start import BatchStartConfig, batch_fix
+from aircraft.navigator.radio.biases import POS_ERROR
 from aircraft.navigator.radio.estimator import AircraftEstimator, EstimatorConfig
 from aircraft.navigator.radio.tuning import Tuning
 
@@ -19,12 +21,13 @@ P_AC = np.array([2260.0, 640.0, 316.0])
 SLOT_S, CYCLE_S = 0.05, 0.25
 
 
-def _window(rng, n_cycles, vel_m_s, station_sd_m, clock_m=250.0, drift_m_s=0.3):
+def _window(rng, n_cycles, vel_m_s, station_sd_m, clock_m=250.0, drift_m_s=0.3, bias=None):
     """One window of TDMA pseudoranges: times (N,), stations (N, 3), covariances (N, 3, 3), ranges (N,),
     ids (N,), the true state [p v b d] (8,) at the last time. Each station's broadcast error (its
-    stated ``station_sd_m`` along every axis) is drawn once and persists over the window; 0.5 m white
-    noise on every range."""
-    bias = rng.normal(0.0, station_sd_m, (len(ST), 3))  # the broadcast positions' own errors
+    stated ``station_sd_m`` along every axis; ``bias`` (5, 3) if given) is drawn once and persists over
+    the window; 0.5 m white noise on every range."""
+    if bias is None:
+        bias = rng.normal(0.0, station_sd_m, (len(ST), 3))  # the broadcast positions' own errors
     t, s, c, r, i = [], [], [], [], []
     for cyc in range(n_cycles):
         for k in range(len(ST)):
@@ -69,6 +72,38 @@ def test_the_batch_fit_of_a_moving_aircraft_is_honest():
     assert np.median(sig) < 0.75 * one.sigma_m, (np.median(sig), one.sigma_m)
 
 
+def test_the_fit_says_how_its_error_shares_the_station_errors():
+    """The fit's error is made partly of the persisting station errors it counted;
+    ``BatchFit.cross`` (8, 5) is its covariance with each station's unit error ``z_j = u_j^T e_j / sd``
+    (a filter that carries those errors on starts them with it, not independent). Over 300 windows the
+    empirical ``cov(x - theta, z_j)`` of the position and clock agrees with the mean of ``cross`` within
+    4 standard errors everywhere, and differs from 0 (what an independent start assumes) by more than
+    6 somewhere."""
+    rng = np.random.default_rng(31)
+    tun = Tuning()
+    vel = np.array([20.0, -10.0, 2.0])
+    err, z, cross, var = [], [], [], []
+    for _ in range(300):
+        bias = rng.normal(0.0, 1.0, (len(ST), 3))
+        t, s, c, r, i, truth = _window(rng, 12, vel, 1.0, bias=bias)
+        x0 = truth + np.concatenate([rng.normal(0, 60, 3), -vel, [rng.normal(0, 60), -0.3]])
+        fit = batch_fix(t, s, c, r, i, x0, t[-1], tun, 30.0)
+        assert fit.ok and fit.cross.ids == (1, 2, 3, 4, 5)
+        u = fit.x[:3] - ST
+        u /= np.linalg.norm(u, axis=1)[:, None]
+        err.append(truth - fit.x)
+        z.append(np.einsum("ki,ki->k", u, bias))  # sd 1 m: z_j in units of sd
+        cross.append(fit.cross.cross)
+        var.append(np.diag(fit.P))
+    err, z, cross, var = (np.array(a) for a in (err, z, cross, var))
+    rows = [0, 1, 2, 6]  # position, clock
+    emp = (err.T @ z / len(err))[rows]
+    model = cross.mean(axis=0)[rows]
+    se = np.sqrt((var.mean(axis=0)[rows, None] + model**2) / len(err))  # sd of a mean of e z (z unit)
+    assert np.all(np.abs(emp - model) < 4.0 * se), np.round((emp - model) / se, 1)
+    assert np.max(np.abs(emp) / se) > 6.0, np.round(emp / se, 1)
+
+
 def _fly(cfg: EstimatorConfig, rng, seconds: float, algo: str = "ukf-pr"):
     """An estimator fed ``seconds`` of the hovering aircraft's TDMA ranges (stations surveyed to 0.3 m);
     returns it and the sigma ``sqrt(tr P_pos)`` and 3-D error of its start."""
@@ -84,19 +119,27 @@ def _fly(cfg: EstimatorConfig, rng, seconds: float, algo: str = "ukf-pr"):
     return e, start
 
 
-def test_a_far_field_filter_starts_from_many_cycles_not_from_one_wide_one():
+@pytest.mark.parametrize("survey_bias_tau_s", [0.0, 300.0])
+def test_a_far_field_filter_starts_from_many_cycles_not_from_one_wide_one(survey_bias_tau_s):
     """The one-cycle start (``batch_start=None``) starts the filter tens of metres wide at once; the
     batch start waits a few cycles and starts it within ``target_sigma_m``, with an error its sigma
-    covers; after 10 s both filters are consistent, the batch-started one converged (below 10 m)."""
+    covers; after 10 s both filters are consistent, the batch-started one converged (below 10 m).
+    With the stations' position errors as consider states (``survey_bias_tau_s`` 300 s) the same: the
+    batch start hands them over correlated with its state (``StationCross``), all five at the start;
+    added independent of it instead they counted the start's share twice and the sigma was 10.05 m at
+    10 s (docs/aircraft.md, "The start's share of the station errors")."""
     target = BatchStartConfig().target_sigma_m
+    tun = Tuning(survey_bias_tau_s=survey_bias_tau_s)
     rng = np.random.default_rng(3)
-    one, (sig1, err1, t1) = _fly(EstimatorConfig(fde=None, batch_start=None), rng, 10.0)
-    many, (sig_n, err_n, t_n) = _fly(EstimatorConfig(fde=None), rng, 10.0)
+    one, (sig1, err1, t1) = _fly(EstimatorConfig(tuning=tun, fde=None, batch_start=None), rng, 10.0)
+    many, (sig_n, err_n, t_n) = _fly(EstimatorConfig(tuning=tun, fde=None), rng, 10.0)
     assert sig1 > 40.0 and t1 < CYCLE_S
     assert sig_n <= target and err_n <= 3.0 * sig_n and t_n <= BatchStartConfig().window_s
     est = many.estimate()
     sig = np.sqrt(np.trace(est["cov_m2"]))
     assert sig < 10.0 and np.linalg.norm(np.subtract(est["pos_m"], P_AC)) < 3.0 * sig + 1.0
+    if survey_bias_tau_s > 0:
+        assert many.tracker.bias_ids == [(POS_ERROR, k) for k in range(1, 6)]
 
 
 def test_the_batch_start_is_a_function_of_its_inputs():

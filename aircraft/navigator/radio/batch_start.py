@@ -30,6 +30,16 @@ linearization point). The fit's covariance ``(J^T R^-1 J + Lambda_prior)^-1`` at
 filter's ``P0``; its weighted residual sum of squares is tested against chi-square with ``N - 4``
 degrees of freedom (``N`` ranges, 8 unknowns, 4 priors) as the snapshot start is (rule 2).
 TDOA filters take the ``[p, v]`` block (the free clock is what differencing removes).
+
+The fit's error is made partly of the stations' persisting errors it counted. A filter that carries
+them on as states (``Tuning.survey_bias_tau_s``: the position errors as consider states,
+:mod:`.biases`) must start them correlated with its state as the fit left them, not independent
+of it (that would count the same errors twice: the filter would first fuse the start and the next
+ranges as independent, too confident, then mis-weight them; docs/aircraft.md, "The start's share of
+the station errors"). With ``z_j`` station ``j``'s unit position error (its range error
+``p_k z_j``, ``p_k = sqrt(u_k^T C_k u_k)`` of the position covariance alone, in ``R``'s persisting
+term) the fit's error ``x - theta`` has ``cov(x - theta, z_j) = -P J^T R^-1 d_j`` (``d_j`` (N,):
+``p_k`` on station ``j``'s ranges, 0 elsewhere): :attr:`BatchFit.cross`.
 """
 
 from __future__ import annotations
@@ -68,6 +78,19 @@ class BatchStartConfig:
     max_step_m: float = 500.0
 
 
+@dataclass(frozen=True)
+class StationCross:
+    """The stations' position errors as a start leaves them (module docstring): ``ids`` (k,) station
+    ids, ``pos_m`` (k, 3) and ``cov_m2`` (k, 3, 3) each one's latest broadcast position and position
+    covariance (clock variance not included), ``cross`` (n, k) ``cov(state error, z_j)`` of the unit
+    position error ``z_j`` of each station, in the start's state (``[p v b d]`` or ``[p v]``)."""
+
+    ids: tuple
+    pos_m: np.ndarray
+    cov_m2: np.ndarray
+    cross: np.ndarray
+
+
 @dataclass
 class BatchFit:
     """``x`` (8,) ``[p v b d]`` at ``t_ref_s``, ``P`` (8, 8), ``cost`` the weighted residual sum of
@@ -80,6 +103,7 @@ class BatchFit:
     dof: int
     ok: bool
     t_ref_s: float
+    cross: StationCross | None = None
 
     @property
     def sigma_m(self) -> float:
@@ -107,8 +131,8 @@ def residual_cov(u: np.ndarray, s_m: np.ndarray, same: np.ndarray, lag_s: np.nda
 
 
 def _linearize(x, t_s, sta_m, cov_m2, rho_m, same, t_ref_s, tuning):
-    """Whitened residuals (N,) and Jacobian (N, 8) of the window at ``x`` (8,), and the Cholesky factor
-    of ``R``."""
+    """Whitened residuals (N,) and Jacobian (N, 8) of the window at ``x`` (8,), the Cholesky factor
+    (N, N) of ``R`` and the lines of sight (N, 3)."""
     tau = t_s - t_ref_s  # (N,) <= 0
     d = x[:3] + x[3:6] * tau[:, None] - sta_m  # (N, 3) station -> aircraft
     r = np.linalg.norm(d, axis=1)
@@ -118,16 +142,17 @@ def _linearize(x, t_s, sta_m, cov_m2, rho_m, same, t_ref_s, tuning):
     res = rho_m - (r + x[6] + x[7] * tau)
     J = np.concatenate([u, u * tau[:, None], np.ones((len(tau), 1)), tau[:, None]], axis=1)
     W = solve_triangular(L, np.column_stack([res, J]), lower=True)  # whitened: L^-1 [res J]
-    return W[:, 0], W[:, 1:]
+    return W[:, 0], W[:, 1:], L, u
 
 
 def batch_fix(t_s: np.ndarray, sta_m: np.ndarray, cov_m2: np.ndarray, rho_m: np.ndarray, ids: np.ndarray,
               x0: np.ndarray, t_ref_s: float, tuning: Tuning, vel_sigma_m_s: float,
-              cfg: BatchStartConfig = BatchStartConfig()) -> BatchFit:
+              cfg: BatchStartConfig = BatchStartConfig(), pos_cov_m2: np.ndarray | None = None) -> BatchFit:
     """Gauss-Newton fit of the window (module docstring). ``t_s`` (N,) measurement times, ``sta_m`` (N, 3)
     broadcast station positions, ``cov_m2`` (N, 3, 3) their covariances (clock variance included as an
     isotropic term), ``rho_m`` (N,) pseudoranges, ``ids`` (N,) station ids, ``x0`` (8,) the first
-    linearization point at ``t_ref_s``. Returns a :class:`BatchFit`."""
+    linearization point at ``t_ref_s``; ``pos_cov_m2`` (N, 3, 3) the position covariances alone (None:
+    ``cov_m2``), for :attr:`BatchFit.cross`. Returns a :class:`BatchFit`."""
     t_s, rho_m = np.asarray(t_s, float), np.asarray(rho_m, float)
     sta_m, cov_m2 = np.asarray(sta_m, float), np.asarray(cov_m2, float)
     ids = np.asarray(ids)
@@ -140,7 +165,7 @@ def batch_fix(t_s: np.ndarray, sta_m: np.ndarray, cov_m2: np.ndarray, rho_m: np.
     fail = BatchFit(x, np.full((8, 8), np.inf), float("inf"), n - 4, False, float(t_ref_s))
     try:
         for _ in range(cfg.iters):
-            rw, Jw = _linearize(x, t_s, sta_m, cov_m2, rho_m, same, t_ref_s, tuning)
+            rw, Jw, _, _ = _linearize(x, t_s, sta_m, cov_m2, rho_m, same, t_ref_s, tuning)
             A = Jw.T @ Jw + info_prior
             g = Jw.T @ rw - info_prior @ x
             dx = chol_solve(A, g[:, None])[:, 0]
@@ -152,12 +177,25 @@ def batch_fix(t_s: np.ndarray, sta_m: np.ndarray, cov_m2: np.ndarray, rho_m: np.
                 return fail
             if step < cfg.tol_m:
                 break
-        rw, Jw = _linearize(x, t_s, sta_m, cov_m2, rho_m, same, t_ref_s, tuning)
+        rw, Jw, L, u = _linearize(x, t_s, sta_m, cov_m2, rho_m, same, t_ref_s, tuning)
         P = chol_solve(Jw.T @ Jw + info_prior, np.eye(8))
+        cross = _station_cross(P, Jw, L, u, sta_m, cov_m2 if pos_cov_m2 is None else pos_cov_m2, ids)
     except np.linalg.LinAlgError:
         return fail
     cost = float(rw @ rw + np.sum((x[[3, 4, 5, 7]] / prior_sd) ** 2))
-    return BatchFit(x, symmetrize(P), cost, n - 4, bool(np.all(np.isfinite(P))), float(t_ref_s))
+    return BatchFit(x, symmetrize(P), cost, n - 4, bool(np.all(np.isfinite(P))), float(t_ref_s), cross)
+
+
+def _station_cross(P, Jw, L, u, sta_m, pos_cov_m2, ids) -> StationCross:
+    """:class:`StationCross` of a fit (module docstring): ``P`` (8, 8), ``Jw`` (N, 8) the whitened
+    Jacobian, ``L`` (N, N) the Cholesky factor of ``R``, ``u`` (N, 3) the lines of sight, ``sta_m``
+    (N, 3), ``pos_cov_m2`` (N, 3, 3) the position covariances, ``ids`` (N,)."""
+    uid, last = np.unique(ids[::-1], return_index=True)
+    last = len(ids) - 1 - last  # each station's latest range
+    p = np.sqrt(np.maximum(np.einsum("ki,kij,kj->k", u, pos_cov_m2, u), 0.0))
+    d = np.where(ids[:, None] == uid[None, :], p[:, None], 0.0)  # (N, k)
+    cross = -P @ Jw.T @ solve_triangular(L, d, lower=True)
+    return StationCross(tuple(uid.tolist()), sta_m[last], pos_cov_m2[last], cross)
 
 
 @dataclass
@@ -168,7 +206,7 @@ class BatchStart:
     cfg: BatchStartConfig
     tuning: Tuning
     vel_sigma_m_s: float
-    cycles: list = field(default_factory=list)  # (t (m,), pos (m, 3), cov (m, 3, 3), rho (m,), ids (m,))
+    cycles: list = field(default_factory=list)  # (t (m,), pos (m, 3), cov (m, 3, 3), rho (m,), ids (m,), pos_cov (m, 3, 3))
     x: np.ndarray | None = None  # the latest fit (8,) at t_s
     t_s: float | None = None
 
@@ -177,17 +215,19 @@ class BatchStart:
         self.x, self.t_s = None, None
 
     def offer(self, model: str, t_s: float, t_k: np.ndarray, pos, cov, rho, ids, snap: InitResult,
-              consistent, stats) -> InitResult | None:
-        """One more cycle (members' times ``t_k`` (m,), broadcast ``pos`` (m, 3), ``cov`` (m, 3, 3),
-        ``rho`` (m,), station ``ids`` (m,)) and its own snapshot start ``snap``; ``consistent(cost,
-        dof)``: the start test; ``stats`` counts ``start_batch_wait`` / ``start_batch_failed``."""
+              consistent, stats, clock_var_m2=None) -> InitResult | None:
+        """One more cycle (members' times ``t_k`` (m,), broadcast ``pos`` (m, 3), ``cov`` (m, 3, 3) with
+        the clock variances ``clock_var_m2`` (m,) (None: 0) as an isotropic term, ``rho`` (m,), station
+        ``ids`` (m,)) and its own snapshot start ``snap``; ``consistent(cost, dof)``: the start test;
+        ``stats`` counts ``start_batch_wait`` / ``start_batch_failed``."""
         m = len(rho)
         cov = np.zeros((m, 3, 3)) if cov is None else np.asarray(cov, float)
+        cvar = np.zeros(m) if clock_var_m2 is None else np.asarray(clock_var_m2, float)
         self.cycles.append((np.asarray(t_k, float), np.asarray(pos, float), cov, np.asarray(rho, float),
-                            np.asarray(ids)))
+                            np.asarray(ids), cov - cvar[:, None, None] * np.eye(3)))
         x0 = self._guess(model, t_s, snap)
-        t, p, c, r, i = (np.concatenate([cy[j] for cy in self.cycles]) for j in range(5))
-        fit = batch_fix(t, p, c, r, i, x0, t_s, self.tuning, self.vel_sigma_m_s, self.cfg)
+        t, p, c, r, i, pc = (np.concatenate([cy[j] for cy in self.cycles]) for j in range(6))
+        fit = batch_fix(t, p, c, r, i, x0, t_s, self.tuning, self.vel_sigma_m_s, self.cfg, pc)
         good = fit.ok and consistent(fit.cost, fit.dof)
         full = t_s - float(self.cycles[0][0].min()) >= self.cfg.window_s or len(r) >= self.cfg.max_ranges
         if good:
@@ -220,4 +260,6 @@ def _as_start(model: str, fit: BatchFit, snap: InitResult) -> InitResult:
     """The fit as a filter start (the ``pr`` layout with the clock rate, or the ``tdoa`` layout ``[p v]``)."""
     k = 8 if model == "pr" else 6
     fix = fit.x[[0, 1, 2, 6]] if model == "pr" else fit.x[:3]
-    return InitResult(fit.x[:k].copy(), fit.P[:k, :k].copy(), True, fix, fit.sigma_m, fit.cost)
+    c = fit.cross
+    cross = None if c is None else StationCross(c.ids, c.pos_m, c.cov_m2, c.cross[:k].copy())
+    return InitResult(fit.x[:k].copy(), fit.P[:k, :k].copy(), True, fix, fit.sigma_m, fit.cost, cross)

@@ -173,7 +173,7 @@ class AircraftEstimator:
             self.n_dropped += 1
             return
         if self.tracker is None:
-            self._start(t_s, pos, cov, cov_snap, rho, dt, ids)
+            self._start(t_s, pos, cov, cov_snap, rho, dt, ids, cvar)
             return
         try:
             self.tracker.predict_to(t_s)
@@ -260,9 +260,10 @@ class AircraftEstimator:
         motion = ((v_sig * np.asarray(dt, float)) ** 2)[:, None, None] * np.eye(3)
         return motion if cov is None else cov + motion
 
-    def _start(self, t_s, pos, cov, cov_snap, rho, dt=None, ids=None) -> None:
+    def _start(self, t_s, pos, cov, cov_snap, rho, dt=None, ids=None, cvar=None) -> None:
         """No filter yet: a snapshot fix from the batch (LSQ), or the filter's start. ``cov``: the
-        broadcast covariances; ``cov_snap``: the snapshot's (:meth:`_snapshot_cov`)."""
+        broadcast covariances (the clock variances ``cvar`` (m,) included); ``cov_snap``: the snapshot's
+        (:meth:`_snapshot_cov`)."""
         if self.fix is None and self._restart_from is not None:  # LSQ: warm again from its anchor
             self.fix, self._restart_from = self._restart_from, None
             self.stats["lsq_anchor_restart"] += 1
@@ -270,7 +271,7 @@ class AircraftEstimator:
             self.stats["lsq_restart_wait"] += 1  # the latest multi-start was not publishable: retry later
             return
         if self.cfg.guess_sigma_m is None and (self.fix is None or self.method != "lsq"):
-            self._start_from_broadcasts(t_s, pos, cov, cov_snap, rho, dt, ids)
+            self._start_from_broadcasts(t_s, pos, cov, cov_snap, rho, dt, ids, cvar)
             return
         tu = self.cfg.tuning
         var = tu.sigma_m**2
@@ -310,15 +311,17 @@ class AircraftEstimator:
             return init
         return initial_state(self.model, tu, pos, cov, rho, self.cfg.init)
 
-    def _start_from_broadcasts(self, t_s, pos, cov, cov_snap, rho, dt=None, ids=None) -> None:
+    def _start_from_broadcasts(self, t_s, pos, cov, cov_snap, rho, dt=None, ids=None, cvar=None) -> None:
         """Start from the broadcasts alone: multi-start snapshot fix (or a wide prior), from a batch that
         passes the start test when the receiver rules are on. The fix is weighted by ``cov_snap``; the
         members' survey is judged by ``cov``. A filter with a batch start (``EstimatorConfig.batch_start``)
         starts from the fit of the batches that passed, when it says so (:meth:`_batch_started`);
-        ``dt`` (m,) the members' times relative to ``t_s``, ``ids`` (m,) their station ids."""
+        ``dt`` (m,) the members' times relative to ``t_s``, ``ids`` (m,) their station ids, ``cvar`` (m,)
+        their clock variances (in ``cov``)."""
         m = len(rho)
         dt = np.zeros(m) if dt is None else np.asarray(dt, float)
         ids = np.arange(m) if ids is None else np.asarray(ids)
+        cvar = np.zeros(m) if cvar is None else np.asarray(cvar, float)
         tu = self.cfg.tuning
         init = self._initial(pos, cov, cov_snap, rho)
         if self.cfg.receiver is not None:
@@ -326,7 +329,7 @@ class AircraftEstimator:
             if keep is None:
                 return
             if not keep.all():  # the surveyed stations alone (enough for a snapshot with redundancy)
-                pos, rho, dt, ids = pos[keep], rho[keep], dt[keep], ids[keep]
+                pos, rho, dt, ids, cvar = pos[keep], rho[keep], dt[keep], ids[keep], cvar[keep]
                 same = cov_snap is cov  # (no motion: one array, kept one)
                 cov = None if cov is None else cov[keep]
                 cov_snap = cov if same else cov_snap[keep]
@@ -344,7 +347,7 @@ class AircraftEstimator:
         if self.batch_start is not None and (len(rho) > self.cfg.min_stations or self.batch_start.cycles):
             # cycles with redundancy only (docs/aircraft.md: seed001's 4-station far field fitted over many
             # cycles was overconfident); one without, while a window is collected, is waited past
-            init = self._batch_started(t_s, pos, cov, rho, dt, ids, init) if len(rho) > self.cfg.min_stations \
+            init = self._batch_started(t_s, pos, cov, rho, dt, ids, init, cvar) if len(rho) > self.cfg.min_stations \
                 else None
             if init is None:
                 return
@@ -359,9 +362,9 @@ class AircraftEstimator:
         else:
             self.tracker = CvTracker(self.method, self.model, init.x0, tu, t0_s=t_s, P0=init.P0,
                                      ref_m=crd.reference_point(pos),
-                                     ref_radius_m=crd.array_radius(pos))
+                                     ref_radius_m=crd.array_radius(pos), station_cross=init.station_cross)
 
-    def _batch_started(self, t_s, pos, cov, rho, dt, ids, init):
+    def _batch_started(self, t_s, pos, cov, rho, dt, ids, init, cvar=None):
         """One more cycle that passed the start rules into the batch start
         (:class:`.batch_start.BatchStart`): the start to use now (the fit, or ``init`` where the fit failed
         over a full window), or None to wait for more cycles."""
@@ -370,7 +373,8 @@ class AircraftEstimator:
         def test(cost, dof):
             return rcfg is None or rx.consistent(cost, dof, rcfg.p_start)
 
-        start = self.batch_start.offer(self.model, t_s, t_s + dt, pos, cov, rho, ids, init, test, self.stats)
+        start = self.batch_start.offer(self.model, t_s, t_s + dt, pos, cov, rho, ids, init, test, self.stats,
+                                       cvar)
         if start is not None:
             self.batch_start.reset()
         return start

@@ -27,12 +27,16 @@ tests check the import boundary.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from . import models as mdl
 from .lsq import lsq_cov, lsq_pr, lsq_tdoa
 from .tuning import Tuning
+
+if TYPE_CHECKING:
+    from .batch_start import StationCross
 
 
 @dataclass(frozen=True)
@@ -58,7 +62,9 @@ class InitConfig:
 class InitResult:
     """``x0`` (n,) and ``P0`` (n, n) of the filter state; ``snapshot`` True if the fix's own covariance
     is used (False: wide prior); ``fix`` the LSQ solution (4,) pr / (3,) tdoa; ``fix_sigma_m`` its
-    position standard deviation; ``cost`` its weighted residual sum of squares."""
+    position standard deviation; ``cost`` its weighted residual sum of squares; ``station_cross`` the
+    stations' position errors as the start leaves them (:class:`.batch_start.StationCross`: a start
+    over many cycles; None: counted as independent of ``x0``)."""
 
     x0: np.ndarray
     P0: np.ndarray
@@ -66,6 +72,7 @@ class InitResult:
     fix: np.ndarray
     fix_sigma_m: float
     cost: float
+    station_cross: StationCross | None = None
 
 
 def start_points(pos_m: np.ndarray) -> np.ndarray:

@@ -50,7 +50,7 @@ class CvTracker:
 
     def __init__(self, kind: str, model: str, x0: np.ndarray, tuning: Tuning, t0_s: float = 0.0, base: int = 0,
                  P0: np.ndarray | None = None, ref_m: np.ndarray | None = None,
-                 ref_radius_m: float | None = None):
+                 ref_radius_m: float | None = None, station_cross=None):
         if kind not in ("ekf", "ukf"):
             raise ValueError(f"unknown filter {kind!r} (ekf or ukf)")
         self.kind = kind
@@ -66,6 +66,8 @@ class CvTracker:
         P0 = tuning.prior_cov(self.layout) if P0 is None else np.asarray(P0, dtype=float)
         self._P = np.broadcast_to(P0, x0.shape[:-1] + (self.layout.n,) * 2).copy()
         self.chart = InverseChart(x0.shape[:-1], clock=self.layout.has_clock)
+        if station_cross is not None:  # (Cartesian still: the chart switches below)
+            self._start_position_errors(station_cross, t0_s)
         self.floor = HeightFloor(tuning.floor_z_m, tuning.trunc_sigma)
         self.lag = LaggedJacobian(tuning.height_jacobian_lag_s, tuning.lag_direction)
         self.repeats = RepeatCount(tuning.linearization_corr_s, t0_s)
@@ -82,6 +84,32 @@ class CvTracker:
         self._step_s = 0.0  # the latest prediction step: updates per linearization_corr_s
         self._r_key: tuple | None = None
         self._r: np.ndarray | None = None
+
+    def _start_position_errors(self, sc, t0_s: float) -> None:
+        """The stations' position-error states of a start that counted those errors (``sc``:
+        :class:`.batch_start.StationCross`, ``cross`` (n, k) against unit errors): each ``beta_j`` of
+        stationary variance ``v_j`` (:meth:`_position_errors` at ``x0``) is ``sqrt(v_j) z_j``, so its
+        covariance with the state is ``cross_j sqrt(v_j)``; the consider block is its prior
+        ``diag(v)``. Added independent instead, the start's share of those errors would be counted twice
+        (docs/aircraft.md, "The start's share of the station errors")."""
+        if not (self.tuning.survey_bias_tau_s > 0 and self.tuning.clock_bias == "states") or not sc.ids:
+            return
+        v = self._position_errors(sc.pos_m, list(sc.ids), sc.cov_m2)
+        keep = None if v is None else v > 0
+        if keep is None or not keep.any():
+            return
+        v, cross = v[keep], np.asarray(sc.cross, float)[:, keep]
+        n, k = self.n_base, len(v)
+        x = np.concatenate([self._x, np.zeros(self._x.shape[:-1] + (k,))], axis=-1)
+        P = np.zeros(self._P.shape[:-2] + (n + k, n + k))
+        P[..., :n, :n] = self._P
+        P[..., :n, n:] = cross * np.sqrt(v)
+        P[..., n:, :n] = np.swapaxes(P[..., :n, n:], -1, -2)
+        P[..., n:, n:] = np.diag(v)
+        self._x, self._P = x, P
+        b = self.biases
+        b.ids = [(POS_ERROR, sid) for sid, kp in zip(sc.ids, keep) if kp]
+        b.var, b.t = v, np.full(k, float(t0_s))
 
     # -- the clock-bias states (names kept for callers)
     @property
