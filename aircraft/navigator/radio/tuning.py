@@ -11,6 +11,10 @@ from .state import StateLayout
 # correlation time of a station's residual sync error after the broadcast correction, s (measured with
 # the station clock filter on the seed000 world, TCXO clocks: docs/sync.md)
 CLOCK_BIAS_TAU_S = 6.0
+# correlation time of a station's broadcast position error (its survey's error, which persists for
+# minutes), s: carried as consider states by default (docs/aircraft.md, Known limits, "On by default";
+# 300 s or 3600 s re-fly the same recordings within a few per cent of NEES)
+SURVEY_BIAS_TAU_S = 300.0
 
 
 # The linearization rules of the radio filters, each switched off by leaving it out of
@@ -56,7 +60,8 @@ class Tuning:
     error: 4-8 x the bound, docs/sync.md); ``survey_bias_tau_s`` the correlation time of the stations'
     broadcast position errors, carried as consider range-bias states of stationary variance
     ``u^T C_j u`` (:mod:`.biases`; only with ``clock_bias_tau_s > 0`` and station covariances given),
-    0 = ``u^T C_j u`` added to each range as white noise instead; ``rules`` the linearization rules on
+    0 = ``u^T C_j u`` added to each range as white noise instead (overconfident where the errors persist);
+    ``rules`` the linearization rules on
     (:data:`RULES`).
 
     The settings the rules imply are read-only properties below (``iterations``, ``coords``, ...).
@@ -69,7 +74,7 @@ class Tuning:
     p0: Prior = field(default_factory=Prior)
     floor_z_m: float | None = 0.0
     clock_bias_tau_s: float = CLOCK_BIAS_TAU_S
-    survey_bias_tau_s: float = 0.0  # off by default: docs/aircraft.md, Known limits ("Why off by default")
+    survey_bias_tau_s: float = SURVEY_BIAS_TAU_S
     rules: tuple[str, ...] = RULES
 
     def __post_init__(self):
