@@ -81,12 +81,12 @@ class BatchStartConfig:
 @dataclass(frozen=True)
 class StationCross:
     """The stations' position errors as a start leaves them (module docstring): ``ids`` (k,) station
-    ids, ``pos_m`` (k, 3) and ``cov_m2`` (k, 3, 3) each one's latest broadcast position and position
+    ids, ``stations_m`` (k, 3) and ``cov_m2`` (k, 3, 3) each one's latest broadcast position and position
     covariance (clock variance not included), ``cross`` (n, k) ``cov(state error, z_j)`` of the unit
     position error ``z_j`` of each station, in the start's state (``[p v b d]`` or ``[p v]``)."""
 
     ids: tuple
-    pos_m: np.ndarray
+    stations_m: np.ndarray
     cov_m2: np.ndarray
     cross: np.ndarray
 
@@ -206,7 +206,8 @@ class BatchStart:
     cfg: BatchStartConfig
     tuning: Tuning
     vel_sigma_m_s: float
-    cycles: list = field(default_factory=list)  # (t (m,), pos (m, 3), cov (m, 3, 3), rho (m,), ids (m,), pos_cov (m, 3, 3))
+    # (t (m,), pos (m, 3), cov (m, 3, 3), rho (m,), ids (m,), pos_cov (m, 3, 3): cov without the clock term)
+    cycles: list = field(default_factory=list)
     x: np.ndarray | None = None  # the latest fit (8,) at t_s
     t_s: float | None = None
 
@@ -261,5 +262,5 @@ def _as_start(model: str, fit: BatchFit, snap: InitResult) -> InitResult:
     k = 8 if model == "pr" else 6
     fix = fit.x[[0, 1, 2, 6]] if model == "pr" else fit.x[:3]
     c = fit.cross
-    cross = None if c is None else StationCross(c.ids, c.pos_m, c.cov_m2, c.cross[:k].copy())
+    cross = None if c is None else StationCross(c.ids, c.stations_m, c.cov_m2, c.cross[:k].copy())
     return InitResult(fit.x[:k].copy(), fit.P[:k, :k].copy(), True, fix, fit.sigma_m, fit.cost, cross)

@@ -85,20 +85,20 @@ class CvTracker:
         self._r_key: tuple | None = None
         self._r: np.ndarray | None = None
 
-    def _start_position_errors(self, sc, t0_s: float) -> None:
-        """The stations' position-error states of a start that counted those errors (``sc``:
+    def _start_position_errors(self, start, t0_s: float) -> None:
+        """The stations' position-error states of a start that counted those errors (``start``:
         :class:`.batch_start.StationCross`, ``cross`` (n, k) against unit errors): each ``beta_j`` of
         stationary variance ``v_j`` (:meth:`_position_errors` at ``x0``) is ``sqrt(v_j) z_j``, so its
         covariance with the state is ``cross_j sqrt(v_j)``; the consider block is its prior
         ``diag(v)``. Added independent instead, the start's share of those errors would be counted twice
         (docs/aircraft.md, "The start's share of the station errors")."""
-        if not (self.tuning.survey_bias_tau_s > 0 and self.tuning.clock_bias == "states") or not sc.ids:
+        if not (self.tuning.survey_bias_tau_s > 0 and self.tuning.clock_bias == "states") or not start.ids:
             return
-        v = self._position_errors(sc.pos_m, list(sc.ids), sc.cov_m2)
+        v = self._position_errors(start.stations_m, list(start.ids), start.cov_m2)
         keep = None if v is None else v > 0
         if keep is None or not keep.any():
             return
-        v, cross = v[keep], np.asarray(sc.cross, float)[:, keep]
+        v, cross = v[keep], np.asarray(start.cross, float)[:, keep]
         n, k = self.n_base, len(v)
         x = np.concatenate([self._x, np.zeros(self._x.shape[:-1] + (k,))], axis=-1)
         P = np.zeros(self._P.shape[:-2] + (n + k, n + k))
@@ -108,7 +108,7 @@ class CvTracker:
         P[..., n:, n:] = np.diag(v)
         self._x, self._P = x, P
         b = self.biases
-        b.ids = [(POS_ERROR, sid) for sid, kp in zip(sc.ids, keep) if kp]
+        b.ids = [(POS_ERROR, sid) for sid, kp in zip(start.ids, keep) if kp]
         b.var, b.t = v, np.full(k, float(t0_s))
 
     # -- the clock-bias states (names kept for callers)
