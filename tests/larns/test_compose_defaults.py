@@ -24,7 +24,6 @@ from __future__ import annotations
 import os
 import re
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -65,26 +64,35 @@ def image() -> str:
     return larns_image()
 
 
+def _compose_env(image: str, name: str, secure: bool, poll: bool) -> dict:
+    """The environment of one run: the image, the recording's name, our uid/gid, a free viewer port, a
+    project name of its own; plain tcp without ``secure``; protocol v2 with ``poll`` (docs/deploy.md:
+    the field and the hot-joiner, placed as seed000-join places it)."""
+    from net.bus import free_tcp_ports
+
+    env = {**os.environ, "LARNS_IMAGE": image, "LARNS_RUN": name, "LARNS_UID": str(os.getuid()),
+           "LARNS_GID": str(os.getgid()), "LARNS_VIEW_PORT": str(free_tcp_ports(1)[0]),
+           "COMPOSE_PROJECT_NAME": f"l28{os.getpid()}{'s' if secure else 'p'}{'v2' if poll else ''}"}
+    if not secure:
+        env["LARNS_SECURE"] = ""
+    if poll:
+        env.update(LARNS_SCENARIO="seed000-poll", LARNS_JOIN_SCENARIO="seed000-poll")
+    return env
+
+
 @pytest.mark.parametrize("secure, poll", [(True, False), (False, False), (True, True)],
                          ids=["secure", "plain", "secure-poll"])
 def test_compose_up_as_the_readme_says(secure, poll, image):
     from larns.analysis.metrics import aircraft_accuracy
     from larns.log.series import load
     from net import messages as M
-    from net.bus import free_tcp_ports
 
     cmds = readme_container_lines()
     name = f"defaults-{'secure' if secure else 'plain'}{'-poll' if poll else ''}"
     mcap = ROOT / "runs" / f"{name}.mcap"
     (ROOT / "runs").mkdir(exist_ok=True)
     mcap.unlink(missing_ok=True)
-    env = {**os.environ, "LARNS_IMAGE": image, "LARNS_RUN": name, "LARNS_UID": str(os.getuid()),
-           "LARNS_GID": str(os.getgid()), "LARNS_VIEW_PORT": str(free_tcp_ports(1)[0]),
-           "COMPOSE_PROJECT_NAME": f"l28{os.getpid()}{'s' if secure else 'p'}{'v2' if poll else ''}"}
-    if not secure:
-        env["LARNS_SECURE"] = ""
-    if poll:  # protocol v2 (docs/deploy.md): the field and the hot-joiner (placed as seed000-join places it)
-        env.update(LARNS_SCENARIO="seed000-poll", LARNS_JOIN_SCENARIO="seed000-poll")
+    env = _compose_env(image, name, secure, poll)
 
     def dc(line_or_args, timeout=240, check=True):
         argv = _argv(line_or_args) if isinstance(line_or_args, str) else [*COMPOSE, *line_or_args]
