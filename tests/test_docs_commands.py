@@ -379,6 +379,7 @@ TABLE: dict[str, Run | Skip] = {
     "larns bench sync --trials 100 --duration 60 --ranging poll": Skip(BENCH),
     "larns bench sync --trials 100 --ranging poll --jobs 2": Skip(BENCH),
     "larns bench sync --founders-leave --ranging poll --trials 20 --jobs 1": Skip(BENCH),
+    "larns bench sync --founders-leave --ranging poll --trials 100 --jobs 2": Skip(BENCH),
     "larns bench survey --founders-leave --ranging poll --trials 20 --sigma-d 0.5 --seed 1 --jobs 1": Skip(BENCH),
     "larns bench sync --trials 20 --ranging poll --duration 60 --jobs 1": Skip(BENCH),
     "larns bench survey --trials 20 --ranging poll --sigma-d 0.5 --no-map --jobs 1": Skip(BENCH),
