@@ -1024,9 +1024,9 @@ POLLED_KEEP = 2
 SS_BIAS_GATE = 0.25
 # protocol v2: the dmap solve's consider factor of the peers' covariances (DistributedMap.peer_corr_est,
 # 0.5 in the addressed protocol). With nine ranges per link where the addressed protocol had one,
-# sigma_d^2 / n falls nine times faster and the peer term u^T C_j u soon sets every link's weight;
-# charged at 0.5 it let the field's collective errors persist (RMS_h 1.18 x the single-range-count
-# CRLB at 40 s, 20 trials); the factor was measured, not derived (docs/survey.md, "Protocol v2's poll")
+# sigma_d^2 / n falls nine times faster and the peer term u^T C_j u soon sets every link's weight,
+# so the errors the peers share (the field's collective modes) must be charged more; the factor is
+# measured, not derived (its table: docs/survey.md, "Protocol v2's poll")
 POLL_PEER_CORR_EST = 3.0
 
 FOUNDERS = (1, 2, 3)  # the stations whose estimates define the frame until one of them is gone
