@@ -149,26 +149,47 @@ def range_events(navs: dict[int, Sequence[dict]]) -> np.ndarray:
     return np.array(sorted(seen), float)
 
 
+def final_events(journals: dict[int, Any]) -> np.ndarray:
+    """(k, 3) rows ``[t_s, member, poller]`` of protocol v2's finals each member took, sorted by time:
+    a poller's nav in the member's recorded journal whose final lists the member's reply as heard
+    (``poll.rx``). ``journals``: station id -> :class:`larns.log.series.Journal`. With the poller's
+    reply rows of :func:`range_events` these make :func:`nav.crlb.poll_exchange_counts`' 4/3 per
+    exchange closed by its final (a final heard outside its window, which the member drops, still
+    counts here: the bound is then slightly low)."""
+    rows = set()
+    for sid, j in journals.items():
+        for _, entries in j.inputs.values():
+            for e in entries:
+                if e[0] != "m" or not isinstance(e[2], dict) or e[2].get("kind") != "nav":
+                    continue
+                pf = e[2].get("poll")
+                if pf and any(int(p) == sid for p, _ in pf.get("rx", ())):
+                    rows.add((float(e[1]), int(sid), int(e[2]["src"])))
+    return np.array(sorted(rows), float) if rows else np.zeros((0, 3))
+
+
 def survey_crlb_curve(ids: Sequence[int], truth_m: np.ndarray, events: np.ndarray, grid: np.ndarray,
-                      sigma_d_m: float, free: np.ndarray, sigma0_m: np.ndarray) -> np.ndarray:
+                      sigma_d_m: float, free: np.ndarray, sigma0_m: np.ndarray,
+                      finals: np.ndarray | None = None) -> np.ndarray:
     """Per grid time, the bound covariances (G, n, 3, 3) of :func:`nav.crlb.survey_crlb` for the
-    ranges measured until then (``events`` from :func:`range_events`; ids not in ``ids`` ignored),
-    ``truth_m`` (n, 3) in the network frame, ``free`` (n, 3), ``sigma0_m`` (n,) each station's prior
-    sigma (0 or inf: none). NaN where the information is singular (a station not yet located)."""
-    from nav.crlb import survey_crlb
+    ranges measured until then (``events`` from :func:`range_events`, one range each; ``finals`` from
+    :func:`final_events`, the third of a range each (:data:`nav.crlb.POLL_EXCHANGE_INFO`); ids not in
+    ``ids`` ignored), ``truth_m`` (n, 3) in the network frame, ``free`` (n, 3), ``sigma0_m`` (n,) each
+    station's prior sigma (0 or inf: none). NaN where the information is singular (a station not yet
+    located)."""
+    from nav.crlb import POLL_EXCHANGE_INFO, survey_crlb
 
     index = {sid: i for i, sid in enumerate(ids)}
     n = len(ids)
-    keep = np.array([int(a) in index and int(b) in index for _, a, b in events], bool) if len(events) else np.zeros(0, bool)
-    ev = events[keep] if len(events) else events
-    ii = np.array([index[int(a)] for a in ev[:, 1]], int) if len(ev) else np.zeros(0, int)
-    jj = np.array([index[int(b)] for b in ev[:, 2]], int) if len(ev) else np.zeros(0, int)
+    rows = [(t, a, b, 1.0) for t, a, b in events]
+    rows += [(t, a, b, POLL_EXCHANGE_INFO - 1.0) for t, a, b in (finals if finals is not None else ())]
+    ev = sorted((r for r in rows if int(r[1]) in index and int(r[2]) in index), key=lambda r: r[0])
     out = np.full((grid.size, n, 3, 3), np.nan)
     counts = np.zeros((n, n))
     k = 0
     for g, t in enumerate(grid):
-        while k < len(ev) and ev[k, 0] <= t:
-            counts[ii[k], jj[k]] += 1
+        while k < len(ev) and ev[k][0] <= t:
+            counts[index[int(ev[k][1])], index[int(ev[k][2])]] += ev[k][3]
             k += 1
         try:
             out[g] = survey_crlb(truth_m, counts, sigma_d_m, free, sigma0_m)

@@ -69,7 +69,19 @@ def extract(rec) -> dict[str, Any]:
             "truth": rec.truth_positions, "slots": {sid: st.slot for sid, st in rec.stations.items()},
             "navs": rec.nav_truth, "inits": {sid: st.init for sid, st in rec.stations.items() if st.init},
             "nav_msgs": {sid: [m for _, m in st.nav] for sid, st in rec.stations.items()},
+            "finals": _finals(rec),
             "clock_err": {sid: _clock_errors(st) for sid, st in rec.stations.items()}}
+
+
+def _finals(rec) -> np.ndarray | None:
+    """Protocol v2's finals the members took (:func:`larns.analysis.consistency.final_events`, from
+    the recorded journals); None for a recording without polls."""
+    if not any(m.get("poll") for st in rec.stations.values() for _, m in st.nav):
+        return None
+    from ..analysis.consistency import final_events
+    from ..log.series import collect_journals
+
+    return final_events(collect_journals(rec.messages))
 
 
 def _clock_errors(st) -> tuple[np.ndarray, np.ndarray]:

@@ -245,9 +245,11 @@ def fig_nees(d: dict, st: dict[int, dict], grid: np.ndarray, path: Path, p: floa
 
 def survey_bound(d: dict, st: dict[int, dict], grid: np.ndarray) -> np.ndarray | None:
     """(G,) CRLB of the RMS horizontal error over the surveying stations ``st`` for the ranges the
-    recorded navs list (:func:`larns.analysis.consistency.survey_crlb_curve`, stations at their true
-    positions, each station's prior from its init record); None without the range noise (no
-    journal recorded) or truth."""
+    recorded navs list and, with the poll, the finals the members took (``d["finals"]``: 4/3 of a range
+    per exchange closed by its final, as ``larns bench survey``'s bound;
+    :func:`larns.analysis.consistency.survey_crlb_curve`), stations at their true positions, each
+    station's prior from its init record; None without the range noise (no journal recorded) or
+    truth."""
     init = d.get("init")
     sig_d = (init or {}).get("cfg", {}).get("sigma_d_m")
     truth = {k: v["truth_m"] for k, v in d["stations"].items() if v["truth_m"] is not None}
@@ -262,7 +264,7 @@ def survey_bound(d: dict, st: dict[int, dict], grid: np.ndarray) -> np.ndarray |
     if not len(ev):
         return None
     b = C.survey_crlb_curve(ids, np.array([truth[i] for i in ids], float), ev, grid, float(sig_d),
-                            np.array([free_of(d, i) for i in ids]), np.array(sigma0))
+                            np.array([free_of(d, i) for i in ids]), np.array(sigma0), d.get("finals"))
     return C.crlb_horizontal_rms(b, [ids.index(i) for i in sorted(st)])
 
 

@@ -231,6 +231,43 @@ def test_survey_crlb_curve_matches_the_bench_bound():
     assert h[0] > h[1] > h[2] > 0
 
 
+def test_survey_crlb_curve_counts_the_polls_finals_as_the_bench_does():
+    """With the poll the bound takes 4/3 of a range per exchange closed by its final
+    (``nav.crlb.poll_exchange_counts``): the pollers' reply rows from their navs, the finals from the
+    members' journals (a poller's nav whose final lists the member's reply as heard)."""
+    from types import SimpleNamespace
+
+    from larns.analysis.consistency import final_events, range_events, survey_crlb_curve
+    from nav.crlb import poll_exchange_counts, survey_crlb
+    from nav.geometry import frame_free_mask
+
+    X = np.array([[0, 0, 0], [1000, 0, 0], [400, 900, 0], [700, 300, 40]], float)
+    nav1 = {"kind": "nav", "src": 1, "ranges": [[2, 1000.0, 1.0], [3, 985.0, 1.0], [4, 760.0, 1.0]],
+            "poll": {"seq": 0, "t1": 0.99, "rx": [[2, 0.991], [3, 0.992], [4, 0.993]]}}
+    nav2 = {"kind": "nav", "src": 2, "ranges": [[1, 1000.0, 2.0], [3, 1.0, 2.0]],
+            "poll": {"seq": 0, "t1": 1.99, "rx": [[1, 1.991], [3, 1.992]]}}  # station 4's reply not heard
+    ev = range_events({1: [nav1], 2: [nav2]})
+    journals = {2: SimpleNamespace(inputs={0: (None, [["m", 1.01, nav1], ["t", 1.5]])}),
+                3: SimpleNamespace(inputs={0: (None, [["m", 1.01, nav1]]), 1: (None, [["m", 2.01, nav2]])}),
+                4: SimpleNamespace(inputs={0: (None, [["m", 2.01, nav2]])}),  # heard, but not in nav2's rx
+                1: SimpleNamespace(inputs={})}  # station 1 missed station 2's final
+    fin = final_events(journals)
+    assert fin.tolist() == [[1.01, 2, 1], [1.01, 3, 1], [2.01, 3, 2]]
+    free, s0 = frame_free_mask(4), np.array([np.inf, 10.0, 10.0, 10.0])
+    b = survey_crlb_curve([1, 2, 3, 4], X, ev, np.array([1.5, 3.0]), 0.5, free, s0, fin)
+    replies, finals = np.zeros((4, 4)), np.zeros((4, 4))
+    for _, i, j in ev:
+        replies[int(i) - 1, int(j) - 1] += 1
+    for _, m, p in fin:
+        finals[int(m) - 1, int(p) - 1] += 1
+    assert np.allclose(b[1], survey_crlb(X, poll_exchange_counts(replies, finals), 0.5, free, s0))
+    early = np.zeros((4, 4))
+    early[0, 1:] = 1
+    early[1, 0] = early[2, 0] = 1 / 3
+    assert np.allclose(b[0], survey_crlb(X, early, 0.5, free, s0))
+    assert np.trace(b[1][1]) < np.trace(survey_crlb_curve([1, 2, 3, 4], X, ev, np.array([3.0]), 0.5, free, s0)[0][1])
+
+
 def test_network_figure_keeps_negative_latencies(tmp_path):
     """Latency stamps are on the sender's emulated clock: negative values are drawn and counted, not
     clamped to a floor."""

@@ -50,6 +50,25 @@ def test_fleet_and_simulator_make_the_same_polls(tmp_path):
     for sid, st in info["stations"].items():
         assert st["exchanges_pct"] > 90.0 and st["polls_complete_pct"] > 80.0, (sid, st)
         assert abs(st["sync_ns"]) < 5.0, (sid, st)
+    # the finals the members took, read from their journals as `larns report`'s bound reads them, are
+    # the simulator's for the same world (between 4 cycles after the power-on and 2 before the end)
+    from larns.analysis.consistency import final_events
+    from larns.log.series import collect_journals
+    from stations.sim import Simulator
+
+    lo_s, hi_s = 4 * scn.tdma.cycle_s, DURATION - 2 * scn.tdma.cycle_s
+    ref_f = []
+    for t_s in (lo_s, hi_s):
+        sim = Simulator(scn)
+        sim.run(t_s, [t_s])
+        ref_f.append(sim.finals.copy())
+    ref_f = ref_f[1] - ref_f[0]
+    fin = final_events(collect_journals(read_log(rec).messages))
+    live_f = np.zeros_like(ref_f)
+    index = {sid: i for i, sid in enumerate(scn.ids)}
+    for _, m, p in fin[(fin[:, 0] >= lo_s) & (fin[:, 0] < hi_s)]:
+        live_f[index[int(m)], index[int(p)]] += 1
+    assert np.all(live_f <= ref_f + 1) and live_f.sum() >= 0.95 * ref_f.sum(), (live_f, ref_f)
     # every estimate re-computed bit for bit from the journal (the poll's init record included)
     chk = subprocess.run([PY, "-m", "larns", "reestimate", str(rec), "--check", "-q"], capture_output=True,
                          text=True, timeout=120)
