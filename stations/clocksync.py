@@ -373,7 +373,7 @@ class ClockEstimator:
                 var += (1.0 if j == i else 2.0) * si * signs[j] * (tt + dt_h * (tf + ft) + dt_h * dt_h * ff)
         return var
 
-    def _PH(self, ks: list[int], signs: list[float], dt_h: float) -> tuple[np.ndarray, np.ndarray]:
+    def _PH(self, ks: list[int], signs: list[float], dt_h: float) -> tuple[list[float], list[float]]:
         """``P(T_s) h`` (n,) for the sparse row ``h = sum_i s_i e_{k_i} (x) [1, dt_h]`` (block indices
         ``ks``, signs ``s``), and ``F^{-1} P(T_s) h`` (n,) (the same at the reference time ``T0``): columns
         of ``P0`` mapped through ``F`` and ``Q``, O(n).
@@ -381,14 +381,14 @@ class ClockEstimator:
         With ``F = [[1, dt], [0, 1]]`` per block over ``dt = T_s - T0`` and ``g = Q [1, dt_h]``:
         ``P(T_s) h = F (P0 F^T h) + g (x) (sum_i s_i 1 + sum_i s_i e_{k_i})`` (network time's wander on
         every block, each clock's own on its block), and ``F^{-1} P(T_s) h = P0 F^T h + F^{-1} g (x) (...)``.
-        ``P0 F^T h`` is one matrix-vector product with the dense ``F^T h``."""
+        ``P0 F^T h`` is one matrix-vector product with the dense ``F^T h``. Both as lists of floats."""
         dt = self.T_s - self._T0
         n = len(self.x)
         hf = [0.0] * n  # F^T h: s [1, dt + dt_h] on the touched blocks
         for k, sg in zip(ks, signs):
             hf[2 * k] += sg
             hf[2 * k + 1] += sg * (dt + dt_h)
-        y0 = self._P0 @ hf
+        y0 = (self._P0 @ hf).tolist()
         if dt <= 0:
             return y0, y0
         qtt, qtf, qff = self._Q(dt)
@@ -397,7 +397,7 @@ class ClockEstimator:
         tot = float(sum(signs))
         ct, cf, ci = tot * gt, tot * gf, tot * it
         # blockwise on floats (9 clocks: NumPy's per-call cost dominates): F y0 and y0, plus the wander
-        z = y0.tolist()
+        z = y0
         y, v = z[:], z[:]
         for i in range(0, n, 2):
             t, f = z[i], z[i + 1]
@@ -408,7 +408,7 @@ class ClockEstimator:
             y[2 * k + 1] += sg * gf
             v[2 * k] += sg * it
             v[2 * k + 1] += sg * gf
-        return np.array(y), np.array(v)
+        return y, v
 
     def _add(self, sid: int) -> int:
         k = self.index.get(sid)
@@ -436,7 +436,8 @@ class ClockEstimator:
         if self.ref:
             return 0.0, 0.0
         k = 2 * self.index[self.id]
-        return self.x[k], self.x[k + 1]
+        x = self.x
+        return x.item(k), x.item(k + 1)
 
     # ------------------------------------------------------------------ time conversions
     @property
@@ -741,17 +742,19 @@ class ClockEstimator:
         x = self.x
         hph, hx = 0.0, 0.0
         for k, sg in zip(ks, signs):
-            hph += sg * (PH.item(2 * k) + dt_h * PH.item(2 * k + 1))
+            hph += sg * (PH[2 * k] + dt_h * PH[2 * k + 1])
             hx += sg * (x.item(2 * k) + dt_h * x.item(2 * k + 1))
         S = hph + r
         nu = z - hx
         self._last_nu = nu
         if nu * nu > gate * S and hph <= STEP_KNOWN_S**2:
             return nu * nu / S
-        x += PH * (nu / S)
+        g = nu / S
+        x += np.array([p * g for p in PH])
         # Joseph form with the optimal gain K = P h / S: (I - K h) P (I - K h)^T + r K K^T = P - w w^T,
         # w = P h / sqrt(S); at the reference time T0: P0 - v v^T, v = F^{-1} w (exactly symmetric)
-        v = v * (1.0 / math.sqrt(S))
+        g = 1.0 / math.sqrt(S)
+        v = np.array([q * g for q in v])
         self._P0 -= v[:, None] * v  # np.outer(v, v)
         self.n_updates += 1
         return nu * nu / S
@@ -966,6 +969,13 @@ class ClockEstimator:
         x, P0 = self.x, self._P0
         dt = self.T_s - self._T0
         q = self._Q(dt)[2] if dt > 0 else 0.0
+        if len(ks) == 2 and signs[0] == 1.0 and signs[1] == -1.0 and ks[0] != ks[1]:
+            # theta_a - theta_b (a time transfer): the loop below unrolled, the same operations
+            i, j = 2 * ks[0] + 1, 2 * ks[1] + 1
+            aa, ab, ba, bb = P0.item(i, i), P0.item(i, j), P0.item(j, i), P0.item(j, j)
+            if dt > 0:
+                aa, ab, ba, bb = aa + 2.0 * q, ab + 1.0 * q, ba + 1.0 * q, bb + 2.0 * q
+            return (0 + x.item(i)) + -1.0 * x.item(j), (((0 + aa) + -1.0 * ab) + -1.0 * ba) + bb
         ef = vf = 0
         for ki, gi in zip(ks, signs):
             ef = ef + gi * x[2 * ki + 1]

@@ -36,6 +36,7 @@ from __future__ import annotations
 from typing import Protocol
 
 import numpy as np
+from numpy._core.multiarray import c_einsum as _einsum  # np.einsum's own call (optimize=False): without its wrapper
 from scipy.linalg.lapack import dpotrs, dtrtri
 
 from nav.geometry import frame_free_mask
@@ -141,7 +142,7 @@ class SeedUkf:
             full[..., flat_idx] = X
             full = full.reshape(X.shape[:-1] + base.shape)
             d = full[..., :1, :] - full[..., 1:, :]
-            return np.sqrt(np.einsum("...ki,...ki->...k", d, d))
+            return np.sqrt(_einsum("...ki,...ki->...k", d, d))
 
         ut = unscented_transform(h, x, P, self.params)  # eq. (10)
         # range noise: sigma_d^2, or under [radio] each link's at the estimated geometry
@@ -232,7 +233,7 @@ def common_lower_bound(C: np.ndarray, rel_floor: float = 1e-9) -> np.ndarray | N
     of smallest trace. None if some ``C_j`` is zero (a peer without error shares none).
     Coordinates a peer's covariance pins (a founder's) are floored at ``rel_floor`` of the trace.
     """
-    tr = np.einsum("kii->k", C)
+    tr = _einsum("kii->k", C)
     if not len(C) or tr.min() <= 0.0:
         return None
     order = np.argsort(tr)
@@ -318,7 +319,7 @@ class _SolveCache:
         kept for the latest ``x`` (an iterate is never modified once it is read)."""
         if x is not self._x:
             diff = x - self.pos
-            self._x, self._dr, self._u = x, (diff, np.sqrt(np.einsum("ki,ki->k", diff, diff))), None
+            self._x, self._dr, self._u = x, (diff, np.sqrt(_einsum("ki,ki->k", diff, diff))), None
         return self._dr
 
     def unit(self, x: np.ndarray) -> np.ndarray:
@@ -437,6 +438,7 @@ class DistributedMap:
         self._rk = np.zeros(0, np.int64)
         self._rv = np.zeros(0)
         self._nr = 0
+        self._n_kept: dict[int, int] = {}  # peer slot -> its kept ranges (in _rk)
         self._rver = 0  # bumped whenever the kept ranges change (cache key of the link centres)
         self._centre_key: tuple[int, int] | None = None
         self._consensus_out: tuple[np.ndarray, np.ndarray] = (np.zeros(0), np.zeros(0, bool))
@@ -526,7 +528,8 @@ class DistributedMap:
         self._nr += 1
         self._rver += 1
         self._lver[k] += 1
-        if self.keep_per_link and np.count_nonzero(self._rk[:self._nr] == k) > self.keep_per_link:
+        kept = self._n_kept[k] = self._n_kept.get(k, 0) + 1
+        if self.keep_per_link and kept > self.keep_per_link:
             self._archive(k)
         self._dirty = self.nf > 0
         return False
@@ -539,6 +542,7 @@ class DistributedMap:
         w = self.range_weight[idx] if len(self.range_weight) == nr else np.ones(len(idx))
         self._n[k] += float(w.sum())
         self._sum[k] += float(w @ self._rv[idx])
+        self._n_kept[k] -= len(idx)
         keep = np.ones(nr, bool)
         keep[idx] = False
         self._rk = self._rk[:nr][keep]
@@ -631,7 +635,7 @@ class DistributedMap:
             sc = _SolveCache(self, False)
         r = sc.dist(x)[1]
         u = sc.unit(x)
-        s2 = self._link_var(x, sc.pos) + np.einsum("ki,kij,kj->k", u, sc.cov_sum, u)
+        s2 = self._link_var(x, sc.pos) + _einsum("ki,kij,kj->k", u, sc.cov_sum, u)
         return (sc.rv - r[sc.rk]) / np.sqrt(s2[sc.rk])
 
     def _weights(self, x: np.ndarray, robust: bool, sc: "_SolveCache | None" = None) -> np.ndarray:
@@ -653,7 +657,7 @@ class DistributedMap:
             w = tukey_weight(z, self.tukey_c) * sc.gate
         else:
             w = np.where(sc.huber_sel, zc, tukey_weight(z, self.tukey_c)) * sc.gate
-        if w.sum() < sc.inlier_floor:
+        if np.add.reduce(w) < sc.inlier_floor:  # (w.sum() without its wrapper)
             # far from everything: convex start (MM scheme), still within the links' consensus
             w = zh * sc.gate
         return w
@@ -681,7 +685,7 @@ class DistributedMap:
             centre, factor, conf, supp = self._centre, self._centre_factor, self._confirmed, self._support
             self._sdl = sdl = self._link_sigma(m)
             for k in np.flatnonzero(self._centre_ver[:m] != self._lver[:m]):
-                sd = sdl if np.ndim(sdl) == 0 else sdl[k]
+                sd = sdl if getattr(sdl, "ndim", 0) == 0 else sdl[k]
                 v = rv[rk == k]
                 centre[k], factor[k], conf[k], supp[k] = 0.0, 1.0, False, 0
                 self._centre_ver[k] = self._lver[k]
@@ -704,7 +708,7 @@ class DistributedMap:
     def _range_sigma(self, rk: np.ndarray):
         """Noise sigma of each kept range's link (scalar without ``[radio]``), as of the last consensus."""
         sdl = self._sdl
-        return sdl if np.ndim(sdl) == 0 else sdl[rk]
+        return sdl if getattr(sdl, "ndim", 0) == 0 else sdl[rk]
 
     def _adapt_weakness(self, rk: np.ndarray, rv: np.ndarray, m: int) -> None:
         """Adaptive link weakness (``weak_below_nlos``): NLOS evidence from this station's own ranges.
@@ -765,11 +769,11 @@ class DistributedMap:
         """
         diff = x - Pj
         u = diff / np.linalg.norm(diff, axis=1)[:, None]
-        w = 1.0 / (self._link_var(x, Pj) / n + np.einsum("ki,ij,kj->k", u, self.cov_m2, u))
+        w = 1.0 / (self._link_var(x, Pj) / n + _einsum("ki,ij,kj->k", u, self.cov_m2, u))
         # rank-1 downdate of the information, (C^-1 - w u u^T)^-1, by Sherman-Morrison; positive
         # definite iff w u^T C u < 1 (else the peer's information is mostly ours: keep C as is)
-        Cu = np.einsum("kij,kj->ki", Cj, u)
-        s = w * np.einsum("ki,ki->k", u, Cu)
+        Cu = _einsum("kij,kj->ki", Cj, u)
+        s = w * _einsum("ki,ki->k", u, Cu)
         ok = s < 0.99
         g = np.where(ok, w / np.where(ok, 1.0 - s, 1.0), 0.0)
         return Cj + g[:, None, None] * Cu[:, :, None] * Cu[:, None, :]
@@ -786,9 +790,9 @@ class DistributedMap:
             r, u = sc.dist(x)[1], sc.unit(x)
         else:
             diff = x - Pj
-            r = np.sqrt(np.einsum("ki,ki->k", diff, diff))
+            r = np.sqrt(_einsum("ki,ki->k", diff, diff))
             u = diff / r[:, None]
-        w = 1.0 / (self._link_var(x, Pj) / n + gamma * np.einsum("ki,kij,kj->k", u, Cj, u))
+        w = 1.0 / (self._link_var(x, Pj) / n + gamma * _einsum("ki,kij,kj->k", u, Cj, u))
         J = u[:, :nf] if nf < 3 else u
         A = self.prior_info + (J.T * w) @ J
         b = J.T @ (w * (dbar - r)) + self._prior_pull(x)
@@ -801,7 +805,7 @@ class DistributedMap:
             r = sc.dist(x)[1]
         elif r is None:
             diff = x - Pj
-            r = np.sqrt(np.einsum("ki,ki->k", diff, diff))
+            r = np.sqrt(_einsum("ki,ki->k", diff, diff))
         return self._prior_term(x) + float(wl @ (dbar - r) ** 2)
 
     def _prior_pull(self, x: np.ndarray):
@@ -931,7 +935,7 @@ class DistributedMap:
         nf = self.nf
         diff = x - Pj
         u = diff / np.linalg.norm(diff, axis=1)[:, None]  # (k, 3)
-        rest = np.maximum(np.einsum("ki,kij,kj->k", u, Cj, u) - np.einsum("ki,ij,kj->k", u, Cc, u), 0.0)
+        rest = np.maximum(_einsum("ki,kij,kj->k", u, Cj, u) - _einsum("ki,ij,kj->k", u, Cc, u), 0.0)
         w = 1.0 / (self._link_var(x, Pj) / n + gamma * rest)
         J = u[:, :nf]
         Linv = _chol_inv_factor(self.prior_info + (J.T * w) @ J)
