@@ -33,7 +33,10 @@ def _scalars(*xs) -> bool:
     """All Python (or NumPy) float / int scalars: one exchange, computed on floats (the same
     operations in the same order as the array path, so the same values; NumPy's per-call cost is
     most of a station core's per-exchange time)."""
-    return all(isinstance(x, (float, int)) for x in xs)
+    for x in xs:
+        if not isinstance(x, (float, int)):
+            return False
+    return True
 
 
 def _poller(x) -> np.ndarray:
