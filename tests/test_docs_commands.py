@@ -373,6 +373,8 @@ TABLE: dict[str, Run | Skip] = {
     "larns bench replay --repeat 3": Skip(BENCH),
     "larns bench replay --duration 60": Skip(BENCH),
     "larns bench replay --duration 60 --ranging poll": Skip(BENCH),
+    "larns bench survey --trials 3 --ranging poll --duration 60 --jobs 1 --json survey.json": Skip(BENCH),
+    "larns bench sync --trials 3 --ranging poll --duration 60 --jobs 1 --json sync.json": Skip(BENCH),
     "larns bench survey --trials 100 --sigma-d 0.5 --estimator dmap": Skip(BENCH),
     "larns bench survey --trials 100 --sigma-d 0.5 --estimator dmap --ranging poll": Skip(BENCH),
     "larns bench sync --trials 100 --duration 60": Skip(BENCH),
