@@ -110,12 +110,15 @@ STEP_KNOWN_S = 1e-7  # ... judged only where the predicted transfer is known to 
 # coarse sync, come out ~6 sigma off, NIS 32-38, until the exchanges have refined them)
 
 
-_umath_linalg = np.linalg._umath_linalg
+# NumPy's LAPACK gufuncs behind np.linalg (a private module: where it is missing, the public functions)
+_umath_linalg = getattr(np.linalg, "_umath_linalg", None)
 
 
 def _cholesky(S: np.ndarray) -> np.ndarray:
     """``np.linalg.cholesky`` of a real (m, m) ``S`` without its wrapper (the same LAPACK call, so the
     same factor; its per-call cost is most of the call at m = 9): ``LinAlgError`` unless positive definite."""
+    if _umath_linalg is None:
+        return np.linalg.cholesky(S)
     L = _umath_linalg.cholesky_lo(S, signature="d->d")
     if math.isnan(L.item(-1)):  # LAPACK's failure leaves the whole factor NaN
         raise np.linalg.LinAlgError("Matrix is not positive definite")
@@ -125,6 +128,8 @@ def _cholesky(S: np.ndarray) -> np.ndarray:
 def _solve(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """``np.linalg.solve`` of a real (m, m) ``A`` and (m, k) ``B`` without its wrapper (the same LAPACK
     ``gesv``); a singular ``A`` gives NaN (``A`` here: a Cholesky factor, checked)."""
+    if _umath_linalg is None:
+        return np.linalg.solve(A, B)
     return _umath_linalg.solve(A, B, signature="dd->d")
 
 

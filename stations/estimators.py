@@ -36,7 +36,10 @@ from __future__ import annotations
 from typing import Protocol
 
 import numpy as np
-from numpy._core.multiarray import c_einsum as _einsum  # np.einsum's own call (optimize=False): without its wrapper
+try:  # np.einsum's own call (optimize=False) without its Python wrapper: the same results
+    from numpy._core.multiarray import c_einsum as _einsum
+except ImportError:  # NumPy < 2 (pyproject allows 1.26): the public function
+    _einsum = np.einsum
 from scipy.linalg.lapack import dpotrs, dtrtri
 
 from nav.geometry import frame_free_mask
