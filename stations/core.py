@@ -154,7 +154,8 @@ class StationCore:
         self.est: SurveyEstimator = make_estimator(cfg.estimator, cfg.id, init_pos_m, init_cov_m2,
                                                    cfg.sigma_d_m, cfg.ranges_per_update, founder=not cfg.join,
                                                    radio=self.radio,
-                                                   peer_corr_est=POLL_PEER_CORR_EST if cfg.ranging == "poll" else None)
+                                                   **(dict(peer_corr_est=POLL_PEER_CORR_EST, clean_after_n=POLL_CLEAN_AFTER_N)
+                                                      if cfg.ranging == "poll" else {}))
         self.clk = ClockEstimator(cfg.id, ClockModel(cfg.clock_q_wf_s, cfg.clock_q_rw_per_s, cfg.clock_offset_sigma_s,
                                                      cfg.clock_freq_sigma), start_s, cfg.sigma_d_m)
         self.peers: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # peer -> its latest broadcast (pos_m, cov_m2)
@@ -740,7 +741,20 @@ class StationCore:
         if src in self._polled:
             self._on_final(src, msg, t_rx_s, corr, pos, cov)
         self._refresh_state()
-        return []
+        return self._unconverged_solve(t_rx_s)
+
+    def _unconverged_solve(self, t_s: float) -> list[dict]:
+        """Protocol v2: a station whose horizontal sigma is above ``POLL_RESOLVE_SIGMA_D`` sigma_d re-solves
+        on every nav it hears (the nav brought its final's range and the peer's newest estimate) and
+        publishes the estimate (the next nav carries it). The solves of the field are block-coordinate
+        sweeps of the joint problem; one per station and cycle spreads the first cycles' information one
+        sweep per second, the extra ones act within the cycle. A converged station solves once per cycle,
+        before its nav (docs/survey.md, "Protocol v2's poll")."""
+        if not self.poll or POLL_RESOLVE_SIGMA_D <= 0.0 or self.state != "surveying":
+            return []
+        if self._horizontal_sigma_m(self.est.cov_m2) <= POLL_RESOLVE_SIGMA_D * self.cfg.sigma_d_m:
+            return []
+        return [self.estimate_msg(t_s)] if self.est.refresh() else []
 
     def _nav_transfers(self, src: int, corr, entries: list[tuple[int, float, float]]) -> None:
         """A nav's time transfers ``(peer, t_mid on src's clock, dtheta_s)``: placed in network time by
@@ -1028,6 +1042,15 @@ SS_BIAS_GATE = 0.25
 # so the errors the peers share (the field's collective modes) must be charged more; the factor is
 # measured, not derived (its table: docs/survey.md, "Protocol v2's poll")
 POLL_PEER_CORR_EST = 3.0
+# protocol v2: ranges in links with two or more that a dmap station needs before it may judge its ranges
+# clean (DistributedMap.clean_after_n, 20 in the addressed protocol). By its first solve a polling station
+# holds two ranges of different exchanges (its own poll's and the peer's) on every link, so every link
+# already shows whether its ranges agree: the NLOS evidence is there from the first solve, and holding
+# the agreeing pairs weak until 20 ranges cost a whole cycle (docs/survey.md, "Protocol v2's poll")
+POLL_CLEAN_AFTER_N = 0
+# protocol v2: a station re-solves on every nav it hears while its horizontal sigma is above this many
+# sigma_d (StationCore._unconverged_solve; 0: once per cycle only, before its nav)
+POLL_RESOLVE_SIGMA_D = 1.0
 
 FOUNDERS = (1, 2, 3)  # the stations whose estimates define the frame until one of them is gone
 

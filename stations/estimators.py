@@ -1027,18 +1027,22 @@ ESTIMATORS = {"dmap": DistributedMap, "dmap-nlos": DistributedMap, "dmap-ls": Di
 
 def make_estimator(name: str, station_id: int, pos0_m, cov0_m2, sigma_d_m: float,
                    ranges_per_update: int = 3, founder: bool = True, radio=None,
-                   peer_corr_est: float | None = None) -> SurveyEstimator:
+                   peer_corr_est: float | None = None, clean_after_n: int | None = None) -> SurveyEstimator:
     """``dmap`` (robust, default: a link weak while no two of its ranges agree, or until 3 agree while
     the station's own ranges show NLOS, :meth:`DistributedMap._adapt_weakness`), ``dmap-nlos`` (the
     same, always weak until 3 agree: slower clean convergence, docs/survey.md), ``dmap-ls`` (the same
     without the robust weights) or ``seed-ukf``. ``founder=False``: stations 1-3 free in x, y, z
     (a founder that joins a running field; ``seed-ukf`` keeps the paper's frame). ``peer_corr_est``:
     the dmap solve's consider factor of the peers' covariances instead of its default (protocol v2's
-    poll sets its own, stations/core.py ``POLL_PEER_CORR_EST``)."""
+    poll sets its own, stations/core.py ``POLL_PEER_CORR_EST``); ``clean_after_n``: how many ranges in links
+    with two or more a station holds before it may judge its ranges clean (:meth:`DistributedMap._adapt_weakness`;
+    the poll sets its own, ``POLL_CLEAN_AFTER_N``)."""
     est = _make(name, station_id, pos0_m, cov0_m2, sigma_d_m, ranges_per_update, founder)
     est.radio = radio  # [radio]: each link weighted by its SNR's timing noise (net/radio.py range_var_m2)
     if peer_corr_est is not None and isinstance(est, DistributedMap):
         est.peer_corr_est = float(peer_corr_est)
+    if clean_after_n is not None and isinstance(est, DistributedMap):
+        est.clean_after_n = int(clean_after_n)
     return est
 
 

@@ -279,3 +279,24 @@ def test_implausible_poll_fields_are_dropped_and_counted():
     assert c.admission.dropped["turnaround"] == 1
     with pytest.raises(M.MessageError):
         M.validate_msg({**nav, "poll": {"seq": 1, "t1": float("nan"), "rx": []}})
+
+
+def test_an_unconverged_poll_station_re_solves_on_the_navs_it_hears():
+    """Protocol v2 (stations/core.py ``POLL_RESOLVE_SIGMA_D``): while its horizontal sigma is above
+    sigma_d a station re-solves on each nav it hears and publishes the estimate; converged, it solves
+    and publishes once per cycle, before its nav. seed000: stations 4..10 within sigma_d (mean) at 2 s."""
+    est: dict[int, list[float]] = {}
+
+    def publish(t, sid, msg, phy):
+        if msg["kind"] == "estimate":
+            est.setdefault(sid, []).append(t)
+
+    scn = _poll_scenario()
+    sim = Simulator(scn, publish=publish)
+    r = sim.run(8.0, [2.0, 8.0])
+    h = np.hypot(*(r.pos_m[0, 3:, :2] - r.truth_m[3:, :2]).T)
+    assert h.mean() < scn.channel.sigma_d_m
+    for sid in scn.ids[1:]:
+        t = np.asarray(est[sid])
+        assert np.count_nonzero((t >= 1.0) & (t < 2.0)) > 1  # cycle 1: the navs heard
+        assert np.count_nonzero((t >= 6.0) & (t < 8.0)) == 2  # converged: one per cycle
