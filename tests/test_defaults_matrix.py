@@ -214,13 +214,11 @@ def _held_to_the_bounds(name: str, algo: str, tmp_path_factory) -> None:
 
 @pytest.mark.e2e
 @pytest.mark.matrix
-@pytest.mark.xfail(strict=False, reason="defect, owner issue 29: seed001's TDOA filters in the far field started from one "
-                   "4-station cycle's 2 km wide prior and sometimes settled on a wrong range (NEES 10-71); they now "
-                   "start from a fit of 4 s of cycles (docs/aircraft.md, 'seed001's far field: the TDOA start'): "
-                   "held in the 8 of 10 journals re-flown on 2026-12-01 that reach past 30 s (NEES 1.2-2.7) and in the live "
-                   "matrix fleet scored (1.62 / 1.65, 26 / 27 m at most), but no live matrix run completed (the "
-                   "aircraft fell behind under load 13-15 from other work and was killed, exit -9, in both): not "
-                   "yet shown whole")
+@pytest.mark.xfail(strict=False, reason="defect, owner issue 29: seed001's TDOA filters in the far field start from a "
+                   "2 km wide prior and settle on the range within their first second, sometimes on a wrong one: "
+                   "in 3 later fleets of 2026-11-29 ukf-tdoa held NEES 2.6 once and 19.4 / 19.7 twice (380-760 m along "
+                   "the range against sigma 80-165 m from 4 s on), ekf-tdoa 2.9-4.7 (held; it failed one of 3 earlier "
+                   "that day at NEES 6.4); docs/aircraft.md, 'seed001's far field'")
 @pytest.mark.parametrize("name,algo", [(n, a) for n, c in sorted(MATRIX.items()) for a in c.intermittent])
 def test_intermittent_defects(name, algo, tmp_path_factory):
     """The algorithms ``Case.intermittent`` excludes, held to the same bounds (they fail in some runs)."""

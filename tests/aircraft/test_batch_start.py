@@ -13,7 +13,6 @@ import pytest
 from aircraft.navigator.radio.batch_start import BatchStartConfig, batch_fix
 from aircraft.navigator.radio.biases import POS_ERROR
 from aircraft.navigator.radio.estimator import AircraftEstimator, EstimatorConfig
-from aircraft.navigator.radio.initializer import InitConfig
 from aircraft.navigator.radio.tuning import Tuning
 
 ST = np.array([[0.0, 0.0, 0.0], [1800.0, 0.0, 5.0], [900.0, 1500.0, 0.0], [800.0, 500.0, 60.0],
@@ -168,33 +167,3 @@ def test_cycles_without_redundancy_start_from_one_cycle_as_before():
         assert e.tracker is not None and e.stats["start_batch_wait"] == 0
         outs.append(e.estimate())
     assert outs[0] == outs[1]
-
-
-def test_a_tdoa_filter_fits_cycles_without_redundancy_in_a_window_of_their_own(monkeypatch):
-    """TDOA (``BatchStartConfig.exact_models``): four stations' cycles are fitted over many, in a window of
-    their own, fitted at its first cycle, at ``exact_fit_cycles`` cycles and once full, not at every
-    cycle; a cycle that joins the open window takes no multi-start snapshot of its own (in seed001's
-    far field those and the refits at every 40 ms cycle cost ~300 % of a core per TDOA filter,
-    docs/aircraft.md). The filter starts from the fit, with its own covariance."""
-    import aircraft.navigator.radio.batch_start as bs
-    import aircraft.navigator.radio.estimator as est
-
-    fits, snaps = [], []
-    fix, initial = bs.batch_fix, est.initial_state
-    monkeypatch.setattr(bs, "batch_fix", lambda *a, **k: fits.append(len(a[0])) or fix(*a, **k))
-    monkeypatch.setattr(est, "initial_state", lambda *a, **k: snaps.append(1) or initial(*a, **k))
-    cfg = BatchStartConfig(target_sigma_m=1.0)  # (this field's fit meets 15 m at the second cycle)
-    e = AircraftEstimator("ekf-tdoa", EstimatorConfig(fde=None, batch_start=cfg))
-    rng = np.random.default_rng(4)
-    cyc = 0
-    while e.tracker is None and cyc < 40:
-        for k in range(4):
-            rho = np.linalg.norm(P_AC - ST[k]) + 250.0 + 0.5 * rng.standard_normal()
-            e.on_measurement(cyc * CYCLE_S + k * SLOT_S, k + 1, ST[k], np.eye(3) * 0.09, rho)
-        cyc += 1
-    assert e.tracker is not None and e.init.station_cross is not None  # the fit's start, not one cycle's
-    n_cycles = [n // 4 for n in fits]
-    assert n_cycles[:-1] == list(cfg.exact_fit_cycles) and n_cycles[-1] > cfg.exact_fit_cycles[-1]
-    assert n_cycles[-1] * CYCLE_S >= cfg.window_s or n_cycles[-1] * 4 >= cfg.exact_max_ranges
-    assert len(snaps) <= 2 * (InitConfig().defer_batches + 1)  # before the window opened only
-    assert e.stats["start_batch_wait"] == n_cycles[-1] - 1

@@ -66,18 +66,7 @@ class BatchStartConfig:
     this many ranges too (the fit's cost grows with their cube: seed001's 10 ms slots fill 4 s with 400,
     and its live aircraft, refitting every 40 ms cycle, fell a minute behind and was killed); ``iters`` / ``tol_m``: the
     Gauss-Newton iterations and the step at which it has converged; ``max_step_m``: the largest
-    position step of one iteration (a trust region: the first linearization point is one cycle's fix).
-
-    Cycles without redundancy (at most ``min_stations`` ranges: 4 pseudoranges for 4 unknowns) are
-    fitted over many only by the models of ``exact_models`` (TDOA: seed001's far field, a 50 m array
-    seen from 1 km, where one such cycle's start is the 2 km wide prior and the TDOA filters sometimes
-    settled on a wrong range; the pseudorange filters' fit of such cycles was overconfident), in a
-    window of their own that is full at ``window_s`` or ``exact_max_ranges``: fitted at its first
-    cycle, at ``exact_fit_cycles`` cycles and when full, each fit warm from the previous one, with
-    steps that raise the cost halved and converged once a step changes the cost by less than
-    ``exact_cost_tol`` (such a window's cost is flat along the range and in height: full steps cycle
-    there and never meet ``tol_m``). The start's covariance is the fit's own (docs/aircraft.md,
-    "seed001's far field: the TDOA start")."""
+    position step of one iteration (a trust region: the first linearization point is one cycle's fix)."""
 
     target_sigma_m: float = 15.0
     window_s: float = 4.0
@@ -87,10 +76,6 @@ class BatchStartConfig:
     iters: int = 30
     tol_m: float = 1e-4
     max_step_m: float = 500.0
-    exact_models: tuple = ("tdoa",)
-    exact_max_ranges: int = 400
-    exact_cost_tol: float = 0.01
-    exact_fit_cycles: tuple = (1, 2, 4, 8)
 
 
 @dataclass(frozen=True)
@@ -145,17 +130,15 @@ def residual_cov(u: np.ndarray, s_m: np.ndarray, same: np.ndarray, lag_s: np.nda
     return R
 
 
-def _linearize(x, t_s, sta_m, cov_m2, rho_m, same, t_ref_s, tuning, L=None):
+def _linearize(x, t_s, sta_m, cov_m2, rho_m, same, t_ref_s, tuning):
     """Whitened residuals (N,) and Jacobian (N, 8) of the window at ``x`` (8,), the Cholesky factor
-    (N, N) of ``R`` and the lines of sight (N, 3); ``L``: whiten with this factor (of ``R`` at another
-    point) instead of ``R``'s at ``x``."""
+    (N, N) of ``R`` and the lines of sight (N, 3)."""
     tau = t_s - t_ref_s  # (N,) <= 0
     d = x[:3] + x[3:6] * tau[:, None] - sta_m  # (N, 3) station -> aircraft
     r = np.linalg.norm(d, axis=1)
     u = d / r[:, None]
-    if L is None:
-        s = np.sqrt(np.maximum(np.einsum("ki,kij,kj->k", u, cov_m2, u), 0.0))
-        L = np.linalg.cholesky(residual_cov(u, s, same, -tau, tuning))
+    s = np.sqrt(np.maximum(np.einsum("ki,kij,kj->k", u, cov_m2, u), 0.0))
+    L = np.linalg.cholesky(residual_cov(u, s, same, -tau, tuning))
     res = rho_m - (r + x[6] + x[7] * tau)
     J = np.concatenate([u, u * tau[:, None], np.ones((len(tau), 1)), tau[:, None]], axis=1)
     W = solve_triangular(L, np.column_stack([res, J]), lower=True)  # whitened: L^-1 [res J]
@@ -164,20 +147,12 @@ def _linearize(x, t_s, sta_m, cov_m2, rho_m, same, t_ref_s, tuning, L=None):
 
 def batch_fix(t_s: np.ndarray, sta_m: np.ndarray, cov_m2: np.ndarray, rho_m: np.ndarray, ids: np.ndarray,
               x0: np.ndarray, t_ref_s: float, tuning: Tuning, vel_sigma_m_s: float,
-              cfg: BatchStartConfig = BatchStartConfig(), pos_cov_m2: np.ndarray | None = None,
-              cost_tol: float | None = None) -> BatchFit:
+              cfg: BatchStartConfig = BatchStartConfig(), pos_cov_m2: np.ndarray | None = None) -> BatchFit:
     """Gauss-Newton fit of the window (module docstring). ``t_s`` (N,) measurement times, ``sta_m`` (N, 3)
     broadcast station positions, ``cov_m2`` (N, 3, 3) their covariances (clock variance included as an
     isotropic term), ``rho_m`` (N,) pseudoranges, ``ids`` (N,) station ids, ``x0`` (8,) the first
     linearization point at ``t_ref_s``; ``pos_cov_m2`` (N, 3, 3) the position covariances alone (None:
-    ``cov_m2``), for :attr:`BatchFit.cross`. ``cost_tol``: None, full Gauss-Newton steps until one is
-    shorter than ``cfg.tol_m``, ``R`` factored anew at every iterate; else ``R`` is factored at ``x0``
-    and again at the solution only (it depends on the iterate through the lines of sight alone, which
-    a warm start hardly moves; its Cholesky factor is the fit's cost: 400 ranges), a step that raises
-    the cost is halved (up to 4 times), and the fit has converged once a step changes the cost by less
-    than ``cost_tol``. A far-field window's cost is flat along the range and in height: there the full
-    steps cycle between two points of nearly equal cost (tens of metres apart, within the fit's own
-    sigma) and never meet ``tol_m``. Returns a :class:`BatchFit`."""
+    ``cov_m2``), for :attr:`BatchFit.cross`. Returns a :class:`BatchFit`."""
     t_s, rho_m = np.asarray(t_s, float), np.asarray(rho_m, float)
     sta_m, cov_m2 = np.asarray(sta_m, float), np.asarray(cov_m2, float)
     ids = np.asarray(ids)
@@ -188,66 +163,27 @@ def batch_fix(t_s: np.ndarray, sta_m: np.ndarray, cov_m2: np.ndarray, rho_m: np.
     x = np.asarray(x0, float).copy()
     n = len(rho_m)
     fail = BatchFit(x, np.full((8, 8), np.inf), float("inf"), n - 4, False, float(t_ref_s))
-
-    def at(xk, L=None):  # the window linearized at xk, and its cost there (priors included)
-        lin = _linearize(xk, t_s, sta_m, cov_m2, rho_m, same, t_ref_s, tuning, L)
-        return lin, float(lin[0] @ lin[0] + np.sum((xk[[3, 4, 5, 7]] / prior_sd) ** 2))
-
-    def step(lin, xk):  # the Gauss-Newton step at xk, within the trust region
-        rw, Jw = lin[0], lin[1]
-        dx = chol_solve(Jw.T @ Jw + info_prior, (Jw.T @ rw - info_prior @ xk)[:, None])[:, 0]
-        size = float(np.linalg.norm(dx[:3]))
-        return (dx * (cfg.max_step_m / size) if size > cfg.max_step_m else dx), size
-
     try:
-        lin, cost = at(x)
-        if cost_tol is None:
-            for _ in range(cfg.iters):
-                dx, size = step(lin, x)
-                x = x + dx
-                if not np.all(np.isfinite(x)):
-                    return fail
-                lin, cost = at(x)
-                if size < cfg.tol_m:
-                    break
-        else:
-            x, lin, cost = _damped_gn(x, lin, cost, at, step, cfg.iters, cost_tol)
-            if x is None:
+        for _ in range(cfg.iters):
+            rw, Jw, _, _ = _linearize(x, t_s, sta_m, cov_m2, rho_m, same, t_ref_s, tuning)
+            A = Jw.T @ Jw + info_prior
+            g = Jw.T @ rw - info_prior @ x
+            dx = chol_solve(A, g[:, None])[:, 0]
+            step = float(np.linalg.norm(dx[:3]))
+            if step > cfg.max_step_m:
+                dx = dx * (cfg.max_step_m / step)
+            x = x + dx
+            if not np.all(np.isfinite(x)):
                 return fail
-        rw, Jw, L, u = lin
+            if step < cfg.tol_m:
+                break
+        rw, Jw, L, u = _linearize(x, t_s, sta_m, cov_m2, rho_m, same, t_ref_s, tuning)
         P = chol_solve(Jw.T @ Jw + info_prior, np.eye(8))
         cross = _station_cross(P, Jw, L, u, sta_m, cov_m2 if pos_cov_m2 is None else pos_cov_m2, ids)
     except np.linalg.LinAlgError:
         return fail
+    cost = float(rw @ rw + np.sum((x[[3, 4, 5, 7]] / prior_sd) ** 2))
     return BatchFit(x, symmetrize(P), cost, n - 4, bool(np.all(np.isfinite(P))), float(t_ref_s), cross)
-
-
-def _damped_gn(x, lin, cost, at, step, iters: int, cost_tol: float):
-    """:func:`batch_fix`'s iteration with ``cost_tol``: Gauss-Newton steps whitened by ``R``'s factor
-    at the point of the round's start (``lin`` at ``x``: ``at(x, L)``), a step that raises the cost
-    halved up to 4 times, until a step changes the cost by less than ``cost_tol``; then ``R`` is
-    factored at the solution and, if that changes its cost by ``cost_tol`` or more, another round
-    (at most 3). Returns ``(x, lin, cost)`` at the solution with ``R`` its own, or ``(None, ...)``
-    where an iterate is not finite."""
-    for _ in range(3):
-        L, cost_L = lin[2], cost
-        for _ in range(iters):
-            dx, _size = step(lin, x)
-            for halving in range(5):
-                x_new = x + dx * 0.5**halving
-                if not np.all(np.isfinite(x_new)):
-                    return None, lin, cost
-                lin_new, cost_new = at(x_new, L)
-                if cost_new <= cost:
-                    break
-            done = abs(cost - cost_new) < cost_tol
-            x, lin, cost = x_new, lin_new, cost_new
-            if done:
-                break
-        lin, cost = at(x)
-        if abs(cost - cost_L) < cost_tol or abs(cost - cost_new) < cost_tol:
-            break
-    return x, lin, cost
 
 
 def _station_cross(P, Jw, L, u, sta_m, pos_cov_m2, ids) -> StationCross:
@@ -270,68 +206,39 @@ class BatchStart:
     cfg: BatchStartConfig
     tuning: Tuning
     vel_sigma_m_s: float
-    min_stations: int = 4
     # (t (m,), pos (m, 3), cov (m, 3, 3), rho (m,), ids (m,), pos_cov (m, 3, 3): cov without the clock term)
     cycles: list = field(default_factory=list)
     x: np.ndarray | None = None  # the latest fit (8,) at t_s
     t_s: float | None = None
-    sigma_m: float = float("inf")  # the latest fit's position sigma
 
     def reset(self) -> None:
         self.cycles.clear()
-        self.x, self.t_s, self.sigma_m = None, None, float("inf")
+        self.x, self.t_s = None, None
 
-    def exact(self) -> bool:
-        """Whether the window's cycles are all without redundancy (at most ``min_stations`` ranges each)."""
-        return all(len(cy[3]) <= self.min_stations for cy in self.cycles)
-
-    def joins_as_is(self, model: str, m: int) -> bool:
-        """Whether a cycle of ``m`` ranges joins the open window without a snapshot start of its own: a
-        window of cycles without redundancy (``cfg.exact_models``) that has a fit to linearize at. Such a
-        cycle's snapshot fits its ranges exactly whatever its error; its multi-start (tens of ms) would
-        only be the window's fallback, computed if that is needed (:meth:`offer`'s ``snap`` callable)."""
-        return model in self.cfg.exact_models and m <= self.min_stations and self.x is not None \
-            and bool(self.cycles) and self.exact()
-
-    def position(self, t_s: float) -> np.ndarray:
-        """The latest fit's position (3,) carried to ``t_s`` along its velocity."""
-        return self.x[:3] + self.x[3:6] * (t_s - self.t_s)
-
-    def offer(self, model: str, t_s: float, t_k: np.ndarray, pos, cov, rho, ids, snap,
+    def offer(self, model: str, t_s: float, t_k: np.ndarray, pos, cov, rho, ids, snap: InitResult,
               consistent, stats, clock_var_m2=None) -> InitResult | None:
         """One more cycle (members' times ``t_k`` (m,), broadcast ``pos`` (m, 3), ``cov`` (m, 3, 3) with
         the clock variances ``clock_var_m2`` (m,) (None: 0) as an isotropic term, ``rho`` (m,), station
-        ``ids`` (m,)) and its own snapshot start ``snap`` (an ``InitResult``, or a callable returning it
-        when needed); ``consistent(cost, dof)``: the start test; ``stats`` counts ``start_batch_wait`` /
-        ``start_batch_failed``. A window of cycles without redundancy is fitted at its first cycle, at
-        ``cfg.exact_fit_cycles`` cycles and when full, each fit warm from the previous one, not at every
-        cycle (docs/aircraft.md, "seed001's far field: the TDOA start")."""
+        ``ids`` (m,)) and its own snapshot start ``snap``; ``consistent(cost, dof)``: the start test;
+        ``stats`` counts ``start_batch_wait`` / ``start_batch_failed``."""
         m = len(rho)
         cov = np.zeros((m, 3, 3)) if cov is None else np.asarray(cov, float)
         cvar = np.zeros(m) if clock_var_m2 is None else np.asarray(clock_var_m2, float)
         self.cycles.append((np.asarray(t_k, float), np.asarray(pos, float), cov, np.asarray(rho, float),
                             np.asarray(ids), cov - cvar[:, None, None] * np.eye(3)))
-        n_ranges = sum(len(cy[3]) for cy in self.cycles)
-        exact = self.exact()
-        full = t_s - float(self.cycles[0][0].min()) >= self.cfg.window_s or \
-            n_ranges >= (self.cfg.exact_max_ranges if exact else self.cfg.max_ranges)
-        n = len(self.cycles)
-        if exact and self.x is not None and not full and n not in self.cfg.exact_fit_cycles:
-            stats["start_batch_wait"] += 1
-            return None
         x0 = self._guess(model, t_s, snap)
         t, p, c, r, i, pc = (np.concatenate([cy[j] for cy in self.cycles]) for j in range(6))
-        fit = batch_fix(t, p, c, r, i, x0, t_s, self.tuning, self.vel_sigma_m_s, self.cfg, pc,
-                        self.cfg.exact_cost_tol if exact else None)
+        fit = batch_fix(t, p, c, r, i, x0, t_s, self.tuning, self.vel_sigma_m_s, self.cfg, pc)
         good = fit.ok and consistent(fit.cost, fit.dof)
+        full = t_s - float(self.cycles[0][0].min()) >= self.cfg.window_s or len(r) >= self.cfg.max_ranges
         if good:
-            self.x, self.t_s, self.sigma_m = fit.x, t_s, fit.sigma_m
+            self.x, self.t_s = fit.x, t_s
             if (full and fit.sigma_m <= self.cfg.max_sigma_m) or \
-                    (n >= self.cfg.min_cycles and fit.sigma_m <= self.cfg.target_sigma_m):
-                return _as_start(model, fit)
+                    (len(self.cycles) >= self.cfg.min_cycles and fit.sigma_m <= self.cfg.target_sigma_m):
+                return _as_start(model, fit, snap)
         if full:
             stats["start_batch_failed"] += 1
-            return snap() if callable(snap) else snap
+            return snap
         stats["start_batch_wait"] += 1
         return None
 
@@ -350,7 +257,7 @@ class BatchStart:
         return x
 
 
-def _as_start(model: str, fit: BatchFit) -> InitResult:
+def _as_start(model: str, fit: BatchFit, snap: InitResult) -> InitResult:
     """The fit as a filter start (the ``pr`` layout with the clock rate, or the ``tdoa`` layout ``[p v]``)."""
     k = 8 if model == "pr" else 6
     fix = fit.x[[0, 1, 2, 6]] if model == "pr" else fit.x[:3]

@@ -15,7 +15,7 @@ from . import coords as crd
 from . import models as mdl
 from .batch_start import BatchStart, BatchStartConfig
 from .fde import FdeConfig, FilterFde, fault_vectors, protection_levels, snooping
-from .initializer import InitConfig, InitResult, defended, initial_state, wide_cov
+from .initializer import InitConfig, defended, initial_state, wide_cov
 from .lsq import lsq_cov, lsq_pr, lsq_tdoa
 from .start import consistent_start
 from .state import CLOCK, POS, VEL, StateLayout
@@ -94,7 +94,7 @@ class AircraftEstimator:
         self.status = rx.WAITING
         bcfg = self.cfg.batch_start
         self.batch_start = None if bcfg is None or self.method == "lsq" else \
-            BatchStart(bcfg, self.cfg.tuning, (self.cfg.init or InitConfig()).vel_sigma_m_s, self.cfg.min_stations)
+            BatchStart(bcfg, self.cfg.tuning, (self.cfg.init or InitConfig()).vel_sigma_m_s)
 
     # -- input
     def on_epoch(self, t_s: float, station_pos_m, station_cov_m2, rho_m, station_ids=None,
@@ -322,10 +322,7 @@ class AircraftEstimator:
         dt = np.zeros(m) if dt is None else np.asarray(dt, float)
         ids = np.arange(m) if ids is None else np.asarray(ids)
         cvar = np.zeros(m) if cvar is None else np.asarray(cvar, float)
-        bs = self.batch_start
-        if bs is not None and bs.joins_as_is(self.model, m):
-            self._join_window(t_s, pos, cov, cov_snap, rho, dt, ids, cvar)
-            return
+        tu = self.cfg.tuning
         init = self._initial(pos, cov, cov_snap, rho)
         if self.cfg.receiver is not None:
             keep = self._start_members(t_s, init.fix[:3], pos, cov)
@@ -347,52 +344,13 @@ class AircraftEstimator:
             self.n_deferred += 1  # no redundancy, no snapshot: wait for a batch with more stations
             return
         self.n_deferred = 0
-        # cycles with redundancy are fitted over many; those without only by the models of
-        # BatchStartConfig.exact_models (TDOA: docs/aircraft.md, "seed001's far field: the TDOA start"),
-        # in a window of their own; one without, while a window with redundancy is collected, is waited past
-        fits = bs is not None and (len(rho) > self.cfg.min_stations or (self.model in bs.cfg.exact_models
-                                                                        and bs.exact()))
-        if bs is not None and (fits or bs.cycles):
-            init = self._batch_started(t_s, pos, cov, rho, dt, ids, init, cvar) if fits else None
+        if self.batch_start is not None and (len(rho) > self.cfg.min_stations or self.batch_start.cycles):
+            # cycles with redundancy only (docs/aircraft.md: seed001's 4-station far field fitted over many
+            # cycles was overconfident); one without, while a window is collected, is waited past
+            init = self._batch_started(t_s, pos, cov, rho, dt, ids, init, cvar) if len(rho) > self.cfg.min_stations \
+                else None
             if init is None:
                 return
-        self._begin(t_s, pos, init)
-
-    def _join_window(self, t_s, pos, cov, cov_snap, rho, dt, ids, cvar) -> None:
-        """A cycle without redundancy into the batch start's open window of such cycles
-        (:meth:`.batch_start.BatchStart.joins_as_is`): rule 5 judged along the lines of sight from the
-        window's latest fit, no snapshot start unless the window falls back on it (the start test of a
-        batch without redundancy passes any finite fit)."""
-        if self.cfg.receiver is not None:
-            keep = self._start_members(t_s, self.batch_start.position(t_s), pos, cov)
-            if keep is None or not keep.all():
-                return
-
-        def snap():  # the window's fit failed: the wide prior about its latest position
-            return self._wide_start(self.batch_start.position(t_s), self.batch_start.sigma_m)
-
-        init = self._batch_started(t_s, pos, cov, rho, dt, ids, snap, cvar)
-        if init is not None:
-            self._begin(t_s, pos, init)
-
-    def _wide_start(self, fix_m: np.ndarray, sigma_m: float) -> InitResult:
-        """The wide prior (:func:`.initializer.wide_cov`: isotropic, at least ``wide_sigma_m`` and
-        ``sigma_m``) about the position ``fix_m`` (3,), at rest with the start's velocity prior: where
-        a window of cycles without redundancy is not fitted to ``max_sigma_m``, its fit is still a
-        better centre than its latest cycle's exact root (a far field's multi-start fix can be 100 km
-        off)."""
-        icfg = self.cfg.init or InitConfig()
-        layout = StateLayout(self.model, drift=self.model == "pr")
-        x0 = np.zeros(layout.n)
-        x0[:3] = fix_m
-        P0 = self.cfg.tuning.prior_cov(layout)
-        P0[:3, :3] = wide_cov(3, sigma_m, icfg)
-        P0[3:6, 3:6] = np.eye(3) * icfg.vel_sigma_m_s**2
-        return InitResult(x0, P0, False, np.asarray(fix_m, float).copy(), float(sigma_m), float("nan"))
-
-    def _begin(self, t_s, pos, init) -> None:
-        """Start from ``init`` (an ``InitResult``): the LSQ's fix, or a filter over the stations ``pos``."""
-        tu = self.cfg.tuning
         self.fix = init.fix.copy()
         self.init = init
         self.t_s = t_s
