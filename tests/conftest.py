@@ -9,9 +9,9 @@ from pathlib import Path
 # numba's first compilation on a fresh machine takes ~13 s; tests/vehicle/test_vehicle_filter_fast.py
 # checks the compiled kernel against it in a process of its own (slow)
 os.environ.setdefault("LARNS_JIT", "off")
-# BLAS on one thread as in every LARNS process (larns/__init__.py): the suite re-flies recorded estimates
+# BLAS on one thread as in every LARNS process (net/blas.py): the suite re-flies recorded estimates
 # in-process and compares them bit for bit, and a threaded OpenBLAS rounds some products differently
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # net.blas.one_thread, before the paths below exist
 
 _HERE = str(Path(__file__).resolve().parent)
 if _HERE not in sys.path:
