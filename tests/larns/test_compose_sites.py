@@ -65,6 +65,7 @@ CONVERGE_WALL_S, CUT_WALL_S, RUN_ON_WALL_S = 30.0, 20.0, 25.0
 GRACE_S = 2.0        # wall s after the disconnect for messages already on their way
 MERGE_S = 10.0       # each site hears the other again within this many wall s of the heal
 PAUSE_S = 3.0        # the longest silence of a station in its own site's recorder
+WHOLE_SHARE = 0.8    # share of a station's last navs that list every station of the other site
 NAME = "compose-sites-test"
 SCENARIO = random_world("sites", 10, [], cycle_s=CYCLE_S, slot_s=0.05,
                         description="seed000's world on two sites; 50 ms slots in a 0.6 s cycle (tests)")
@@ -314,9 +315,15 @@ def test_sites_merge_again_after_the_heal(sites):
             assert _gaps(t, int(after[0]), t_down - int(2e9)) <= PAUSE_S, (site, i, "heard again, then silent")
         assert (rec.replies(other, mine) > t_heal).sum() > 0, (site, "no range reply from the other site")
         assert (rec.replies(mine, other) > t_heal).sum() > 0, (site, "no range reply to the other site")
-        # the last 5 s before `down`: once it starts, stations stop one by one and leave the lists
-        late = [m for i in mine for t, m in rec.members[i] if t_down - int(5e9) < t <= t_down]
-        assert late and all(set(other) <= set(m) for m in late), (site, late[-3:])
+        # the last 5 s before `down` (once it starts, stations stop one by one and leave the lists):
+        # each station lists the whole other site in nearly every nav. Not in every one: a station
+        # whose process or router stalls for 5 cycles (0.6 s of wall at speed 5) lists only the few
+        # peers it heard in the horizon, its own site's as well, until it catches up
+        for i in mine:
+            late = [m for t, m in rec.members[i] if t_down - int(5e9) < t <= t_down]
+            whole = [set(other) <= set(m) for m in late]
+            assert late and sum(whole) >= WHOLE_SHARE * len(late), (site, i, f"{sum(whole)} of {len(late)}",
+                                                                    [m for m, w in zip(late, whole) if not w][-3:])
         # the other site's navs back in the solves do not shake this site's estimates
         t_back = int(min(rec.of(i)[rec.of(i) > t_heal][0] for i in other))
         assert_not_disturbed(rec.summary, t_back, [i for i in mine if i != 1], 2 * CYCLE_S / SPEED)
