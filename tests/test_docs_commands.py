@@ -209,6 +209,7 @@ TABLE: dict[str, Run | Skip] = {
     "larns bench speed --scenario docs/scenarios/field40.toml --worlds 1 --speeds 0.5 --duration 120 --json bench-out/field40-speed.json --png-dir bench-out/field40": Skip(BENCH),
     "larns bench survey --scenario seed003-radio --stations 8 --sigma-d 0.9 --estimator dmap --trials 20": Skip(BENCH),
     "larns bench survey --scenario field.toml --estimator dmap --sigma-d 0.9 --trials 2 --duration 300": Skip(BENCH),
+    "larns bench survey --scenario f500.toml --trials 1 --duration 60 --times 30 60 --no-map --jobs 1 --estimator dmap --sigma-d 0.5": Skip(BENCH),
     "larns bench survey --scenario docs/scenarios/field40.toml --trials 4 --duration 120 --estimator dmap --sigma-d 0.5 --no-map": Skip(BENCH),
     "larns bench survey --trials 20 --estimator dmap": Skip(BENCH),
     "larns bench sync --scenario seed003-radio --stations 8 --sigma-d 0.9 --trials 20": Skip(BENCH),
