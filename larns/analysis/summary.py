@@ -194,11 +194,23 @@ def station_row(s) -> dict[str, Any]:
     return row
 
 
-def station_table(rec) -> dict[int, dict]:
-    """:func:`station_row` of every station, with who excludes whom (integrity)."""
+def station_table(rec, scn=None) -> dict[int, dict]:
+    """:func:`station_row` of every station, with who excludes whom (integrity). A field that holds
+    its own datum (``[survey] datum = "field"``: ``scn``'s, else the recording's) is judged against
+    the truth in that datum (:mod:`larns.analysis.datum`): ``truth_m`` is then that truth,
+    ``truth_founders_m`` the recorded one, and ``datum`` is ``"field"``."""
+    from .datum import recording_datum_truth
     from .metrics import tdma_numbers
 
     stations = {sid: station_row(s) for sid, s in sorted(rec.stations.items())}
+    dt = recording_datum_truth(rec, scn)
+    if dt is not None:
+        for sid, row in stations.items():
+            if "truth_m" in row:
+                row.update(truth_founders_m=row["truth_m"], truth_m=dt.truth(sid).tolist(), datum="field",
+                           datum_frozen_s=dt.frozen_s)
+                if "pos_m" in row:
+                    row["err_m"] = math.dist(row["pos_m"], row["truth_m"])
     if rec.range_requests:  # its polls (a request is a poll of one) answered by every member named
         for sid, n in tdma_numbers(rec.range_requests, rec.range_replies)["by_station"].items():
             if sid in stations:

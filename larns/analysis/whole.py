@@ -1,6 +1,8 @@
 """A fleet run scored whole from its recording alone (issue 28's defaults matrix, ``larns info``).
 
-Everything here reads the MCAP: station estimates against their truth topics, each station's clock
+Everything here reads the MCAP: station estimates against their truth topics (in a field that holds
+its own datum, ``[survey] datum = "field"``, that truth moved into the field's datum:
+``larns.analysis.datum``), each station's clock
 against network time (its ``truth.clock_error_s``), the field's agreement on network time, every
 aircraft algorithm and every vehicle against its own truth, and the statuses the navigators published.
 
@@ -62,13 +64,14 @@ def _time_spread_ns(rec, scn, after_s: float) -> float | None:
 
 def score(path, scn=None, after_s: float = 30.0, t_to_s: float | None = None) -> dict[str, Any]:
     """The run's numbers: ``stations`` (the ``larns info`` rows, each with ``err_h_m`` and its
-    horizontal ``sigma_h_m``), ``time_spread_ns`` (module docstring; None without station clocks),
+    horizontal ``sigma_h_m``; in a field that holds its own datum, against the truth in that datum:
+    :func:`larns.analysis.summary.station_table`), ``time_spread_ns`` (module docstring; None without station clocks),
     ``aircraft`` {name: {algo: :func:`aircraft_accuracy` + ``statuses`` {state: count}}}, ``vehicles``
     (the ``larns info`` rows)."""
     from ..log.series import load
 
     rec = load([path])
-    out: dict[str, Any] = {"stations": station_table(rec)}
+    out: dict[str, Any] = {"stations": station_table(rec, scn)}
     for sid, row in out["stations"].items():
         s = rec.stations[sid].last
         if s is not None and "truth_m" in row:

@@ -22,16 +22,17 @@ from pathlib import Path
 
 
 def synth_log(path: str | Path, scenario: str = "seed000", duration_s: float = 600.0, seed: int | None = None,
-              estimator: str | None = None, ranging: str | None = None) -> dict:
+              estimator: str | None = None, ranging: str | None = None, **overrides) -> dict:
     """Simulate the scenario with journals on and write a recording-like MCAP; returns statistics.
-    ``ranging``: override the scenario's ``[tdma] ranging`` ("addressed" or protocol v2's "poll")."""
+    ``ranging``: override the scenario's ``[tdma] ranging`` ("addressed" or protocol v2's "poll");
+    ``overrides``: further scenario sections (``net.scenario.load``'s keywords, e.g. ``survey``)."""
     from net import messages as M
     from net.scenario import load
     from stations.sim import Simulator
 
     from ..log import LogWriter
 
-    scn = load(scenario, **({"tdma": {"ranging": ranging}} if ranging else {}))
+    scn = load(scenario, **({"tdma": {"ranging": ranging}} if ranging else {}), **overrides)
     epoch = 1.7e9
     speed = 1.0
     rows: list[tuple[int, str, bytes, int]] = []  # (log ns, key, data, publish ns)

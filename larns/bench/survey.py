@@ -50,6 +50,10 @@ def register(sub) -> None:
     p.add_argument("--scenario", default="seed000", help="scenario name or TOML path (default seed000)")
     p.add_argument("--ranging", choices=["addressed", "poll"], default=None,
                    help="[tdma] ranging: the addressed exchange or protocol v2's poll (default: the scenario's)")
+    p.add_argument("--datum", choices=["founders", "field"], default=None,
+                   help="[survey] datum (default: the scenario's; --founders-leave: field). With field the "
+                        "errors and NEES are against the truth in the field's own datum from the release on "
+                        "(larns.analysis.datum); the CRLB and batch-MAP columns stay in the founders' frame")
     p.add_argument("--seed", type=int, default=1, help="base seed; trial k uses seed + k (default 1)")
     p.add_argument("--clock", default=None, metavar="MODEL",
                    help="station oscillators: perfect, tcxo, ocxo (default: the scenario's [clock])")
@@ -106,6 +110,8 @@ def multihop_stats(scn) -> dict:
 def _trial(job: tuple) -> dict:
     from nav.crlb import batch_map, poll_exchange_counts, survey_crlb
     from nav.geometry import frame_free_mask
+
+    from ..analysis.datum import sim_datum_truth, truth_series
     from net.channel import coarse_fix, station_rng
     from net.scenario import load
     from stations.estimators import holds_fix
@@ -113,12 +119,18 @@ def _trial(job: tuple) -> dict:
 
     scenario, estimator, sigma_d, n, seed, duration, table_times, with_map, clock, *opt = job
     ranging = opt[0] if opt else None  # (jobs without it: the scenario's [tdma] ranging)
+    datum = opt[1] if len(opt) > 1 else None  # (None: the scenario's [survey] datum)
     scn = load(scenario, seed=seed, channel={"sigma_d_m": sigma_d}, **({"layout": {"n": n}} if n else {}),
-               **({"clock": {"model": clock}} if clock else {}), **({"tdma": {"ranging": ranging}} if ranging else {}))
+               **({"clock": {"model": clock}} if clock else {}), **({"tdma": {"ranging": ranging}} if ranging else {}),
+               **({"survey": {"datum": datum}} if datum else {}))
     sim = Simulator(scn, estimator=estimator)
+    dt = sim_datum_truth(scn, sim) if scn.datum == "field" else None
     times = np.arange(1.0, duration + 1e-9, 1.0)
     r = sim.run(duration, times)
-    err = r.pos_m - r.truth_m  # (K, n, 3)
+    # the truth in the field's datum from the release on (the founders' frame before, and throughout
+    # in the founders' datum)
+    truth = r.truth_m if dt is None else truth_series(dt, scn.ids, times)
+    err = r.pos_m - truth  # (K, n, 3)
     # a station without a fix (scenario sigma0_m = 0) that has not trilaterated yet is not located:
     # it broadcasts its no-fix prior (stations/estimators.py); its error is not scored
     located = np.array([[holds_fix(c) for c in ck] for ck in r.cov_m2])  # (K, n)
@@ -137,7 +149,9 @@ def _trial(job: tuple) -> dict:
     e4 = err[:, 3:]
     P4 = r.cov_m2[:, 3:]
     nees = np.einsum("kni,kni->kn", e4, np.linalg.solve(P4, np.nan_to_num(e4)[..., None])[..., 0])
-    out = {"err": err, "nees": nees, "crlb_diag": np.einsum("knii->kni", crlb), "located": located[ti].mean(axis=1),
+    nees_h = np.einsum("kni,kni->kn", e4[..., :2], np.linalg.solve(P4[..., :2, :2], np.nan_to_num(e4[..., :2])[..., None])[..., 0])
+    out = {"err": err, "nees": nees, "nees_h": nees_h, "datum_frozen_s": None if dt is None else dt.frozen_s,
+           "crlb_diag": np.einsum("knii->kni", crlb), "located": located[ti].mean(axis=1),
            "multihop": multihop_stats(scn)}
     out["crlb_diag"][~located[ti]] = np.nan
     if scn.faults:  # [[faults]]: detection metrics; errors over the stations that are not faulty
@@ -149,6 +163,7 @@ def _trial(job: tuple) -> dict:
             out[key] = out[key].astype(float)
             out[key][:, bad] = np.nan
         out["nees"][:, [b - 3 for b in bad if b >= 3]] = np.nan
+        out["nees_h"][:, [b - 3 for b in bad if b >= 3]] = np.nan
     if with_map and scn.sigma0_m > 0:  # (the batch MAP's prior is the coarse fix)
         prior = np.stack([coarse_fix(scn.pos_m[i], sid, scn.sigma0_m, station_rng(scn.seed, sid, 1))[0]
                           for i, sid in enumerate(scn.ids)])
@@ -189,6 +204,8 @@ def summarize(results: list[dict], sigma_d: float, estimator: str, times: np.nda
     fe = err[:, ti][..., free]  # (T, Kt, nfree)
     nees = np.stack([r["nees"] for r in results])[:, ti]  # (T, Kt, n-3)
     lo, hi = chi2_band(3, max(int(np.isfinite(nees[:, -1]).sum()), 1))
+    nees_h = np.stack([r["nees_h"] for r in results])[:, ti]
+    lo_h, hi_h = chi2_band(2, max(int(np.isfinite(nees_h[:, -1]).sum()), 1))
     res = {
         "estimator": estimator,
         "sigma_d_m": sigma_d,
@@ -204,6 +221,9 @@ def summarize(results: list[dict], sigma_d: float, estimator: str, times: np.nda
         "crlb_free_rms_m": np.sqrt(np.nanmean(crlb[..., free], axis=(0, 2))).tolist(),
         "nees_mean": np.nanmean(nees, axis=(0, 2)).tolist(),
         "nees_band_95": [lo, hi],
+        "nees_h_mean": np.nanmean(nees_h, axis=(0, 2)).tolist(),
+        "nees_h_band_95": [lo_h, hi_h],
+        "datum_frozen_s": [r["datum_frozen_s"] for r in results],
         "time_to_sigma_d_s": float(times[first[0]]) if len(first) else None,
         "time_to_2sigma_d_s": float(times[first2[0]]) if len(first2) else None,
         "curve_times_s": times.tolist(),
@@ -255,15 +275,20 @@ def print_table(res: dict) -> None:
           f"median / max), {mh['hear_no_founder_frac']:.0%} of stations 4..n hear none of the founders, stations "
           f"per hop from them {mh['stations_per_hop']}, {mh['under_4_links']} with fewer than 4 links")
     hdr = ("t_s", "located", "h_mean", "h_max", "v_mean", "h_rms", "crlb_h", "ratio", "map_h", "free_rms",
-           "crlb_free", "NEES")
+           "crlb_free", "NEES", "NEES_h")
     print("  ".join(f"{h:>8}" for h in hdr))
     for k, t in enumerate(res["times_s"]):
         row = [t, res["located_frac"][k], res["horizontal_mean_m"][k], res["horizontal_max_m"][k], res["vertical_mean_m"][k],
                res["horizontal_rms_m"][k], res["crlb_horizontal_rms_m"][k], res["crlb_ratio"][k],
                res["map_horizontal_rms_m"][k] if "map_horizontal_rms_m" in res else float("nan"),
-               res["free_rms_m"][k], res["crlb_free_rms_m"][k], res["nees_mean"][k]]
+               res["free_rms_m"][k], res["crlb_free_rms_m"][k], res["nees_mean"][k], res["nees_h_mean"][k]]
         print("  ".join(f"{x:8.3f}" if isinstance(x, float) else f"{x:8}" for x in row))
     lo, hi = res["nees_band_95"]
+    fz = [t for t in res["datum_frozen_s"] if t is not None]
+    if fz:
+        print(f"field datum: errors and NEES against the truth in the field's datum from its release "
+              f"({min(fz):.1f}-{max(fz):.1f} s; {len(fz)} of {res['trials']} trials released)")
+    print(f"NEES_h (2 dof) 95% band for the mean: [{res['nees_h_band_95'][0]:.2f}, {res['nees_h_band_95'][1]:.2f}]")
     print(f"NEES (3 dof) 95% band for the mean: [{lo:.2f}, {hi:.2f}];  "
           f"time to mean h < sigma_d: {res['time_to_sigma_d_s']} s;  < 2 sigma_d: {res['time_to_2sigma_d_s']} s")
     if "fault_detect_prob" in res:
@@ -331,6 +356,8 @@ def _leave_trial(job: tuple) -> dict:
     from stations.core import rigid_motion
     from stations.sim import Simulator
 
+    from ..analysis.datum import sim_datum_truth, truth_series
+
     scenario, sigma_d, n, seed, duration, clock, ranging = job
     scn = load(scenario, seed=seed, channel={"sigma_d_m": sigma_d}, **({"layout": {"n": n}} if n else {}),
                survey={"datum": "field"},
@@ -340,11 +367,21 @@ def _leave_trial(job: tuple) -> dict:
                    | {t - 1.0 for t in stop.values()})
     t0 = time.perf_counter()
     twin = Simulator(scn, estimator="dmap").run(duration, times)
-    gone = Simulator(scn, estimator="dmap", stop_s=stop).run(duration, times)
+    sim = Simulator(scn, estimator="dmap", stop_s=stop)
+    dt = sim_datum_truth(scn, sim)
+    gone = sim.run(duration, times)
     d = gone.pos_m - twin.pos_m
     dev = np.hypot(d[..., 0], d[..., 1])  # (K, n)
     sig = np.sqrt(gone.cov_m2[..., 0, 0] + gone.cov_m2[..., 1, 1])
     e = gone.pos_m - gone.truth_m
+    # against the truth in the field's datum (fixed at the release): error and NEES, horizontal (2 dof)
+    # and 3-D, of every survivor (all free in x, y, z once the founders released the frame)
+    ed = gone.pos_m - truth_series(dt, scn.ids, times)
+    full = np.all(np.diagonal(gone.cov_m2, axis1=-2, axis2=-1) > 0.0, axis=-1)  # (K, n); False for NaN
+    P = np.where(full[..., None, None], gone.cov_m2, np.eye(3))
+    en = np.where(full[..., None], ed, np.nan)
+    nees3 = np.einsum("kni,kni->kn", en, np.linalg.solve(P, np.nan_to_num(en)[..., None])[..., 0])
+    nees_h = np.einsum("kni,kni->kn", en[..., :2], np.linalg.solve(P[..., :2, :2], np.nan_to_num(en[..., :2])[..., None])[..., 0])
     # the same deviation once the rigid motion between the two runs is removed (survivors, weighted by
     # their covariances): what the departures did to the shape, not to the datum
     shape = np.full_like(dev, np.nan)
@@ -356,7 +393,22 @@ def _leave_trial(job: tuple) -> dict:
             r = d[k, ok] - tr - np.cross(w, twin.pos_m[k, ok])
             shape[k, ok] = np.hypot(r[:, 0], r[:, 1])
     return {"times": times, "dev_m": dev, "shape_m": shape, "sigma_m": sig,
-            "err_h_m": np.hypot(e[..., 0], e[..., 1]), "wall_s": time.perf_counter() - t0}
+            "err_h_m": np.hypot(e[..., 0], e[..., 1]), "err_h_datum_m": np.hypot(ed[..., 0], ed[..., 1]),
+            "err_v_datum_m": np.abs(ed[..., 2]), "nees_3d": nees3, "nees_h": nees_h, "datum_frozen_s": dt.frozen_s,
+            "wall_s": time.perf_counter() - t0}
+
+
+def _datum_numbers(err_h: np.ndarray, err_v: np.ndarray, nees3: np.ndarray, nees_h: np.ndarray) -> dict:
+    """At one scoring time, over trials x stations (T, n): horizontal RMS and mean absolute vertical
+    error against the truth in the field's datum, and the mean NEES (3-D, horizontal) of the stations
+    whose covariance is full rank, with the 95 % chi-square bands of those means."""
+    ok = np.isfinite(nees3)
+    m = max(int(ok.sum()), 1)
+    eh = err_h[np.isfinite(err_h)]
+    return {"err_h_datum_rms_m": float(np.sqrt(np.mean(eh**2))) if eh.size else None,
+            "err_v_datum_mean_m": float(np.nanmean(err_v)) if np.isfinite(err_v).any() else None,
+            "nees_3d_mean": float(np.mean(nees3[ok])) if ok.any() else None, "nees_3d_band_95": chi2_band(3, m),
+            "nees_h_mean": float(np.mean(nees_h[ok])) if ok.any() else None, "nees_h_band_95": chi2_band(2, m)}
 
 
 def leave_summary(results: list[dict], sigma_d: float) -> dict:
@@ -369,6 +421,10 @@ def leave_summary(results: list[dict], sigma_d: float) -> dict:
     sig = np.stack([r["sigma_m"] for r in results])
     err = np.stack([r["err_h_m"] for r in results])
     shp = np.stack([r["shape_m"] for r in results])
+    errd = np.stack([r["err_h_datum_m"] for r in results])
+    errv = np.stack([r["err_v_datum_m"] for r in results])
+    n3 = np.stack([r["nees_3d"] for r in results])
+    nh = np.stack([r["nees_h"] for r in results])
     rows = []
     for k, t in enumerate(times):
         dv, rt = dev[:, k].ravel(), (dev[:, k] / sig[:, k]).ravel()
@@ -379,12 +435,14 @@ def leave_summary(results: list[dict], sigma_d: float) -> dict:
                      "dev_max_m": float(dv.max()), "dev_sigma_p95": float(np.percentile(rt, 95)),
                      "dev_sigma_max": float(rt.max()), "sigma_h_median_m": float(np.median(sig[:, k].ravel()[ok])),
                      "err_h_rms_m": float(np.sqrt(np.mean(eh**2))),
-                     "shape_p95_m": float(np.percentile(sh, 95)) if np.isfinite(sh).all() else None})
+                     "shape_p95_m": float(np.percentile(sh, 95)) if np.isfinite(sh).all() else None,
+                     **_datum_numbers(errd[:, k], errv[:, k], n3[:, k], nh[:, k])})
     end = dev[:, -1]
     within = np.all((end <= sig[:, -1]) & (end <= LEAVE_BAR_M) | ~np.isfinite(end), axis=1)
     return {"sigma_d_m": sigma_d, "trials": len(results), "founders_leave_s": {str(k): v for k, v in FOUNDERS_LEAVE_S.items()},
             "scored_after_s": LEAVE_AFTER_S, "rows": rows, "end_within_1sigma_and_3cm_frac": float(within.mean()),
-            "trial_wall_s_mean": float(np.mean([r["wall_s"] for r in results]))}
+            "trial_wall_s_mean": float(np.mean([r["wall_s"] for r in results])),
+            "datum_frozen_s": [r["datum_frozen_s"] for r in results]}
 
 
 def print_leave(res: dict) -> None:
@@ -399,7 +457,21 @@ def print_leave(res: dict) -> None:
                          r["err_h_rms_m"])))
     print("  (med/p95/max: horizontal deviation from the twin over trials x survivors, m; _sig: in units of the "
           "survivor's horizontal sigma; shape_p95: after removing the rigid motion between the runs; err_rms: "
-          "horizontal error against the truth)")
+          "horizontal error against the truth in the founders' frame)")
+    fz = [t for t in res["datum_frozen_s"] if t is not None]
+    print(f"against the truth in the field's datum (released {min(fz, default=float('nan')):.1f}-"
+          f"{max(fz, default=float('nan')):.1f} s, {len(fz)} of {res['trials']} trials; every station alive with a "
+          "full-rank covariance):")
+    hdr = ("t_s", "err_h_rms", "err_v_mean", "NEES_h", "band_h", "NEES_3d", "band_3d")
+    print("  ".join(f"{h:>11}" for h in hdr))
+    for r in res["rows"]:
+        cells = [f"{r['t_s']:11.1f}"]
+        for key in ("err_h_datum_rms_m", "err_v_datum_mean_m", "nees_h_mean", "nees_h_band_95", "nees_3d_mean",
+                    "nees_3d_band_95"):
+            v = r[key]
+            cells.append(f"{'-':>11}" if v is None else f"{v[0]:5.2f}-{v[1]:<5.2f}" if isinstance(v, (tuple, list))
+                         else f"{v:11.3f}")
+        print("  ".join(cells))
     print(f"  bar end_within_1sigma_and_3cm (every survivor of a trial): {res['end_within_1sigma_and_3cm_frac']:.0%} "
           f"of trials;  mean wall per trial {res['trial_wall_s_mean']:.1f} s (twin included)")
 
@@ -440,7 +512,8 @@ def main(args) -> int:
         for est in args.estimator:
             for sd in args.sigma_d:
                 jobs = [(args.scenario, est, sd, args.stations, args.seed + k, args.duration, table_times,
-                         not args.no_map, getattr(args, "clock", None), getattr(args, "ranging", None))
+                         not args.no_map, getattr(args, "clock", None), getattr(args, "ranging", None),
+                         getattr(args, "datum", None))
                         for k in range(args.trials)]
                 t0 = time.perf_counter()
                 results = list(progress(pool.imap(_trial, jobs), f"survey {est} sigma_d={sd}", total=len(jobs)))
