@@ -159,9 +159,7 @@ class FieldDatumTruth:
         prev_seq, self._seq[src] = self._seq.get(src), seq
         mem = {p: v for p, v in self._last.items() if t_s - v[0] <= self.member_s}
         if self._released_s is None:
-            if any(not np.all(np.diag(c) > 0.0) for _, _, c in mem.values()):
-                return  # a founder still holds the frame
-            if sum(1 for p, (_, _, c) in mem.items() if self.carries(c) and p in self.true_m) < self.quorum:
+            if not self._releases(mem):
                 return
             self._released_s = float(t_s)
         # the station's first nav after the release: its references are the carriers' latest
@@ -175,10 +173,17 @@ class FieldDatumTruth:
             refs[src] = prev[1] if was else pos
             self.ref_sets[src] = refs
 
+    def _releases(self, mem: dict[int, tuple[float, np.ndarray, np.ndarray]]) -> bool:
+        """Do the members' latest broadcasts ``mem`` release the frame: no frame constraint (a founder
+        still holding it broadcasts a zero variance) and ``quorum`` carriers."""
+        if any(not np.all(np.diag(c) > 0.0) for _, _, c in mem.values()):
+            return False
+        return sum(1 for p, (_, _, c) in mem.items() if self.carries(c) and p in self.true_m) >= self.quorum
+
     def _freeze(self) -> None:
         """The references: per carrier, the mean of the stations' references of it (they froze one
         nav apart within the cycle that follows the release, so peers that spoke in between differ);
-        the weights: the carriers' broadcast covariances at the release."""
+        the weights: the carriers' broadcast covariances at the end of that cycle."""
         self.frozen_s = self._released_s
         ids = sorted({p for refs in self.ref_sets.values() for p in refs})
         self.refs = {p: np.mean([refs[p] for refs in self.ref_sets.values() if p in refs], axis=0) for p in ids}

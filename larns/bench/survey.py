@@ -107,22 +107,28 @@ def multihop_stats(scn) -> dict:
             "under_4_links": int((deg < 4).sum())}
 
 
-def _trial(job: tuple) -> dict:
-    from nav.crlb import batch_map, poll_exchange_counts, survey_crlb
-    from nav.geometry import frame_free_mask
-
-    from ..analysis.datum import sim_datum_truth, truth_series
-    from net.channel import coarse_fix, station_rng
+def load_trial(scenario: str, sigma_d: float, n: int | None, seed: int, clock: str | None, ranging: str | None,
+               datum: str | None):
+    """A trial's scenario: ``scenario`` with the bench's overrides (None: the scenario's own)."""
     from net.scenario import load
+
+    return load(scenario, seed=seed, channel={"sigma_d_m": sigma_d}, **({"layout": {"n": n}} if n else {}),
+                **({"clock": {"model": clock}} if clock else {}), **({"tdma": {"ranging": ranging}} if ranging else {}),
+                **({"survey": {"datum": datum}} if datum else {}))
+
+
+def _trial(job: tuple) -> dict:
+    from nav.crlb import poll_exchange_counts, survey_crlb
+    from nav.geometry import frame_free_mask
     from stations.estimators import holds_fix
     from stations.sim import Simulator
+
+    from ..analysis.datum import sim_datum_truth, truth_series
 
     scenario, estimator, sigma_d, n, seed, duration, table_times, with_map, clock, *opt = job
     ranging = opt[0] if opt else None  # (jobs without it: the scenario's [tdma] ranging)
     datum = opt[1] if len(opt) > 1 else None  # (None: the scenario's [survey] datum)
-    scn = load(scenario, seed=seed, channel={"sigma_d_m": sigma_d}, **({"layout": {"n": n}} if n else {}),
-               **({"clock": {"model": clock}} if clock else {}), **({"tdma": {"ranging": ranging}} if ranging else {}),
-               **({"survey": {"datum": datum}} if datum else {}))
+    scn = load_trial(scenario, sigma_d, n, seed, clock, ranging, datum)
     sim = Simulator(scn, estimator=estimator)
     dt = sim_datum_truth(scn, sim) if scn.datum == "field" else None
     times = np.arange(1.0, duration + 1e-9, 1.0)
@@ -145,11 +151,7 @@ def _trial(job: tuple) -> dict:
     fin = r.final_counts
     crlb = np.stack([survey_crlb(r.truth_m, poll_exchange_counts(r.link_counts[k], None if fin is None else fin[k]),
                                  sig, free, s0) for k in ti])
-    # NEES over stations 4..n (3 dof each)
-    e4 = err[:, 3:]
-    P4 = r.cov_m2[:, 3:]
-    nees = np.einsum("kni,kni->kn", e4, np.linalg.solve(P4, np.nan_to_num(e4)[..., None])[..., 0])
-    nees_h = np.einsum("kni,kni->kn", e4[..., :2], np.linalg.solve(P4[..., :2, :2], np.nan_to_num(e4[..., :2])[..., None])[..., 0])
+    nees, nees_h = nees_3d_h(err[:, 3:], r.cov_m2[:, 3:])  # stations 4..n (3 and 2 dof each)
     out = {"err": err, "nees": nees, "nees_h": nees_h, "datum_frozen_s": None if dt is None else dt.frozen_s,
            "crlb_diag": np.einsum("knii->kni", crlb), "located": located[ti].mean(axis=1),
            "multihop": multihop_stats(scn)}
@@ -165,18 +167,36 @@ def _trial(job: tuple) -> dict:
         out["nees"][:, [b - 3 for b in bad if b >= 3]] = np.nan
         out["nees_h"][:, [b - 3 for b in bad if b >= 3]] = np.nan
     if with_map and scn.sigma0_m > 0:  # (the batch MAP's prior is the coarse fix)
-        prior = np.stack([coarse_fix(scn.pos_m[i], sid, scn.sigma0_m, station_rng(scn.seed, sid, 1))[0]
-                          for i, sid in enumerate(scn.ids)])
-        log = np.array(sim.range_log) if sim.range_log else np.zeros((0, 4))
-        # the ranges the surveys took: not the v2 pollers' ranges gated on unknown clock frequencies
-        log = np.delete(log, sorted(sim.gated_log), axis=0)
-        maps = []
-        for k in ti:
-            sel = log[:, 0] <= times[k]
-            X = batch_map(log[sel, 1:3].astype(int), log[sel, 3], sigma_d, free, prior, scn.sigma0_m)
-            maps.append(X - r.truth_m)
-        out["map_err"] = np.stack(maps)
+        out["map_err"] = _map_errors(scn, sim, sigma_d, free, times[ti], r.truth_m)
     return out
+
+
+def _map_errors(scn, sim, sigma_d: float, free: np.ndarray, times_s: np.ndarray, truth_m: np.ndarray) -> np.ndarray:
+    """The centralized batch MAP's errors (K, n, 3) at ``times_s`` (K,) on the ranges simulator ``sim``'s
+    surveys took, its prior the coarse fixes (in the founders' frame, as ``truth_m`` (n, 3))."""
+    from nav.crlb import batch_map
+    from net.channel import coarse_fix, station_rng
+
+    prior = np.stack([coarse_fix(scn.pos_m[i], sid, scn.sigma0_m, station_rng(scn.seed, sid, 1))[0]
+                      for i, sid in enumerate(scn.ids)])
+    log = np.array(sim.range_log) if sim.range_log else np.zeros((0, 4))
+    # the ranges the surveys took: not the v2 pollers' ranges gated on unknown clock frequencies
+    log = np.delete(log, sorted(sim.gated_log), axis=0)
+    maps = []
+    for t in times_s:
+        sel = log[:, 0] <= t
+        X = batch_map(log[sel, 1:3].astype(int), log[sel, 3], sigma_d, free, prior, scn.sigma0_m)
+        maps.append(X - truth_m)
+    return np.stack(maps)
+
+
+def nees_3d_h(err_m: np.ndarray, cov_m2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """3-D and horizontal (x, y) NEES (...,) of errors ``err_m`` (..., 3) with covariances ``cov_m2``
+    (..., 3, 3); NaN where the error is NaN."""
+    e = np.nan_to_num(err_m)
+    n3 = np.einsum("...i,...i->...", err_m, np.linalg.solve(cov_m2, e[..., None])[..., 0])
+    nh = np.einsum("...i,...i->...", err_m[..., :2], np.linalg.solve(cov_m2[..., :2, :2], e[..., :2, None])[..., 0])
+    return n3, nh
 
 
 def chi2_band(dof: int, n: int, level: float = 0.95) -> tuple[float, float]:
@@ -352,16 +372,13 @@ def _leave_trial(job: tuple) -> dict:
     """One ``--founders-leave`` trial: the same world with and without the departures. Returns, per
     scoring time, the survivors' horizontal deviation from the twin (m) and their horizontal sigma
     (root of P_xx + P_yy of the run with departures), NaN for stations not alive."""
-    from net.scenario import load
     from stations.core import rigid_motion
     from stations.sim import Simulator
 
     from ..analysis.datum import sim_datum_truth, truth_series
 
     scenario, sigma_d, n, seed, duration, clock, ranging = job
-    scn = load(scenario, seed=seed, channel={"sigma_d_m": sigma_d}, **({"layout": {"n": n}} if n else {}),
-               survey={"datum": "field"},
-               **({"clock": {"model": clock}} if clock else {}), **({"tdma": {"ranging": ranging}} if ranging else {}))
+    scn = load_trial(scenario, sigma_d, n, seed, clock, ranging, "field")
     stop = {sid: t for sid, t in FOUNDERS_LEAVE_S.items() if t < duration}
     times = sorted({min(t + LEAVE_AFTER_S, duration) for t in stop.values()} | {duration}
                    | {t - 1.0 for t in stop.values()})
@@ -378,10 +395,7 @@ def _leave_trial(job: tuple) -> dict:
     # and 3-D, of every survivor (all free in x, y, z once the founders released the frame)
     ed = gone.pos_m - truth_series(dt, scn.ids, times)
     full = np.all(np.diagonal(gone.cov_m2, axis1=-2, axis2=-1) > 0.0, axis=-1)  # (K, n); False for NaN
-    P = np.where(full[..., None, None], gone.cov_m2, np.eye(3))
-    en = np.where(full[..., None], ed, np.nan)
-    nees3 = np.einsum("kni,kni->kn", en, np.linalg.solve(P, np.nan_to_num(en)[..., None])[..., 0])
-    nees_h = np.einsum("kni,kni->kn", en[..., :2], np.linalg.solve(P[..., :2, :2], np.nan_to_num(en[..., :2])[..., None])[..., 0])
+    nees3, nees_h = nees_3d_h(np.where(full[..., None], ed, np.nan), np.where(full[..., None, None], gone.cov_m2, np.eye(3)))
     # the same deviation once the rigid motion between the two runs is removed (survivors, weighted by
     # their covariances): what the departures did to the shape, not to the datum
     shape = np.full_like(dev, np.nan)
