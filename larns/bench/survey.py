@@ -406,10 +406,38 @@ def _leave_trial(job: tuple) -> dict:
             tr, w = rigid_motion(gone.pos_m[k, ok], gone.cov_m2[k, ok] + 1e-6 * np.eye(3), twin.pos_m[k, ok])
             r = d[k, ok] - tr - np.cross(w, twin.pos_m[k, ok])
             shape[k, ok] = np.hypot(r[:, 0], r[:, 1])
-    return {"times": times, "dev_m": dev, "shape_m": shape, "sigma_m": sig,
+    info_nees, p_within = _info_loss(d[-1, :, :2], gone.cov_m2[-1, :, :2, :2], twin.cov_m2[-1, :, :2, :2],
+                                     np.minimum(sig[-1], LEAVE_BAR_M), np.random.default_rng(seed))
+    return {"times": times, "dev_m": dev, "shape_m": shape, "sigma_m": sig, "info_nees": info_nees,
+            "p_within": p_within,
             "err_h_m": np.hypot(e[..., 0], e[..., 1]), "err_h_datum_m": np.hypot(ed[..., 0], ed[..., 1]),
             "err_v_datum_m": np.abs(ed[..., 2]), "nees_3d": nees3, "nees_h": nees_h, "datum_frozen_s": dt.frozen_s,
             "wall_s": time.perf_counter() - t0}
+
+
+def _info_loss(d_m: np.ndarray, p_gone_m2: np.ndarray, p_twin_m2: np.ndarray, radius_m: np.ndarray,
+               rng: np.random.Generator, draws: int = 4000) -> tuple[np.ndarray, np.ndarray]:
+    """What the departures' lost information alone allows at the end. Two efficient estimators of the
+    same world, one with a subset of the other's information, differ by ``d ~ N(0, D)``,
+    ``D = P_gone - P_twin`` (the covariance of the difference of nested MAP estimates). Per station
+    (n): the deviation's NEES against ``D``, ``d^T D^-1 d`` (mean 2 if the deviation is that loss alone),
+    and ``P(|d| <= radius)`` under ``N(0, D)`` (``draws`` samples of ``rng``); NaN where ``D`` is not
+    positive definite or the station is not a survivor. ``d_m`` (n, 2), ``p_*_m2`` (n, 2, 2), ``radius_m`` (n,)."""
+    n = len(d_m)
+    nees, p = np.full(n, np.nan), np.full(n, np.nan)
+    z = rng.standard_normal((draws, 2))
+    for i in range(n):
+        D = p_gone_m2[i] - p_twin_m2[i]
+        if not (np.all(np.isfinite(d_m[i])) and np.all(np.isfinite(D))):
+            continue
+        try:
+            L = np.linalg.cholesky(D)
+        except np.linalg.LinAlgError:
+            continue
+        y = np.linalg.solve(L, d_m[i])
+        nees[i] = float(y @ y)
+        p[i] = float(np.mean(np.hypot(*(z @ L.T).T) <= radius_m[i]))
+    return nees, p
 
 
 def _datum_numbers(err_h: np.ndarray, err_v: np.ndarray, nees3: np.ndarray, nees_h: np.ndarray) -> dict:
@@ -453,8 +481,17 @@ def leave_summary(results: list[dict], sigma_d: float) -> dict:
                      **_datum_numbers(errd[:, k], errv[:, k], n3[:, k], nh[:, k])})
     end = dev[:, -1]
     within = np.all((end <= sig[:, -1]) & (end <= LEAVE_BAR_M) | ~np.isfinite(end), axis=1)
+    # the bar's share if the survivors' deviations were the lost information alone (independent
+    # survivors): per trial the product of their chances, averaged (_info_loss)
+    pw = np.stack([r["p_within"] for r in results])
+    surv = np.isfinite(end)
+    expected = np.prod(np.where(surv, np.nan_to_num(pw, nan=0.0), 1.0), axis=1)
+    info_nees = np.stack([r["info_nees"] for r in results])[surv]
     return {"sigma_d_m": sigma_d, "trials": len(results), "founders_leave_s": {str(k): v for k, v in FOUNDERS_LEAVE_S.items()},
             "scored_after_s": LEAVE_AFTER_S, "rows": rows, "end_within_1sigma_and_3cm_frac": float(within.mean()),
+            "end_within_if_info_loss_frac": float(expected.mean()),
+            "end_dev_info_nees_mean": float(np.nanmean(info_nees)) if np.isfinite(info_nees).any() else None,
+            "end_dev_info_nees_defined": int(np.isfinite(info_nees).sum()), "end_survivors": int(surv.sum()),
             "trial_wall_s_mean": float(np.mean([r["wall_s"] for r in results])),
             "datum_frozen_s": [r["datum_frozen_s"] for r in results]}
 
@@ -488,6 +525,11 @@ def print_leave(res: dict) -> None:
         print("  ".join(cells))
     print(f"  bar end_within_1sigma_and_3cm (every survivor of a trial): {res['end_within_1sigma_and_3cm_frac']:.0%} "
           f"of trials;  mean wall per trial {res['trial_wall_s_mean']:.1f} s (twin included)")
+    nees = res["end_dev_info_nees_mean"]
+    print(f"  if the deviations were the lost information alone (D = P_gone - P_twin, efficient estimators): "
+          f"{res['end_within_if_info_loss_frac']:.0%} of trials; the deviations' NEES against D "
+          f"{'-' if nees is None else f'{nees:.2f}'} (2 if so; D positive definite for "
+          f"{res['end_dev_info_nees_defined']} of {res['end_survivors']} survivors)")
 
 
 def leave_main(args) -> int:
