@@ -138,6 +138,19 @@ def _ranges(v: Any, name: str) -> list[list[Any]]:
     return out
 
 
+def _closed(v: Any, name: str) -> list[list[Any]]:
+    """A nav's ``closed`` (protocol v2): the sender's averaged ranges (V4b) of the polls it answered since
+    its last nav, ``[[poller, range_m, poll seq], ...]``."""
+    if not isinstance(v, (list, tuple)) or len(v) > MAX_LIST:
+        raise MessageError("shape", f"{name} must be a list of <= {MAX_LIST} entries")
+    out = []
+    for r in v:
+        if not isinstance(r, (list, tuple)) or len(r) != 3:
+            raise MessageError("shape", f"{name} entries must be [poller, range_m, poll_seq]")
+        out.append([_station_id(r[0], name), _nonneg(r[1], name), _count(r[2], name)])
+    return out
+
+
 def _clock(v: Any, name: str) -> list[float]:
     """Clock correction ``[t_ref_s, offset_s, freq, var_offset_s2, cov_s, var_freq]`` (sender's clock)."""
     if not isinstance(v, (list, tuple)) or len(v) != 6:
@@ -430,7 +443,7 @@ SCHEMAS: dict[str, tuple[dict[str, Callable], dict[str, Callable]]] = {
     "nav": ({**_COMMON_STATION, "cycle": _count, "slot": _slot, "t_tx_s": _num, "pos_m": _vec3,
              "cov_m2": _cov33, "n_updates": _count, "state": _state, "ranges": _ranges,
              "members": _members}, {"clock": _clock, "excluded": _members, "slots": _slot_summary,
-                                    "poll": _poll_final}),
+                                    "poll": _poll_final, "closed": _closed}),
     # protocol v2 (docs/protocol.md "Protocol v2"): one poll naming its members, one reply per member
     "poll": ({**_COMMON_STATION, "cycle": _count, "slot": _slot, "t_tx_s": _num, "members": _members}, {}),
     "reply": ({**_COMMON_STATION, "dst": _station_id, "poll_seq": _count, "t_rx_s": _num, "t_tx_s": _num,

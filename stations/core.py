@@ -154,7 +154,8 @@ class StationCore:
         self.est: SurveyEstimator = make_estimator(cfg.estimator, cfg.id, init_pos_m, init_cov_m2,
                                                    cfg.sigma_d_m, cfg.ranges_per_update, founder=not cfg.join,
                                                    radio=self.radio,
-                                                   **(dict(peer_corr_est=POLL_PEER_CORR_EST, clean_after_n=POLL_CLEAN_AFTER_N)
+                                                   **(dict(peer_corr_est=POLL_PEER_CORR_EST, clean_after_n=POLL_CLEAN_AFTER_N,
+                                                           range_var_factor=POLL_RANGE_VAR_FACTOR)
                                                       if cfg.ranging == "poll" else {}))
         self.clk = ClockEstimator(cfg.id, ClockModel(cfg.clock_q_wf_s, cfg.clock_q_rw_per_s, cfg.clock_offset_sigma_s,
                                                      cfg.clock_freq_sigma), start_s, cfg.sigma_d_m)
@@ -180,6 +181,11 @@ class StationCore:
         self.exchanges: deque[list] = deque(maxlen=EXCHANGE_LOG)
         self._exchange_of: dict[int, list] = {}
         self.ranges_out: list[list] = []
+        # protocol v2: our averaged ranges (V4b) of the polls we answered since our last nav,
+        # [poller, range_m, poll seq] (the nav's ``closed``); our own polls' exchanges awaiting the
+        # member's V4b, (member, poll seq) -> the single-sided range the survey took meanwhile (None: none)
+        self.closed_out: list[list] = []
+        self._ss_open: dict[tuple[int, int], float | None] = {}
         self.counters = {"requests": 0, "responses": 0, "lost": 0, "ranges_in": 0, "ignored": 0,
                          "rejected_ranges": 0, "late": 0, "sync_in": 0, "implausible": 0}
         # protocol v2: our open poll {seq, t1, index: member -> k, rx: member -> T4, entries}; the polls
@@ -190,7 +196,8 @@ class StationCore:
         self._polled: dict[int, dict[int, tuple[float, float, int, int]]] = {}
         self._path_m = min(cfg.max_range_m, 2.0 * cfg.field_radius_m) if cfg.field_radius_m > 0 else cfg.max_range_m
         if self.poll:
-            self.counters.update(reply_window=0, final_window=0, final_lost=0, polls_answered=0, ss_gated=0)
+            self.counters.update(reply_window=0, final_window=0, final_lost=0, polls_answered=0, ss_gated=0,
+                                 closed_in=0)
         # plausibility before trust: senders, ids, values and slot claims (stations/admission.py)
         self.slots: SlotCore | None = None  # the distributed assignment (None: the fixed plan)
         peer_bound = self.plan.slots_per_cycle + 1
@@ -317,6 +324,9 @@ class StationCore:
             m["poll"] = {"seq": po["seq"], "t1": po["t1"], "rx": [[p, t4] for p, t4 in po["rx"].items()]}
             self.counters["lost"] += len(po["index"]) - len(po["rx"])
             self._poll_out = None
+        if self.closed_out:  # our V4b of the polls we answered: the pollers' range of their exchange
+            m["closed"] = self.closed_out
+            self.closed_out = []
         self.ranges_out = []
         return m
 
@@ -445,6 +455,7 @@ class StationCore:
             if self._hold_until_s != -math.inf and t_s >= self._hold_until_s:
                 self._release_peers()
             out += self._integrity(t_s)
+            self._converged_weights()
             self.est.refresh()
             self._pos_hist.append((float(t_s), self.est.pos_m.copy(), self.est.cov_m2.copy()))
             self._datum(t_s)
@@ -493,6 +504,8 @@ class StationCore:
             return []
         m = self._base("poll", t0)
         m.update(cycle=cycle, slot=self.slot, t_tx_s=float(t0), members=list(mem))
+        for key in [key for key in self._ss_open if key[1] <= m["seq"] - POLLED_KEEP - 1]:  # V4b never came
+            del self._ss_open[key]
         self._poll_out = {"seq": m["seq"], "t1": float(t0), "index": {p: k for k, p in enumerate(mem)}, "rx": {},
                           "entries": {}}
         for p in mem:
@@ -678,14 +691,44 @@ class StationCore:
                                     self.clk.offset_var_s2, self._transfer_var_s2(self.id, src)) is not None:
                 self.counters["sync_in"] += 1
         self.ranges_out.append(entry)
-        if self.poll and self._rate_bias_m(corr, delay_s) > SS_BIAS_GATE * self.cfg.sigma_d_m:
+        gated = self.poll and self._rate_bias_m(corr, delay_s) > SS_BIAS_GATE * self.cfg.sigma_d_m
+        closes = self._takes_closed()
+        if closes:  # the member's V4b of this exchange replaces (or stands in for) our single-sided range
+            self._ss_open[(src, self._poll_out["seq"])] = None if gated or not POLL_SS_BRIDGE else float(range_m)
+        if gated:
             self.counters["ss_gated"] += 1  # the time transfer stands (V7 needs no frequency); the range not
             self._refresh_state()
             return []
-        self.est.on_range(src, range_m, t_rx_s, True, pos, cov)
+        if not closes or POLL_SS_BRIDGE:
+            self.est.on_range(src, range_m, t_rx_s, True, pos, cov)
         self.integrity.on_range(src, range_m, t_rx_s)
         self._refresh_state()
         return []
+
+    def _takes_closed(self) -> bool:
+        """Protocol v2 with ``dmap``: does the survey take the members' V4b ranges of our polls (a nav's
+        ``closed``) as its range of those exchanges, instead of our single-sided one?"""
+        return self.poll and POLL_CLOSED and self.est.name.startswith("dmap")
+
+    def _on_closed(self, src: int, closed: list | None, t_rx_s: float, pos: np.ndarray, cov: np.ndarray) -> None:
+        """Protocol v2: ``src``'s nav lists its averaged ranges (V4b) of the polls it answered; the ones of
+        our polls whose reply we heard become our range of that exchange: they replace the single-sided
+        range the survey took meanwhile (``POLL_SS_BRIDGE``), else they are its only range. One range per
+        exchange either way; an entry of no exchange of ours awaiting it is ignored."""
+        if not closed or not self._ss_open:
+            return
+        for peer, range_m, seq in closed:
+            if peer != self.id or (src, seq) not in self._ss_open:
+                continue
+            ss = self._ss_open.pop((src, seq))
+            if not 0.0 < range_m < self.cfg.max_range_m:
+                self.counters["rejected_ranges"] += 1
+                continue
+            self.counters["closed_in"] += 1
+            if ss is None:
+                self.est.on_range(src, float(range_m), t_rx_s, True, pos, cov)
+            else:
+                self.est.revise_range(src, ss, float(range_m))
 
     def _rate_bias_m(self, corr, delay_s: float) -> float:
         """Protocol v2, the poller's single-sided range: 1-sigma of its error from the two clocks'
@@ -740,6 +783,7 @@ class StationCore:
             self._nav_transfers(src, corr, transfers)
         if src in self._polled:
             self._on_final(src, msg, t_rx_s, corr, pos, cov)
+        self._on_closed(src, msg.get("closed"), t_rx_s, pos, cov)
         self._refresh_state()
         return self._unconverged_solve(t_rx_s)
 
@@ -755,6 +799,15 @@ class StationCore:
         if self._horizontal_sigma_m(self.est.cov_m2) <= POLL_RESOLVE_SIGMA_D * self.cfg.sigma_d_m:
             return []
         return [self.estimate_msg(t_s)] if self.est.refresh() else []
+
+    def _converged_weights(self) -> None:
+        """Protocol v2: from the first nav at which our horizontal sigma is at most ``POLL_LATE_SIGMA_D``
+        sigma_d on, the dmap solve charges the peers' covariances ``POLL_PEER_CORR_LATE`` times
+        (``POLL_PEER_CORR_EST`` before; docs/survey.md, "Protocol v2's poll", phase 4)."""
+        if (not self.poll or POLL_PEER_CORR_LATE is None or not self.est.name.startswith("dmap")
+                or self._horizontal_sigma_m(self.est.cov_m2) > POLL_LATE_SIGMA_D * self.cfg.sigma_d_m):
+            return
+        self.est.peer_corr_est = POLL_PEER_CORR_LATE
 
     def _nav_transfers(self, src: int, corr, entries: list[tuple[int, float, float]]) -> None:
         """A nav's time transfers ``(peer, t_mid on src's clock, dtheta_s)``: placed in network time by
@@ -800,6 +853,7 @@ class StationCore:
             self.counters["rejected_ranges"] += 1
             return
         self.counters["ranges_in"] += 1
+        self.closed_out.append([src, float(range_m), int(seq)])
         dtheta = time_transfer_s(t1, t2, t3, t4)[0].item()  # the poller's clock minus ours
         # the exchange's midpoint on our clock (the same instant as (T1 + T4) / 2 on the poller's)
         if self.clk.on_exchange(src, self.id, self.clk.network_time(0.5 * (t2 + t3)), dtheta,
@@ -1033,6 +1087,16 @@ def _moved_beyond(d_m: np.ndarray, cov_m2: np.ndarray, free: np.ndarray) -> bool
 # protocol v2: the polls of one poller a member keeps waiting for their finals (the poll of this cycle
 # and the previous one's, whose final a process may take after the next poll: navs are read in batches)
 POLLED_KEEP = 2
+# protocol v2 with dmap: the poller's range of each exchange is the member's V4b from its next nav (the
+# nav's ``closed``; StationCore._on_closed) and its single-sided range only bridges until it arrives
+# (POLL_SS_BRIDGE) or is not taken by the survey (docs/survey.md, "Protocol v2's poll", phase 4)
+POLL_CLOSED = True
+POLL_SS_BRIDGE = True
+# protocol v2 with the members' V4b taken: the dmap solve's range variance against a two-way range's
+# (DistributedMap.range_var_factor): every range it keeps is then an exchange's averaged one (3/4
+# sigma_d^2, nav.crlb.poll_exchange_counts; measured 0.71-0.78), but for the single-sided bridges of
+# the last cycle and the first cycles' DS-TWR ranges (0.76-0.84)
+POLL_RANGE_VAR_FACTOR = 0.75
 # protocol v2: the poller's single-sided range enters the survey only once the clocks' frequency
 # uncertainty biases it by at most this fraction of sigma_d (StationCore._rate_bias_m; docs/protocol.md)
 SS_BIAS_GATE = 0.25
@@ -1042,6 +1106,13 @@ SS_BIAS_GATE = 0.25
 # so the errors the peers share (the field's collective modes) must be charged more; the factor is
 # measured, not derived (its table: docs/survey.md, "Protocol v2's poll")
 POLL_PEER_CORR_EST = 3.0
+# protocol v2: the factor once the station's horizontal sigma is at most POLL_LATE_SIGMA_D sigma_d
+# (StationCore._converged_weights; None: POLL_PEER_CORR_EST throughout). The large factor is for the
+# start, when the peers are metres off; converged, it makes the sweeps' fixed point favour the links
+# to well-known peers where the joint MAP weighs every link alike. 0 there, or from sigma_d on, let
+# the field settle in a wrong configuration (docs/survey.md, "Protocol v2's poll", phases 3 and 4)
+POLL_PEER_CORR_LATE: float | None = 0.5
+POLL_LATE_SIGMA_D = 0.5
 # protocol v2: ranges in links with two or more that a dmap station needs before it may judge its ranges
 # clean (DistributedMap.clean_after_n, 20 in the addressed protocol). By its first solve a polling station
 # holds two ranges of different exchanges (its own poll's and the peer's) on every link, so every link

@@ -384,6 +384,10 @@ class DistributedMap:
         # the scenario's [radio] (net/radio.py), network frame: each link's range variance from the
         # SNR at the estimated geometry (range_var_m2); None: sigma_d^2 on every link
         self.radio = None
+        # the kept ranges' variance against a two-way range's (1; protocol v2's averaged exchange ranges:
+        # 3/4, nav.crlb.poll_exchange_counts): the link variance in the solve's weights, not the
+        # within-link consensus widths (those stay sigma_d)
+        self.range_var_factor = 1.0
         self.max_iter = max_iter
         self.tol_m = tol_m
         self.no_fix_sigma_m = no_fix_sigma_m
@@ -537,6 +541,22 @@ class DistributedMap:
         self._dirty = self.nf > 0
         return False
 
+    def revise_range(self, peer_id: int, old_m: float, new_m: float) -> bool:
+        """Replace the newest kept range of the link to ``peer_id`` equal to ``old_m`` by ``new_m`` (a better
+        measurement of the same exchange: protocol v2's member V4b for the poller's single-sided range).
+        False (nothing changed) if no kept range equals it (archived, or never taken)."""
+        k = self._index.get(peer_id)
+        if k is None:
+            return False
+        hit = np.flatnonzero((self._rk[:self._nr] == k) & (self._rv[:self._nr] == old_m))
+        if not len(hit):
+            return False
+        self._rv[hit[-1]] = float(new_m)
+        self._rver += 1
+        self._lver[k] += 1
+        self._dirty = self.nf > 0
+        return True
+
     def _archive(self, k: int) -> None:
         """Fold the older half of link ``k``'s ranges into its (weight, weighted sum) archive, with
         the weights of the last solve (bounded memory and cost on long runs)."""
@@ -621,8 +641,10 @@ class DistributedMap:
 
     def _link_var(self, x: np.ndarray, Pj: np.ndarray):
         """Range noise variance of the links from ``x`` (3,) to the peers at ``Pj`` (k, 3): ``sigma_d^2``
-        (a scalar), or under ``[radio]`` (k,) with each link's timing CRLB (:func:`net.radio.range_var_m2`)."""
-        return range_var_m2(x, Pj, self.radio, self.sigma_d_m)
+        (a scalar), or under ``[radio]`` (k,) with each link's timing CRLB (:func:`net.radio.range_var_m2`),
+        times ``range_var_factor`` (the kept ranges' variance against a two-way range's: 3/4 for protocol
+        v2's averaged ranges, docs/survey.md)."""
+        return self.range_var_factor * range_var_m2(x, Pj, self.radio, self.sigma_d_m)
 
     def _link_sigma(self, m: int):
         """Range noise sigma of the first ``m`` peer slots at the current estimate (scalar without ``[radio]``)."""
@@ -1027,7 +1049,8 @@ ESTIMATORS = {"dmap": DistributedMap, "dmap-nlos": DistributedMap, "dmap-ls": Di
 
 def make_estimator(name: str, station_id: int, pos0_m, cov0_m2, sigma_d_m: float,
                    ranges_per_update: int = 3, founder: bool = True, radio=None,
-                   peer_corr_est: float | None = None, clean_after_n: int | None = None) -> SurveyEstimator:
+                   peer_corr_est: float | None = None, clean_after_n: int | None = None,
+                   range_var_factor: float | None = None) -> SurveyEstimator:
     """``dmap`` (robust, default: a link weak while no two of its ranges agree, or until 3 agree while
     the station's own ranges show NLOS, :meth:`DistributedMap._adapt_weakness`), ``dmap-nlos`` (the
     same, always weak until 3 agree: slower clean convergence, docs/survey.md), ``dmap-ls`` (the same
@@ -1036,13 +1059,16 @@ def make_estimator(name: str, station_id: int, pos0_m, cov0_m2, sigma_d_m: float
     the dmap solve's consider factor of the peers' covariances instead of its default (protocol v2's
     poll sets its own, stations/core.py ``POLL_PEER_CORR_EST``); ``clean_after_n``: how many ranges in links
     with two or more a station holds before it may judge its ranges clean (:meth:`DistributedMap._adapt_weakness`;
-    the poll sets its own, ``POLL_CLEAN_AFTER_N``)."""
+    the poll sets its own, ``POLL_CLEAN_AFTER_N``); ``range_var_factor``: the ranges' variance against
+    a two-way range's (:meth:`DistributedMap._link_var`; the poll's averaged ranges, ``POLL_RANGE_VAR_FACTOR``)."""
     est = _make(name, station_id, pos0_m, cov0_m2, sigma_d_m, ranges_per_update, founder)
     est.radio = radio  # [radio]: each link weighted by its SNR's timing noise (net/radio.py range_var_m2)
     if peer_corr_est is not None and isinstance(est, DistributedMap):
         est.peer_corr_est = float(peer_corr_est)
     if clean_after_n is not None and isinstance(est, DistributedMap):
         est.clean_after_n = int(clean_after_n)
+    if range_var_factor is not None and isinstance(est, DistributedMap):
+        est.range_var_factor = float(range_var_factor)
     return est
 
 

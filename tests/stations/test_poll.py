@@ -300,3 +300,51 @@ def test_an_unconverged_poll_station_re_solves_on_the_navs_it_hears():
         t = np.asarray(est[sid])
         assert np.count_nonzero((t >= 1.0) & (t < 2.0)) > 1  # cycle 1: the navs heard
         assert np.count_nonzero((t >= 6.0) & (t < 8.0)) == 2  # converged: one per cycle
+
+
+def test_the_poller_takes_the_members_averaged_range_of_its_exchange():
+    """stations/core.py ``POLL_CLOSED``: each member lists its averaged range (V4b) of the polls it answered
+    in its next nav (``closed``); the poller's survey takes it as its range of that exchange, in place
+    of its single-sided range (which bridged until then). Every exchange of ours the member closed
+    arrives (``closed_in``), each link's kept ranges are the members' V4b of our polls and our own V4b
+    of theirs, one range per exchange: no single-sided range is left but the exchanges whose member
+    has not sent its nav yet."""
+    clocks = [Clock(offset_s=o, drift=f) for o, f in zip((2e-5, -3e-5, 5e-5, -1e-5), (1.8e-5, -1.9e-5, 7e-6, -1.2e-5))]
+    cores = _cores(clocks, freq_sigma=2e-6)
+    closed: dict[tuple[int, int], list[float]] = {}  # (poller, member) -> the member's V4b of its polls
+    for c in cores:
+        def nav(t_s, _c=c, _f=c._nav_msg):
+            m = _f(t_s)
+            for poller, r, _ in m.get("closed", ()):
+                closed.setdefault((poller, _c.id), []).append(r)
+            return m
+        c._nav_msg = nav
+    taken = _run(cores, clocks, 5.0)
+    for c in cores:
+        assert c.counters["closed_in"] == sum(len(v) for (p, _), v in closed.items() if p == c.id) > 0
+        for peer in c.est.links:
+            kept = sorted(c.est.link_ranges(peer)[0].tolist())
+            own_v4b = [r for p, r, ini in taken[c.id] if p == peer and not ini]
+            ss = [r for p, r, ini in taken[c.id] if p == peer and ini]
+            from_member = closed.get((c.id, peer), [])
+            assert set(from_member) <= set(kept) and set(own_v4b) <= set(kept)
+            bridging = set(kept) - set(from_member) - set(own_v4b)
+            assert bridging <= set(ss) and len(bridging) <= 1, (c.id, peer, bridging)
+            assert len(kept) == len(own_v4b) + len(from_member) + len(bridging)
+
+
+def test_a_closed_entry_of_no_exchange_of_ours_is_ignored():
+    """A nav's ``closed`` naming us for a poll whose reply we did not take (or another station) changes
+    nothing in our survey; the wire refuses a malformed entry."""
+    clocks = [Clock() for _ in POS]
+    cores = _cores(clocks, freq_sigma=2e-6)
+    _run(cores, clocks, 3.0)
+    c = cores[0]
+    before = (c.counters["closed_in"], c.est._nr, c.est._rv[:c.est._nr].copy())
+    nav = {"src": 2, "seq": 99, "stamp_s": 3.0, "kind": "nav", "cycle": 3, "slot": 1, "t_tx_s": 3.016,
+           "pos_m": POS[1].tolist(), "cov_m2": np.eye(3).tolist(), "n_updates": 3, "state": "surveying",
+           "ranges": [], "members": [1, 3, 4], "closed": [[1, 5.0, 9999], [3, 7.0, 1]]}
+    c.on_message(M.validate_msg(nav), 3.017)
+    assert (c.counters["closed_in"], c.est._nr) == before[:2] and np.array_equal(c.est._rv[:c.est._nr], before[2])
+    with pytest.raises(M.MessageError):
+        M.validate_msg({**nav, "closed": [[1, 5.0]]})
