@@ -802,10 +802,12 @@ class StationCore:
 
     def _converged_weights(self) -> None:
         """Protocol v2: from the first nav at which our horizontal sigma is at most ``POLL_LATE_SIGMA_D``
-        sigma_d on, the dmap solve charges the peers' covariances ``POLL_PEER_CORR_LATE`` times
-        (``POLL_PEER_CORR_EST`` before; docs/survey.md, "Protocol v2's poll", phase 4)."""
+        sigma_d and our vertical one at most ``POLL_LATE_SIGMA_Z_D`` sigma_d on, the dmap solve charges the
+        peers' covariances ``POLL_PEER_CORR_LATE`` times (``POLL_PEER_CORR_EST`` before; docs/survey.md,
+        "Protocol v2's poll", phase 4)."""
+        c, sd = self.est.cov_m2, self.cfg.sigma_d_m
         if (not self.poll or POLL_PEER_CORR_LATE is None or not self.est.name.startswith("dmap")
-                or self._horizontal_sigma_m(self.est.cov_m2) > POLL_LATE_SIGMA_D * self.cfg.sigma_d_m):
+                or self._horizontal_sigma_m(c) > POLL_LATE_SIGMA_D * sd or c[2, 2] > (POLL_LATE_SIGMA_Z_D * sd) ** 2):
             return
         self.est.peer_corr_est = POLL_PEER_CORR_LATE
 
@@ -1106,13 +1108,16 @@ SS_BIAS_GATE = 0.25
 # so the errors the peers share (the field's collective modes) must be charged more; the factor is
 # measured, not derived (its table: docs/survey.md, "Protocol v2's poll")
 POLL_PEER_CORR_EST = 3.0
-# protocol v2: the factor once the station's horizontal sigma is at most POLL_LATE_SIGMA_D sigma_d
-# (StationCore._converged_weights; None: POLL_PEER_CORR_EST throughout). The large factor is for the
-# start, when the peers are metres off; converged, it makes the sweeps' fixed point favour the links
-# to well-known peers where the joint MAP weighs every link alike. 0 there, or from sigma_d on, let
-# the field settle in a wrong configuration (docs/survey.md, "Protocol v2's poll", phases 3 and 4)
+# protocol v2: the factor once the station's horizontal sigma is at most POLL_LATE_SIGMA_D sigma_d and
+# its vertical one at most POLL_LATE_SIGMA_Z_D sigma_d (StationCore._converged_weights; None:
+# POLL_PEER_CORR_EST throughout). The large factor is for the start, when the peers are metres off;
+# converged, it makes the sweeps' fixed point favour the links to well-known peers where the joint MAP
+# weighs every link alike. 0 from the start, from a horizontal sigma_d on, or while the height was
+# still 8 m uncertain (one trial of 100: the field's mirror image in height) let the field settle in a
+# wrong configuration (docs/survey.md, "Protocol v2's poll", phases 3 and 4)
 POLL_PEER_CORR_LATE: float | None = 0.5
 POLL_LATE_SIGMA_D = 0.5
+POLL_LATE_SIGMA_Z_D = 4.0
 # protocol v2: ranges in links with two or more that a dmap station needs before it may judge its ranges
 # clean (DistributedMap.clean_after_n, 20 in the addressed protocol). By its first solve a polling station
 # holds two ranges of different exchanges (its own poll's and the peer's) on every link, so every link

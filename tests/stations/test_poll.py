@@ -348,3 +348,24 @@ def test_a_closed_entry_of_no_exchange_of_ours_is_ignored():
     assert (c.counters["closed_in"], c.est._nr) == before[:2] and np.array_equal(c.est._rv[:c.est._nr], before[2])
     with pytest.raises(M.MessageError):
         M.validate_msg({**nav, "closed": [[1, 5.0]]})
+
+
+def test_the_consider_factor_drops_once_the_station_is_converged_in_height_too():
+    """stations/core.py ``POLL_PEER_CORR_LATE``: the dmap solve charges the peers' covariances 3 times
+    while the station is metres off, 0.5 times from the first nav at which its horizontal sigma is at
+    most sigma_d / 2 and its vertical one at most 4 sigma_d (one way); a horizontal fix with a height
+    still metres off keeps 3 (the field's mirror image in height, docs/survey.md phase 4)."""
+    import stations.core as core_mod
+
+    c = _cores([Clock() for _ in POS])[3]
+    sd = c.cfg.sigma_d_m
+    assert c.est.peer_corr_est == core_mod.POLL_PEER_CORR_EST == 3.0
+    c.est.cov_m2 = np.diag([0.01, 0.01, (8.0 * sd) ** 2])  # horizontal 0.14 m, height 4 m
+    c._converged_weights()
+    assert c.est.peer_corr_est == 3.0
+    c.est.cov_m2 = np.diag([0.01, 0.01, (2.0 * sd) ** 2])
+    c._converged_weights()
+    assert c.est.peer_corr_est == core_mod.POLL_PEER_CORR_LATE == 0.5
+    c.est.cov_m2 = np.diag([1.0, 1.0, 1.0])
+    c._converged_weights()
+    assert c.est.peer_corr_est == 0.5
