@@ -379,6 +379,8 @@ TABLE: dict[str, Run | Skip] = {
     "larns bench survey --trials 100 --sigma-d 0.5 --estimator dmap": Skip(BENCH),
     "larns bench survey --trials 100 --sigma-d 0.5 --estimator dmap --ranging poll": Skip(BENCH),
     "larns bench survey --trials 100 --sigma-d 0.5 --estimator dmap --ranging poll --duration 10 --times 1 2 3 5 10 --no-map": Skip(BENCH),
+    "larns bench survey --trials 20 --sigma-d 0.5 --estimator dmap --ranging poll --duration 40 --times 10 20 30 40 --jobs 1 --no-map": Skip(BENCH),
+    "larns bench survey --trials 20 --seed 21 --sigma-d 0.5 --estimator dmap --ranging poll --duration 40 --times 10 20 30 40 --jobs 1 --no-map": Skip(BENCH),
     "larns bench sync --trials 100 --duration 60": Skip(BENCH),
     "larns bench sync --trials 100 --duration 60 --ranging poll": Skip(BENCH),
     "larns bench sync --trials 100 --ranging poll --jobs 2": Skip(BENCH),
