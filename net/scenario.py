@@ -67,7 +67,7 @@ Format (see docs/scenarios.md for the full reference)::
     [survey]
     estimator = "dmap"
     ranges_per_update = 3         # seed-ukf: l
-    datum = "field"               # or "founders": stations 1-3 hold the frame throughout
+    datum = "founders"            # or "field": the converged stations take the frame over
 
 Everything is checked when the file is loaded (:func:`load`): an invalid file raises one
 :class:`ScenarioError` that names the file, the section and the key, e.g.
@@ -216,10 +216,10 @@ class Scenario:
     faults: list["StationFault"] = field(default_factory=list)  # [[faults]]: faulty or lying stations
     source: str = ""  # the file it was loaded from ("" when built from a dict)
     site: Site | None = None  # [site]: the physical frame on WGS84, tied to the network frame
-    # [survey] datum: "field" (the converged stations take the frame over from the founders:
-    # docs/architecture.md, "The frame datum"; the default since its stations are judged in the
-    # field's own datum, docs/survey.md) or "founders" (stations 1-3 hold the frame throughout)
-    datum: str = "field"
+    # [survey] datum: "founders" (stations 1-3 hold the frame throughout) or "field" (the converged
+    # stations take it over: docs/architecture.md, "The frame datum"; opt-in while its known height
+    # defect stands, docs/survey.md)
+    datum: str = "founders"
 
     def index(self, station_id: int) -> int:
         return self.ids.index(station_id)
@@ -656,7 +656,7 @@ def from_dict(raw: dict[str, Any], base_dir: str | Path | None = None) -> Scenar
         sigma0_m=float(init.get("sigma0_m", 10.0)),
         estimator=str(survey.get("estimator", "dmap")),
         ranges_per_update=int(survey.get("ranges_per_update", 3)),
-        datum=str(survey.get("datum", "field")),
+        datum=str(survey.get("datum", "founders")),
         join_ids=join_ids,
         aircraft=dict(raw.get("aircraft", {})),
         raw=raw,
@@ -1039,7 +1039,7 @@ def _validate_survey(raw: dict) -> None:
                             "(no fix) (expected sigma0_m > 0, or estimator dmap)")
     if "ranges_per_update" in survey:
         _int(survey["ranges_per_update"], "[survey] ranges_per_update", 1)
-    if survey.get("datum", "field") not in DATUMS:
+    if survey.get("datum", "founders") not in DATUMS:
         raise ScenarioError(f"[survey] datum: {survey['datum']!r} (expected one of {', '.join(DATUMS)})")
 
 
