@@ -183,9 +183,10 @@ class StationCore:
         self.ranges_out: list[list] = []
         # protocol v2: our averaged ranges (V4b) of the polls we answered since our last nav,
         # [poller, range_m, poll seq] (the nav's ``closed``); our own polls' exchanges awaiting the
-        # member's V4b, (member, poll seq) -> the single-sided range the survey took meanwhile (None: none)
+        # member's V4b, (member, poll seq) -> the single-sided range the survey and the integrity test
+        # took meanwhile (None: none)
         self.closed_out: list[list] = []
-        self._ss_open: dict[tuple[int, int], float | None] = {}
+        self._ss_open: dict[tuple[int, int], tuple[float | None, float | None]] = {}
         self.counters = {"requests": 0, "responses": 0, "lost": 0, "ranges_in": 0, "ignored": 0,
                          "rejected_ranges": 0, "late": 0, "sync_in": 0, "implausible": 0}
         # protocol v2: our open poll {seq, t1, index: member -> k, rx: member -> T4, entries}; the polls
@@ -694,7 +695,9 @@ class StationCore:
         gated = self.poll and self._rate_bias_m(corr, delay_s) > SS_BIAS_GATE * self.cfg.sigma_d_m
         closes = self._takes_closed()
         if closes:  # the member's V4b of this exchange replaces (or stands in for) our single-sided range
-            self._ss_open[(src, self._poll_out["seq"])] = None if gated or not POLL_SS_BRIDGE else float(range_m)
+            # (what the survey took, what the integrity test took), to be replaced by the V4b
+            self._ss_open[(src, self._poll_out["seq"])] = (None if gated or not POLL_SS_BRIDGE else float(range_m),
+                                                           None if gated else float(range_m))
         if gated:
             self.counters["ss_gated"] += 1  # the time transfer stands (V7 needs no frequency); the range not
             self._refresh_state()
@@ -720,7 +723,7 @@ class StationCore:
         for peer, range_m, seq in closed:
             if peer != self.id or (src, seq) not in self._ss_open:
                 continue
-            ss = self._ss_open.pop((src, seq))
+            ss, ss_test = self._ss_open.pop((src, seq))
             if not 0.0 < range_m < self.cfg.max_range_m:
                 self.counters["rejected_ranges"] += 1
                 continue
@@ -729,6 +732,12 @@ class StationCore:
                 self.est.on_range(src, float(range_m), t_rx_s, True, pos, cov)
             else:
                 self.est.revise_range(src, ss, float(range_m))
+            # the integrity test judges the link on the range the survey uses (a member lying in its
+            # ``closed`` is tested as one lying in its reply stamps)
+            if ss_test is None:
+                self.integrity.on_range(src, float(range_m), t_rx_s)
+            else:
+                self.integrity.revise_range(src, ss_test, float(range_m))
 
     def _rate_bias_m(self, corr, delay_s: float) -> float:
         """Protocol v2, the poller's single-sided range: 1-sigma of its error from the two clocks'

@@ -197,6 +197,21 @@ class StationIntegrity:
         st.ranges.append((float(t_s), float(range_m)))
         st.n_in += 1
 
+    def revise_range(self, peer_id: int, old_m: float, new_m: float) -> bool:
+        """Replace the newest range of ``peer_id`` equal to ``old_m`` in the window by ``new_m`` (a better
+        measurement of the same exchange, as the survey takes it: protocol v2's member V4b for the
+        poller's single-sided range); False if the window holds none."""
+        st = self.peers.get(peer_id)
+        if st is None:
+            return False
+        for i in range(len(st.ranges) - 1, -1, -1):
+            t, r = st.ranges[i]
+            if r == old_m:
+                st.ranges[i] = (t, float(new_m))
+                st.window_key = None  # the window's content changed
+                return True
+        return False
+
     def _clusters(self, st: PeerTest, sigma_m: float) -> list[tuple[float, int]]:
         """(mean range, count) of the window's clusters that the test uses (module docstring): the
         line-of-sight cluster and the newest range's, ``sigma_m`` the link's range noise. Depends on the

@@ -350,6 +350,25 @@ def test_a_closed_entry_of_no_exchange_of_ours_is_ignored():
         M.validate_msg({**nav, "closed": [[1, 5.0]]})
 
 
+def test_the_integrity_test_judges_the_range_the_survey_takes_from_closed():
+    """A member's ``closed`` range replaces our single-sided range of that exchange in the integrity
+    test's window too, so a member lying there is tested as one lying in its reply stamps."""
+    clocks = [Clock() for _ in POS]
+    cores = _cores(clocks, freq_sigma=2e-6)
+    _run(cores, clocks, 3.5)
+    c = next(c for c in cores if any(test is not None for _, test in c._ss_open.values()))
+    (member, seq), (ss, ss_test) = next((k, v) for k, v in c._ss_open.items() if v[1] is not None)
+    lie = ss_test + 40.0
+    nav = {"src": member, "seq": 99, "stamp_s": 3.6, "kind": "nav", "cycle": 3, "slot": 1, "t_tx_s": 3.6,
+           "pos_m": POS[member - 1].tolist(), "cov_m2": np.eye(3).tolist(), "n_updates": 3, "state": "surveying",
+           "ranges": [], "members": [p for p in range(1, len(POS) + 1) if p != member],
+           "closed": [[c.id, lie, seq]]}
+    c.on_message(M.validate_msg(nav), 3.601)
+    window = [r for _, r in c.integrity.peers[member].ranges]
+    assert lie in window and ss_test not in window
+    assert ss is None or lie in c.est.link_ranges(member)[0].tolist()
+
+
 def test_the_consider_factor_drops_once_the_station_is_converged_in_height_too():
     """stations/core.py ``POLL_PEER_CORR_LATE``: the dmap solve charges the peers' covariances 3 times
     while the station is metres off, 0.5 times from the first nav at which its horizontal sigma is at
