@@ -141,13 +141,19 @@ def _ranges(v: Any, name: str) -> list[list[Any]]:
 def _closed(v: Any, name: str) -> list[list[Any]]:
     """A nav's ``closed`` (protocol v2): the sender's averaged ranges (V4b) of the polls it answered since
     its last nav, ``[[poller, range_m, poll seq], ...]``."""
+    return _rows(v, name, name, "[poller, range_m, poll_seq]", (_station_id, _nonneg, _count))
+
+
+def _rows(v: Any, name: str, label: str, shape: str, cells: tuple) -> list[list[Any]]:
+    """A list of at most ``MAX_LIST`` fixed-length rows, each cell checked by its function of ``cells``
+    (``label``: the list's name in the error messages, ``shape``: a row's as they state it)."""
     if not isinstance(v, (list, tuple)) or len(v) > MAX_LIST:
-        raise MessageError("shape", f"{name} must be a list of <= {MAX_LIST} entries")
+        raise MessageError("shape", f"{label} must be a list of <= {MAX_LIST} entries")
     out = []
     for r in v:
-        if not isinstance(r, (list, tuple)) or len(r) != 3:
-            raise MessageError("shape", f"{name} entries must be [poller, range_m, poll_seq]")
-        out.append([_station_id(r[0], name), _nonneg(r[1], name), _count(r[2], name)])
+        if not isinstance(r, (list, tuple)) or len(r) != len(cells):
+            raise MessageError("shape", f"{label} entries must be {shape}")
+        out.append([f(x, name) for f, x in zip(cells, r)])
     return out
 
 
@@ -175,14 +181,7 @@ def _poll_final(v: Any, name: str) -> dict[str, Any]:
     transmit stamp, "rx": [[member, T4: the sender's receive stamp of its reply], ...]}``."""
     if not isinstance(v, dict) or set(v) != {"seq", "t1", "rx"}:
         raise MessageError("shape", f"{name} must be a map with exactly ['rx', 'seq', 't1']")
-    rx = v["rx"]
-    if not isinstance(rx, (list, tuple)) or len(rx) > MAX_LIST:
-        raise MessageError("shape", f"{name}.rx must be a list of <= {MAX_LIST} entries")
-    out = []
-    for e in rx:
-        if not isinstance(e, (list, tuple)) or len(e) != 2:
-            raise MessageError("shape", f"{name}.rx entries must be [member, t4_s]")
-        out.append([_station_id(e[0], name), _num(e[1], name)])
+    out = _rows(v["rx"], name, f"{name}.rx", "[member, t4_s]", (_station_id, _num))
     return {"seq": _count(v["seq"], name), "t1": _num(v["t1"], name), "rx": out}
 
 
